@@ -1,0 +1,142 @@
+"""Keyframe files: parsing, the built-in example, one-line errors naming file, keyframe, field."""
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from trajgen import quat as Q
+from trajgen.keyframes import BUILTIN_EXAMPLE, KeyframeFileError, load_keyframe_file
+
+GOOD = """
+[spline]
+k = 3
+boundary = "natural"
+
+[stream]
+rate_hz = 250
+
+[gimbal]
+servo = "XL430-W250"
+
+[[keyframes]]
+t = 0.0
+pan = 90.0
+
+[[keyframes]]
+t = 1.5
+quat = [2.0, 0.0, 0.0, 0.0]
+
+[[keyframes]]
+t = 2.0
+tilt = 30.0
+"""
+
+
+def write(tmp_path, text, name="keys.toml"):
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_good_file(tmp_path):
+    kf = load_keyframe_file(write(tmp_path, GOOD))
+    np.testing.assert_array_equal(kf.times, [0.0, 1.5, 2.0])
+    np.testing.assert_allclose(kf.quats[0], [np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)])
+    np.testing.assert_allclose(kf.quats[1], [1, 0, 0, 0])  # normalised
+    np.testing.assert_allclose(kf.quats[2], Q.from_axis_angle([0, 1, 0], np.pi / 6))
+    assert kf.spline_options == {"k": 3, "boundary": "natural"}
+    assert kf.rate_hz == 250.0
+    assert kf.tables == {"gimbal": {"servo": "XL430-W250"}}
+    s = kf.spline()
+    assert s.k == 3 and s.boundary == "natural"
+    assert Q.distance(s(kf.times), kf.quats).max() < 1e-12
+
+
+def test_builtin_and_shipped_examples_load():
+    from pathlib import Path
+
+    files = [BUILTIN_EXAMPLE, *sorted(Path(__file__).parents[1].glob("examples/*.toml"))]
+    assert len(files) >= 4
+    for f in files:
+        kf = load_keyframe_file(f)
+        assert len(kf.times) >= 3
+        kf.spline()
+
+
+KEYS = """
+[[keyframes]]
+t = 0.0
+pan = 0.0
+"""
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("[[keyframes]]\nt = 0.0\npan = 'abc'\n" + KEYS.replace("0.0", "1.0", 1),
+         r"keyframe 1: field 'pan': expected a finite number, got 'abc'"),
+        (KEYS + "\n[[keyframes]]\nt = 1.0\ntlt = 3.0\n",
+         r"keyframe 2: unknown field 'tlt' \(known: t, pan, tilt, roll, quat\)"),
+        (KEYS + "\n[[keyframes]]\npan = 3.0\n", r"keyframe 2: field 't' is missing"),
+        (KEYS + "\n[[keyframes]]\nt = 0.0\npan = 3.0\n",
+         r"keyframe 2: field 't': 0 s is not after keyframe 1's 0 s"),
+        (KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [1, 0, 0]\n",
+         r"keyframe 2: field 'quat': expected \[w, x, y, z\], got \[1, 0, 0\]"),
+        (KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [0, 0, 0, 0]\n",
+         r"keyframe 2: field 'quat': zero quaternion"),
+        (KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [1, 0, 0, 0]\npan = 2\n",
+         r"keyframe 2: give either 'quat' or pan/tilt/roll, not both"),
+        (KEYS + "\n[[keyframes]]\nt = 1.0\n", r"keyframe 2: no orientation"),
+        (KEYS + "\n[[keyframes]]\nt = true\npan = 1\n",
+         r"keyframe 2: field 't': expected a finite number, got True"),
+        (KEYS, r"\[\[keyframes\]\]: at least 2 are needed, got 1"),
+        ("[spline]\nk = 2\n", r"no \[\[keyframes\]\]"),
+        ("[spline]\nk = 0\n" + KEYS * 2, r"\[spline\] k: expected an integer >= 1, got 0"),
+        ("[spline]\nboundary = 'free'\n" + KEYS,
+         r"\[spline\] boundary: expected one of rest, natural, closed, got 'free'"),
+        ("[spline]\nkk = 2\n" + KEYS, r"\[spline\] unknown key 'kk'"),
+        ("[stream]\nrate_hz = -5\n" + KEYS, r"\[stream\] rate_hz: expected > 0, got -5"),
+        ("[keyframe]\nt = 1\n", r"unknown table \[keyframe\] \(known: spline, keyframes"),
+        ("[[keyframes]\nt = 1\n", r"invalid TOML"),
+        ("[spline]\nboundary = 'closed'\n" + KEYS + "\n[[keyframes]]\nt = 1.0\npan = 5.0\n"
+         "\n[[keyframes]]\nt = 2.0\npan = 9.0\n",
+         r"last keyframe to repeat the first; they are 9 deg apart"),
+    ],
+)
+def test_malformed_files_raise_one_line_errors(tmp_path, text, match):
+    path = write(tmp_path, text)
+    with pytest.raises(KeyframeFileError, match=match) as info:
+        load_keyframe_file(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: ") and "\n" not in message
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(KeyframeFileError, match="nope.toml: no such file"):
+        load_keyframe_file(tmp_path / "nope.toml")
+
+
+def test_plan_command_writes_csv(tmp_path):
+    from trajgen.cli import main
+
+    out = tmp_path / "plan.csv"
+    assert main(["plan", str(write(tmp_path, GOOD)), "--rate", "10", "--out", str(out)]) == 0
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert rows.shape == (21, 11)
+    np.testing.assert_allclose(rows[[0, -1], 0], [0.0, 2.0])
+    np.testing.assert_allclose(np.linalg.norm(rows[:, 1:5], axis=1), 1.0, atol=1e-9)
+
+
+def test_plan_command_bad_file_exits_2_with_one_line(tmp_path):
+    path = write(tmp_path, KEYS + "\n[[keyframes]]\nt = 1.0\ntlt = 3.0\n")
+    proc = subprocess.run(
+        [sys.executable, "-m", "trajgen.cli", "plan", str(path)], capture_output=True, text=True
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"trajgen: error: {path}: keyframe 2: unknown field 'tlt' (known: t, pan, tilt, roll, quat)"
+    ]
+    assert "Traceback" not in proc.stderr

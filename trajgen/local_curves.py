@@ -1,0 +1,275 @@
+"""Local curves through three keyframes (Kim & Nam 1995, SPEC section 2).
+
+Each interior keyframe ``i`` gets a curve ``C_i(t)`` on S^3 through
+``q_{i-1}, q_i, q_{i+1}`` at ``t_{i-1}, t_i, t_{i+1}``. The curves of one spline
+are stored as a :class:`LocalCurves` table (one row a curve, numpy arrays a
+column) so that any mix of curves is evaluated in one vectorised pass.
+
+Kinds:
+
+- ``POINT``: a held keyframe (the end curves of ``boundary="rest"``).
+- ``CIRCLE``: the circle on S^3 through the three points (SPEC 2a), with the
+  time-to-angle map ``theta = a3 g(s)``.
+- ``PARABOLA``: ``exp(v(t)) q_i``, ``v`` the quadratic through the logs (SPEC 2b).
+- ``GEODESIC``: a repeated keyframe (SPEC 2c): the geodesic between the two
+  distinct points, flat on the repeated part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import jet as J
+from . import quat as Q
+
+POINT, CIRCLE, PARABOLA, GEODESIC = range(4)
+KIND_NAMES = ("point", "circle", "parabola", "geodesic")
+
+# Angle maps g(s) for circles.
+G_POLY, G_POWER, G_RATIONAL = range(3)
+
+#: Keyframes closer than this on S^3 (chord) count as the same.
+SAME_POINT = 1e-9
+
+
+class NoCircleError(ValueError):
+    """Three keyframes admit no usable circle (a reversal)."""
+
+
+@dataclass
+class CurveRow:
+    """Parameters of one local curve (see module docstring); unused fields stay zero."""
+
+    kind: int
+    t: tuple[float, float, float]  # (t_{i-1}, t_i, t_{i+1})
+    q: np.ndarray  # (4,) the POINT, the PARABOLA's q_i, the GEODESIC's start
+    # CIRCLE
+    centre: np.ndarray | None = None
+    radius: float = 0.0
+    e1: np.ndarray | None = None
+    e2: np.ndarray | None = None
+    a3: float = 0.0
+    g_kind: int = G_POLY
+    g_coef: np.ndarray | None = None  # (4,) cubic coefficients, or (alpha,), or (b,)
+    # PARABOLA: v(tau) = A tau + B tau^2, tau = t - t_i;  GEODESIC: L = log(q_end q_start*)
+    A: np.ndarray | None = None
+    B: np.ndarray | None = None
+    # GEODESIC: +1 rises after s_i, -1 settles before s_i; exponent k + 1
+    rise: int = 0
+    power: int = 0
+
+
+def _same(p: np.ndarray, q: np.ndarray) -> bool:
+    return bool(np.linalg.norm(p - q) < SAME_POINT)
+
+
+def circle_through(p1, p2, p3):
+    """The oriented circle through three distinct points of S^3 (SPEC 2a).
+
+    Returns
+    -------
+    centre : ndarray, shape (4,)
+    radius : float
+    e1, e2 : ndarray, shape (4,)
+        In-plane orthonormal basis, ``e1`` towards ``p1``, oriented so that the arc
+        from ``p1`` through ``p2`` to ``p3`` runs at increasing angle.
+    a2, a3 : float
+        Angles of ``p2`` and ``p3``, ``0 < a2 < a3 < 2 pi``.
+    """
+    A, B = p2 - p1, p3 - p1
+    G = np.array([[A @ A, A @ B], [A @ B, B @ B]])
+    a, b = np.linalg.solve(G, [A @ A / 2, B @ B / 2])
+    c = p1 + a * A + b * B
+    r = np.linalg.norm(p1 - c)
+    e1 = (p1 - c) / r
+    # e2 from p2; if p2 is diametrically opposite p1 on the circle, use p3.
+    for p in (p2, p3):
+        w = (p - c) - ((p - c) @ e1) * e1
+        if np.linalg.norm(w) > 1e-9 * r:
+            e2 = w / np.linalg.norm(w)
+            break
+
+    def angle(p):
+        return np.arctan2((p - c) @ e2, (p - c) @ e1) % (2 * np.pi)
+
+    a2, a3 = angle(p2), angle(p3)
+    if a3 < a2:
+        e2, a2, a3 = -e2, 2 * np.pi - a2, 2 * np.pi - a3
+    return c, r, e1, e2, a2, a3
+
+
+def angle_map(s_i: float, phi: float, reparam: str) -> tuple[int, np.ndarray]:
+    """``g: [0, 1] -> [0, 1]``, increasing, ``g(s_i) = phi`` (SPEC 2a, time to angle).
+
+    Returns the kind and coefficients: ``G_POLY`` with cubic coefficients
+    ``(c0, c1, c2, c3)`` in s, ``G_POWER`` with ``(alpha,)`` for ``s ** alpha``,
+    ``G_RATIONAL`` with ``(b,)`` for ``(1 + b) s / (1 + b s)``.
+    """
+    if reparam == "rational":
+        return G_RATIONAL, np.array([(phi - s_i) / (s_i * (1 - phi))])
+    if abs(phi - s_i) < 1e-12:
+        return G_POLY, np.array([0.0, 1.0, 0.0, 0.0])
+    if s_i**2 <= phi <= 2 * s_i - s_i**2:
+        a = (phi - s_i) / (s_i**2 - s_i)
+        return G_POLY, np.array([0.0, 1 - a, a, 0.0])
+    if s_i**3 <= phi < s_i**2:
+        a = (phi - s_i**2) / (s_i**3 - s_i**2)
+        return G_POLY, np.array([0.0, 0.0, 1 - a, a])
+    r, p = 1 - s_i, 1 - phi
+    if r**3 <= p < r**2:
+        a = (p - r**2) / (r**3 - r**2)
+        # 1 - (a (1-s)^3 + (1-a) (1-s)^2), expanded in powers of s.
+        return G_POLY, np.array([0.0, 2 + a, -1 - 2 * a, a])
+    return G_POWER, np.array([np.log(phi) / np.log(s_i)])
+
+
+def build_curve(qs: np.ndarray, ts, *, k: int, local: str, reparam: str) -> CurveRow:
+    """The local curve through keyframes ``qs`` (3, 4) at times ``ts`` (3,)."""
+    p1, p2, p3 = qs
+    ts = tuple(float(x) for x in ts)
+    same12, same23 = _same(p1, p2), _same(p2, p3)
+    if same12 and same23:
+        return CurveRow(POINT, ts, p2)
+    if same12 or same23:
+        start, end = (p2, p3) if same12 else (p1, p2)
+        return CurveRow(
+            GEODESIC,
+            ts,
+            start,
+            A=Q.log(Q.mul(end, Q.conj(start))),
+            rise=1 if same12 else -1,
+            power=k + 1,
+        )
+    if local == "auto":
+        local = "circle" if circle_behaves(p1, p2, p3) else "parabola"
+    if local == "parabola":
+        tm, tp = ts[0] - ts[1], ts[2] - ts[1]
+        Lm = Q.log(Q.mul(p1, Q.conj(p2)))
+        Lp = Q.log(Q.mul(p3, Q.conj(p2)))
+        # v(tau) = A tau + B tau^2 through (tm, Lm) and (tp, Lp).
+        det = tm * tp * (tp - tm)
+        A = (Lm * tp**2 - Lp * tm**2) / det
+        B = (Lp * tm - Lm * tp) / det
+        return CurveRow(PARABOLA, ts, p2, A=A, B=B)
+    if _same(p1, p3):
+        raise NoCircleError("reversal")
+    c, r, e1, e2, a2, a3 = circle_through(p1, p2, p3)
+    s_i = (ts[1] - ts[0]) / (ts[2] - ts[0])
+    g_kind, g_coef = angle_map(s_i, a2 / a3, reparam)
+    return CurveRow(
+        CIRCLE, ts, p2, centre=c, radius=r, e1=e1, e2=e2, a3=a3, g_kind=g_kind, g_coef=g_coef
+    )
+
+
+def circle_behaves(p1, p2, p3) -> bool:
+    """The rule of ``local="auto"``: is the circle through the triple usable?
+
+    True when the arc from ``p1`` through ``p2`` to ``p3`` spans at most half its
+    circle (``a3 <= pi``). By the inscribed angle theorem that is the same as the
+    triangle ``p1 p2 p3`` having an angle of at least 90 degrees at ``p2``, i.e.
+    ``(p1 - p2) . (p3 - p2) <= 0``: the path turns by at most a right angle at
+    the keyframe. Reversals and sharp turns, where the arc would loop most of the
+    way round, fail it.
+    """
+    return bool((p1 - p2) @ (p3 - p2) <= 0.0)
+
+
+class LocalCurves:
+    """A table of local curves, evaluated as jets in one vectorised pass."""
+
+    def __init__(self, rows: list[CurveRow]):
+        self.kind = np.array([r.kind for r in rows])
+        self.t = np.array([r.t for r in rows], dtype=float)  # (C, 3)
+        self.q = np.array([r.q for r in rows], dtype=float)  # (C, 4)
+
+        def col(name, width):
+            """Component-first (width, C), so gathers by curve id are contiguous."""
+            zero = np.zeros(width)
+            values = [zero if getattr(r, name) is None else getattr(r, name) for r in rows]
+            return np.array(values, dtype=float).reshape(len(rows), width).T.copy()
+
+        self.qT = self.q.T.copy()
+        self.centre = col("centre", 4)
+        self.radius = np.array([r.radius for r in rows])
+        self.e1, self.e2 = col("e1", 4), col("e2", 4)
+        self.a3 = np.array([r.a3 for r in rows])
+        self.g_kind = np.array([r.g_kind for r in rows])
+        self.g_coef = np.array(
+            [np.pad(r.g_coef if r.g_coef is not None else [], (0, 4))[:4] for r in rows]
+        )
+        self.A, self.B = col("A", 3), col("B", 3)
+        self.rise = np.array([r.rise for r in rows])
+        self.power = np.array([r.power for r in rows], dtype=float)
+
+    def __len__(self) -> int:
+        return len(self.kind)
+
+    def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> J.Jet:
+        """Curves ``ids`` (M,) at times ``t`` (M,): a quaternion jet (order + 1, 4, M)."""
+        out = np.zeros((order + 1, 4, len(t)))
+        kinds = self.kind[ids]
+        for kind, fn in (
+            (POINT, self._point),
+            (CIRCLE, self._circle),
+            (PARABOLA, self._parabola),
+            (GEODESIC, self._geodesic),
+        ):
+            m = kinds == kind
+            if m.any():
+                out[:, :, m] = fn(ids[m], J.Jet.variable(t[m], order)).c
+        return J.Jet(out)
+
+    def _s(self, ids, tj: J.Jet) -> J.Jet:
+        """Normalised time ``s = (t - t_{i-1}) / (t_{i+1} - t_{i-1})`` over the curve's window."""
+        t0, t2 = self.t[ids, 0], self.t[ids, 2]
+        return (tj - t0) * (1.0 / (t2 - t0))
+
+    def _point(self, ids, tj: J.Jet) -> J.Jet:
+        return J.Jet.constant(self.qT[:, ids], tj.order)
+
+    def _circle(self, ids, tj: J.Jet) -> J.Jet:
+        s = self._s(ids, tj)
+        g = J.Jet(np.zeros_like(s.c))
+        gk, coef = self.g_kind[ids], self.g_coef[ids]
+        m = gk == G_POLY
+        if m.any():
+            g.c[:, m] = J.polyval(coef[m].T, s[m]).c
+        m = gk == G_POWER
+        if m.any():
+            # s ** alpha has infinite derivatives at s = 0 when alpha < 1 (the paper's
+            # power law): there they are taken at s = 1e-12, large but finite.
+            sm = J.Jet(s[m].c.copy())
+            at_zero = sm.c[0] < 1e-12
+            sm.c[0] = np.maximum(sm.c[0], 1e-12)
+            gp = J.power(sm, coef[m, 0])
+            gp.c[0] = np.where(at_zero, 0.0, gp.c[0])
+            g.c[:, m] = gp.c
+        m = gk == G_RATIONAL
+        if m.any():
+            b = coef[m, 0]
+            g.c[:, m] = ((1.0 + b) * s[m] / (b * s[m] + 1.0)).c
+        sin, cos = J.sin_cos(g * self.a3[ids])
+        r = self.radius[ids]
+        e1, e2 = r * self.e1[:, ids], r * self.e2[:, ids]
+        return J.scale(cos, e1) + J.scale(sin, e2) + self.centre[:, ids]
+
+    def _parabola(self, ids, tj: J.Jet) -> J.Jet:
+        tau = tj - self.t[ids, 1]
+        v = J.scale(tau, self.A[:, ids]) + J.scale(tau * tau, self.B[:, ids])
+        return J.qmul(J.qexp(v), self.qT[:, ids])
+
+    def _geodesic(self, ids, tj: J.Jet) -> J.Jet:
+        s = self._s(ids, tj)
+        s_i = (self.t[ids, 1] - self.t[ids, 0]) / (self.t[ids, 2] - self.t[ids, 0])
+        rise = self.rise[ids] > 0
+        # Rising: h = x^(k+1), x = (s - s_i) / (1 - s_i) on s > s_i, else 0.
+        # Settling: h = 1 - x^(k+1), x = (s_i - s) / s_i on s < s_i, else 1.
+        x = J.Jet(np.where(rise, (s - s_i).c / (1 - s_i), (s_i - s).c / s_i))
+        active = x.value > 0
+        x.c[0] = np.maximum(x.c[0], 0.0)
+        xp = J.power(x, self.power[ids])
+        xp = J.Jet(np.where(active, xp.c, 0.0))
+        h = J.Jet(np.where(rise, xp.c, (1.0 - xp).c))
+        return J.qmul(J.qexp(J.scale(h, self.A[:, ids])), self.qT[:, ids])

@@ -1,0 +1,172 @@
+"""The orientation-path protocol shared by the spline and the comparison methods.
+
+A path is defined on ``[t_start, t_end]`` by keyframe times and gives, at any
+time in that range, a unit quaternion and its angular velocity, acceleration and
+jerk. Subclasses write the path once as a quaternion jet (:meth:`_jet`); the
+derivatives follow exactly (see :mod:`trajgen.jet`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import jet as J
+from .sampling import sample_times
+
+FRAMES = ("space", "body")
+
+
+class Samples(NamedTuple):
+    """Orientations and their derivatives at times ``t`` (M,).
+
+    ``q`` (M, 4) unit quaternions (w, x, y, z); ``omega``, ``alpha``, ``jerk``
+    (M, 3) angular velocity (rad/s), acceleration (rad/s^2) and jerk (rad/s^3).
+    Fields above the requested ``max_order`` are None.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    omega: np.ndarray | None
+    alpha: np.ndarray | None
+    jerk: np.ndarray | None
+
+
+def check_times(times, n: int) -> np.ndarray:
+    """Validate keyframe times: shape (n,), finite, strictly increasing."""
+    try:
+        t = np.asarray(times, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"Expected `times` to be numeric, got {type(times).__name__}.") from e
+    if t.shape != (n,):
+        raise ValueError(f"Expected `times` to have shape ({n},) to match `quats`, got {t.shape}.")
+    if not np.isfinite(t).all():
+        raise ValueError(f"`times` must be finite, got {t[~np.isfinite(t)][0]}.")
+    dt = np.diff(t)
+    if (dt <= 0).any():
+        i = int(np.argmax(dt <= 0))
+        raise ValueError(
+            f"`times` must be strictly increasing, got times[{i}] = {t[i]} "
+            f"and times[{i + 1}] = {t[i + 1]}."
+        )
+    return t
+
+
+def check_option(name: str, value, allowed: tuple[str, ...]) -> str:
+    """``value`` if it is one of ``allowed``, else ValueError naming ``name``."""
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"Expected `{name}` to be one of {allowed}, got {value!r}.")
+    return value
+
+
+def _check_order(name: str, value, top: int = 3) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= top:
+        raise ValueError(f"Expected `{name}` in 0..{top}, got {value!r}.")
+    return int(value)
+
+
+class OrientationPath:
+    """Base class: keyframe ``times`` (N,) and the path as a quaternion jet.
+
+    Subclasses set ``self.times`` and implement ``_jet(t, seg, order)``.
+    """
+
+    times: np.ndarray
+    #: Closed paths repeat with period ``t_end - t_start``; open ones raise outside.
+    periodic: bool = False
+
+    @property
+    def t_start(self) -> float:
+        return float(self.times[0])
+
+    @property
+    def t_end(self) -> float:
+        return float(self.times[-1])
+
+    def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
+        """The path as a quaternion jet (order + 1, 4, M) at times ``t`` (M,) in segments ``seg``."""
+        raise NotImplementedError
+
+    def _segment(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Segment index and (wrapped) time for times ``t`` (M,); raises outside the range."""
+        t0, t1 = self.t_start, self.t_end
+        if self.periodic:
+            t = t0 + np.mod(t - t0, t1 - t0)
+        else:
+            eps = 1e-12 * max(1.0, abs(t0), abs(t1))
+            bad = (t < t0 - eps) | (t > t1 + eps)
+            if bad.any():
+                raise ValueError(f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s.")
+            t = np.clip(t, t0, t1)
+        seg = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+        return seg, t
+
+    def evaluate(self, t, *, max_order: int = 2, frame: str = "space") -> Samples:
+        """Orientation and its derivatives up to ``max_order`` at times ``t``.
+
+        Parameters
+        ----------
+        t : array_like, shape (M,) or scalar
+            Times (s) within ``[t_start, t_end]`` (any time for closed paths).
+        max_order : int, optional
+            Highest derivative computed, 0..3. Default 2.
+        frame : {"space", "body"}, optional
+            Frame of the angular velocity and its derivatives. Default "space".
+
+        Returns
+        -------
+        Samples
+            ``q`` (M, 4), ``omega``, ``alpha``, ``jerk`` (M, 3) or None.
+
+        Raises
+        ------
+        ValueError
+            If a time is outside the range, or ``max_order`` or ``frame`` is unknown.
+        """
+        max_order = _check_order("max_order", max_order)
+        check_option("frame", frame, FRAMES)
+        seg, ta = self._segment(_as_times(t).reshape(-1))
+        qj = self._jet(ta, seg, max_order)
+        q = (qj.value / np.linalg.norm(qj.value, axis=0)).T
+        derivs: list[np.ndarray | None] = [None, None, None]
+        if max_order >= 1:
+            # omega = 2 vec(q' q*) (space) or 2 vec(q* q') (body), a jet one order lower.
+            qd, qc = qj.d(), J.qconj(qj)
+            w = J.qmul(qd, qc) if frame == "space" else J.qmul(qc, qd)
+            for n in range(max_order):
+                derivs[n] = 2.0 * w.derivative(n)[1:].T
+        return Samples(ta, q, *derivs)
+
+    def __call__(self, t, order: int = 0, *, frame: str = "space") -> np.ndarray:
+        """Orientation (order 0, shape (..., 4)) or angular velocity, acceleration,
+        jerk (orders 1, 2, 3, shape (..., 3), rad/s^n) at times ``t`` (s).
+
+        A scalar ``t`` gives one result, an array a stack.
+
+        Raises
+        ------
+        ValueError
+            If ``order`` is not in 0..3 or a time is outside the range.
+        """
+        order = _check_order("order", order)
+        ta = _as_times(t)
+        s = self.evaluate(ta.reshape(-1), max_order=order, frame=frame)
+        out = (s.q, s.omega, s.alpha, s.jerk)[order]
+        return out.reshape(*ta.shape, out.shape[-1])
+
+    def sample(self, rate_hz: float, *, max_order: int = 2, frame: str = "space") -> Samples:
+        """:meth:`evaluate` at ``rate_hz`` from ``t_start`` to ``t_end`` inclusive (the last
+        sample at ``t_end`` even when the duration is not a whole number of periods)."""
+        t = sample_times(self.t_start, self.t_end, rate_hz)
+        return self.evaluate(t, max_order=max_order, frame=frame)
+
+
+def _as_times(t) -> np.ndarray:
+    try:
+        ta = np.asarray(t, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"Expected `t` to be numeric, got {type(t).__name__}.") from e
+    if not np.isfinite(ta).all():
+        raise ValueError("Expected `t` to be finite.")
+    return ta

@@ -1,0 +1,174 @@
+"""The circular blending quaternion spline of Kim & Nam (1995).
+
+References
+----------
+M.-J. Kim, M.-S. Kim, S. Y. Shin / M.-S. Kim, K.-W. Nam, "Interpolating solid
+orientations with circular blending quaternion curves", Computer-Aided Design
+27(5), 1995. ``SPEC.md`` in the project's shared notes states the algorithm.
+"""
+
+from __future__ import annotations
+
+from math import comb
+
+import numpy as np
+
+from . import jet as J
+from . import quat as Q
+from .local_curves import KIND_NAMES, POINT, CurveRow, LocalCurves, NoCircleError, build_curve
+from .path import OrientationPath, check_option, check_times
+
+BOUNDARIES = ("rest", "natural", "closed")
+LOCALS = ("auto", "circle", "parabola")
+REPARAMS = ("paper", "rational")
+
+#: A closed spline's last keyframe must be within this rotation angle (rad) of its first.
+CLOSED_TOLERANCE = 1e-6
+
+
+def blend_polynomial(m: int) -> np.ndarray:
+    """Power-basis coefficients (2m,) of ``f_m(u) = sum_{j=m}^{2m-1} C(2m-1, j) u^j (1-u)^(2m-1-j)``.
+
+    ``f_m(0) = 0``, ``f_m(1) = 1``, derivatives 1..m-1 vanish at both ends.
+    """
+    n = 2 * m - 1
+    coef = np.zeros(n + 1)
+    for j in range(m, n + 1):
+        # u^j (1-u)^(n-j) = sum_l C(n-j, l) (-1)^l u^(j+l)
+        for ell in range(n - j + 1):
+            coef[j + ell] += comb(n, j) * comb(n - j, ell) * (-1) ** ell
+    return coef
+
+
+class BlendingSpline(OrientationPath):
+    """C^k orientation path through keyframes, by circular blending (Kim & Nam 1995).
+
+    Each interior keyframe gets a local curve through it and its two neighbours
+    (a circle on S^3, or a tangent-space parabola); on each segment the two local
+    curves that cover it are blended along the geodesic between them with a
+    polynomial weight of degree 2k - 1, which makes the path C^k.
+
+    Parameters
+    ----------
+    quats : array_like, shape (N, 4)
+        Keyframe orientations, scalar first (w, x, y, z), any sign and norm
+        (normalised here). N >= 2 (N >= 3 for ``"closed"``).
+    times : array_like, shape (N,)
+        Keyframe times (s), strictly increasing.
+    k : int, optional
+        Continuity order, >= 1: the path is C^k. Default 2.
+    boundary : {"rest", "natural", "closed"}, optional
+        ``"rest"``: start and end still (derivatives up to order k vanish);
+        ``"natural"``: the end local curves alone; ``"closed"``: a loop whose
+        last keyframe repeats the first. Default "rest".
+    local : {"auto", "circle", "parabola"}, optional
+        Local curve through each triple. ``"auto"`` uses the paper's circle
+        where the path turns by at most 90 degrees at the keyframe and a
+        tangent-space parabola elsewhere (reversals, sharp turns), see
+        :func:`trajgen.local_curves.circle_behaves`. Default "auto".
+    reparam : {"paper", "rational"}, optional
+        Time-to-angle map on circles: the paper's polynomial / power cases, or
+        a Moebius map that is analytic for every timing. Default "paper".
+
+    Raises
+    ------
+    ValueError, TypeError
+        For bad shapes or values, naming the argument and what arrived.
+
+    Notes
+    -----
+    Times outside ``[t_start, t_end]`` raise, except for ``"closed"`` splines,
+    which repeat with period ``t_end - t_start``.
+    """
+
+    def __init__(self, quats, times, *, k=2, boundary="rest", local="auto", reparam="paper"):
+        q = Q.as_quats(quats, "quats")
+        n = len(q)
+        if n < 2:
+            raise ValueError(f"Expected at least 2 keyframes, got {n}.")
+        self.times = check_times(times, n)
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+            raise TypeError(f"Expected `k` to be an integer, got {type(k).__name__} {k!r}.")
+        if k < 1:
+            raise ValueError(f"Expected `k` >= 1, got {k}.")
+        self.k = int(k)
+        self.boundary = check_option("boundary", boundary, BOUNDARIES)
+        self.local = check_option("local", local, LOCALS)
+        self.reparam = check_option("reparam", reparam, REPARAMS)
+        if boundary == "closed":
+            if n < 3:
+                raise ValueError(f"A closed spline needs at least 3 keyframes, got {n}.")
+            gap = float(Q.distance(q[0], q[-1]))
+            if gap > CLOSED_TOLERANCE:
+                raise ValueError(
+                    "boundary='closed' needs the last keyframe to repeat the first; they are "
+                    f"{np.degrees(gap):.4g} deg apart."
+                )
+        # SPEC 1: one sign per consecutive pair, the shortest geodesic.
+        for i in range(1, n):
+            if q[i] @ q[i - 1] < 0:
+                q[i] = -q[i]
+        self.quats = q
+        self.periodic = boundary == "closed"
+        self._build_curves()
+
+    def _build_curves(self) -> None:
+        q, t, n, k = self.quats, self.times, len(self.quats), self.k
+
+        def curve(qs, ts):
+            try:
+                return build_curve(qs, ts, k=k, local=self.local, reparam=self.reparam)
+            except NoCircleError:
+                raise ValueError(
+                    f"The keyframes at t = {ts[0]:g} s and t = {ts[2]:g} s coincide around the "
+                    f"one at t = {ts[1]:g} s (a reversal): no circle passes through them; "
+                    "use local='auto' or 'parabola'."
+                ) from None
+
+        rows: list[CurveRow] = []
+        if self.boundary == "closed":
+            # Extend by one keyframe each side, wrapped; sigma = +-1 matches the seam's sign.
+            sigma = 1.0 if q[-1] @ q[0] > 0 else -1.0
+            period = t[-1] - t[0]
+            qe = np.vstack([sigma * q[-2], q, sigma * q[1]])
+            te = np.concatenate([[t[-2] - period], t, [t[-1] + t[1] - t[0]]])
+            rows = [curve(qe[i : i + 3], te[i : i + 3]) for i in range(n)]
+            left, right, order = np.arange(n - 1), np.arange(1, n), np.full(n - 1, k)
+        else:
+            rows = [curve(q[i - 1 : i + 2], t[i - 1 : i + 2]) for i in range(1, n - 1)]
+            # Curve ids: 0..n-3 interior curves C_1..C_{n-2}; then the two held ends.
+            first, last = len(rows), len(rows) + 1
+            rows.append(CurveRow(POINT, (t[0], t[0], t[0]), q[0]))
+            rows.append(CurveRow(POINT, (t[-1], t[-1], t[-1]), q[-1]))
+            left = np.concatenate([[first], np.arange(n - 2)])  # C_i on segment i
+            right = np.concatenate([np.arange(n - 2), [last]])  # C_{i+1} on segment i
+            order = np.full(n - 1, k)
+            if self.boundary == "rest":
+                order[0] = order[-1] = k + 1
+            elif n == 2:  # natural, two keyframes: plain slerp
+                order[0] = 1
+            else:  # natural: the end curve alone
+                left[0], right[-1] = right[0], left[-1]
+        self._curves = LocalCurves(rows)
+        self._left, self._right = left, right
+        #: Local curve kind ("circle", "parabola", "geodesic", "point") of each interior
+        #: keyframe (of every keyframe when closed), for inspection.
+        self.local_kinds = [KIND_NAMES[r.kind] for r in rows[: n if self.periodic else n - 2]]
+        # Blend polynomials f_m for each segment, padded to a common degree.
+        deg = 2 * int(order.max())
+        self._blend = np.zeros((n - 1, deg))
+        for m in np.unique(order):
+            self._blend[order == m, : 2 * m] = blend_polynomial(int(m))
+
+    def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
+        M = len(t)
+        curves = self._curves.evaluate(
+            np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
+        )
+        c_left, c_right = J.Jet(curves.c[..., :M]), J.Jet(curves.c[..., M:])
+        h = self.times[seg + 1] - self.times[seg]
+        u = (J.Jet.variable(t, order) - self.times[seg]) * (1.0 / h)
+        f = J.polyval(self._blend[seg].T, u)
+        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
+        v = J.qlog(J.qmul(c_right, J.qconj(c_left)))
+        return J.qmul(J.qexp(J.scale(f, v)), c_left)
