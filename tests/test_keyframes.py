@@ -76,34 +76,52 @@ pan = 0.0
 @pytest.mark.parametrize(
     "text,match",
     [
-        ("[[keyframes]]\nt = 0.0\npan = 'abc'\n" + KEYS.replace("0.0", "1.0", 1),
-         r"keyframe 1: field 'pan': expected a finite number, got 'abc'"),
-        (KEYS + "\n[[keyframes]]\nt = 1.0\ntlt = 3.0\n",
-         r"keyframe 2: unknown field 'tlt' \(known: t, pan, tilt, roll, quat\)"),
+        (
+            "[[keyframes]]\nt = 0.0\npan = 'abc'\n" + KEYS.replace("0.0", "1.0", 1),
+            r"keyframe 1: field 'pan': expected a finite number, got 'abc'",
+        ),
+        (
+            KEYS + "\n[[keyframes]]\nt = 1.0\ntlt = 3.0\n",
+            r"keyframe 2: unknown field 'tlt' \(known: t, pan, tilt, roll, quat\)",
+        ),
         (KEYS + "\n[[keyframes]]\npan = 3.0\n", r"keyframe 2: field 't' is missing"),
-        (KEYS + "\n[[keyframes]]\nt = 0.0\npan = 3.0\n",
-         r"keyframe 2: field 't': 0 s is not after keyframe 1's 0 s"),
-        (KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [1, 0, 0]\n",
-         r"keyframe 2: field 'quat': expected \[w, x, y, z\], got \[1, 0, 0\]"),
-        (KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [0, 0, 0, 0]\n",
-         r"keyframe 2: field 'quat': zero quaternion"),
-        (KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [1, 0, 0, 0]\npan = 2\n",
-         r"keyframe 2: give either 'quat' or pan/tilt/roll, not both"),
+        (
+            KEYS + "\n[[keyframes]]\nt = 0.0\npan = 3.0\n",
+            r"keyframe 2: field 't': 0 s is not after keyframe 1's 0 s",
+        ),
+        (
+            KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [1, 0, 0]\n",
+            r"keyframe 2: field 'quat': expected \[w, x, y, z\], got \[1, 0, 0\]",
+        ),
+        (
+            KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [0, 0, 0, 0]\n",
+            r"keyframe 2: field 'quat': zero quaternion",
+        ),
+        (
+            KEYS + "\n[[keyframes]]\nt = 1.0\nquat = [1, 0, 0, 0]\npan = 2\n",
+            r"keyframe 2: give either 'quat' or pan/tilt/roll, not both",
+        ),
         (KEYS + "\n[[keyframes]]\nt = 1.0\n", r"keyframe 2: no orientation"),
-        (KEYS + "\n[[keyframes]]\nt = true\npan = 1\n",
-         r"keyframe 2: field 't': expected a finite number, got True"),
+        (
+            KEYS + "\n[[keyframes]]\nt = true\npan = 1\n",
+            r"keyframe 2: field 't': expected a finite number, got True",
+        ),
         (KEYS, r"\[\[keyframes\]\]: at least 2 are needed, got 1"),
         ("[spline]\nk = 2\n", r"no \[\[keyframes\]\]"),
         ("[spline]\nk = 0\n" + KEYS * 2, r"\[spline\] k: expected an integer >= 1, got 0"),
-        ("[spline]\nboundary = 'free'\n" + KEYS,
-         r"\[spline\] boundary: expected one of rest, natural, closed, got 'free'"),
+        (
+            "[spline]\nboundary = 'free'\n" + KEYS,
+            r"\[spline\] boundary: expected one of rest, natural, closed, got 'free'",
+        ),
         ("[spline]\nkk = 2\n" + KEYS, r"\[spline\] unknown key 'kk'"),
         ("[stream]\nrate_hz = -5\n" + KEYS, r"\[stream\] rate_hz: expected > 0, got -5"),
         ("[keyframe]\nt = 1\n", r"unknown table \[keyframe\] \(known: spline, keyframes"),
         ("[[keyframes]\nt = 1\n", r"invalid TOML"),
-        ("[spline]\nboundary = 'closed'\n" + KEYS + "\n[[keyframes]]\nt = 1.0\npan = 5.0\n"
-         "\n[[keyframes]]\nt = 2.0\npan = 9.0\n",
-         r"last keyframe to repeat the first; they are 9 deg apart"),
+        (
+            "[spline]\nboundary = 'closed'\n" + KEYS + "\n[[keyframes]]\nt = 1.0\npan = 5.0\n"
+            "\n[[keyframes]]\nt = 2.0\npan = 9.0\n",
+            r"last keyframe to repeat the first; they are 9 deg apart",
+        ),
     ],
 )
 def test_malformed_files_raise_one_line_errors(tmp_path, text, match):

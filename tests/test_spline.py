@@ -258,7 +258,9 @@ def test_property_random_keyframes(seed, n, k, local, boundary):
     assert Q.distance(s(t), q).max() < 1e-10
     np.testing.assert_allclose(np.linalg.norm(S.q, axis=-1), 1.0, atol=1e-12)
     inner = tt[1:-1]
-    np.testing.assert_allclose(S.omega[1:256], omega_fd(s, inner, 1e-6), atol=1e-5 * (1 + np.abs(S.omega).max()))
+    np.testing.assert_allclose(
+        S.omega[1:256], omega_fd(s, inner, 1e-6), atol=1e-5 * (1 + np.abs(S.omega).max())
+    )
 
 
 @pytest.mark.parametrize(
@@ -290,7 +292,10 @@ def test_bad_input_raises_with_a_message_naming_it(kwargs, exc, match):
 
 def test_reversal_with_circles_is_refused():
     keys = ptr([0, 0, 0], [30, 0, 0], [0, 0, 0])
-    with pytest.raises(ValueError, match=r"keyframes at t = 0 s and t = 2 s coincide around the one at t = 1 s \(a reversal\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"keyframes at t = 0 s and t = 2 s coincide around the one at t = 1 s \(a reversal\)",
+    ):
         BlendingSpline(keys, [0, 1, 2.0], local="circle")
 
 

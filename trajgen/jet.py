@@ -148,7 +148,7 @@ def reciprocal(a: Jet) -> Jet:
 
 
 def power(a: Jet, p: np.ndarray) -> Jet:
-    """``a ** p`` for ``a.value > 0``, or ``a.value >= 0`` with an integer ``p``; ``p`` broadcasts."""
+    """``a ** p`` for ``a.value > 0`` (or ``>= 0`` with an integer ``p``); ``p`` broadcasts."""
     x = a.value
     d, falling = [], np.ones_like(np.asarray(p, dtype=float))
     for j in range(a.order + 1):

@@ -126,9 +126,7 @@ def load_keyframe_file(path) -> KeyframeFile:
 
     for name in data:
         if name not in TABLES:
-            raise KeyframeFileError(
-                f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})"
-            )
+            raise KeyframeFileError(f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})")
     options = _spline_options(data.get("spline", {}), path)
     rate_hz = _stream_rate(data.get("stream", {}), path)
     times, quats = _keyframes(data.get("keyframes"), path)

@@ -85,7 +85,8 @@ class OrientationPath:
         return float(self.times[-1])
 
     def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
-        """The path as a quaternion jet (order + 1, 4, M) at times ``t`` (M,) in segments ``seg``."""
+        """The path as a quaternion jet (order + 1, 4, M) at times ``t`` (M,) in segments ``seg``
+        (M,)."""
         raise NotImplementedError
 
     def _segment(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +98,9 @@ class OrientationPath:
             eps = 1e-12 * max(1.0, abs(t0), abs(t1))
             bad = (t < t0 - eps) | (t > t1 + eps)
             if bad.any():
-                raise ValueError(f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s.")
+                raise ValueError(
+                    f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s."
+                )
             t = np.clip(t, t0, t1)
         seg = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
         return seg, t

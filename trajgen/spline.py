@@ -27,7 +27,9 @@ CLOSED_TOLERANCE = 1e-6
 
 
 def blend_polynomial(m: int) -> np.ndarray:
-    """Power-basis coefficients (2m,) of ``f_m(u) = sum_{j=m}^{2m-1} C(2m-1, j) u^j (1-u)^(2m-1-j)``.
+    """Power-basis coefficients (2m,) of the blend polynomial of degree 2m - 1:
+
+    ``f_m(u) = sum_{j=m}^{2m-1} C(2m-1, j) u^j (1-u)^(2m-1-j)``.
 
     ``f_m(0) = 0``, ``f_m(1) = 1``, derivatives 1..m-1 vanish at both ends.
     """

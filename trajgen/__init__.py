@@ -1,0 +1,36 @@
+"""trajgen: smooth orientation trajectories for pan-tilt-roll gimbals and robot wrists.
+
+The circular blending quaternion spline of Kim & Nam (1995) with exact angular
+velocity, acceleration and jerk; pan-tilt-roll kinematics; and the fixed-rate
+joint stream that ``drivers`` (Dynamixel servos) and ``sim`` (MuJoCo) consume.
+Needs numpy only. Quaternions are scalar first, ``(w, x, y, z)``.
+"""
+
+from . import quat
+from .gimbal import GimbalKinematics, KinematicsError
+from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
+from .path import OrientationPath, Samples
+from .sampling import sample_times
+from .spline import BlendingSpline
+from .stream import JOINT_NAMES, JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BUILTIN_EXAMPLE",
+    "JOINT_NAMES",
+    "BlendingSpline",
+    "GimbalKinematics",
+    "JointFrame",
+    "JointTrajectory",
+    "KeyframeFile",
+    "KeyframeFileError",
+    "KinematicsError",
+    "OrientationPath",
+    "Samples",
+    "load_keyframe_file",
+    "plan_joint_trajectory",
+    "quat",
+    "sample_times",
+    "stream_frames",
+]

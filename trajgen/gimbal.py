@@ -1,0 +1,385 @@
+"""Pan-tilt-roll gimbal kinematics: joint angles to orientation and back.
+
+The gimbal's orientation is ``q = Rz(pan) Ry(tilt) Rx(roll)``: pan turns about
+the base z axis, tilt about the panned y axis, roll about the tilted x axis, and
+the camera looks along its x axis. Angles are in rad, in ``JOINT_NAMES`` order
+``(pan, tilt, roll)``; quaternions are scalar first ``(w, x, y, z)``.
+
+At ``tilt = +-pi/2`` pan and roll turn about the same axis (gimbal lock): the
+joint rates needed for a finite angular velocity grow as ``1 / cos(tilt)``, so
+:meth:`GimbalKinematics.inverse` refuses paths that come closer than
+``lock_margin_rad`` to it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from trajgen import quat
+
+TWO_PI = 2.0 * math.pi
+
+#: Joint order, as ``trajgen.stream.JOINT_NAMES`` (which imports this module).
+_JOINTS = ("pan", "tilt", "roll")
+
+#: Default joint limits (rad), rows pan, tilt, roll: one full turn of pan
+#: either way, the whole tilt range (the lock margin narrows it), half a turn of roll.
+DEFAULT_LIMITS_RAD = ((-TWO_PI, TWO_PI), (-math.pi / 2, math.pi / 2), (-math.pi, math.pi))
+
+
+class KinematicsError(ValueError):
+    """A path the gimbal cannot follow: gimbal lock or a joint limit."""
+
+
+def as_angles(angles, name: str = "angles", *, single: bool = False) -> np.ndarray:
+    """Validate joint angles.
+
+    Parameters
+    ----------
+    angles : array_like, shape (..., 3)
+        ``(pan, tilt, roll)`` (rad).
+    name : str
+        Argument name used in error messages.
+    single : bool
+        Require shape (3,), one set of angles.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        The angles as float64.
+
+    Raises
+    ------
+    TypeError
+        If ``angles`` is not numeric.
+    ValueError
+        If the shape is wrong or a value is not finite.
+    """
+    try:
+        a = np.asarray(angles, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"Expected `{name}` to be numeric, got {type(angles).__name__}.") from e
+    if single and a.shape != (3,):
+        raise ValueError(f"Expected `{name}` to have shape (3,), got {a.shape}.")
+    if a.ndim == 0 or a.shape[-1] != 3:
+        raise ValueError(f"Expected `{name}` to have shape (..., 3), got {a.shape}.")
+    if not np.isfinite(a).all():
+        raise ValueError(f"Expected `{name}` to be finite, got {a[~np.isfinite(a)][0]}.")
+    return a
+
+
+def _as_times(times, n: int, like: str) -> np.ndarray | None:
+    """Validate optional sample times (used in messages only) as shape (n,) or None."""
+    if times is None:
+        return None
+    try:
+        t = np.asarray(times, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"Expected `times` to be numeric, got {type(times).__name__}.") from e
+    if t.shape != (n,):
+        raise ValueError(f"Expected `times` to have shape ({n},) like `{like}`, got {t.shape}.")
+    return t
+
+
+def forward(angles) -> np.ndarray:
+    """Orientation of the gimbal at the given joint angles.
+
+    Parameters
+    ----------
+    angles : array_like, shape (..., 3)
+        ``(pan, tilt, roll)`` in rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 4)
+        Unit quaternions ``(w, x, y, z)`` of ``Rz(pan) Ry(tilt) Rx(roll)``.
+
+    Raises
+    ------
+    TypeError
+        If ``angles`` is not numeric.
+    ValueError
+        If the last axis is not of length 3 or a value is not finite.
+    """
+    a = as_angles(angles)
+    return quat.from_pan_tilt_roll(a[..., 0], a[..., 1], a[..., 2])
+
+
+def jacobian(angles) -> np.ndarray:
+    """Space-frame Jacobian ``J`` with ``omega = J @ qd``.
+
+    Its columns are the joint axes in the space frame: ``z``, ``Rz(pan) y`` and
+    ``Rz(pan) Ry(tilt) x``. ``det J = -cos(tilt)``, so it is singular only at
+    gimbal lock.
+
+    Parameters
+    ----------
+    angles : array_like, shape (..., 3)
+        ``(pan, tilt, roll)`` in rad.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        Unitless (rad/s of rotation per rad/s of joint).
+
+    Raises
+    ------
+    TypeError
+        If ``angles`` is not numeric.
+    ValueError
+        If the last axis is not of length 3 or a value is not finite.
+    """
+    a = as_angles(angles)
+    cp, sp = np.cos(a[..., 0]), np.sin(a[..., 0])
+    ct, st = np.cos(a[..., 1]), np.sin(a[..., 1])
+    zero, one = np.zeros_like(cp), np.ones_like(cp)
+    pan_axis = np.stack([zero, zero, one], axis=-1)
+    tilt_axis = np.stack([-sp, cp, zero], axis=-1)
+    roll_axis = np.stack([cp * ct, sp * ct, -st], axis=-1)
+    return np.stack([pan_axis, tilt_axis, roll_axis], axis=-1)
+
+
+def _solve(cp, sp, ct, st, wx, wy, wz):
+    """Closed-form ``J^-1 w``, componentwise, given cos/sin of pan and tilt."""
+    roll_rate = (cp * wx + sp * wy) / ct
+    tilt_rate = cp * wy - sp * wx
+    return wz + st * roll_rate, tilt_rate, roll_rate
+
+
+def joint_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
+    """Joint velocities and accelerations, exactly, from the angular motion.
+
+    Solves ``omega = J(q) qd`` and ``alpha = J(q) qdd + Jdot(q, qd) qd`` in
+    closed form (see :func:`jacobian`); no differencing of samples.
+
+    Parameters
+    ----------
+    angles : array_like, shape (..., 3)
+        Joint angles ``(pan, tilt, roll)`` (rad), away from gimbal lock.
+    omega : array_like, shape (..., 3)
+        Space-frame angular velocity (rad/s), ``2 (dq/dt) q*``.
+    alpha : array_like, shape (..., 3)
+        Space-frame angular acceleration (rad/s^2), the time derivative of ``omega``.
+
+    Returns
+    -------
+    qd : ndarray, shape (..., 3)
+        Joint velocities (rad/s).
+    qdd : ndarray, shape (..., 3)
+        Joint accelerations (rad/s^2).
+
+    Raises
+    ------
+    TypeError
+        If an argument is not numeric.
+    ValueError
+        If the shapes differ or are not (..., 3), or a value is not finite.
+    KinematicsError
+        If ``|tilt|`` is pi/2 (gimbal lock, where ``J`` is singular).
+    """
+    a = as_angles(angles)
+    w = as_angles(omega, "omega")
+    dw = as_angles(alpha, "alpha")
+    if not a.shape == w.shape == dw.shape:
+        raise ValueError(
+            "Expected `angles`, `omega` and `alpha` to have the same shape, "
+            f"got {a.shape}, {w.shape}, {dw.shape}."
+        )
+    locked = np.abs(np.cos(a[..., 1])) < 1e-12
+    if locked.any():
+        i = tuple(int(k) for k in np.argwhere(locked)[0])
+        raise KinematicsError(
+            f"joint rates are undefined at gimbal lock: |tilt| = 90 deg at index {i}"
+        )
+    cp, sp = np.cos(a[..., 0]), np.sin(a[..., 0])
+    ct, st = np.cos(a[..., 1]), np.sin(a[..., 1])
+    vp, vt, vr = _solve(cp, sp, ct, st, w[..., 0], w[..., 1], w[..., 2])
+    # Jdot qd = vp vt (z x y1) + vr (vp z + vt y1) x x2 with the joint axes
+    # z, y1, x2 of `jacobian`: the tilt axis y1 turns with pan, the roll axis x2
+    # with both. z x y1 = (-cp, -sp, 0), z x x2 = (-sp ct, cp ct, 0) and
+    # y1 x x2 = -(cp st, sp st, ct).
+    jx = -vp * vt * cp - vr * (vp * sp * ct + vt * cp * st)
+    jy = -vp * vt * sp + vr * (vp * cp * ct - vt * sp * st)
+    jz = -vr * vt * ct
+    ap, at, ar = _solve(cp, sp, ct, st, dw[..., 0] - jx, dw[..., 1] - jy, dw[..., 2] - jz)
+    qd = np.stack([vp, vt, vr], axis=-1)
+    qdd = np.stack([ap, at, ar], axis=-1)
+    return qd, qdd
+
+
+@dataclass(frozen=True)
+class GimbalKinematics:
+    """Joint limits of a pan-tilt-roll gimbal and its inverse kinematics.
+
+    Parameters
+    ----------
+    limits_rad : array_like, shape (3, 2)
+        ``(low, high)`` joint limits (rad) for pan, tilt, roll; default
+        :data:`DEFAULT_LIMITS_RAD`: pan +-2 pi, tilt +-pi/2, roll +-pi. Tilt
+        limits must lie within +-pi/2 (inverse kinematics keeps ``|tilt| <= pi/2``).
+        Stored as a tuple of three ``(low, high)`` float pairs.
+    lock_margin_rad : float
+        How close (rad) ``|tilt|`` may come to pi/2; default 10 deg. In (0, pi/2).
+
+    Raises
+    ------
+    TypeError
+        If an argument is not numeric.
+    ValueError
+        If ``limits_rad`` is not (3, 2), not finite, has ``low >= high``, tilt
+        limits outside +-pi/2, or ``lock_margin_rad`` is outside (0, pi/2).
+    """
+
+    limits_rad: tuple[tuple[float, float], ...] = DEFAULT_LIMITS_RAD
+    lock_margin_rad: float = math.radians(10.0)
+
+    def __post_init__(self) -> None:
+        try:
+            lim = np.array(self.limits_rad, dtype=float)
+        except (TypeError, ValueError) as e:
+            raise TypeError(
+                f"Expected `limits_rad` to be numeric, got {type(self.limits_rad).__name__}."
+            ) from e
+        if lim.shape != (3, 2):
+            raise ValueError(f"Expected `limits_rad` to have shape (3, 2), got {lim.shape}.")
+        if not np.isfinite(lim).all():
+            raise ValueError(f"Expected `limits_rad` to be finite, got {lim.tolist()}.")
+        for name, (low, high) in zip(_JOINTS, lim, strict=True):
+            if not low < high:
+                raise ValueError(
+                    f"Expected `limits_rad` {name} low < high, got [{low:.6g}, {high:.6g}] rad."
+                )
+        if lim[1, 0] < -math.pi / 2 or lim[1, 1] > math.pi / 2:
+            raise ValueError(
+                "Expected `limits_rad` tilt within [-pi/2, pi/2], "
+                f"got [{lim[1, 0]:.6g}, {lim[1, 1]:.6g}] rad."
+            )
+        margin = self.lock_margin_rad
+        if isinstance(margin, bool) or not isinstance(margin, (int, float, np.number)):
+            raise TypeError(
+                f"Expected `lock_margin_rad` to be a number, got {type(margin).__name__}."
+            )
+        if not 0.0 < margin < math.pi / 2:
+            raise ValueError(f"Expected `lock_margin_rad` in (0, pi/2), got {margin}.")
+        object.__setattr__(self, "limits_rad", tuple((float(lo), float(hi)) for lo, hi in lim))
+        object.__setattr__(self, "lock_margin_rad", float(margin))
+
+    def inverse(self, quats, times=None, *, start=None) -> np.ndarray:
+        """Continuous joint path through the given orientations.
+
+        Closed form per sample (tilt in [-pi/2, pi/2], the branch the tilt
+        limits allow), then pan and roll are unwrapped sample to sample: each
+        sample takes the 2 pi multiple nearest the one before, and the first the
+        one nearest ``start``. ``q`` and ``-q`` give the same angles.
+
+        Parameters
+        ----------
+        quats : array_like, shape (N, 4)
+            Orientations ``(w, x, y, z)``, dense enough that pan and roll move
+            less than pi between samples.
+        times : array_like, shape (N,), optional
+            Sample times (s), only for error messages (else sample numbers).
+        start : array_like, shape (3,), optional
+            Angles (rad), e.g. the servos' present position: the first sample's
+            pan and roll are the 2 pi multiples nearest these. Default: pan and
+            roll of the first sample in (-pi, pi].
+
+        Returns
+        -------
+        ndarray, shape (N, 3)
+            ``(pan, tilt, roll)`` (rad).
+
+        Raises
+        ------
+        KinematicsError
+            If a sample comes within ``lock_margin_rad`` of ``|tilt| = pi/2`` or
+            leaves the joint limits. The message names the first such sample's
+            time, the joint, its angle and the limit, e.g. "tilt reaches 84.2 deg
+            at t = 3.140 s, within 10.0 deg of gimbal lock (limit 80.0 deg)".
+        TypeError
+            If an argument is not numeric.
+        ValueError
+            If a shape is wrong or a value is not finite.
+        """
+        q = quat.as_quats(quats)
+        times = _as_times(times, len(q), "quats")
+        angles = _closed_form(q)
+        # Whole turns added to pan and roll: integer counts, so the online
+        # stream (one sample at a time, start = previous sample) agrees exactly.
+        wrapped = angles[:, [0, 2]]
+        turns = np.zeros_like(wrapped)
+        turns[1:] = np.round((wrapped[:-1] - wrapped[1:]) / TWO_PI)
+        if start is not None:
+            s = as_angles(start, "start", single=True)
+            turns[0] = np.round((s[[0, 2]] - wrapped[0]) / TWO_PI)
+        angles[:, [0, 2]] = wrapped + TWO_PI * np.cumsum(turns, axis=0)
+        self.check(angles, times)
+        return angles
+
+    def check(self, angles, times=None) -> None:
+        """Raise if a joint path comes near gimbal lock or leaves the limits.
+
+        Parameters
+        ----------
+        angles : array_like, shape (N, 3)
+            ``(pan, tilt, roll)`` (rad).
+        times : array_like, shape (N,), optional
+            Sample times (s) for the message (else sample numbers).
+
+        Raises
+        ------
+        KinematicsError
+            At the first offending sample; gimbal lock is reported before a
+            limit, and joints in the order pan, tilt, roll.
+        TypeError
+            If ``angles`` is not numeric.
+        ValueError
+            If ``angles`` is not (N, 3) or not finite.
+        """
+        a = as_angles(angles)
+        if a.ndim != 2:
+            raise ValueError(f"Expected `angles` to have shape (N, 3), got {a.shape}.")
+        times = _as_times(times, len(a), "angles")
+        lock_limit = math.pi / 2 - self.lock_margin_rad
+        locked = np.abs(a[:, 1]) > lock_limit
+        lim = np.array(self.limits_rad)
+        outside = (a < lim[:, 0]) | (a > lim[:, 1])
+        bad = locked | outside.any(axis=1)
+        if not bad.any():
+            return
+        i = int(np.argmax(bad))
+        when = f"t = {times[i]:.3f} s" if times is not None else f"sample {i}"
+        deg = np.degrees
+        if locked[i]:
+            raise KinematicsError(
+                f"tilt reaches {deg(a[i, 1]):.1f} deg at {when}, within "
+                f"{deg(self.lock_margin_rad):.1f} deg of gimbal lock "
+                f"(limit {deg(math.copysign(lock_limit, a[i, 1])):.1f} deg)"
+            )
+        j = int(np.argmax(outside[i]))
+        low, high = deg(lim[j])
+        raise KinematicsError(
+            f"{_JOINTS[j]} reaches {deg(a[i, j]):.1f} deg at {when}, "
+            f"outside its limits [{low:.1f}, {high:.1f}] deg"
+        )
+
+
+def _closed_form(q: np.ndarray) -> np.ndarray:
+    """``(pan, tilt, roll)`` of unit quaternions (N, 4); pan, roll in (-pi, pi].
+
+    Uses the rotation-matrix entries, which are quadratic in ``q``, so ``q`` and
+    ``-q`` agree.
+    """
+    w, x, y, z = q.T
+    r00 = 1.0 - 2.0 * (y * y + z * z)
+    r10 = 2.0 * (x * y + w * z)
+    r20 = 2.0 * (x * z - w * y)
+    r21 = 2.0 * (y * z + w * x)
+    r22 = 1.0 - 2.0 * (x * x + y * y)
+    pan = np.arctan2(r10, r00)
+    tilt = np.arctan2(-r20, np.hypot(r21, r22))
+    roll = np.arctan2(r21, r22)
+    return np.stack([pan, tilt, roll], axis=-1)

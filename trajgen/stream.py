@@ -1,0 +1,202 @@
+"""The joint stream: the one thing the drivers and the simulator consume.
+
+A stream is a sequence of frames at a fixed rate, each ``(t, q, qd, qdd)`` for
+the gimbal's three joints (pan, tilt, roll), in s, rad, rad/s, rad/s^2.
+Plan it offline as arrays with :func:`plan_joint_trajectory`, or produce it
+online, one frame per control cycle, with :func:`stream_frames`; both give the
+same values.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from trajgen.gimbal import GimbalKinematics, KinematicsError, as_angles, joint_rates
+from trajgen.sampling import sample_times
+
+JOINT_NAMES = ("pan", "tilt", "roll")
+
+
+@dataclass(frozen=True)
+class JointFrame:
+    """One control cycle's setpoint.
+
+    Attributes
+    ----------
+    index : int
+        Frame number from 0.
+    t : float
+        Time (s) from the start of the trajectory.
+    q, qd, qdd : ndarray, shape (3,)
+        Joint angle (rad), velocity (rad/s), acceleration (rad/s^2), in
+        ``JOINT_NAMES`` order.
+    """
+
+    index: int
+    t: float
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+
+
+@dataclass(frozen=True)
+class JointTrajectory:
+    """A planned joint stream as arrays (plan offline) and as frames (stream online).
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Sample times (s), ``t[i] = t[0] + i / rate_hz`` except that the last
+        sample is at the trajectory's end time.
+    q, qd, qdd : ndarray, shape (N, 3)
+        Joint angles (rad, unwrapped), velocities (rad/s), accelerations (rad/s^2).
+    rate_hz : float
+        Stream rate (Hz).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    rate_hz: float
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def __iter__(self) -> Iterator[JointFrame]:
+        for i in range(len(self.t)):
+            yield JointFrame(i, float(self.t[i]), self.q[i], self.qd[i], self.qdd[i])
+
+    @property
+    def duration_s(self) -> float:
+        """Time (s) from the first frame to the last."""
+        return float(self.t[-1] - self.t[0])
+
+
+def plan_joint_trajectory(
+    spline, rate_hz: float, kinematics: GimbalKinematics | None = None, *, start=None
+) -> JointTrajectory:
+    """Plan the joint stream of an orientation path offline, as arrays.
+
+    Samples the path at ``rate_hz`` from ``t_start`` to ``t_end`` inclusive
+    (:func:`trajgen.sampling.sample_times`), solves the inverse kinematics
+    (pan and roll unwrapped) and converts the space-frame angular velocity and
+    acceleration into joint rates exactly (:func:`trajgen.gimbal.joint_rates`).
+
+    Parameters
+    ----------
+    spline : spline-like
+        Anything with ``t_start``, ``t_end`` (s) and ``evaluate(t, max_order=2)``
+        returning ``Samples(t, q, omega, alpha, jerk)`` with ``q`` (M, 4) and
+        space-frame ``omega``, ``alpha`` (M, 3): a ``BlendingSpline`` or a
+        ``trajgen.compare`` method.
+    rate_hz : float
+        Stream rate (Hz), > 0.
+    kinematics : GimbalKinematics, optional
+        Joint limits and gimbal-lock margin; default ``GimbalKinematics()``.
+    start : array_like, shape (3,), optional
+        Joint angles (rad) whose 2 pi branch the first frame's pan and roll
+        take, e.g. the servos' present position.
+
+    Returns
+    -------
+    JointTrajectory
+        ``t`` (M,), ``q``, ``qd``, ``qdd`` (M, 3) in s, rad, rad/s, rad/s^2.
+
+    Raises
+    ------
+    KinematicsError
+        If the path comes near gimbal lock or leaves the joint limits (the
+        message names the time, joint, angle and limit).
+    TypeError
+        If ``spline`` lacks the spline protocol or ``rate_hz`` is not a number.
+    ValueError
+        If ``rate_hz`` is not > 0 or ``start`` is not (3,).
+    """
+    kin, t, start = _prepare(spline, rate_hz, kinematics, start)
+    samples = spline.evaluate(t, max_order=2)
+    q = kin.inverse(samples.q, t, start=start)
+    qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+    return JointTrajectory(t, q, qd, qdd, float(rate_hz))
+
+
+def stream_frames(
+    spline, rate_hz: float, kinematics: GimbalKinematics | None = None, *, start=None
+) -> Iterator[JointFrame]:
+    """The joint stream produced online: one frame per ``next()``.
+
+    The path is evaluated ``BLOCK_FRAMES`` frames at a time, as they are
+    needed, so the first frame is ready at once however long the path and the
+    spline's fixed cost per call is shared. Frame ``i`` equals frame ``i`` of
+    :func:`plan_joint_trajectory` with the same arguments (pan and roll are
+    unwrapped from each block to the next, with the same integer turn counts).
+    Arguments are checked at the call; a path that nears gimbal lock or leaves
+    a limit raises at the first offending frame, after the frames before it
+    have been yielded.
+
+    Parameters
+    ----------
+    spline, rate_hz, kinematics, start
+        As for :func:`plan_joint_trajectory`.
+
+    Returns
+    -------
+    Iterator[JointFrame]
+        Frames ``0 .. M-1`` at ``t_start + i / rate_hz``, the last at ``t_end``.
+
+    Raises
+    ------
+    KinematicsError
+        From ``next()``, at the first frame near gimbal lock or outside a limit.
+    TypeError
+        If ``spline`` lacks the spline protocol or ``rate_hz`` is not a number.
+    ValueError
+        If ``rate_hz`` is not > 0 or ``start`` is not (3,).
+    """
+    return _frames(spline, *_prepare(spline, rate_hz, kinematics, start))
+
+
+#: Frames the online stream evaluates per spline call: a fixed cost (~2 ms for the
+#: blending spline) shared by a block, at most one block of look-ahead latency.
+BLOCK_FRAMES = 32
+
+
+def _frames(spline, kin: GimbalKinematics, t: np.ndarray, start) -> Iterator[JointFrame]:
+    """Generator behind :func:`stream_frames`; each block starts from the last frame."""
+    previous = start
+    for first in range(0, len(t), BLOCK_FRAMES):
+        tb = t[first : first + BLOCK_FRAMES]
+        samples = spline.evaluate(tb, max_order=2)
+        try:
+            q = kin.inverse(samples.q, tb, start=previous)
+        except KinematicsError:
+            # Yield the block's good frames one by one; the offending one raises.
+            for j in range(len(tb)):
+                previous = kin.inverse(samples.q[j : j + 1], tb[j : j + 1], start=previous)[0]
+                qd, qdd = joint_rates(previous, samples.omega[j], samples.alpha[j])
+                yield JointFrame(first + j, float(tb[j]), previous, qd, qdd)
+        qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+        previous = q[-1]
+        for j in range(len(tb)):
+            yield JointFrame(first + j, float(tb[j]), q[j], qd[j], qdd[j])
+
+
+def _prepare(spline, rate_hz, kinematics, start):
+    """Check the planners' arguments; return the kinematics, the times (M,) and start."""
+    if not all(hasattr(spline, name) for name in ("t_start", "t_end", "evaluate")):
+        raise TypeError(
+            "Expected `spline` to have t_start, t_end and evaluate(t, max_order=2), "
+            f"got {type(spline).__name__}."
+        )
+    if kinematics is None:
+        kinematics = GimbalKinematics()
+    elif not isinstance(kinematics, GimbalKinematics):
+        raise TypeError(
+            f"Expected `kinematics` to be a GimbalKinematics, got {type(kinematics).__name__}."
+        )
+    if start is not None:
+        start = as_angles(start, "start", single=True)
+    return kinematics, sample_times(spline.t_start, spline.t_end, rate_hz), start
