@@ -18,6 +18,7 @@ Kinds:
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -205,6 +206,26 @@ class LocalCurves:
 
     def __len__(self) -> int:
         return len(self.kind)
+
+    @cached_property
+    def row_table(self) -> tuple:
+        """The columns one row per curve, in the order :mod:`trajgen.fast` takes them."""
+        return (
+            self.kind,
+            self.t,
+            self.q,
+            self.centre.T.copy(),
+            self.radius,
+            self.e1.T.copy(),
+            self.e2.T.copy(),
+            self.a3,
+            self.g_kind,
+            self.g_coef,
+            self.A.T.copy(),
+            self.B.T.copy(),
+            self.rise,
+            self.power,
+        )
 
     def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> J.Jet:
         """Curves ``ids`` (M,) at times ``t`` (M,): a quaternion jet (order + 1, 4, M)."""

@@ -13,6 +13,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import jet as J
+from . import quat as Q
 from .sampling import sample_times
 
 FRAMES = ("space", "body")
@@ -130,16 +131,25 @@ class OrientationPath:
         max_order = _check_order("max_order", max_order)
         check_option("frame", frame, FRAMES)
         seg, ta = self._segment(_as_times(t).reshape(-1))
-        qj = self._jet(ta, seg, max_order)
-        q = (qj.value / np.linalg.norm(qj.value, axis=0)).T
-        derivs: list[np.ndarray | None] = [None, None, None]
-        if max_order >= 1:
-            # omega = 2 vec(q' q*) (space) or 2 vec(q* q') (body), a jet one order lower.
-            qd, qc = qj.d(), J.qconj(qj)
-            w = J.qmul(qd, qc) if frame == "space" else J.qmul(qc, qd)
-            for n in range(max_order):
-                derivs[n] = 2.0 * w.derivative(n)[1:].T
+        q, rates = self._space_rates(ta, seg, max_order)
+        if frame == "body":
+            # w_b = R^T w_s, a_b = R^T a_s, j_b = R^T (j_s - w_s x a_s).
+            if max_order >= 3:
+                rates[2] = rates[2] - np.cross(rates[0], rates[1])
+            rates = [Q.rotate(Q.conj(q), r) for r in rates]
+        derivs = rates + [None] * (3 - len(rates))
         return Samples(ta, q, *derivs)
+
+    def _space_rates(self, t, seg, max_order) -> tuple[np.ndarray, list[np.ndarray]]:
+        """Unit quaternions (M, 4) and the space-frame angular derivatives of orders
+        1..max_order, each (M, 3), from the path's jet."""
+        qj = self._jet(t, seg, max_order)
+        q = (qj.value / np.linalg.norm(qj.value, axis=0)).T
+        if max_order == 0:
+            return q, []
+        # omega = 2 vec(q' q*), as a jet one order lower.
+        w = J.qmul(qj.d(), J.qconj(qj))
+        return q, [2.0 * w.derivative(n)[1:].T for n in range(max_order)]
 
     def __call__(self, t, order: int = 0, *, frame: str = "space") -> np.ndarray:
         """Orientation (order 0, shape (..., 4)) or angular velocity, acceleration,

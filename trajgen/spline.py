@@ -13,6 +13,7 @@ from math import comb
 
 import numpy as np
 
+from . import fast
 from . import jet as J
 from . import quat as Q
 from .local_curves import KIND_NAMES, POINT, CurveRow, LocalCurves, NoCircleError, build_curve
@@ -161,6 +162,12 @@ class BlendingSpline(OrientationPath):
         self._blend = np.zeros((n - 1, deg))
         for m in np.unique(order):
             self._blend[order == m, : 2 * m] = blend_polynomial(int(m))
+
+    def _space_rates(self, t, seg, max_order):
+        if not fast.ENABLED:
+            return super()._space_rates(t, seg, max_order)
+        q, rates = fast.evaluate(self, t, seg)
+        return q, list(rates[:max_order])
 
     def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
         M = len(t)
