@@ -1,0 +1,524 @@
+"""The servo bus: ``dynamixel-sdk`` over pyserial, with every result checked.
+
+``ServoBus`` wraps the SDK's ``PortHandler`` and ``Protocol2PacketHandler``.
+What it adds to them (see DYNAMIXEL.md for why):
+
+- any baud rate, 4.5 Mbps included (``getCFlagBaud`` accepts any rate and
+  pyserial sets it with BOTHER), and packet timeouts from the adapter's real
+  latency timer instead of the SDK's fixed 16 ms;
+- the FTDI latency timer set to 1 ms through sysfs where there is one;
+- every result code and status ERR byte checked, a retry budget, and errors
+  that name the servo, the register and the tries (``CommError``,
+  ``ServoError``); a failed read raises, it never reads as 0;
+- signed decoding of 2- and 4-byte registers;
+- group reads (fast sync read, or sync read) that keep each servo's ERR byte,
+  which the SDK's ``GroupSyncRead`` discards, so the Alert bit is seen.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from drivers.control_table import (
+    SIGNED,
+    Model,
+    Register,
+    describe_hardware_error,
+    layout,
+)
+from drivers.errors import CommError, ServoError
+from drivers.protocol import ALERT_BIT, StatusError
+from drivers.units import to_signed, to_unsigned
+
+DEFAULT_BAUD = 1_000_000
+# The SDK's fixed assumption, used where the port has no latency timer to read.
+DEFAULT_LATENCY_MS = 16.0
+_SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{tty}/latency_timer"
+
+
+def _make_port(port_name: str, latency_ms: float):
+    """An SDK PortHandler accepting any baud rate, timing out on ``latency_ms``."""
+    from dynamixel_sdk import PortHandler
+
+    class _Port(PortHandler):
+        def getCFlagBaud(self, baudrate):  # noqa: N802 (SDK name)
+            return baudrate if baudrate > 0 else -1
+
+        def readPort(self, length):  # noqa: N802 (SDK name)
+            # The SDK polls this in a loop with a zero timeout; wait here (up to
+            # 1 ms, GIL released) for the first byte instead of spinning a core.
+            if not self.ser.in_waiting:
+                select.select([self.ser.fileno()], [], [], 0.001)
+            return self.ser.read(length)
+
+        def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
+            self.packet_start_time = self.getCurrentTime()
+            self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
+
+    return _Port(port_name)
+
+
+def set_ftdi_latency_timer(port_name: str, latency_ms: int = 1) -> int | None:
+    """Set an FTDI adapter's latency timer through sysfs, where there is one.
+
+    Parameters
+    ----------
+    port_name : str
+        Serial device path, e.g. ``/dev/ttyUSB0`` (symlinks are followed).
+    latency_ms : int
+        Wanted latency timer (ms).
+
+    Returns
+    -------
+    int or None
+        The latency timer after the attempt (ms), or None when the port has no
+        latency timer (not a USB serial adapter, e.g. a pseudo-terminal).
+        Warns (``RuntimeWarning``) when it stays at 16 ms or more.
+    """
+    tty = os.path.basename(os.path.realpath(port_name))
+    path = _SYSFS_LATENCY.format(tty=tty)
+    if not os.path.exists(path):
+        return None
+    try:
+        with open(path, "w") as f:
+            f.write(f"{latency_ms}\n")
+    except OSError:
+        pass  # not permitted: reported below through the value read back
+    with open(path) as f:
+        value = int(f.read().strip())
+    if value >= 16:
+        warnings.warn(
+            f"{port_name}: FTDI latency timer is {value} ms (could not set {latency_ms} ms); "
+            f"every read-back will wait about {value} ms. Fix: "
+            f"echo {latency_ms} | sudo tee {path}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return value
+
+
+@dataclass(frozen=True)
+class BlockRead:
+    """One group read of a register block from several servos.
+
+    Attributes
+    ----------
+    values : dict of int to dict of Register to int
+        Per servo id, each register of the block, decoded (signed where signed).
+    errors : dict of int to int
+        Per servo id, its status ERR byte (bit 7 = Alert).
+    """
+
+    values: dict[int, dict[Register, int]]
+    errors: dict[int, int]
+
+
+class ServoBus:
+    """A Protocol 2.0 bus on one serial port.
+
+    Parameters
+    ----------
+    port : str
+        Serial device path (``/dev/ttyUSB0``, or a pseudo-terminal).
+    baud : int, optional
+        Baud rate (bit/s), any rate the servos support (4.5 Mbps included).
+    retries : int, optional
+        Extra tries of a transaction that times out or gets a corrupt reply,
+        before ``CommError``.
+    latency_ms : float or None, optional
+        Adapter latency (ms) used in reply timeouts; None reads the FTDI latency
+        timer (after setting it to 1 ms) and falls back to 16 ms.
+
+    Raises
+    ------
+    ValueError
+        If ``baud`` is not a positive int or ``retries`` is negative.
+
+    Attributes
+    ----------
+    models : dict of int to Model
+        Declared servos (``add_servo``).
+    failed_tries : int
+        Transaction tries that failed so far (timeouts, corrupt replies, port
+        errors), retried or not.
+
+    Notes
+    -----
+    Servos are addressed by id; ``add_servo`` tells the bus a servo's model so
+    that registers resolve to its addresses. Use as a context manager, or call
+    ``open`` and ``close``.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baud: int = DEFAULT_BAUD,
+        retries: int = 2,
+        latency_ms: float | None = None,
+    ) -> None:
+        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
+            raise ValueError(f"Expected `baud` to be a positive int, got {baud!r}.")
+        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+            raise ValueError(f"Expected `retries` to be an int >= 0, got {retries!r}.")
+        self.port_name = port
+        self.baud = baud
+        self.retries = retries
+        self.latency_ms = latency_ms
+        self.models: dict[int, Model] = {}
+        self.failed_tries = 0
+        self._port = None
+        self._ph = None
+
+    # -- port ------------------------------------------------------------
+
+    def open(self) -> ServoBus:
+        """Open the port at ``baud``; returns self.
+
+        Raises
+        ------
+        CommError
+            If the port cannot be opened or the baud rate set.
+        """
+        import serial
+        from dynamixel_sdk import PacketHandler
+
+        if self.latency_ms is None:
+            timer = set_ftdi_latency_timer(self.port_name)
+            self.latency_ms = DEFAULT_LATENCY_MS if timer is None else float(timer)
+        self._port = _make_port(self.port_name, self.latency_ms)
+        self._ph = PacketHandler(2.0)
+        try:
+            ok = self._port.setBaudRate(self.baud)
+        except (serial.SerialException, OSError, ValueError) as e:
+            self._port = None
+            raise CommError(f"{self.port_name}: cannot open at {self.baud} baud: {e}") from e
+        if not ok:
+            self._port = None
+            raise CommError(f"{self.port_name}: baud rate {self.baud} refused")
+        return self
+
+    def close(self) -> None:
+        """Close the port (no effect when closed)."""
+        if self._port is not None:
+            try:
+                self._port.closePort()
+            except OSError:
+                pass  # already gone (unplugged)
+            self._port = None
+
+    @property
+    def is_open(self) -> bool:
+        """Whether the port is open."""
+        return self._port is not None
+
+    def __enter__(self) -> ServoBus:
+        return self.open()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _sdk(self, what: str, call, *args):
+        """Run one SDK call, turning OS errors (unplugged port) into CommError."""
+        import termios
+
+        import serial
+
+        if self._port is None:
+            raise CommError(f"{self.port_name}: {what}: port is not open")
+        try:
+            return call(*args)
+        except (serial.SerialException, OSError, termios.error) as e:
+            self._port.is_using = False  # the SDK leaves it set after an exception
+            self.failed_tries += 1
+            raise CommError(f"{self.port_name}: {what}: port failed: {e}") from e
+        except BaseException:  # Ctrl-C mid-transaction
+            self._port.is_using = False
+            raise
+
+    def _result_text(self, result: int) -> str:
+        return self._ph.getTxRxResult(result).removeprefix("[TxRxResult] ")
+
+    # -- servos ------------------------------------------------------------
+
+    def add_servo(self, servo_id: int, model: Model) -> None:
+        """Declare the model of servo ``servo_id`` (register addresses follow it)."""
+        self.models[servo_id] = model
+
+    def _address(self, servo_id: int, register: Register) -> tuple[int, int]:
+        try:
+            model = self.models[servo_id]
+        except KeyError:
+            raise ValueError(
+                f"Servo {servo_id} has no model; call add_servo({servo_id}, model) first."
+            ) from None
+        return layout(model)[register]
+
+    def _check_status(self, servo_id: int, error: int, what: str) -> None:
+        low = error & ~ALERT_BIT
+        if low:
+            try:
+                name = StatusError(low).name.lower().replace("_", " ")
+            except ValueError:
+                name = f"code {low}"
+            raise ServoError(f"servo {servo_id}: {what}: status error: {name} ({error:#04x})")
+        if error & ALERT_BIT:
+            self.raise_hardware_error(servo_id, during=what)
+
+    def raise_hardware_error(self, servo_id: int, *, during: str) -> None:
+        """Read Hardware Error Status of a servo whose Alert bit is set, and raise.
+
+        Raises
+        ------
+        ServoError
+            Always: naming the hardware error bits (or the read failure).
+        """
+        address = self._address(servo_id, Register.HARDWARE_ERROR_STATUS)[0]
+        value, result, _ = self._sdk(
+            "read Hardware Error Status", self._ph.read1ByteTxRx, self._port, servo_id, address
+        )
+        if result != 0:
+            raise ServoError(
+                f"servo {servo_id}: Alert bit set during {during}; reading Hardware Error "
+                f"Status failed: {self._result_text(result)}"
+            )
+        raise ServoError(
+            f"servo {servo_id}: hardware error during {during}: {describe_hardware_error(value)} "
+            f"(Hardware Error Status {value:#04x}); torque stays off until the servo is rebooted"
+        )
+
+    def ping(self, servo_id: int) -> int:
+        """Ping one servo; returns its model number.
+
+        Raises
+        ------
+        CommError
+            If no valid reply arrives within the retry budget.
+        """
+        for _ in range(self.retries + 1):
+            number, result, error = self._sdk("ping", self._ph.ping, self._port, servo_id)
+            if result == 0:
+                return number
+            self.failed_tries += 1
+        raise CommError(
+            f"servo {servo_id}: ping failed after {self.retries + 1} tries: "
+            f"{self._result_text(result)}"
+        )
+
+    def scan(self) -> dict[int, tuple[int, int]]:
+        """Broadcast ping: every servo that answers.
+
+        Returns
+        -------
+        dict of int to (int, int)
+            Servo id -> (model number, firmware version).
+
+        Raises
+        ------
+        CommError
+            If the port fails or a reply is corrupt (no reply gives an empty dict).
+        """
+        found, result = self._sdk("broadcast ping", self._ph.broadcastPing, self._port)
+        if result not in (0, -3001):  # success, or no servo at all
+            raise CommError(f"{self.port_name}: broadcast ping: {self._result_text(result)}")
+        return {i: (int(m), int(f)) for i, (m, f) in sorted(found.items())}
+
+    def read(self, servo_id: int, register: Register) -> int:
+        """Read one register (signed where the register is signed).
+
+        Raises
+        ------
+        CommError
+            If no valid reply arrives within the retry budget.
+        ServoError
+            If the servo's status reports an error or a hardware error.
+        """
+        address, size = self._address(servo_id, register)
+        what = f"read {register.value}"
+        for _ in range(self.retries + 1):
+            data, result, error = self._sdk(
+                what, self._ph.readTxRx, self._port, servo_id, address, size
+            )
+            if result == 0:
+                break
+            self.failed_tries += 1
+        else:
+            raise CommError(
+                f"servo {servo_id}: {what} failed after {self.retries + 1} tries: "
+                f"{self._result_text(result)}"
+            )
+        self._check_status(servo_id, error, what)
+        value = int.from_bytes(bytes(data), "little")
+        return to_signed(value, size) if register in SIGNED else value
+
+    def write(self, servo_id: int, register: Register, value: int) -> None:
+        """Write one register and wait for the servo's acknowledgement.
+
+        Raises
+        ------
+        ValueError
+            If ``value`` does not fit the register.
+        CommError
+            If no valid acknowledgement arrives within the retry budget.
+        ServoError
+            If the servo refuses the write (access, range, limit) or is in
+            hardware error.
+        """
+        address, size = self._address(servo_id, register)
+        data = list(to_unsigned(int(value), size).to_bytes(size, "little"))
+        what = f"write {register.value} = {value}"
+        for _ in range(self.retries + 1):
+            result, error = self._sdk(
+                what, self._ph.writeTxRx, self._port, servo_id, address, size, data
+            )
+            if result == 0:
+                break
+            self.failed_tries += 1
+        else:
+            raise CommError(
+                f"servo {servo_id}: {what} failed after {self.retries + 1} tries: "
+                f"{self._result_text(result)}"
+            )
+        self._check_status(servo_id, error, what)
+
+    def reboot(self, servo_id: int) -> None:
+        """Reboot a servo (clears a hardware error; torque comes back off).
+
+        Raises
+        ------
+        CommError
+            If no valid reply arrives within the retry budget.
+        """
+        for _ in range(self.retries + 1):
+            result, _ = self._sdk("reboot", self._ph.reboot, self._port, servo_id)
+            if result == 0:
+                return
+            self.failed_tries += 1
+        raise CommError(
+            f"servo {servo_id}: reboot failed after {self.retries + 1} tries: "
+            f"{self._result_text(result)}"
+        )
+
+    def sync_write(self, register: Register, values: dict[int, int]) -> None:
+        """One Sync Write of ``register`` to several servos (no reply to wait for).
+
+        Only for blocks whose bytes cannot contain ``FF FF FD`` (the SDK's TX path
+        drops byte stuffing): Goal Position is safe.
+
+        Raises
+        ------
+        ValueError
+            If a value does not fit the register.
+        CommError
+            If the port fails.
+        """
+        ids = list(values)
+        address, size = self._address(ids[0], register)
+        param = []
+        for servo_id, value in values.items():
+            param.append(servo_id)
+            param.extend(to_unsigned(int(value), size).to_bytes(size, "little"))
+        result = self._sdk(
+            f"sync write {register.value}",
+            self._ph.syncWriteTxOnly,
+            self._port,
+            address,
+            size,
+            param,
+            len(param),
+        )
+        if result != 0:
+            raise CommError(
+                f"servos {ids}: sync write {register.value} failed: {self._result_text(result)}"
+            )
+
+    def read_block(
+        self, ids: Sequence[int], registers: Sequence[Register], *, fast: bool = True
+    ) -> BlockRead:
+        """One group read of a contiguous register block from several servos.
+
+        Parameters
+        ----------
+        ids : sequence of int
+            Servos, answering in this order.
+        registers : sequence of Register
+            Registers covering one contiguous block (any order).
+        fast : bool, optional
+            Fast Sync Read (one reply packet) if True, else Sync Read (one
+            status packet per servo).
+
+        Returns
+        -------
+        BlockRead
+            Values and each servo's ERR byte. The caller decides what an ERR
+            byte means; ``check_block`` raises on any error bit.
+
+        Raises
+        ------
+        CommError
+            If a reply is missing or corrupt after the retry budget.
+        """
+        spans = [self._address(ids[0], r) for r in registers]
+        start = min(a for a, _ in spans)
+        length = max(a + s for a, s in spans) - start
+        kind = "fast sync read" if fast else "sync read"
+        what = f"{kind} of {', '.join(r.value for r in registers)}"
+        for _ in range(self.retries + 1):
+            raw, result = self._group_read(list(ids), start, length, fast, what)
+            if result == 0:
+                break
+            self.failed_tries += 1
+        else:
+            raise CommError(
+                f"servos {list(ids)}: {what} failed after {self.retries + 1} tries: "
+                f"{self._result_text(result)}"
+            )
+        values, errors = {}, {}
+        for servo_id, (error, data) in raw.items():
+            errors[servo_id] = error
+            decoded = {}
+            for register, (address, size) in zip(registers, spans, strict=True):
+                value = int.from_bytes(
+                    bytes(data[address - start : address - start + size]), "little"
+                )
+                decoded[register] = to_signed(value, size) if register in SIGNED else value
+            values[servo_id] = decoded
+        return BlockRead(values, errors)
+
+    def _group_read(self, ids, start, length, fast, what):
+        """One try: ({id: (error, data)}, result code)."""
+        ph, port = self._ph, self._port
+        result = self._sdk(what, ph.syncReadTx, port, start, length, ids, len(ids), fast)
+        if result != 0:
+            return {}, result
+        raw = {}
+        if fast:
+            data, result, _ = self._sdk(
+                what, ph.fastSyncReadRx, port, 0xFE, (length + 4) * len(ids)
+            )
+            if result != 0:
+                return {}, result
+            for k, servo_id in enumerate(ids):
+                block = data[k * (length + 4) : (k + 1) * (length + 4)]
+                if len(block) != length + 4 or block[1] != servo_id:
+                    return {}, -3002  # COMM_RX_CORRUPT: wrong id or short reply
+                raw[servo_id] = (block[0], block[2 : 2 + length])
+            return raw, 0
+        for servo_id in ids:
+            data, result, error = self._sdk(what, ph.readRx, port, servo_id, length)
+            if result != 0:
+                return {}, result
+            raw[servo_id] = (error, data)
+        return raw, 0
+
+    def check_block(self, block: BlockRead, what: str) -> None:
+        """Raise ``ServoError`` for the first servo whose ERR byte is non-zero.
+
+        An Alert bit is resolved by reading that servo's Hardware Error Status.
+        """
+        for servo_id, error in block.errors.items():
+            self._check_status(servo_id, error, what)

@@ -1,0 +1,315 @@
+"""The ``trajgen stream`` and ``trajgen scan`` commands.
+
+This module imports quickly: dynamixel-sdk, pyserial and MuJoCo load inside
+``run_stream`` and ``run_scan``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+STREAM_DESCRIPTION = """\
+Plan the joint stream of a keyframe file and stream it to Dynamixel X-series
+servos at a fixed rate: bring-up (ping and model check, Return Delay 0, operating
+mode, no profile, torque on, Bus Watchdog), a smooth move from the present
+position to the first frame, then one sync write of Goal Position per frame with
+present position, velocity and current read back. Prints the rate achieved,
+period jitter (p50, p99, max), overruns and communication errors.
+
+The file's [bus] table may set port, baud, ids, directions, zeros, models and
+watchdog_s; flags override it. On any stop the servos hold their last goal
+(--torque-off releases them); the telemetry written so far is kept.
+
+--virtual runs the same driver, SDK and serial layer against a virtual servo bus
+on a pseudo-terminal, backed by the MuJoCo gimbal of `trajgen sim` (the file's
+[gimbal] table; ideal assembly: direction +1, zero 2048), advancing one stream
+period per frame received, and then prints the torque report.
+
+exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
+130 interrupted (servos hold their last goal)."""
+
+SCAN_DESCRIPTION = """\
+Broadcast-ping a serial port and list the Dynamixel servos that answer, with
+model and firmware version.
+
+exit status: 0 servos found, 1 none found or the bus failed, 2 bad input."""
+
+
+def _ids(text: str) -> tuple[int, ...]:
+    """argparse type: three comma-separated servo ids."""
+    try:
+        ids = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
+    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
+        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
+    return ids
+
+
+def _baud(text: str) -> int:
+    """argparse type: a positive integer baud rate."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a baud rate > 0, got {text!r}")
+    return value
+
+
+def register(subparsers) -> None:
+    """Add the ``stream`` and ``scan`` subcommands to an argparse ``subparsers``."""
+    from trajgen.cli import add_file_argument, positive_float
+
+    p = subparsers.add_parser(
+        "stream",
+        help="stream a keyframe file to Dynamixel servos (or a virtual bus)",
+        description=STREAM_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_file_argument(p)
+    p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
+    p.add_argument(
+        "--baud", type=_baud, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
+    )
+    p.add_argument(
+        "--ids", type=_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
+    )
+    p.add_argument(
+        "--rate",
+        type=positive_float,
+        metavar="HZ",
+        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
+    )
+    p.add_argument(
+        "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
+    )
+    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
+    p.add_argument(
+        "--torque-off", action="store_true", help="release the servos when the stream stops"
+    )
+    p.add_argument(
+        "--virtual",
+        action="store_true",
+        help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
+    )
+    p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
+    p.set_defaults(func=run_stream)
+
+    s = subparsers.add_parser(
+        "scan",
+        help="list the Dynamixel servos on a serial port",
+        description=SCAN_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    s.add_argument("--port", required=True, help="serial device, e.g. /dev/ttyUSB0")
+    s.add_argument("--baud", type=_baud, default=1_000_000, help="baud rate; default 1000000")
+    s.set_defaults(func=run_scan)
+
+
+def _error(message) -> int:
+    print(f"trajgen: error: {message}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _open_bus(port: str, baud: int):
+    """Open a ServoBus, turning the latency-timer warning into a stderr line."""
+    from drivers.bus import ServoBus
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RuntimeWarning)
+        bus = ServoBus(port, baud=baud).open()
+    for w in caught:
+        print(f"trajgen: warning: {w.message}", file=sys.stderr)
+    return bus
+
+
+def run_scan(args) -> int:
+    """Run ``trajgen scan``; returns the exit status."""
+    from drivers.control_table import Model, model_numbered
+    from drivers.errors import CommError
+
+    try:
+        bus = _open_bus(args.port, args.baud)
+    except CommError as e:
+        return _error(e)
+    try:
+        found = bus.scan()
+    except CommError as e:
+        print(f"trajgen: scan failed: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    finally:
+        bus.close()
+    if not found:
+        print(f"no servos answered on {args.port} at {args.baud} baud")
+        return EXIT_FAILED
+    for servo_id, (number, firmware) in found.items():
+        model = model_numbered(number)
+        name = model.name if isinstance(model, Model) else model
+        print(f"id {servo_id:3d}  model {number:5d} ({name})  firmware {firmware}")
+    return EXIT_OK
+
+
+def run_stream(args) -> int:
+    """Run ``trajgen stream``; returns the exit status."""
+    try:
+        return _stream(args)
+    except KeyboardInterrupt:
+        print("trajgen: interrupted: the servos hold their last goal", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _plan(args):
+    """Everything that can fail on bad input, before any hardware is touched."""
+    from drivers.config import bus_config_from_tables
+    from drivers.units import JointMap
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.stream import plan_joint_trajectory
+
+    kf = load_keyframe_file(args.file)
+    config = bus_config_from_tables(kf.tables, kf.path)
+    joints = config.joints
+    if args.virtual:
+        if args.port:
+            raise ValueError("--port and --virtual exclude each other")
+        joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
+    elif args.plot:
+        raise ValueError("--plot needs --virtual (it plots the simulated torque report)")
+    elif not (args.port or config.port):
+        raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
+    if args.ids:
+        joints = JointMap(args.ids, joints.directions, joints.zeros)
+    if args.telemetry and not args.telemetry.endswith((".csv", ".npz")):
+        raise ValueError(f"--telemetry: expected a .csv or .npz path, got {args.telemetry!r}")
+    if args.telemetry and not Path(args.telemetry).resolve().parent.is_dir():
+        raise ValueError(f"--telemetry: no such directory for {args.telemetry!r}")
+    rate = args.rate or kf.rate_hz or 200.0
+    trajectory = plan_joint_trajectory(kf.spline(), rate)
+    return kf, config, joints, rate, trajectory
+
+
+def _bring_up(bus, kf, config, joints, rate):
+    """Check the servos, re-plan from their present position, configure them.
+
+    Planning with ``start`` = the present joint angles puts pan and roll on the
+    2 pi branch nearest to where the servos are, so the move to the first
+    frame never unwinds a turn.
+    """
+    import numpy as np
+
+    from drivers.bringup import check_servos, configure, operating_mode_for
+    from drivers.control_table import Register
+    from trajgen.stream import plan_joint_trajectory
+
+    check_servos(bus, joints, config.models)
+    ticks = np.array([bus.read(i, Register.PRESENT_POSITION) for i in joints.ids])
+    trajectory = plan_joint_trajectory(kf.spline(), rate, start=joints.to_rad(ticks))
+    mode = operating_mode_for(joints.to_ticks(trajectory.q))
+    configure(bus, joints, operating_mode=mode, watchdog_s=config.watchdog_s)
+    return trajectory
+
+
+def _stream(args) -> int:
+    from drivers.errors import DriverError
+    from drivers.streamer import Streamer
+
+    try:
+        kf, config, joints, rate, trajectory = _plan(args)
+    except (ValueError, TypeError, OSError) as e:  # KeyframeFileError, KinematicsError
+        return _error(e)
+
+    virtual = plant = None
+    if args.virtual:
+        from drivers.virtual.bus import VirtualBus
+        from sim.model import gimbal_config_from_tables
+        from sim.plant import GimbalPlant
+
+        try:
+            plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path))
+        except (ValueError, TypeError) as e:
+            return _error(e)
+        virtual = VirtualBus(
+            plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate
+        ).start()
+        port = virtual.port
+    else:
+        port = args.port or config.port
+
+    streamer = None
+    status = EXIT_OK
+    try:
+        try:
+            bus = _open_bus(port, args.baud or config.baud)
+        except DriverError as e:
+            return _error(e)
+        try:
+            trajectory = _bring_up(bus, kf, config, joints, rate)
+            streamer = Streamer(
+                bus,
+                joints,
+                telemetry=args.telemetry,
+                on_stop="torque_off" if args.torque_off else "hold",
+            )
+            streamer.run(trajectory)
+        except DriverError as e:
+            print(f"trajgen: stream failed: {e}", file=sys.stderr)
+            status = EXIT_FAILED
+        except ValueError as e:  # re-planning from the present position (KinematicsError)
+            return _error(e)
+        finally:
+            bus.close()
+            if streamer is not None and streamer.stats is not None:
+                print(streamer.stats.format())
+                for message in streamer.stop_errors:
+                    print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
+    finally:
+        if virtual is not None:
+            virtual.stop()
+            if virtual.error is not None:
+                print(f"trajgen: virtual bus stopped: {virtual.error}", file=sys.stderr)
+    if args.telemetry and streamer is not None:
+        print(f"telemetry: {args.telemetry}")
+
+    result = {"stream": None if streamer is None else streamer.stats.to_json_dict()}
+    if plant is not None and status == EXIT_OK and streamer.stats.approach_frames:
+        print(
+            "trajgen: warning: the simulated gimbal starts at 0 rad and the file does not, so "
+            "the move to the first frame is in the simulated record, ahead of the trajectory "
+            "the torque report compares it with",
+            file=sys.stderr,
+        )
+    if plant is not None and status == EXIT_OK:
+        from sim.errors import SimError
+
+        try:
+            report = plant.report(trajectory)
+        except SimError as e:
+            print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+            return EXIT_FAILED
+        print(report.format())
+        result["torque"] = report.to_json_dict()
+        if not report.ok:
+            status = EXIT_FAILED
+        if args.plot:
+            from sim.plot import plot_report
+
+            try:
+                print(f"plot: {plot_report(report, args.plot)}")
+            except (OSError, ValueError) as e:
+                return _error(e)
+    if args.json:
+        try:
+            with open(args.json, "w", encoding="utf-8") as f:
+                json.dump(result, f, indent=2)
+        except OSError as e:
+            return _error(e)
+        print(f"json: {args.json}")
+    return status

@@ -1,0 +1,28 @@
+"""Exceptions of the drivers package.
+
+``DriverError`` is the base of every domain failure. Messages name the servo
+ids, the register and the number of tries; the underlying exception is chained
+with ``from``.
+"""
+
+from __future__ import annotations
+
+
+class DriverError(Exception):
+    """Base class of every failure raised by ``drivers``."""
+
+
+class CommError(DriverError, ConnectionError):
+    """Transport failure: no reply, a corrupt reply, or the port went away."""
+
+
+class ServoError(DriverError, RuntimeError):
+    """A servo reported an error: an error bit in its status, or a hardware error."""
+
+
+class WatchdogTripped(ServoError):
+    """A servo's Bus Watchdog expired; it refuses new goals until cleared."""
+
+
+class BringUpError(DriverError):
+    """The servos on the bus do not match the configuration (missing, wrong model)."""

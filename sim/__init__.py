@@ -1,0 +1,41 @@
+"""MuJoCo simulation of a pan-tilt-roll Dynamixel gimbal and its torque check.
+
+The simulator consumes trajgen's joint stream (``trajgen.stream.JointTrajectory``)
+and nothing else from trajgen. MuJoCo is imported only when a model is built.
+"""
+
+from sim.check import (
+    JointReport,
+    TorqueReport,
+    assert_torque_ok,
+    build_report,
+    check_torque,
+)
+from sim.dynamics import inverse_dynamics
+from sim.errors import SimError, SimulationError, TorqueLimitExceeded
+from sim.model import GimbalConfig, build_model, gimbal_config_from_tables, gimbal_mjcf
+from sim.plant import GimbalPlant
+from sim.run import SimRecord, simulate
+from sim.servos import SERVOS, ServoModel, servo_by_name
+
+__all__ = [
+    "SERVOS",
+    "GimbalConfig",
+    "GimbalPlant",
+    "JointReport",
+    "ServoModel",
+    "SimError",
+    "SimRecord",
+    "SimulationError",
+    "TorqueLimitExceeded",
+    "TorqueReport",
+    "assert_torque_ok",
+    "build_model",
+    "build_report",
+    "check_torque",
+    "gimbal_config_from_tables",
+    "gimbal_mjcf",
+    "inverse_dynamics",
+    "servo_by_name",
+    "simulate",
+]

@@ -1,0 +1,376 @@
+"""The torque check: does a planned motion stay inside the servos' torque-speed envelope?
+
+Two parts, both per joint:
+
+(a) Plan: the torque the plan needs (``mj_inverse`` on the planned ``q, qd, qdd``)
+    must stay within ``torque_margin * tau_max(qd)``, where
+    ``tau_max(w) = tau_stall (1 - |w| / w0)`` at 12 V.
+(b) Simulation: the stream is played to the simulated servos (zero-order hold,
+    1 ms physics); no step may reach the servo's torque limit (the 12 V drive,
+    or the stall-torque clamp when braking), and the joints must
+    stay within ``max_tracking_error_rad`` of the planned path.
+
+The verdict ``ok`` needs all three. The simulated torque's own margin against
+``torque_margin x envelope`` is reported but does not decide the verdict: the
+setpoint steps of a zero-order hold add brief torque spikes a real servo's
+current loop absorbs.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from sim.errors import TorqueLimitExceeded
+from sim.model import JOINT_NAMES, GimbalConfig
+from sim.run import SimRecord, check_trajectory, simulate
+
+DEFAULT_RATE_HZ = 200.0
+
+
+@dataclass(frozen=True)
+class JointReport:
+    """Torque figures of one joint (SI units).
+
+    Attributes
+    ----------
+    name, servo : str
+        Joint name and servo model.
+    peak_planned_torque_nm : float
+        Max |planned torque| (N m), from ``mj_inverse``.
+    peak_torque_nm : float
+        Max |simulated actuator torque| (N m).
+    peak_torque_rate_nm_s : float
+        Max |d(planned torque)/dt| (N m/s), by differences between stream
+        samples, without Coulomb friction (which steps at every start and
+        reversal whatever the plan).
+    rms_torque_nm : float
+        RMS simulated torque (N m).
+    max_tracking_error_rad : float
+        Max |simulated angle - planned path| (rad).
+    worst_planned_margin_nm : float
+        ``min over samples of (margin tau_max(qd) - |tau|)`` for the plan (N m);
+        negative means the plan leaves the envelope x margin.
+    worst_margin_nm : float
+        The same for the simulated torque and speed (N m); reported only.
+    peak_speed_rad_s : float
+        Max |planned joint speed| (rad/s).
+    steps_at_limit : int
+        Physics steps at the torque limit: the drive at 12 V, or the
+        stall-torque clamp when braking.
+    ok : bool
+    reasons : tuple of str
+        Why not ok (empty when ok).
+    """
+
+    name: str
+    servo: str
+    peak_planned_torque_nm: float
+    peak_torque_nm: float
+    peak_torque_rate_nm_s: float
+    rms_torque_nm: float
+    max_tracking_error_rad: float
+    worst_planned_margin_nm: float
+    worst_margin_nm: float
+    peak_speed_rad_s: float
+    steps_at_limit: int
+    ok: bool
+    reasons: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class TorqueReport:
+    """The torque check's verdict with per-joint figures.
+
+    Attributes
+    ----------
+    ok : bool
+        True when every joint passes.
+    reasons : tuple of str
+        Every joint's reasons for failing (empty when ok).
+    joints : dict of str to JointReport
+        Keyed ``"pan"``, ``"tilt"``, ``"roll"``.
+    torque_margin, max_tracking_error_rad : float
+        The thresholds used.
+    rate_hz, duration_s : float
+        Stream rate (Hz) and duration (s).
+    trajectory : JointTrajectory
+        The plan checked.
+    planned_torque_nm : ndarray, shape (N, 3)
+        Torque the plan needs at each stream sample (N m).
+    record : SimRecord
+        The simulated run.
+    config : GimbalConfig
+    """
+
+    ok: bool
+    reasons: tuple[str, ...]
+    joints: dict
+    torque_margin: float
+    max_tracking_error_rad: float
+    rate_hz: float
+    duration_s: float
+    trajectory: object = field(repr=False)
+    planned_torque_nm: np.ndarray = field(repr=False)
+    record: SimRecord = field(repr=False)
+    config: GimbalConfig = field(repr=False)
+
+    def to_json_dict(self) -> dict:
+        """Plain-JSON summary: ``{"ok", "reasons", ..., "joints": {"pan": {...}, ...}}``."""
+        joints = {}
+        for name, joint in self.joints.items():
+            d = asdict(joint)
+            d.pop("name")
+            d["reasons"] = list(joint.reasons)
+            joints[name] = d
+        return {
+            "ok": self.ok,
+            "reasons": list(self.reasons),
+            "rate_hz": self.rate_hz,
+            "duration_s": self.duration_s,
+            "torque_margin": self.torque_margin,
+            "max_tracking_error_rad": self.max_tracking_error_rad,
+            "joints": joints,
+        }
+
+    def format(self) -> str:
+        """A readable table of the per-joint figures and the verdict."""
+        verdict = "OK" if self.ok else "FAILED"
+        lines = [
+            f"torque check: {verdict} ({self.duration_s:.2f} s at {self.rate_hz:g} Hz, "
+            f"margin {self.torque_margin:g} of the 12 V envelope, "
+            f"tracking limit {math.degrees(self.max_tracking_error_rad):.1f} deg)",
+            f"{'joint':<6}{'servo':<12}{'plan':>8}{'sim':>8}{'rate':>9}{'rms':>8}"
+            f"{'margin':>9}{'speed':>8}{'error':>8}{'limit':>8}",
+            f"{'':<6}{'':<12}{'N m':>8}{'N m':>8}{'N m/s':>9}{'N m':>8}"
+            f"{'N m':>9}{'rad/s':>8}{'deg':>8}{'steps':>8}",
+        ]
+        for j in self.joints.values():
+            lines.append(
+                f"{j.name:<6}{j.servo:<12}{j.peak_planned_torque_nm:8.3f}{j.peak_torque_nm:8.3f}"
+                f"{j.peak_torque_rate_nm_s:9.2f}{j.rms_torque_nm:8.3f}"
+                f"{j.worst_planned_margin_nm:9.3f}{j.peak_speed_rad_s:8.2f}"
+                f"{math.degrees(j.max_tracking_error_rad):8.2f}{j.steps_at_limit:8d}"
+            )
+        lines.append(
+            "plan/sim: peak |torque|; rate: peak planned torque rate; margin: worst "
+            "(margin x envelope - |planned torque|)"
+        )
+        lines.extend(f"  - {r}" for r in self.reasons)
+        return "\n".join(lines)
+
+
+def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
+    """Judge a plan and its simulated run (see the module docstring).
+
+    Parameters
+    ----------
+    trajectory : JointTrajectory
+        The plan; its torque comes from ``sim.dynamics.inverse_dynamics``.
+    config : GimbalConfig
+    record : SimRecord
+        The simulated run of ``trajectory``.
+
+    Returns
+    -------
+    TorqueReport
+    """
+    from sim.dynamics import inverse_dynamics
+    from sim.model import build_model
+
+    model = build_model(config)
+    q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
+    tau_plan = inverse_dynamics(model, q, qd, qdd)
+    # Coulomb friction steps at every start and reversal whatever the plan;
+    # the torque rate is taken without it, so it measures the plan.
+    tau_smooth = inverse_dynamics(model, q, qd, qdd, coulomb=False)
+    t = np.asarray(trajectory.t, dtype=float)
+    qd_plan = np.asarray(qd, dtype=float)
+    tau_rate = np.gradient(tau_smooth, t, axis=0)
+    margin = config.torque_margin
+    joints = {}
+    for j, name in enumerate(JOINT_NAMES):
+        servo = config.servos[j]
+        plan_margin = margin * servo.tau_max(qd_plan[:, j]) - np.abs(tau_plan[:, j])
+        sim_margin = margin * servo.tau_max(record.qd[:, j]) - np.abs(record.torque_nm[:, j])
+        error = np.abs(record.tracking_error_rad[:, j])
+        at_limit = int(record.steps_at_limit[j])
+        reasons = []
+        worst = int(np.argmin(plan_margin))
+        if plan_margin[worst] < 0:
+            reasons.append(
+                f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
+                f"{abs(qd_plan[worst, j]):.2f} rad/s exceeds {margin:g} x envelope "
+                f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
+            )
+        if at_limit:
+            first = record.t[np.argmax(record.at_limit[:, j])]
+            reasons.append(
+                f"{name}: {at_limit} physics steps at the torque limit (12 V drive or "
+                f"stall clamp), the first at t = {first:.3f} s"
+            )
+        k = int(np.argmax(error))
+        if error[k] > config.max_tracking_error_rad:
+            reasons.append(
+                f"{name}: tracking error {error[k]:.3f} rad > "
+                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s"
+            )
+        joints[name] = JointReport(
+            name=name,
+            servo=servo.name,
+            peak_planned_torque_nm=float(np.abs(tau_plan[:, j]).max()),
+            peak_torque_nm=float(np.abs(record.torque_nm[:, j]).max()),
+            peak_torque_rate_nm_s=float(np.abs(tau_rate[:, j]).max()),
+            rms_torque_nm=float(np.sqrt(np.mean(record.torque_nm[:, j] ** 2))),
+            max_tracking_error_rad=float(error[k]),
+            worst_planned_margin_nm=float(plan_margin[worst]),
+            worst_margin_nm=float(sim_margin.min()),
+            peak_speed_rad_s=float(np.abs(qd_plan[:, j]).max()),
+            steps_at_limit=at_limit,
+            ok=not reasons,
+            reasons=tuple(reasons),
+        )
+    reasons = tuple(r for joint in joints.values() for r in joint.reasons)
+    return TorqueReport(
+        ok=not reasons,
+        reasons=reasons,
+        joints=joints,
+        torque_margin=margin,
+        max_tracking_error_rad=config.max_tracking_error_rad,
+        rate_hz=float(trajectory.rate_hz),
+        duration_s=float(t[-1] - t[0]),
+        trajectory=trajectory,
+        planned_torque_nm=tau_plan,
+        record=record,
+        config=config,
+    )
+
+
+def resolve_source(source, *, rate_hz=None, config=None):
+    """Turn what a user has into ``(JointTrajectory, GimbalConfig)``.
+
+    Parameters
+    ----------
+    source : str, PathLike, KeyframeFile, spline or JointTrajectory
+        A keyframe file (path or loaded), anything with the spline protocol
+        (``evaluate``, ``t_start``, ``t_end``), or a planned stream.
+    rate_hz : float, optional
+        Stream rate (Hz). Default: the file's ``[stream] rate_hz``, else 200.
+        A JointTrajectory carries its own rate; passing a different one raises.
+    config : GimbalConfig, optional
+        Default: the file's ``[gimbal]`` table, else :class:`GimbalConfig`.
+
+    Returns
+    -------
+    tuple of (JointTrajectory, GimbalConfig)
+
+    Raises
+    ------
+    TypeError
+        If ``source`` is none of the above.
+    ValueError
+        If ``rate_hz`` conflicts with a JointTrajectory's rate.
+    trajgen.keyframes.KeyframeFileError
+        For a bad keyframe file or ``[gimbal]`` table.
+    trajgen.gimbal.KinematicsError
+        If the path leaves the joint limits or nears gimbal lock.
+    """
+    if isinstance(source, (str, os.PathLike)):
+        from trajgen.keyframes import load_keyframe_file
+
+        source = load_keyframe_file(source)
+    if hasattr(source, "tables") and hasattr(source, "spline"):
+        if config is None:
+            from sim.model import gimbal_config_from_tables
+
+            config = gimbal_config_from_tables(source.tables, source.path)
+        if rate_hz is None:
+            rate_hz = getattr(source, "rate_hz", None)
+        source = source.spline()
+    config = GimbalConfig() if config is None else config
+    if hasattr(source, "evaluate") and hasattr(source, "t_start"):
+        from trajgen.stream import plan_joint_trajectory
+
+        rate = DEFAULT_RATE_HZ if rate_hz is None else rate_hz
+        return plan_joint_trajectory(source, rate), config
+    if hasattr(source, "qdd") and hasattr(source, "rate_hz"):
+        check_trajectory(source)
+        if rate_hz is not None and rate_hz != source.rate_hz:
+            raise ValueError(
+                f"Expected `rate_hz` to match the trajectory's {source.rate_hz} Hz, got {rate_hz}."
+            )
+        return source, config
+    raise TypeError(
+        "Expected `source` to be a keyframe file path, a KeyframeFile, a spline or a "
+        f"JointTrajectory, got {type(source).__name__}."
+    )
+
+
+def check_torque(
+    source,
+    *,
+    rate_hz: float | None = None,
+    config: GimbalConfig | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> TorqueReport:
+    """Plan, simulate and judge a motion; never raises for a failed check.
+
+    Parameters
+    ----------
+    source : str, PathLike, KeyframeFile, spline or JointTrajectory
+        See :func:`resolve_source`.
+    rate_hz : float, optional
+        Stream rate (Hz); see :func:`resolve_source`.
+    config : GimbalConfig, optional
+        See :func:`resolve_source`.
+    progress : callable, optional
+        Passed to :func:`sim.run.simulate`.
+
+    Returns
+    -------
+    TorqueReport
+        ``report.ok`` is the verdict.
+
+    Raises
+    ------
+    TypeError, ValueError, KeyframeFileError, KinematicsError
+        For bad input (see :func:`resolve_source`).
+    SimulationError
+        If MuJoCo warns or a contact appears during the run.
+    """
+    trajectory, config = resolve_source(source, rate_hz=rate_hz, config=config)
+    record = simulate(trajectory, config, progress=progress)
+    return build_report(trajectory, config, record)
+
+
+def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> TorqueReport:
+    """Pytest helper: raise unless ``source`` passes the torque check.
+
+    Use it in your own tests::
+
+        def test_my_shot_is_gentle_enough():
+            sim.assert_torque_ok("shots/look_around.toml")
+
+    Parameters
+    ----------
+    source, rate_hz, config
+        As for :func:`check_torque`.
+
+    Returns
+    -------
+    TorqueReport
+        When the check passes.
+
+    Raises
+    ------
+    TorqueLimitExceeded
+        When it fails; the message lists the reasons, ``.report`` has the rest.
+    """
+    report = check_torque(source, rate_hz=rate_hz, config=config)
+    if not report.ok:
+        raise TorqueLimitExceeded(report)
+    return report

@@ -1,0 +1,72 @@
+"""Inverse dynamics of the gimbal: the torque a planned joint path needs."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from sim.errors import SimulationError
+
+
+def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:
+    """Joint torques (N m) that produce ``qdd`` at ``(q, qd)``: MuJoCo's ``mj_inverse``.
+
+    The torque includes the reflected rotor inertia (armature), gravity,
+    Coriolis terms, viscous and Coulomb joint friction: everything the motor
+    must supply.
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+        The gimbal (``sim.model.build_model``); dof ``i`` is joint ``i``.
+    q, qd, qdd : array_like, shape (N, 3)
+        Joint angles (rad), velocities (rad/s), accelerations (rad/s^2).
+    coulomb : bool
+        Include Coulomb friction (``frictionloss``). Without it the torque is
+        smooth wherever the plan is; with it, it steps by twice the friction
+        wherever a joint starts or reverses.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        Torque per joint (N m).
+
+    Raises
+    ------
+    ValueError
+        If the inputs are not (N, 3) arrays of finite numbers.
+    SimulationError
+        If any pose puts two gimbal geoms in contact (the torque would be meaningless).
+    """
+    import mujoco
+
+    arrays = []
+    for name, value in (("q", q), ("qd", qd), ("qdd", qdd)):
+        a = np.asarray(value, dtype=float)
+        if a.ndim != 2 or a.shape[1] != model.nv:
+            raise ValueError(f"Expected `{name}` to have shape (N, {model.nv}), got {a.shape}.")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"Expected `{name}` to be finite, got a NaN or inf.")
+        arrays.append(a)
+    q, qd, qdd = arrays
+    if not q.shape == qd.shape == qdd.shape:
+        raise ValueError(
+            f"Expected `q`, `qd`, `qdd` of one shape, got {q.shape}, {qd.shape}, {qdd.shape}."
+        )
+    if not coulomb:
+        model = copy.copy(model)
+        model.dof_frictionloss[:] = 0.0
+    data = mujoco.MjData(model)
+    tau = np.empty_like(q)
+    for i in range(len(q)):
+        data.qpos[:] = q[i]
+        data.qvel[:] = qd[i]
+        data.qacc[:] = qdd[i]
+        mujoco.mj_inverse(model, data)
+        if data.ncon:
+            raise SimulationError(
+                f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q[i]} rad"
+            )
+        tau[i] = data.qfrc_inverse
+    return tau

@@ -1,0 +1,326 @@
+"""The MJCF pan-tilt-roll gimbal and its configuration.
+
+Layout (zero pose, world frame, z up): the pan servo stands on the base with its
+horn up; the pan link carries a U bracket and the tilt servo (horn along y); the
+tilt link carries the roll servo behind the camera (horn along x); the roll link
+carries the camera, which looks along +x. The three axes meet at one point, so
+the roll link's orientation is ``Rz(pan) Ry(tilt) Rx(roll)``, trajgen's
+convention (``trajgen.quat.from_pan_tilt_roll``).
+
+Masses and inertias: servos are uniform boxes of their datasheet size and mass
+(``sim.servos``); brackets are 2 mm aluminium plates (about 25 g each, an
+estimate close to ROBOTIS FR12 brackets); the camera is a uniform 60 x 40 x 40 mm
+box of ``payload_kg``. Each joint's reflected rotor inertia (``armature``, about
+0.045 kg m^2 for an XM430) dwarfs the links (below 1e-3 kg m^2 about any axis).
+
+Each joint is driven by a ``<dcmotor>`` at 12 V (``nominal = "12 stall no_load"``,
+so the compiler derives the motor constant and resistance from the ratings) with
+a torque-space PD controller on position and velocity setpoints plus a torque
+feed-forward (``input="pos vel ff"``). The controller's drive voltage is clamped
+at 12 V, which makes the delivered torque obey the torque-speed envelope
+``tau <= tau_stall (1 - |w| / w0)`` exactly. Braking against the motion, where a
+voltage-limited motor could exceed its stall torque, the torque is clamped at
+the stall torque (``saturation``), standing in for the servo's current limit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
+
+JOINT_NAMES = ("pan", "tilt", "roll")
+GIMBAL_TABLE_KEYS = (
+    "servo",
+    "payload_kg",
+    "payload_offset_m",
+    "torque_margin",
+    "max_tracking_error_rad",
+)
+
+_PAN_HEIGHT_M = 0.05  # pan horn above the base plate
+_TILT_HEIGHT_M = 0.07  # tilt (and roll) axis above the pan horn
+_BRACKET_KG = 0.025
+_CAMERA_SIZE_M = (0.06, 0.04, 0.04)
+
+
+@dataclass(frozen=True)
+class GimbalConfig:
+    """What the simulated gimbal is made of and how it is checked.
+
+    Parameters
+    ----------
+    servos : tuple of 3 ServoModel or str
+        Servo per joint (pan, tilt, roll); names are looked up in
+        ``sim.servos.SERVOS``. Default XM430-W350 on every joint.
+    payload_kg : float
+        Camera mass (kg), >= 0. Default 0.15.
+    payload_offset_m : tuple of 3 float
+        Camera centre of mass in the roll link frame (m), where the three axes
+        meet at the origin and the camera looks along +x. Default (0.03, 0, 0).
+    torque_margin : float
+        Fraction of the torque-speed envelope the planned torque may use, in
+        (0, 1]. Default 0.8.
+    max_tracking_error_rad : float
+        Largest simulated deviation from the planned path (rad) that passes.
+        Default 0.05 (about 3 degrees): a stream that the servo follows within
+        its zero-order-hold lag (speed x one period, 0.01 rad at 2 rad/s and
+        200 Hz) passes; a servo falling behind at its voltage limit does not.
+    timestep_s : float
+        Physics time step (s), in (0, 0.001]. Default 0.001.
+
+    Raises
+    ------
+    TypeError
+        If a field has the wrong type.
+    ValueError
+        If a field is out of range or a servo name is unknown.
+    """
+
+    servos: tuple = (DEFAULT_SERVO, DEFAULT_SERVO, DEFAULT_SERVO)
+    payload_kg: float = 0.15
+    payload_offset_m: tuple = (0.03, 0.0, 0.0)
+    torque_margin: float = 0.8
+    max_tracking_error_rad: float = 0.05
+    timestep_s: float = 0.001
+
+    def __post_init__(self):
+        servos = self.servos
+        if isinstance(servos, (str, ServoModel)):
+            servos = (servos,) * 3
+        if not isinstance(servos, (tuple, list)) or len(servos) != 3:
+            raise ValueError(
+                f"Expected `servos` to hold 3 servos (pan, tilt, roll), got {servos!r}."
+            )
+        resolved = tuple(s if isinstance(s, ServoModel) else servo_by_name(s) for s in servos)
+        object.__setattr__(self, "servos", resolved)
+        offset = self.payload_offset_m
+        if not isinstance(offset, (tuple, list)) or len(offset) != 3:
+            raise ValueError(f"Expected `payload_offset_m` to have 3 entries, got {offset!r}.")
+        for value in offset:
+            _check_number("payload_offset_m", value)
+        object.__setattr__(self, "payload_offset_m", tuple(float(v) for v in offset))
+        _check_number("payload_kg", self.payload_kg, low=0.0)
+        _check_number("torque_margin", self.torque_margin, low=0.0, high=1.0, open_low=True)
+        _check_number("max_tracking_error_rad", self.max_tracking_error_rad, low=0.0, open_low=True)
+        _check_number("timestep_s", self.timestep_s, low=0.0, high=0.001, open_low=True)
+
+
+def _check_number(name, value, *, low=None, high=None, open_low=False):
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"Expected `{name}` to be a number, got {value!r}.")
+    if not math.isfinite(value):
+        raise ValueError(f"Expected `{name}` to be finite, got {value!r}.")
+    if low is not None and (value < low or (open_low and value == low)):
+        op = ">" if open_low else ">="
+        raise ValueError(f"Expected `{name}` {op} {low}, got {value!r}.")
+    if high is not None and value > high:
+        raise ValueError(f"Expected `{name}` <= {high}, got {value!r}.")
+
+
+def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
+    """Build a :class:`GimbalConfig` from a keyframe file's ``[gimbal]`` table.
+
+    Keys (all optional): ``servo`` (a model name for every joint, or a table
+    ``{pan = "...", tilt = "...", roll = "..."}`` where missing joints take the
+    default XM430-W350), ``payload_kg``, ``payload_offset_m`` (3 numbers),
+    ``torque_margin``, ``max_tracking_error_rad``.
+
+    Parameters
+    ----------
+    tables : dict
+        The file's other top-level tables as parsed by ``tomllib``
+        (``KeyframeFile.tables``); only ``tables["gimbal"]`` is read.
+    path : str or Path
+        The file, named in error messages.
+
+    Returns
+    -------
+    GimbalConfig
+
+    Raises
+    ------
+    trajgen.keyframes.KeyframeFileError
+        One line naming the file, the table and the field, e.g.
+        ``"f.toml: [gimbal] servo: unknown model 'XM999' (known: ...)"``.
+    """
+    table = tables.get("gimbal", {})
+    if not isinstance(table, dict):
+        raise _file_error(path, f"[gimbal]: expected a table, got {table!r}")
+    unknown = sorted(set(table) - set(GIMBAL_TABLE_KEYS))
+    if unknown:
+        known = ", ".join(GIMBAL_TABLE_KEYS)
+        raise _file_error(path, f"[gimbal] unknown key '{unknown[0]}' (known: {known})")
+    kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
+    for key in ("payload_kg", "torque_margin", "max_tracking_error_rad"):
+        if key in table:
+            value = table[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise _file_error(path, f"[gimbal] {key}: expected a number, got {value!r}")
+            kwargs[key] = float(value)
+    if "payload_offset_m" in table:
+        value = table["payload_offset_m"]
+        if (
+            not isinstance(value, list)
+            or len(value) != 3
+            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
+        ):
+            raise _file_error(path, f"[gimbal] payload_offset_m: expected 3 numbers, got {value!r}")
+        kwargs["payload_offset_m"] = tuple(float(v) for v in value)
+    try:
+        return GimbalConfig(**kwargs)
+    except (TypeError, ValueError) as e:
+        # GimbalConfig says "Expected `payload_kg` >= 0.0, got -1.0."; restate it
+        # in the file's terms: "[gimbal] payload_kg: expected >= 0.0, got -1.0".
+        key, _, rest = str(e).removeprefix("Expected `").partition("` ")
+        raise _file_error(path, f"[gimbal] {key}: expected {rest.rstrip('.')}") from e
+
+
+def _servos_from_table(value, path) -> tuple[ServoModel, ServoModel, ServoModel]:
+    if isinstance(value, str):
+        return (_servo_or_error(value, "servo", path),) * 3
+    if isinstance(value, dict):
+        unknown = sorted(set(value) - set(JOINT_NAMES))
+        if unknown:
+            raise _file_error(
+                path,
+                f"[gimbal] servo.{unknown[0]}: unknown joint (known: {', '.join(JOINT_NAMES)})",
+            )
+        return tuple(
+            _servo_or_error(value.get(j, DEFAULT_SERVO.name), f"servo.{j}", path)
+            for j in JOINT_NAMES
+        )
+    raise _file_error(
+        path, f"[gimbal] servo: expected a model name or a table per joint, got {value!r}"
+    )
+
+
+def _servo_or_error(name, key, path) -> ServoModel:
+    if not isinstance(name, str):
+        raise _file_error(path, f"[gimbal] {key}: expected a model name, got {name!r}")
+    try:
+        return servo_by_name(name)
+    except ValueError as e:
+        raise _file_error(path, f"[gimbal] {key}: {e}") from e
+
+
+def _file_error(path, message: str):
+    from trajgen.keyframes import KeyframeFileError
+
+    return KeyframeFileError(f"{Path(path)}: {message}")
+
+
+def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
+    """MJCF text of the gimbal described by ``config`` (default :class:`GimbalConfig`).
+
+    Bodies ``pan_link``, ``tilt_link``, ``roll_link``; hinge joints and
+    ``<dcmotor>`` actuators named ``pan``, ``tilt``, ``roll`` (actuator groups
+    0, 1, 2, so each can be switched off with ``opt.disableactuator``); site
+    ``camera`` at the roll link's origin; every geom is contact-free.
+    """
+    config = GimbalConfig() if config is None else config
+    pan, tilt, roll = config.servos
+    f = _fmt
+    # Tilt servo: on the pan link's side, horn on the tilt axis, housing along -y.
+    tw, th, td = tilt.size_m
+    tilt_servo_pos = (0.0, -(0.035 + td / 2), _TILT_HEIGHT_M - (th / 2 - tw / 2))
+    # Roll servo: behind the camera, horn on the roll axis, housing along -x.
+    rw, rh, rd = roll.size_m
+    roll_servo_pos = (-(0.01 + rd / 2), 0.0, 0.0)
+    pw, ph, pd = pan.size_m
+    cam = config.payload_offset_m
+    lens_pos = (cam[0] + _CAMERA_SIZE_M[0] / 2 + 0.008, cam[1], cam[2])
+    payload = (
+        f'<geom name="camera" type="box" size="{f(s / 2 for s in _CAMERA_SIZE_M)}" '
+        f'pos="{f(cam)}" mass="{config.payload_kg!r}" rgba="0.1 0.1 0.1 1"/>'
+        if config.payload_kg > 0
+        else ""
+    )
+
+    def joint(name, axis, servo):
+        return (
+            f'<joint name="{name}" type="hinge" axis="{axis}" armature="{servo.armature!r}" '
+            f'damping="{servo.damping!r}" frictionloss="{servo.frictionloss!r}"/>'
+        )
+
+    def motor(name, group, servo):
+        return (
+            f'<dcmotor name="{name}" joint="{name}" group="{group}" input="pos vel ff" '
+            f'nominal="{SUPPLY_VOLTAGE_V!r} {servo.stall_torque_nm!r} '
+            f'{servo.no_load_speed_rad_s!r}" '
+            f'controller="{servo.kp!r} 0 {servo.kd!r} 0 0 {SUPPLY_VOLTAGE_V!r}" '
+            f'saturation="{servo.stall_torque_nm!r} 0 0"/>'
+        )
+
+    return f"""<mujoco model="pan_tilt_roll_gimbal">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{config.timestep_s!r}"/>
+  <default>
+    <geom contype="0" conaffinity="0" rgba="0.55 0.57 0.6 1"/>
+  </default>
+  <visual>
+    <global offwidth="640" offheight="480"/>
+  </visual>
+  <worldbody>
+    <light pos="0.3 -0.3 0.6" dir="-0.4 0.4 -1"/>
+    <geom name="floor" type="plane" size="0.3 0.3 0.01" rgba="0.85 0.85 0.8 1"/>
+    <camera name="overview" mode="targetbody" target="tilt_link" pos="0.22 -0.26 0.24"/>
+    <body name="base" pos="0 0 0">
+      <geom name="pan_servo" type="box" size="{f((pw / 2, pd / 2, ph / 2))}"
+            pos="0 0 {_PAN_HEIGHT_M - pd / 2!r}" euler="1.5707963267948966 0 0"
+            mass="{pan.mass_kg!r}" rgba="0.15 0.15 0.15 1"/>
+    </body>
+    <body name="pan_link" pos="0 0 {_PAN_HEIGHT_M!r}">
+      {joint("pan", "0 0 1", pan)}
+      <geom name="pan_bracket_bottom" type="box" size="0.02 0.045 0.001" pos="0 0 0.0005"
+            mass="{_BRACKET_KG / 3!r}"/>
+      <geom name="pan_bracket_left" type="box" size="0.02 0.001 0.04" pos="0 0.045 0.04"
+            mass="{_BRACKET_KG / 3!r}"/>
+      <geom name="pan_bracket_right" type="box" size="0.02 0.001 0.04" pos="0 -0.045 0.04"
+            mass="{_BRACKET_KG / 3!r}"/>
+      <geom name="tilt_servo" type="box" size="{f((tw / 2, td / 2, th / 2))}"
+            pos="{f(tilt_servo_pos)}" mass="{tilt.mass_kg!r}" rgba="0.15 0.15 0.15 1"/>
+      <body name="tilt_link" pos="0 0 {_TILT_HEIGHT_M!r}">
+        {joint("tilt", "0 1 0", tilt)}
+        <geom name="tilt_bracket" type="box" size="0.001 0.03 0.02" pos="-0.009 0 0"
+              mass="{_BRACKET_KG!r}"/>
+        <geom name="roll_servo" type="box" size="{f((rd / 2, rw / 2, rh / 2))}"
+              pos="{f(roll_servo_pos)}" mass="{roll.mass_kg!r}" rgba="0.15 0.15 0.15 1"/>
+        <body name="roll_link" pos="0 0 0">
+          {joint("roll", "1 0 0", roll)}
+          <site name="camera" pos="0 0 0" size="0.004"/>
+          <geom name="camera_plate" type="box" size="0.001 0.025 0.025" pos="0.001 0 0"
+                mass="{_BRACKET_KG / 2!r}"/>
+          {payload}
+          <geom name="lens" type="cylinder" size="0.012 0.008" pos="{f(lens_pos)}"
+                euler="0 1.5707963267948966 0" mass="0.001" rgba="0.2 0.3 0.8 1"/>
+        </body>
+      </body>
+    </body>
+  </worldbody>
+  <actuator>
+    {motor("pan", 0, pan)}
+    {motor("tilt", 1, tilt)}
+    {motor("roll", 2, roll)}
+  </actuator>
+</mujoco>
+"""
+
+
+def _fmt(values) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def build_model(config: GimbalConfig | None = None):
+    """Compile the gimbal into a ``mujoco.MjModel`` (joint and dof ``i`` = ``JOINT_NAMES[i]``).
+
+    Raises
+    ------
+    ValueError
+        If MuJoCo rejects the model (a bug here, not bad input).
+    """
+    import mujoco
+
+    return mujoco.MjModel.from_xml_string(gimbal_mjcf(config))

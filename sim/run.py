@@ -1,0 +1,270 @@
+"""Running a joint stream through the simulated gimbal."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.errors import SimulationError
+from sim.model import GimbalConfig, build_model
+from sim.servos import SUPPLY_VOLTAGE_V
+
+_LIMIT_RTOL = 1e-6
+_PROGRESS_STEP = 0.05
+
+
+@dataclass(frozen=True)
+class SimRecord:
+    """What one simulated run recorded, one row per physics step.
+
+    Attributes
+    ----------
+    t : ndarray, shape (K,)
+        Step start times (s), on the trajectory's clock.
+    q, qd : ndarray, shape (K, 3)
+        Joint angles (rad) and velocities (rad/s) at the start of each step.
+    torque_nm : ndarray, shape (K, 3)
+        Actuator torque (N m) applied during each step.
+    setpoint : ndarray, shape (K, 3)
+        Held (zero-order-hold) position setpoint (rad).
+    planned : ndarray, shape (K, 3)
+        The planned path at ``t`` (rad): cubic Hermite through the stream's
+        ``(q, qd)`` samples.
+    at_limit : ndarray of bool, shape (K, 3)
+        The servo gave all the torque it had: drive voltage at 12 V or torque
+        at the stall-torque clamp.
+    timestep_s : float
+        Physics time step (s).
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    torque_nm: np.ndarray
+    setpoint: np.ndarray
+    planned: np.ndarray
+    at_limit: np.ndarray
+    timestep_s: float
+
+    @property
+    def tracking_error_rad(self) -> np.ndarray:
+        """``q - planned`` (rad), shape (K, 3)."""
+        return self.q - self.planned
+
+    @property
+    def hold_error_rad(self) -> np.ndarray:
+        """``q - setpoint`` (rad), shape (K, 3): the error the servo sees."""
+        return self.q - self.setpoint
+
+    @property
+    def steps_at_limit(self) -> np.ndarray:
+        """Number of steps at the voltage limit per joint, shape (3,), int."""
+        return self.at_limit.sum(axis=0)
+
+
+def at_torque_limit(config: GimbalConfig, qd, torque_nm) -> np.ndarray:
+    """Whether each servo gives all the torque it has.
+
+    A ``<dcmotor>`` with constant ``K = V / w0`` and resistance ``R = K V / tau_stall``
+    needs ``v = R tau / K + K w`` volts to give ``tau`` at speed ``w``; it is at
+    its limit when that is the 12 V supply or when ``|tau|`` is at the stall
+    torque clamp.
+
+    Parameters
+    ----------
+    config : GimbalConfig
+    qd, torque_nm : ndarray, shape (K, 3)
+        Joint speed (rad/s) and actuator torque (N m).
+
+    Returns
+    -------
+    ndarray of bool, shape (K, 3)
+    """
+    w0 = np.array([s.no_load_speed_rad_s for s in config.servos])
+    stall = np.array([s.stall_torque_nm for s in config.servos])
+    k = SUPPLY_VOLTAGE_V / w0
+    r = k * SUPPLY_VOLTAGE_V / stall
+    volts = r / k * torque_nm + k * qd
+    clamped = np.abs(torque_nm) >= stall * (1.0 - _LIMIT_RTOL)
+    return clamped | (np.abs(volts) >= SUPPLY_VOLTAGE_V * (1.0 - _LIMIT_RTOL))
+
+
+def planned_path(trajectory, t) -> np.ndarray:
+    """The planned joint path at times ``t`` (cubic Hermite through ``(q, qd)`` samples).
+
+    Parameters
+    ----------
+    trajectory : trajgen.stream.JointTrajectory
+    t : ndarray, shape (K,)
+        Times (s); clamped to the trajectory's span.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+    """
+    ts = trajectory.t
+    t = np.clip(np.asarray(t, dtype=float), ts[0], ts[-1])
+    i = np.clip(np.searchsorted(ts, t, side="right") - 1, 0, len(ts) - 2)
+    h = (ts[i + 1] - ts[i])[:, None]
+    s = ((t - ts[i])[:, None]) / h
+    h00 = 2 * s**3 - 3 * s**2 + 1
+    h10 = s**3 - 2 * s**2 + s
+    h01 = -2 * s**3 + 3 * s**2
+    h11 = s**3 - s**2
+    q, qd = trajectory.q, trajectory.qd
+    return h00 * q[i] + h10 * h * qd[i] + h01 * q[i + 1] + h11 * h * qd[i + 1]
+
+
+def warning_counts(data) -> np.ndarray:
+    """MuJoCo's warning counters ``data.warning[i].number`` as an int array."""
+    return np.array([w.number for w in data.warning])
+
+
+def raise_on_new_warnings(before: np.ndarray, data, t_from: float, t_to: float) -> None:
+    """Raise :class:`SimulationError` if a MuJoCo warning counter rose since ``before``.
+
+    ``t_from`` and ``t_to`` (s) bound the steps since the counts were taken,
+    for the message.
+    """
+    import mujoco
+
+    after = warning_counts(data)
+    risen = np.flatnonzero(after > before)
+    if len(risen):
+        names = ", ".join(mujoco.mjtWarning(int(i)).name for i in risen)
+        raise SimulationError(f"MuJoCo warning between t = {t_from:.4f} and {t_to:.4f} s: {names}")
+
+
+def check_trajectory(trajectory) -> None:
+    """Raise if ``trajectory`` is not a usable ``JointTrajectory``.
+
+    Raises
+    ------
+    TypeError
+        If it lacks the ``t``, ``q``, ``qd``, ``qdd``, ``rate_hz`` fields.
+    ValueError
+        If the arrays have the wrong shapes, fewer than 2 frames, or non-finite values.
+    """
+    fields = ("t", "q", "qd", "qdd", "rate_hz")
+    if not all(hasattr(trajectory, f) for f in fields):
+        raise TypeError(
+            f"Expected `trajectory` to be a JointTrajectory, got {type(trajectory).__name__}."
+        )
+    n = np.shape(trajectory.t)
+    if len(n) != 1 or n[0] < 2:
+        raise ValueError(f"Expected `trajectory.t` to have shape (N,), N >= 2, got {n}.")
+    for f in ("q", "qd", "qdd"):
+        a = np.asarray(getattr(trajectory, f))
+        if a.shape != (n[0], 3):
+            raise ValueError(f"Expected `trajectory.{f}` to have shape ({n[0]}, 3), got {a.shape}.")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"Expected `trajectory.{f}` to be finite, got a NaN or inf.")
+
+
+def simulate(
+    trajectory,
+    config: GimbalConfig | None = None,
+    *,
+    feedforward: bool = True,
+    progress: Callable[[float], None] | None = None,
+) -> SimRecord:
+    """Stream a planned joint trajectory to the simulated servos.
+
+    The gimbal starts at rest at the first frame's angles. Frame ``i``'s position
+    and velocity (and, with ``feedforward``, its inverse-dynamics torque) are
+    held from ``t[i]`` to ``t[i + 1]``; the last frame is held for one stream
+    period. Physics runs at ``config.timestep_s``.
+
+    Parameters
+    ----------
+    trajectory : trajgen.stream.JointTrajectory
+        The planned stream.
+    config : GimbalConfig, optional
+        Default :class:`GimbalConfig`.
+    feedforward : bool
+        Send each frame's planned torque (``sim.dynamics.inverse_dynamics``,
+        clipped to the stall torque) as torque feed-forward, as a host that
+        knows the plan can; without it the servo sees position and velocity
+        setpoints only.
+    progress : callable, optional
+        Called with the fraction done (0..1) every 5 % of the run.
+
+    Returns
+    -------
+    SimRecord
+
+    Raises
+    ------
+    TypeError, ValueError
+        If ``trajectory`` is not a valid ``JointTrajectory``.
+    SimulationError
+        If a MuJoCo warning counter rises or a contact appears inside the gimbal.
+    """
+    import mujoco
+
+    from sim.dynamics import inverse_dynamics
+
+    check_trajectory(trajectory)
+    config = GimbalConfig() if config is None else config
+    model = build_model(config)
+    data = mujoco.MjData(model)
+    ts = np.asarray(trajectory.t, dtype=float)
+    q_plan = np.asarray(trajectory.q, dtype=float)
+    qd_plan = np.asarray(trajectory.qd, dtype=float)
+    ff = np.zeros_like(q_plan)
+    if feedforward:
+        # No servo can give more than its stall torque; clip what the plan asks.
+        stall = np.array([s.stall_torque_nm for s in config.servos])
+        ff = np.clip(inverse_dynamics(model, q_plan, qd_plan, trajectory.qdd), -stall, stall)
+    ctrl = np.empty((len(ts), 3 * model.nactuator))
+    ctrl[:, 0::3] = q_plan
+    ctrl[:, 1::3] = qd_plan
+    ctrl[:, 2::3] = ff
+
+    dt = config.timestep_s
+    period = 1.0 / float(trajectory.rate_hz)
+    n_steps = int(round((ts[-1] - ts[0] + period) / dt))
+    step_t = ts[0] + np.arange(n_steps) * dt
+    frame = np.searchsorted(ts, step_t + 1e-9, side="right") - 1
+
+    data.qpos[:] = q_plan[0]
+    data.time = ts[0]
+    mujoco.mj_forward(model, data)
+    warnings = warning_counts(data)
+    q = np.empty((n_steps, 3))
+    qd = np.empty((n_steps, 3))
+    torque = np.empty((n_steps, 3))
+    current = frame_start = -1
+    next_report = _PROGRESS_STEP
+    for k in range(n_steps):
+        if frame[k] != current:
+            if k:
+                raise_on_new_warnings(warnings, data, step_t[frame_start], step_t[k])
+            current, frame_start = frame[k], k
+            data.ctrl[:] = ctrl[current]
+            if progress is not None and k >= next_report * n_steps:
+                progress(k / n_steps)
+                next_report += _PROGRESS_STEP
+        q[k] = data.qpos
+        qd[k] = data.qvel
+        mujoco.mj_step(model, data)
+        torque[k] = data.actuator_force
+        if data.ncon:
+            raise SimulationError(
+                f"{data.ncon} contact(s) inside the gimbal at t = {step_t[k]:.4f} s"
+            )
+    raise_on_new_warnings(warnings, data, step_t[frame_start], step_t[-1] + dt)
+    if progress is not None:
+        progress(1.0)
+    return SimRecord(
+        t=step_t,
+        q=q,
+        qd=qd,
+        torque_nm=torque,
+        setpoint=q_plan[frame],
+        planned=planned_path(trajectory, step_t),
+        at_limit=at_torque_limit(config, qd, torque),
+        timestep_s=dt,
+    )

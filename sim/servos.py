@@ -1,0 +1,158 @@
+"""Dynamixel X-series servo data for the simulated gimbal (SI units, 12 V ratings).
+
+Ratings (stall torque, stall current, no-load speed at 12 V), mass, housing size
+and gear ratio are from the ROBOTIS e-Manual specification tables. The rest is
+not published and is stated per field:
+
+- ``armature``: reflected rotor inertia (kg m^2). 0.045 for the XM430-W350 is
+  Menagerie's ROBOTIS OP3 value (no stated source). The XH430-W350 has the same
+  gear ratio and takes the same value. The XL430-W250 (258.5:1) and XM540-W270
+  (272.5:1) scale it by gear ratio squared (same rotor inertia assumed, an
+  estimate; the XM540's larger motor makes its value a lower bound).
+- ``damping``: viscous gear friction (N m s/rad), an estimate of 0.01. The motor's
+  own back-EMF is not part of it: ``<dcmotor>`` models that from the ratings.
+- ``frictionloss``: Coulomb friction (N m). Menagerie's OP3 uses 0.03 for the
+  XM430-W350; the others scale it with stall torque (estimate).
+- ``kp``, ``kd``: torque-space position and velocity gains of the simulated
+  servo's controller. kp 21.1 N m/rad for the XM430-W350 is Menagerie's OP3
+  value; the others scale it with stall torque; ``kd = 2 sqrt(kp armature)``
+  damps the servo's own rotor critically (estimate).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+RPM_TO_RAD_S = 2.0 * math.pi / 60.0
+SUPPLY_VOLTAGE_V = 12.0
+
+_OP3_ARMATURE = 0.045
+_OP3_FRICTIONLOSS = 0.03
+_OP3_KP = 21.1
+_XM430_GEAR = 353.5
+_XM430_STALL = 4.1
+
+
+@dataclass(frozen=True)
+class ServoModel:
+    """One Dynamixel model's ratings and simulation parameters (SI units).
+
+    Attributes
+    ----------
+    name : str
+        Model name, e.g. ``"XM430-W350"``.
+    stall_torque_nm : float
+        Stall torque (N m) at 12 V.
+    stall_current_a : float
+        Stall current (A) at 12 V.
+    no_load_speed_rad_s : float
+        No-load speed (rad/s) at 12 V.
+    mass_kg : float
+        Servo mass (kg).
+    size_m : tuple of float
+        Housing width, height, depth (m); the horn axis runs along the depth.
+    gear_ratio : float
+        Gear reduction.
+    armature : float
+        Reflected rotor inertia (kg m^2); see the module docstring for sources.
+    damping : float
+        Viscous friction (N m s/rad).
+    frictionloss : float
+        Coulomb friction (N m).
+    kp : float
+        Position gain of the simulated controller (N m/rad).
+    kd : float
+        Velocity gain of the simulated controller (N m s/rad).
+    """
+
+    name: str
+    stall_torque_nm: float
+    stall_current_a: float
+    no_load_speed_rad_s: float
+    mass_kg: float
+    size_m: tuple[float, float, float]
+    gear_ratio: float
+    armature: float
+    damping: float
+    frictionloss: float
+    kp: float
+    kd: float
+
+    @property
+    def torque_constant_nm_a(self) -> float:
+        """Torque constant (N m/A), approximated as stall torque / stall current.
+
+        The e-Manual's torque-current curves are close to linear through the
+        origin; this ratio ignores the no-load current.
+        """
+        return self.stall_torque_nm / self.stall_current_a
+
+    def tau_max(self, speed_rad_s):
+        """Torque available (N m) at joint speed ``speed_rad_s`` at 12 V.
+
+        ``tau_max(w) = tau_stall (1 - |w| / w0)``: the torque-speed line of a DC
+        motor driven at its rated voltage. It is negative beyond the no-load speed.
+
+        Parameters
+        ----------
+        speed_rad_s : float or ndarray
+            Joint speed (rad/s), any shape.
+
+        Returns
+        -------
+        float or ndarray
+            Same shape as ``speed_rad_s``.
+        """
+        return self.stall_torque_nm * (1.0 - np.abs(speed_rad_s) / self.no_load_speed_rad_s)
+
+
+def _servo(name, stall_nm, stall_a, no_load_rpm, mass_kg, size_mm, gear, armature=None):
+    if armature is None:
+        armature = _OP3_ARMATURE * (gear / _XM430_GEAR) ** 2
+    kp = _OP3_KP * stall_nm / _XM430_STALL
+    return ServoModel(
+        name=name,
+        stall_torque_nm=stall_nm,
+        stall_current_a=stall_a,
+        no_load_speed_rad_s=no_load_rpm * RPM_TO_RAD_S,
+        mass_kg=mass_kg,
+        size_m=tuple(s / 1000.0 for s in size_mm),
+        gear_ratio=gear,
+        armature=armature,
+        damping=0.01,
+        frictionloss=_OP3_FRICTIONLOSS * stall_nm / _XM430_STALL,
+        kp=kp,
+        kd=2.0 * math.sqrt(kp * armature),
+    )
+
+
+XM430_W350 = _servo("XM430-W350", 4.1, 2.3, 46.0, 0.082, (28.5, 46.5, 34.0), 353.5, 0.045)
+XL430_W250 = _servo("XL430-W250", 1.5, 1.4, 61.0, 0.0572, (28.5, 46.5, 34.0), 258.5)
+XH430_W350 = _servo("XH430-W350", 3.4, 1.3, 30.0, 0.082, (28.5, 46.5, 34.0), 353.5, 0.045)
+XM540_W270 = _servo("XM540-W270", 10.6, 4.4, 30.0, 0.165, (33.5, 58.5, 44.0), 272.5)
+
+SERVOS: dict[str, ServoModel] = {
+    s.name: s for s in (XM430_W350, XL430_W250, XH430_W350, XM540_W270)
+}
+DEFAULT_SERVO = XM430_W350
+
+
+def servo_by_name(name: str) -> ServoModel:
+    """Look up a servo model by its name (e.g. ``"XM430-W350"``, case-insensitive).
+
+    Raises
+    ------
+    TypeError
+        If ``name`` is not a string.
+    ValueError
+        If the model is unknown; the message lists the known ones.
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"Expected servo `name` to be a string, got {type(name).__name__}.")
+    servo = SERVOS.get(name.upper())
+    if servo is None:
+        raise ValueError(f"unknown model {name!r} (known: {', '.join(SERVOS)})")
+    return servo

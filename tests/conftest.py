@@ -1,0 +1,33 @@
+"""Shared test fixtures. MUJOCO_GL must be set before anything imports mujoco."""
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def rng():
+    """A seeded generator: every test run draws the same numbers."""
+    return np.random.default_rng(20260521)
+
+
+def quintic_trajectory(amplitude_rad, duration_s, rate_hz=200.0, start_rad=(0.0, 0.0, 0.0)):
+    """A rest-to-rest joint move with exact derivatives.
+
+    Each joint follows ``start + amplitude (10 s^3 - 15 s^4 + 6 s^5)``,
+    ``s = t / duration_s``: zero velocity and acceleration at both ends, peak
+    speed ``1.875 amplitude / duration_s``.
+    """
+    from trajgen.sampling import sample_times
+    from trajgen.stream import JointTrajectory
+
+    t = sample_times(0.0, duration_s, rate_hz)
+    s = (t / duration_s)[:, None]
+    a = np.asarray(amplitude_rad, dtype=float)
+    q = np.asarray(start_rad, dtype=float) + a * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    qd = a * (30 * s**2 - 60 * s**3 + 30 * s**4) / duration_s
+    qdd = a * (60 * s - 180 * s**2 + 120 * s**3) / duration_s**2
+    return JointTrajectory(t, q, qd, qdd, float(rate_hz))

@@ -1,0 +1,152 @@
+"""``trajgen stream`` / ``trajgen scan`` and the keyframe file's [bus] table."""
+
+import argparse
+import csv
+import json
+
+import pytest
+
+from drivers.cli import register
+from drivers.config import BusConfig, bus_config_from_tables
+from drivers.units import JointMap
+from drivers.virtual.bus import VirtualBus
+from drivers.virtual.plant import FirstOrderPlant
+
+keyframes = pytest.importorskip("trajgen.keyframes")
+
+SHORT = [(0.0, 0, 0), (0.4, 10, 5), (0.8, 0, 0)]
+
+
+def _write(path, extra=""):
+    lines = [extra, "[stream]", "rate_hz = 100", ""]
+    for t, pan, tilt in SHORT:
+        lines += ["[[keyframes]]", f"t = {t}", f"pan = {pan}", f"tilt = {tilt}", ""]
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _run(argv):
+    parser = argparse.ArgumentParser(prog="trajgen")
+    register(parser.add_subparsers())
+    args = parser.parse_args([str(a) for a in argv])
+    return args.func(args)
+
+
+def test_bus_table_defaults_and_values():
+    assert bus_config_from_tables({}, "f.toml") == BusConfig()
+    config = bus_config_from_tables(
+        {
+            "bus": {
+                "port": "/dev/ttyUSB1",
+                "baud": 4_000_000,
+                "ids": [4, 5, 6],
+                "directions": [1, -1, 1],
+                "zeros": [2048, 1024, 3000],
+                "watchdog_s": 0.2,
+            },
+            "gimbal": {"servo": {"pan": "XM540-W270"}},
+        },
+        "f.toml",
+    )
+    assert config.port == "/dev/ttyUSB1" and config.baud == 4_000_000
+    assert config.joints == JointMap((4, 5, 6), (1, -1, 1), (2048, 1024, 3000))
+    assert config.models == ("XM540-W270", "XM430-W350", "XM430-W350")
+    assert config.watchdog_s == 0.2
+
+
+@pytest.mark.parametrize(
+    ("table", "match"),
+    [
+        ({"speed": 1}, r"f.toml: \[bus\] speed: unknown key \(known: port, baud"),
+        ({"baud": "fast"}, r"f.toml: \[bus\] baud: expected a positive integer, got 'fast'"),
+        ({"ids": [1, 1, 2]}, r"\[bus\] ids: expected 3 distinct ids in 0..252, got \[1, 1, 2\]"),
+        ({"ids": [1, 2]}, r"\[bus\] ids: expected a list of 3 integers, got \[1, 2\]"),
+        ({"directions": [1, 0, 1]}, r"\[bus\] directions: expected \+1 or -1 each, got"),
+        ({"models": "XM999"}, r"\[bus\] models: unknown model 'XM999' \(known: XM430-W350"),
+        ({"watchdog_s": 5}, r"\[bus\] watchdog_s: expected a number in 0.02..2.54, got 5"),
+        ({"port": 3}, r"\[bus\] port: expected a device path string, got 3"),
+    ],
+)
+def test_bus_table_errors(table, match):
+    with pytest.raises(keyframes.KeyframeFileError, match=match):
+        bus_config_from_tables({"bus": table}, "f.toml")
+
+
+def test_stream_virtual_end_to_end(tmp_path, capsys):
+    path = _write(tmp_path / "short.toml")
+    status = _run(
+        [
+            "stream",
+            path,
+            "--virtual",
+            "--telemetry",
+            tmp_path / "t.csv",
+            "--json",
+            tmp_path / "r.json",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert status == 0, out
+    assert out.startswith("frames sent: 81/81 (+0 approach) at 100 Hz planned")
+    assert "torque check: OK" in out
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["stream"]["frames_sent"] == 81
+    assert result["stream"]["fault"] == ""
+    assert result["torque"]["ok"] is True
+    with open(tmp_path / "t.csv", newline="") as f:
+        assert len(list(csv.DictReader(f))) == 81
+
+
+def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
+    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+        ok = _write(tmp_path / "ok.toml")
+        assert _run(["stream", ok, "--port", virtual.port, "--torque-off"]) == 0
+        assert "frames sent: 81/81" in capsys.readouterr().out
+        assert not any(servo.torque_on for servo in virtual.servos.values())
+        wrong = _write(tmp_path / "wrong.toml", extra='[bus]\nmodels = "XL430-W250"\n')
+        assert _run(["stream", wrong, "--port", virtual.port]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("trajgen: stream failed: servo 1: model number 1020 (XM430-W350), ")
+    assert "refusing to stream" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--port", "/dev/x", "--virtual"], "--port and --virtual exclude each other"),
+        ([], "no serial port: give --port, set [bus] port, or use --virtual"),
+        (["--port", "/dev/x", "--plot", "p.png"], "--plot needs --virtual"),
+        (["--virtual", "--telemetry", "t.txt"], "--telemetry: expected a .csv or .npz path"),
+        (["--virtual", "--telemetry", "/no/dir/t.csv"], "--telemetry: no such directory"),
+        (["--port", "/nonexistent/tty"], "/nonexistent/tty: cannot open at 1000000 baud"),
+    ],
+)
+def test_stream_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, message):
+    path = _write(tmp_path / "k.toml")
+    assert _run(["stream", path, *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert err.startswith("trajgen: error: ") and message in err
+
+
+def test_stream_missing_file_exits_2(tmp_path, capsys):
+    assert _run(["stream", tmp_path / "none.toml", "--virtual"]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_ids_flag_is_checked(capsys):
+    with pytest.raises(SystemExit):
+        _run(["stream", "--virtual", "--ids", "1,1,2"])
+    assert "expected 3 distinct ids in 0..252, got '1,1,2'" in capsys.readouterr().err
+
+
+def test_scan_lists_servos(capsys):
+    with VirtualBus(FirstOrderPlant(), ids=(4, 7, 9), models="XL430-W250") as virtual:
+        assert _run(["scan", "--port", virtual.port]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == [f"id {i:3d}  model  1060 (XL430-W250)  firmware 48" for i in (4, 7, 9)]
+
+
+def test_scan_bad_port_exits_2(capsys):
+    assert _run(["scan", "--port", "/nonexistent/tty"]) == 2
+    assert capsys.readouterr().err.startswith("trajgen: error: /nonexistent/tty: cannot open")

@@ -1,0 +1,332 @@
+"""Bring-up and streaming: ServoBus -> dynamixel-sdk -> pyserial -> pty -> virtual bus -> plant."""
+
+import csv
+import math
+import time
+
+import numpy as np
+import pytest
+
+from drivers.bringup import bring_up, operating_mode_for, watchdog_units
+from drivers.bus import ServoBus
+from drivers.control_table import Register
+from drivers.errors import BringUpError, CommError, ServoError, WatchdogTripped
+from drivers.streamer import Streamer, min_jerk_ramp
+from drivers.units import JointMap
+from drivers.virtual.bus import Fault, VirtualBus
+from drivers.virtual.plant import FirstOrderPlant
+from trajgen.stream import JointTrajectory
+
+RATE_HZ = 200.0
+MODELS = ("XM430-W350",) * 3
+
+
+def _trajectory(rng, duration_s=0.5, rate_hz=RATE_HZ, offset=(0.0, 0.0, 0.0)):
+    """A smooth random joint path (sum of sines), arrays built directly."""
+    t = np.arange(round(duration_s * rate_hz) + 1) / rate_hz
+    amp = rng.uniform(0.1, 0.6, (3, 1))
+    freq = rng.uniform(0.5, 2.0, (3, 1))
+    phase = 2 * np.pi * freq * t
+    q = (amp * np.sin(phase)).T + np.asarray(offset)
+    qd = (amp * 2 * np.pi * freq * np.cos(phase)).T
+    qdd = (-amp * (2 * np.pi * freq) ** 2 * np.sin(phase)).T
+    return JointTrajectory(t, q, qd, qdd, rate_hz)
+
+
+class _Rig:
+    """A virtual bus with a plant, and an open driver bus on its pty."""
+
+    def __init__(self, plant=None, *, faults=(), models=MODELS, ids=(1, 2, 3), fast=True):
+        self.plant = plant or FirstOrderPlant(time_constant_s=0.01)
+        self.virtual = VirtualBus(
+            self.plant,
+            ids=ids,
+            models=models,
+            lockstep_dt_s=1 / RATE_HZ,
+            faults=faults,
+            fast_sync_read=fast,
+        ).start()
+        self.bus = ServoBus(self.virtual.port).open()
+
+    def close(self):
+        self.bus.close()
+        self.virtual.stop()
+
+
+@pytest.fixture
+def rig():
+    made = []
+
+    def make(*args, **kwargs):
+        made.append(_Rig(*args, **kwargs))
+        return made[-1]
+
+    yield make
+    for r in made:
+        r.close()
+
+
+def _stream(r, trajectory, joints, tmp_path, **kwargs):
+    bring_up(r.bus, joints, MODELS, joints.to_ticks(trajectory.q))
+    streamer = Streamer(r.bus, joints, telemetry=tmp_path / "telemetry.csv", **kwargs)
+    return streamer
+
+
+def _telemetry(tmp_path):
+    with open(tmp_path / "telemetry.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_every_goal_received_equals_the_plan(rig, rng, tmp_path):
+    trajectory = _trajectory(rng)
+    joints = JointMap(ids=(1, 2, 3), directions=(1, -1, 1), zeros=(2048, 1900, 2200))
+    r = rig()
+    streamer = _stream(r, trajectory, joints, tmp_path)
+    stats = streamer.run(trajectory)
+    received = np.array(r.virtual.goal_log[-len(trajectory) :])
+    # Servo frame -> joint angle, frame by frame, within one tick.
+    received_rad = joints.to_rad(received)
+    tick = 2 * math.pi / 4096
+    assert np.max(np.abs(received_rad - trajectory.q)) <= tick
+    assert len(r.virtual.goal_log) == stats.approach_frames + len(trajectory)
+    # The stats are sane.
+    assert stats.frames_sent == stats.frames_planned == len(trajectory)
+    assert stats.achieved_rate_hz == pytest.approx(RATE_HZ, rel=0.05)
+    assert 0 <= stats.period_error_p50_s <= stats.period_error_p99_s <= stats.period_error_max_s
+    assert stats.period_error_p50_s < 0.5 / RATE_HZ
+    assert stats.overruns <= 0.05 * len(trajectory)
+    assert stats.reads == 1 + stats.approach_frames + len(trajectory)
+    assert stats.fault == ""
+    # Telemetry: one row per frame, present position lags the goal (first-order plant).
+    rows = _telemetry(tmp_path)
+    stream_rows = [row for row in rows if row["phase"] == "stream"]
+    assert len(stream_rows) == len(trajectory)
+    goal = np.array(
+        [[float(row[f"goal_rad_{j}"]) for j in ("pan", "tilt", "roll")] for row in stream_rows]
+    )
+    np.testing.assert_allclose(goal, trajectory.q)
+    position = np.array(
+        [[float(row[f"position_rad_{j}"]) for j in ("pan", "tilt", "roll")] for row in stream_rows]
+    )
+    assert np.max(np.abs(position - trajectory.q)) < 0.1
+
+
+def test_starts_with_a_smooth_move_to_the_first_frame(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.2, offset=(0.4, -0.3, 0.2))
+    start = np.array([-0.2, 0.1, 0.0])
+    joints = JointMap()
+    r = rig(FirstOrderPlant(initial_rad=start, time_constant_s=0.005))
+    stats = _stream(r, trajectory, joints, tmp_path, approach_speed_rad_s=2.0).run(trajectory)
+    approach = joints.to_rad(np.array(r.virtual.goal_log[: stats.approach_frames]))
+    distance = np.max(np.abs(trajectory.q[0] - start))
+    # Peak speed 2 rad/s on a minimum-jerk ramp: duration 1.875 d / 2.
+    assert stats.approach_frames == math.ceil(1.875 * distance / 2.0 * RATE_HZ)
+    np.testing.assert_allclose(approach[-1], trajectory.q[0], atol=2 * math.pi / 4096)
+    steps = np.diff(np.vstack([start, approach]), axis=0)
+    assert np.max(np.abs(steps)) <= 2.0 / RATE_HZ + 2 * math.pi / 4096
+    assert np.all(steps * (trajectory.q[0] - start) >= -2 * math.pi / 4096)  # monotone
+
+
+def test_min_jerk_ramp_ends_exactly_and_respects_speed():
+    t, q = min_jerk_ramp(np.zeros(2), np.array([1.0, -0.5]), 100.0, 0.5)
+    assert t[-1] == pytest.approx(math.ceil(3.75 * 100) / 100)
+    np.testing.assert_allclose(q[-1], [1.0, -0.5])
+    assert np.max(np.abs(np.diff(q[:, 0]))) * 100 <= 0.5 + 1e-9
+    assert min_jerk_ramp(np.ones(3), np.ones(3), 100.0, 0.5)[1].shape == (0, 3)
+
+
+def test_stream_of_frames_with_rate(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.2)
+    r = rig()
+    streamer = _stream(r, trajectory, JointMap(), tmp_path)
+    stats = streamer.run(iter(list(trajectory)), rate_hz=RATE_HZ)
+    assert stats.frames_sent == stats.frames_planned == len(trajectory)
+    with pytest.raises(ValueError, match="Expected a positive `rate_hz`"):
+        streamer.run(iter(list(trajectory)))
+    with pytest.raises(ValueError, match="Expected a non-empty stream, got no frames"):
+        streamer.run(iter([]), rate_hz=RATE_HZ)
+
+
+def test_hold_on_finish_clears_watchdog_and_keeps_torque(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.1)
+    r = rig()
+    _stream(r, trajectory, JointMap(), tmp_path).run(trajectory)
+    for servo in r.virtual.servos.values():
+        assert servo.torque_on
+        assert servo.get(Register.BUS_WATCHDOG) == 0
+        assert servo.get(Register.RETURN_DELAY_TIME) == 0
+        assert servo.get(Register.OPERATING_MODE) == 3
+    np.testing.assert_array_equal(r.virtual.goal_log[-1], JointMap().to_ticks(trajectory.q[-1]))
+
+
+FAULTS = [
+    (Fault("drop", at_frame=20, servo_id=2), CommError, "fast sync read .* 3 tries: There is no"),
+    (Fault("corrupt", at_frame=20), CommError, "3 tries: Incorrect status packet"),
+    (Fault("delay", at_frame=20, delay_s=0.2), CommError, "3 tries: There is no status packet"),
+    (Fault("close", at_frame=20), CommError, "port failed"),
+    (Fault("overload", at_frame=20, servo_id=3), ServoError, "servo 3: hardware error .*overload"),
+    (Fault("watchdog", at_frame=20, servo_id=1), WatchdogTripped, "servo 1: Bus Watchdog tripped"),
+]
+
+
+@pytest.mark.parametrize(("fault", "error", "match"), FAULTS, ids=[f[0].kind for f in FAULTS])
+@pytest.mark.parametrize("on_stop", ["hold", "torque_off"])
+def test_fault_stops_safely_within_a_second(rig, rng, tmp_path, fault, error, match, on_stop):
+    trajectory = _trajectory(rng, duration_s=1.0)
+    r = rig(faults=[fault])
+    streamer = _stream(r, trajectory, JointMap(), tmp_path, on_stop=on_stop)
+    start = time.monotonic()
+    with pytest.raises(error, match=match):
+        streamer.run(trajectory)
+    elapsed = time.monotonic() - start
+    fault_time_s = fault.at_frame / RATE_HZ
+    assert elapsed - fault_time_s < 1.0
+    stats = streamer.stats
+    assert fault.at_frame <= stats.frames_sent <= fault.at_frame + 11  # one watchdog poll
+    assert stats.frames_sent < len(trajectory)
+    assert stats.fault and stats.fault in str(streamer.stats.fault)
+    # Telemetry up to the fault is on disk.
+    rows = _telemetry(tmp_path)
+    assert len(rows) == stats.frames_sent  # every goal sent has its row
+    assert [int(row["frame"]) for row in rows] == list(range(len(rows)))
+    # The servos hold their last goal, or are released.
+    if fault.kind != "close":
+        for servo_id, servo in r.virtual.servos.items():
+            if on_stop == "torque_off":
+                assert not servo.torque_on
+            elif not (fault.kind == "overload" and servo_id == fault.servo_id):
+                assert servo.torque_on
+        if on_stop == "hold":
+            sent = JointMap().to_ticks(trajectory.q[stats.frames_sent - 1])
+            holding = [i for i in (1, 2, 3) if not (fault.kind == "watchdog" and i == 1)]
+            for servo_id in holding:
+                assert r.virtual.servos[servo_id].get(Register.GOAL_POSITION) == sent[servo_id - 1]
+
+
+def test_ctrl_c_stops_safely(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.5)
+    r = rig()
+    streamer = _stream(r, trajectory, JointMap(), tmp_path, on_stop="torque_off")
+
+    def frames():
+        for frame in trajectory:
+            if frame.index == 30:
+                raise KeyboardInterrupt
+            yield frame
+
+    with pytest.raises(KeyboardInterrupt):
+        streamer.run(frames(), rate_hz=RATE_HZ)
+    assert streamer.stats.frames_sent == 30
+    assert streamer.stats.fault == "KeyboardInterrupt"
+    assert len(_telemetry(tmp_path)) == 30
+    assert not any(servo.torque_on for servo in r.virtual.servos.values())
+
+
+def test_wrong_model_refuses_to_stream(rig, rng):
+    trajectory = _trajectory(rng, duration_s=0.1)
+    r = rig(models=("XM430-W350", "XL430-W250", "XM430-W350"))
+    joints = JointMap()
+    with pytest.raises(
+        BringUpError,
+        match=r"servo 2: model number 1060 \(XL430-W250\), expected 1020 \(XM430-W350\); refus",
+    ):
+        bring_up(r.bus, joints, MODELS, joints.to_ticks(trajectory.q))
+    assert r.virtual.goal_log == []
+    assert not any(servo.torque_on for servo in r.virtual.servos.values())
+
+
+def test_missing_servo_refuses_to_stream(rig, rng):
+    trajectory = _trajectory(rng, duration_s=0.1)
+    r = rig()
+    joints = JointMap(ids=(1, 2, 4))
+    with pytest.raises(BringUpError, match="servo 4: no reply to ping at 1000000 baud"):
+        bring_up(r.bus, joints, MODELS, joints.to_ticks(trajectory.q))
+
+
+def test_latched_hardware_error_refuses_bring_up(rig, rng):
+    trajectory = _trajectory(rng, duration_s=0.1)
+    r = rig()
+    r.virtual.servos[2].raise_hardware_error(0x20)
+    with pytest.raises(ServoError, match=r"servo 2: hardware error during read Hardware Error"):
+        bring_up(r.bus, JointMap(), MODELS, JointMap().to_ticks(trajectory.q))
+    assert not any(servo.torque_on for servo in r.virtual.servos.values())
+
+
+def test_extended_position_mode_for_multi_turn_range(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.2, offset=(3.5, 0.0, 0.0))
+    r = rig(FirstOrderPlant(initial_rad=np.array([3.5, 0.0, 0.0])))
+    joints = JointMap()
+    assert operating_mode_for(joints.to_ticks(trajectory.q)) == 4
+    stats = _stream(r, trajectory, joints, tmp_path).run(trajectory)
+    assert r.virtual.servos[1].get(Register.OPERATING_MODE) == 4
+    assert stats.frames_sent == len(trajectory)
+    assert np.max(np.concatenate(r.virtual.goal_log)) > 4095
+
+
+def test_watchdog_units_and_argument_errors(rig):
+    assert watchdog_units(0.1) == 5
+    assert watchdog_units(0.02) == 1
+    with pytest.raises(ValueError, match=r"Expected `watchdog_s` in 0.02..2.54 s, got 3"):
+        watchdog_units(3)
+    r = rig()
+    with pytest.raises(ValueError, match="Expected `telemetry_every` >= 1, got 0"):
+        Streamer(r.bus, JointMap(), telemetry_every=0)
+    with pytest.raises(ValueError, match="Expected `on_stop` 'hold' or 'torque_off', got 'x'"):
+        Streamer(r.bus, JointMap(), on_stop="x")
+
+
+def test_npz_telemetry(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.1)
+    r = rig()
+    bring_up(r.bus, JointMap(), MODELS, JointMap().to_ticks(trajectory.q))
+    Streamer(r.bus, JointMap(), telemetry=tmp_path / "t.npz", telemetry_every=2).run(trajectory)
+    data = np.load(tmp_path / "t.npz")
+    assert len(data["frame"]) == len(trajectory)
+    np.testing.assert_allclose(data["goal_rad_tilt"], trajectory.q[:, 1])
+    assert np.all(np.isnan(data["position_rad_pan"][1::2]))  # not read: NaN, never 0
+    assert np.all(np.isfinite(data["position_rad_pan"][::2]))
+
+
+def test_simulated_gimbal_tracks_and_passes_torque_check(rng, tmp_path):
+    sim_plant = pytest.importorskip("sim.plant")
+    t = np.arange(201) / RATE_HZ
+    s = t / t[-1]
+    h = 10 * s**3 - 15 * s**4 + 6 * s**5
+    amplitude = np.array([0.5, -0.3, 0.2])
+    q = h[:, None] * amplitude
+    qd = ((30 * s**2 - 60 * s**3 + 30 * s**4) / t[-1])[:, None] * amplitude
+    qdd = ((60 * s - 180 * s**2 + 120 * s**3) / t[-1] ** 2)[:, None] * amplitude
+    trajectory = JointTrajectory(t, q, qd, qdd, RATE_HZ)
+    plant = sim_plant.GimbalPlant()
+    r = _Rig(plant)
+    try:
+        bring_up(r.bus, JointMap(), MODELS, JointMap().to_ticks(q))
+        stats = Streamer(r.bus, JointMap()).run(trajectory)
+        received = JointMap().to_rad(np.array(r.virtual.goal_log))
+    finally:
+        r.close()
+    assert stats.approach_frames == 0
+    assert np.max(np.abs(received - q)) <= 2 * math.pi / 4096
+    report = plant.report(trajectory)
+    assert report.ok, report.format()
+
+
+def test_falls_back_to_sync_read_without_fast_sync_read(rig, rng, tmp_path):
+    trajectory = _trajectory(rng, duration_s=0.2)
+    r = rig(fast=False)
+    stats = _stream(r, trajectory, JointMap(), tmp_path).run(trajectory)
+    assert stats.read_method == "sync read"
+    assert stats.comm_errors == 3  # the probe: one fast sync read, three tries
+    assert stats.frames_sent == len(trajectory)
+    rows = _telemetry(tmp_path)
+    assert all(row["position_rad_pan"] != "" for row in rows)
+
+
+def test_real_time_mode_advances_with_the_wall_clock():
+    plant = FirstOrderPlant()
+    with VirtualBus(plant) as virtual, ServoBus(virtual.port) as bus:
+        bus.ping(1)
+        before = plant.time_s
+        time.sleep(0.2)
+        bus.ping(1)
+        assert 0.2 <= plant.time_s - before < 0.5

@@ -1,0 +1,313 @@
+"""The virtual servo bus, driven through ServoBus -> dynamixel-sdk -> pyserial -> pty."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from drivers.bus import ServoBus
+from drivers.control_table import MODELS, Register
+from drivers.errors import CommError, ServoError
+from drivers.virtual.bus import Fault, VirtualBus, WireTiming
+from drivers.virtual.plant import FirstOrderPlant, Plant
+
+XM430 = MODELS["XM430-W350"]
+STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
+
+
+def _open(plant=None, *, faults=(), timing=None, baud=1_000_000, models="XM430-W350"):
+    virtual = VirtualBus(
+        plant or FirstOrderPlant(),
+        models=models,
+        lockstep_dt_s=0.01,
+        faults=faults,
+        timing=timing,
+    ).start()
+    bus = ServoBus(virtual.port, baud=baud).open()
+    for servo_id in (1, 2, 3):
+        bus.add_servo(servo_id, XM430)
+    return virtual, bus
+
+
+@pytest.fixture
+def pair():
+    virtual, bus = _open()
+    yield virtual, bus
+    bus.close()
+    virtual.stop()
+
+
+def _goals(bus, ticks):
+    """Sync write goals, then ping: once the reply is in, the bus has handled the write."""
+    bus.sync_write(Register.GOAL_POSITION, dict(zip((1, 2, 3), ticks, strict=True)))
+    bus.ping(1)
+
+
+def test_first_order_plant_is_a_plant():
+    assert isinstance(FirstOrderPlant(), Plant)
+
+
+def test_ping_and_scan(pair):
+    virtual, bus = pair
+    assert [bus.ping(i) for i in (1, 2, 3)] == [1020, 1020, 1020]
+    assert bus.scan() == {1: (1020, 48), 2: (1020, 48), 3: (1020, 48)}
+
+
+def test_factory_defaults_and_write_read_back(pair):
+    _, bus = pair
+    assert bus.read(1, Register.RETURN_DELAY_TIME) == 250
+    assert bus.read(1, Register.OPERATING_MODE) == 3
+    assert bus.read(1, Register.SHUTDOWN) == 52
+    bus.write(1, Register.RETURN_DELAY_TIME, 0)
+    assert bus.read(1, Register.RETURN_DELAY_TIME) == 0
+    assert bus.read(2, Register.RETURN_DELAY_TIME) == 250
+
+
+def test_eeprom_locked_while_torque_on(pair):
+    _, bus = pair
+    bus.write(2, Register.TORQUE_ENABLE, 1)
+    with pytest.raises(
+        ServoError, match=r"servo 2: write Operating Mode = 4: status error: access \(0x07\)"
+    ):
+        bus.write(2, Register.OPERATING_MODE, 4)
+    bus.write(2, Register.TORQUE_ENABLE, 0)
+    bus.write(2, Register.OPERATING_MODE, 4)
+    assert bus.read(2, Register.OPERATING_MODE) == 4
+
+
+def test_read_only_register_refuses_write(pair):
+    _, bus = pair
+    with pytest.raises(ServoError, match="servo 1: write Present Position = 5: .*access"):
+        bus.write(1, Register.PRESENT_POSITION, 5)
+
+
+def test_goal_outside_limits_is_refused_in_position_mode(pair):
+    _, bus = pair
+    with pytest.raises(ServoError, match="servo 3: write Goal Position = 5000: .*data limit"):
+        bus.write(3, Register.GOAL_POSITION, 5000)
+
+
+def test_signed_values_over_the_wire():
+    # Plant at -4 rad: Present Position 2048 - 2608 = -560 (0xFFFFFDD0 unsigned).
+    plant = FirstOrderPlant(initial_rad=np.array([-4.0, 0.5, 0.0]), time_constant_s=0.05)
+    virtual, bus = _open(plant)
+    try:
+        expected = 2048 + round(-4.0 * 4096 / (2 * math.pi))
+        assert expected < 0
+        assert bus.read(1, Register.PRESENT_POSITION) == expected
+        bus.write(2, Register.TORQUE_ENABLE, 1)
+        _goals(bus, [expected, 2048, 2048])  # joint 2 moves from 0.5 rad to 0: negative speed
+        block = bus.read_block((1, 2, 3), STATE)
+        assert block.values[1][Register.PRESENT_POSITION] == expected
+        assert block.values[2][Register.PRESENT_VELOCITY] < 0
+        assert block.values[2][Register.PRESENT_CURRENT] < 0
+    finally:
+        bus.close()
+        virtual.stop()
+
+
+def test_fast_and_plain_sync_read_agree(pair):
+    virtual, bus = pair
+    for servo_id in (1, 2, 3):
+        bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+    _goals(bus, [2100, 2000, 2048])
+    fast = bus.read_block((1, 2, 3), STATE, fast=True)
+    plain = bus.read_block((1, 2, 3), STATE, fast=False)
+    assert fast == plain
+    assert fast.errors == {1: 0, 2: 0, 3: 0}
+    assert fast.values[1][Register.PRESENT_POSITION] > 2048
+
+
+def test_lockstep_advances_one_period_per_goal_write(pair):
+    virtual, bus = pair
+    for k in range(7):
+        _goals(bus, [2048 + k, 2048 - k, 2048])
+    assert virtual.plant.time_s == pytest.approx(0.07)
+    np.testing.assert_array_equal(virtual.goal_log[-1], [2054, 2042, 2048])
+    bus.read(1, Register.PRESENT_POSITION)  # reads do not advance the plant
+    assert virtual.plant.time_s == pytest.approx(0.07)
+
+
+def test_failed_read_raises_never_zero():
+    virtual, bus = _open(faults=[Fault("drop", servo_id=2)])
+    try:
+        assert bus.read(1, Register.PRESENT_POSITION) == 2048
+        with pytest.raises(
+            CommError,
+            match=r"servo 2: read Present Position failed after 3 tries: There is no status",
+        ):
+            bus.read(2, Register.PRESENT_POSITION)
+        with pytest.raises(CommError, match=r"servos \[1, 2, 3\]: fast sync read .* 3 tries"):
+            bus.read_block((1, 2, 3), STATE)
+        assert bus.failed_tries == 6
+    finally:
+        bus.close()
+        virtual.stop()
+
+
+def test_corrupt_reply_is_retried_then_raises():
+    virtual, bus = _open(faults=[Fault("corrupt", servo_id=1, count=2)])
+    try:
+        # Two corrupt replies, then a good one: within the retry budget of 2.
+        assert bus.read(1, Register.MODEL_NUMBER) == 1020
+        assert bus.failed_tries == 2
+    finally:
+        bus.close()
+        virtual.stop()
+    virtual, bus = _open(faults=[Fault("corrupt", servo_id=1)])
+    try:
+        with pytest.raises(CommError, match="servo 1: read Model Number failed after 3 tries: "):
+            bus.read(1, Register.MODEL_NUMBER)
+    finally:
+        bus.close()
+        virtual.stop()
+
+
+def test_overload_sets_alert_and_reboot_clears_it():
+    virtual, bus = _open(faults=[Fault("overload", at_frame=1, servo_id=2)])
+    try:
+        for servo_id in (1, 2, 3):
+            bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+        _goals(bus, [2048, 2048, 2048])
+        assert not virtual.servos[2].torque_on  # Shutdown covers overload
+        block = bus.read_block((1, 2, 3), STATE)
+        assert block.errors == {1: 0, 2: 0x80, 3: 0}
+        with pytest.raises(ServoError, match=r"servo 2: hardware error during .*: overload \(Har"):
+            bus.check_block(block, "streaming")
+        with pytest.raises(ServoError, match=r"servo 2: write Torque .*: result fail \(0x81\)"):
+            bus.write(2, Register.TORQUE_ENABLE, 1)
+        bus.reboot(2)
+        assert bus.read(2, Register.HARDWARE_ERROR_STATUS) == 0
+        bus.write(2, Register.TORQUE_ENABLE, 1)
+        assert virtual.servos[2].torque_on
+    finally:
+        bus.close()
+        virtual.stop()
+
+
+def test_bus_watchdog_trips_and_blocks_goals_until_cleared(pair):
+    virtual, bus = pair
+    bus.write(1, Register.TORQUE_ENABLE, 1)
+    bus.write(1, Register.BUS_WATCHDOG, 1)  # 20 ms
+    time.sleep(0.1)
+    assert bus.read(1, Register.BUS_WATCHDOG) == -1
+    with pytest.raises(ServoError, match="servo 1: write Goal Position = 2100: .*data range"):
+        bus.write(1, Register.GOAL_POSITION, 2100)
+    bus.write(1, Register.BUS_WATCHDOG, 0)
+    bus.write(1, Register.GOAL_POSITION, 2100)
+    assert virtual.servos[1].get(Register.GOAL_POSITION) == 2100
+
+
+def test_watchdog_stays_quiet_while_packets_flow(pair):
+    _, bus = pair
+    bus.write(1, Register.TORQUE_ENABLE, 1)
+    bus.write(1, Register.BUS_WATCHDOG, 5)  # 100 ms
+    for _ in range(20):
+        time.sleep(0.01)
+        _goals(bus, [2048, 2048, 2048])
+    assert bus.read(1, Register.BUS_WATCHDOG) == 5
+
+
+def test_port_closing_raises_comm_error():
+    virtual, bus = _open(faults=[Fault("close", at_frame=1)])
+    try:
+        bus.sync_write(Register.GOAL_POSITION, {1: 2048, 2: 2048, 3: 2048})
+        with pytest.raises(CommError, match="read Model Number: port failed"):
+            bus.read(1, Register.MODEL_NUMBER)
+        with pytest.raises(CommError, match="port failed"):  # not "Port is in use!"
+            bus.read(1, Register.MODEL_NUMBER)
+    finally:
+        bus.close()
+        virtual.stop()
+
+
+def test_wire_timing_lower_bounds():
+    # 57600 baud: a ping (10 B) and its reply (14 B) take 24 * 10 / 57600 s = 4.17 ms,
+    # plus Return Delay Time 250 * 2 us = 0.5 ms.
+    timing = WireTiming(baud=57_600, adapter_latency_s=0.001)
+    virtual, bus = _open(timing=timing, baud=57_600)
+    try:
+        floor_s = 24 * 10 / 57_600 + 0.0005 + 0.001
+        elapsed = []
+        for _ in range(5):
+            start = time.monotonic()
+            bus.ping(1)
+            elapsed.append(time.monotonic() - start)
+        assert min(elapsed) >= floor_s
+        bus.write(1, Register.RETURN_DELAY_TIME, 0)
+        start = time.monotonic()
+        bus.ping(1)
+        assert time.monotonic() - start >= floor_s - 0.0005
+        assert virtual.bytes_sent > 0 and virtual.bytes_received > 0
+    finally:
+        bus.close()
+        virtual.stop()
+
+
+def test_opens_at_4_5_mbps(pair):
+    virtual, _ = pair
+    with ServoBus(virtual.port, baud=4_500_000) as bus:
+        assert bus.ping(3) == 1020
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match=r"Expected one id per plant joint \(3\), got `ids`"):
+        VirtualBus(FirstOrderPlant(), ids=(1, 2))
+    with pytest.raises(ValueError, match="Expected a `servo_id` for a overload fault, got None"):
+        Fault("overload")
+    with pytest.raises(ValueError, match="Expected `kind` in"):
+        Fault("explode")
+    with pytest.raises(ValueError, match="Expected `baud` to be a positive int, got 0"):
+        ServoBus("/dev/null", baud=0)
+    with pytest.raises(CommError, match="/nonexistent/tty: cannot open at 1000000 baud"):
+        ServoBus("/nonexistent/tty", latency_ms=1.0).open()
+    with pytest.raises(ValueError, match=r"Servo 9 has no model; call add_servo\(9, model\)"):
+        ServoBus("/dev/null").read(9, Register.ID)
+
+
+def test_first_order_plant_exact_response():
+    plant = FirstOrderPlant(1, time_constant_s=0.1)
+    plant.set_torque_enabled(0, True)
+    plant.set_goal(np.array([1.0]))
+    plant.advance(0.1)
+    assert plant.read()[0][0] == pytest.approx(1 - math.exp(-1))
+    plant.set_torque_enabled(0, False)
+    plant.advance(1.0)
+    assert plant.read()[0][0] == pytest.approx(1 - math.exp(-1))  # free: stays
+    with pytest.raises(ValueError, match=r"Expected `initial_rad` of shape \(2,\), got \(3,\)"):
+        FirstOrderPlant(2, initial_rad=np.zeros(3))
+    with pytest.raises(ValueError, match="Expected `time_constant_s` >= 0, got -1"):
+        FirstOrderPlant(time_constant_s=-1)
+
+
+def test_ftdi_latency_timer_set_through_sysfs(tmp_path, monkeypatch):
+    import drivers.bus
+
+    (tmp_path / "ttyUSB7").mkdir()
+    timer = tmp_path / "ttyUSB7" / "latency_timer"
+    timer.write_text("16\n")
+    monkeypatch.setattr(drivers.bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
+    assert drivers.bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 1
+    assert timer.read_text().strip() == "1"
+    assert drivers.bus.set_ftdi_latency_timer("/dev/ttyS0") is None  # no timer: quiet
+
+
+def test_ftdi_latency_timer_warns_when_stuck_at_16(tmp_path, monkeypatch):
+    import builtins
+
+    import drivers.bus
+
+    (tmp_path / "ttyUSB7").mkdir()
+    timer = tmp_path / "ttyUSB7" / "latency_timer"
+    timer.write_text("16\n")
+    monkeypatch.setattr(drivers.bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
+
+    def read_only(path, mode="r", *args, **kwargs):
+        if "w" in mode:
+            raise PermissionError(13, "Permission denied", str(path))
+        return builtins.open(path, mode, *args, **kwargs)
+
+    monkeypatch.setattr(drivers.bus, "open", read_only, raising=False)
+    with pytest.warns(RuntimeWarning, match="/dev/ttyUSB7: FTDI latency timer is 16 ms"):
+        assert drivers.bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 16
