@@ -233,7 +233,10 @@ def _stream(args) -> int:
         from sim.plant import GimbalPlant
 
         try:
-            plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path))
+            # Power up at the first frame, as a gimbal parked there would be.
+            plant = GimbalPlant(
+                gimbal_config_from_tables(kf.tables, kf.path), initial_rad=trajectory.q[0]
+            )
         except (ValueError, TypeError) as e:
             return _error(e)
         virtual = VirtualBus(
@@ -279,13 +282,6 @@ def _stream(args) -> int:
         print(f"telemetry: {args.telemetry}")
 
     result = {"stream": None if streamer is None else streamer.stats.to_json_dict()}
-    if plant is not None and status == EXIT_OK and streamer.stats.approach_frames:
-        print(
-            "trajgen: warning: the simulated gimbal starts at 0 rad and the file does not, so "
-            "the move to the first frame is in the simulated record, ahead of the trajectory "
-            "the torque report compares it with",
-            file=sys.stderr,
-        )
     if plant is not None and status == EXIT_OK:
         from sim.errors import SimError
 

@@ -26,7 +26,6 @@ from sim.run import (
     warning_counts,
 )
 
-
 #: Window (s) over which the velocity setpoint is the mean rate of the goals.
 VELOCITY_WINDOW_S = 0.025
 
@@ -34,8 +33,9 @@ VELOCITY_WINDOW_S = 0.025
 class GimbalPlant:
     """Three simulated servos (pan, tilt, roll) driven by goal positions.
 
-    Like a Dynamixel after power-up, every joint starts at 0 rad with torque
-    off. Enabling torque on a joint that has no goal yet holds its present angle.
+    Like a Dynamixel after power-up, every joint starts at rest with torque
+    off, at 0 rad or at ``initial_rad``. Enabling torque on a joint that has no
+    goal yet holds its present angle.
 
     Parameters
     ----------
@@ -43,16 +43,22 @@ class GimbalPlant:
         Default :class:`GimbalConfig`.
     timestep_s : float
         Physics time step (s), in (0, 0.001]; it replaces ``config.timestep_s``.
+    initial_rad : array_like, shape (3,), optional
+        Joint angles (rad) at power-up, e.g. a trajectory's first frame, so a
+        stream needs no move to its start. Default 0.
 
     Raises
     ------
     TypeError, ValueError
-        If ``timestep_s`` is not a number in (0, 0.001].
+        If ``timestep_s`` is not a number in (0, 0.001] or ``initial_rad`` is not
+        3 finite numbers.
     """
 
     n_joints = 3
 
-    def __init__(self, config: GimbalConfig | None = None, *, timestep_s: float = 0.001):
+    def __init__(
+        self, config: GimbalConfig | None = None, *, timestep_s: float = 0.001, initial_rad=None
+    ):
         import mujoco
 
         config = GimbalConfig() if config is None else config
@@ -60,6 +66,11 @@ class GimbalPlant:
         self._model = build_model(self.config)
         self._data = mujoco.MjData(self._model)
         self._model.opt.disableactuator = 0b111
+        if initial_rad is not None:
+            start = np.asarray(initial_rad, dtype=float)
+            if start.shape != (3,) or not np.all(np.isfinite(start)):
+                raise ValueError(f"Expected `initial_rad` to be 3 finite numbers, got {start!r}.")
+            self._data.qpos[:] = start
         mujoco.mj_forward(self._model, self._data)
         self._warnings = warning_counts(self._data)
         self._goal = None

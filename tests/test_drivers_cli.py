@@ -97,6 +97,24 @@ def test_stream_virtual_end_to_end(tmp_path, capsys):
         assert len(list(csv.DictReader(f))) == 81
 
 
+def test_stream_virtual_from_a_pose_away_from_zero_and_across_180_deg(tmp_path, capsys):
+    # The simulated gimbal powers up at the first frame: no approach move in the record,
+    # so the torque report compares the stream with itself, not with a move from 0 rad.
+    path = tmp_path / "offset.toml"
+    path.write_text(
+        "[stream]\nrate_hz = 100\n"
+        "[[keyframes]]\nt = 0.0\npan = 30.0\ntilt = 10.0\n"
+        "[[keyframes]]\nt = 2.0\npan = 100.0\ntilt = 5.0\n"
+        "[[keyframes]]\nt = 4.0\npan = 200.0\n"
+    )
+    status = _run(["stream", path, "--virtual", "--json", tmp_path / "r.json"])
+    out = capsys.readouterr().out
+    assert status == 0, out
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["torque"]["ok"] is True
+    assert result["torque"]["joints"]["pan"]["max_tracking_error_rad"] < 0.05
+
+
 def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
     with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
         ok = _write(tmp_path / "ok.toml")

@@ -97,7 +97,6 @@ def build_parser() -> argparse.ArgumentParser:
     plan.set_defaults(func=run_plan)
 
     from drivers.cli import register as register_drivers
-
     from sim.cli import register as register_sim
 
     register_sim(sub)
