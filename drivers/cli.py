@@ -12,7 +12,14 @@ import sys
 import warnings
 from pathlib import Path
 
-EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+from trajgen.cli import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    add_file_argument,
+    positive_float,
+)
 
 STREAM_DESCRIPTION = """\
 Plan the joint stream of a keyframe file and stream it to Dynamixel X-series
@@ -65,8 +72,6 @@ def _baud(text: str) -> int:
 
 def register(subparsers) -> None:
     """Add the ``stream`` and ``scan`` subcommands to an argparse ``subparsers``."""
-    from trajgen.cli import add_file_argument, positive_float
-
     p = subparsers.add_parser(
         "stream",
         help="stream a keyframe file to Dynamixel servos (or a virtual bus)",

@@ -11,6 +11,15 @@ import json
 import sys
 import time
 
+from trajgen.cli import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    add_file_argument,
+    positive_float,
+)
+
 _PROGRESS_AFTER_S = 1.0
 
 DESCRIPTION = """\
@@ -30,8 +39,6 @@ simulation failed), 2 bad input."""
 def register(subparsers) -> None:
     """Add the ``sim`` subcommand to an argparse ``subparsers`` object."""
     import argparse
-
-    from trajgen.cli import add_file_argument, positive_float
 
     p = subparsers.add_parser(
         "sim",
@@ -79,7 +86,7 @@ class _Progress:
 
 def _error(message) -> int:
     print(f"trajgen: error: {message}", file=sys.stderr)
-    return 2
+    return EXIT_BAD_INPUT
 
 
 def run_sim(args) -> int:
@@ -88,7 +95,7 @@ def run_sim(args) -> int:
         return _run(args)
     except KeyboardInterrupt:
         print("", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 def _run(args) -> int:
@@ -99,7 +106,7 @@ def _run(args) -> int:
         report = check_torque(args.file, rate_hz=args.rate, progress=_Progress())
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
-        return 1
+        return EXIT_FAILED
     except (ValueError, TypeError, OSError) as e:
         # KeyframeFileError and KinematicsError are ValueErrors.
         return _error(e)
@@ -119,4 +126,4 @@ def _run(args) -> int:
             print(f"video: {render_video(report.record, args.video, report.config)}")
     except (OSError, ValueError, ModuleNotFoundError) as e:
         return _error(e)
-    return 0 if report.ok else 1
+    return EXIT_OK if report.ok else EXIT_FAILED

@@ -16,7 +16,7 @@ import numpy as np
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFileError, load_keyframe_file
 
 #: Exit statuses shared by every subcommand.
-EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 CSV_HEADER = ["t_s", "qw", "qx", "qy", "qz", "wx", "wy", "wz", "ax", "ay", "az"]
 
