@@ -158,3 +158,14 @@ def test_plan_command_bad_file_exits_2_with_one_line(tmp_path):
         f"trajgen: error: {path}: keyframe 2: unknown field 'tlt' (known: t, pan, tilt, roll, quat)"
     ]
     assert "Traceback" not in proc.stderr
+
+
+def test_import_trajgen_needs_numpy_only():
+    code = (
+        "import sys, trajgen, trajgen.cli\n"
+        "heavy = {'scipy', 'mujoco', 'dynamixel_sdk', 'serial', 'matplotlib', 'sim', 'drivers'}\n"
+        "print(sorted(heavy & {m.split('.')[0] for m in sys.modules}))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"

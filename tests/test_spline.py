@@ -247,7 +247,7 @@ def test_property_random_keyframes(seed, n, k, local, boundary):
     rng = np.random.default_rng(seed)
     # Small random steps, so every triple has a circle (no exact reversals).
     steps = Q.exp(rng.normal(scale=0.4, size=(n, 3)))
-    q = np.cumprod(np.ones(n))[:, None] * 0 + steps
+    q = steps.copy()
     for i in range(1, n):
         q[i] = Q.mul(steps[i], q[i - 1])
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.3, 2.0, n - 1))])
