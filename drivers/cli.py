@@ -13,11 +13,11 @@ import warnings
 from pathlib import Path
 
 from trajgen.cli import (
-    EXIT_BAD_INPUT,
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
     add_file_argument,
+    bad_input,
     positive_float,
 )
 
@@ -118,11 +118,6 @@ def register(subparsers) -> None:
     s.set_defaults(func=run_scan)
 
 
-def _error(message) -> int:
-    print(f"trajgen: error: {message}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
 def _open_bus(port: str, baud: int):
     """Open a ServoBus, turning the latency-timer warning into a stderr line."""
     from drivers.bus import ServoBus
@@ -143,7 +138,7 @@ def run_scan(args) -> int:
     try:
         bus = _open_bus(args.port, args.baud)
     except CommError as e:
-        return _error(e)
+        return bad_input(e)
     try:
         found = bus.scan()
     except CommError as e:
@@ -229,7 +224,7 @@ def _stream(args) -> int:
     try:
         kf, config, joints, rate, trajectory = _plan(args)
     except (ValueError, TypeError, OSError) as e:  # KeyframeFileError, KinematicsError
-        return _error(e)
+        return bad_input(e)
 
     virtual = plant = None
     if args.virtual:
@@ -243,7 +238,7 @@ def _stream(args) -> int:
                 gimbal_config_from_tables(kf.tables, kf.path), initial_rad=trajectory.q[0]
             )
         except (ValueError, TypeError) as e:
-            return _error(e)
+            return bad_input(e)
         virtual = VirtualBus(
             plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate
         ).start()
@@ -257,7 +252,7 @@ def _stream(args) -> int:
         try:
             bus = _open_bus(port, args.baud or config.baud)
         except DriverError as e:
-            return _error(e)
+            return bad_input(e)
         try:
             trajectory = _bring_up(bus, kf, config, joints, rate)
             streamer = Streamer(
@@ -271,7 +266,7 @@ def _stream(args) -> int:
             print(f"trajgen: stream failed: {e}", file=sys.stderr)
             status = EXIT_FAILED
         except ValueError as e:  # re-planning from the present position (KinematicsError)
-            return _error(e)
+            return bad_input(e)
         finally:
             bus.close()
             if streamer is not None and streamer.stats is not None:
@@ -305,12 +300,12 @@ def _stream(args) -> int:
             try:
                 print(f"plot: {plot_report(report, args.plot)}")
             except (OSError, ValueError) as e:
-                return _error(e)
+                return bad_input(e)
     if args.json:
         try:
             with open(args.json, "w", encoding="utf-8") as f:
                 json.dump(result, f, indent=2)
         except OSError as e:
-            return _error(e)
+            return bad_input(e)
         print(f"json: {args.json}")
     return status

@@ -12,11 +12,11 @@ import sys
 import time
 
 from trajgen.cli import (
-    EXIT_BAD_INPUT,
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
     add_file_argument,
+    bad_input,
     positive_float,
 )
 
@@ -84,11 +84,6 @@ class _Progress:
         self.stream.flush()
 
 
-def _error(message) -> int:
-    print(f"trajgen: error: {message}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
 def run_sim(args) -> int:
     """Run ``trajgen sim``; returns the exit status (0 ok, 1 check failed, 2 bad input)."""
     try:
@@ -109,7 +104,7 @@ def _run(args) -> int:
         return EXIT_FAILED
     except (ValueError, TypeError, OSError) as e:
         # KeyframeFileError and KinematicsError are ValueErrors.
-        return _error(e)
+        return bad_input(e)
     print(report.format())
     try:
         if args.json:
@@ -125,5 +120,5 @@ def _run(args) -> int:
 
             print(f"video: {render_video(report.record, args.video, report.config)}")
     except (OSError, ValueError, ModuleNotFoundError) as e:
-        return _error(e)
+        return bad_input(e)
     return EXIT_OK if report.ok else EXIT_FAILED

@@ -21,6 +21,12 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 CSV_HEADER = ["t_s", "qw", "qx", "qy", "qz", "wx", "wy", "wz", "ax", "ay", "az"]
 
 
+def bad_input(message) -> int:
+    """Print the one-line error for bad input and return its exit status."""
+    print(f"trajgen: error: {message}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
 def add_file_argument(parser: argparse.ArgumentParser) -> None:
     """The optional keyframe-file argument every subcommand shares."""
     parser.add_argument(
@@ -110,8 +116,7 @@ def main(argv=None) -> int:
     try:
         return args.func(args)
     except KeyframeFileError as e:
-        print(f"trajgen: error: {e}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return bad_input(e)
     except KeyboardInterrupt:
         print("trajgen: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
