@@ -20,12 +20,12 @@ import platform
 
 import numpy as np
 
-from drivers.bringup import bring_up
-from drivers.bus import ServoBus
-from drivers.streamer import Streamer
-from drivers.units import JointMap
-from drivers.virtual.bus import VirtualBus, WireTiming
-from drivers.virtual.plant import FirstOrderPlant
+from trajgen.drivers.bringup import bring_up
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.streamer import Streamer
+from trajgen.drivers.units import JointMap
+from trajgen.drivers.virtual.bus import VirtualBus, WireTiming
+from trajgen.drivers.virtual.plant import FirstOrderPlant
 from trajgen.stream import JointTrajectory
 
 SYNC_WRITE_B, READ_REQUEST_B, FAST_REPLY_B = 29, 17, 50

@@ -120,9 +120,9 @@ def knot_torque_jump(path) -> float:
     there, an impulse this cannot show; it shows as steps at the torque limit
     and tracking error instead.
     """
-    from sim.dynamics import inverse_dynamics
-    from sim.model import build_model
     from trajgen.gimbal import GimbalKinematics, joint_rates
+    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.model import build_model
 
     knots = np.asarray(path.times)[1:-1]
     eps = 1e-7
@@ -136,9 +136,9 @@ def knot_torque_jump(path) -> float:
 
 def run_case(motion: str, pace: str, method: str, reparam: str = "rational") -> Result:
     """Plan, simulate and measure one method on one case; planning refusals are recorded."""
-    from sim.check import check_torque
-    from sim.errors import SimError
     from trajgen import quat
+    from trajgen.sim.check import check_torque
+    from trajgen.sim.errors import SimError
     from trajgen.stream import plan_joint_trajectory
 
     angles = np.radians(motions()[motion])

@@ -21,8 +21,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from drivers.bus import ServoBus
-from drivers.control_table import (
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.control_table import (
     EXTENDED_POSITION_MODE,
     POSITION_MODE,
     WATCHDOG_UNIT_S,
@@ -31,8 +31,8 @@ from drivers.control_table import (
     model_named,
     model_numbered,
 )
-from drivers.errors import BringUpError, CommError
-from drivers.units import TICKS_PER_REV, JointMap
+from trajgen.drivers.errors import BringUpError, CommError
+from trajgen.drivers.units import TICKS_PER_REV, JointMap
 
 
 def watchdog_units(watchdog_s: float) -> int:

@@ -23,16 +23,16 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from drivers.control_table import (
+from trajgen.drivers.control_table import (
     SIGNED,
     Model,
     Register,
     describe_hardware_error,
     layout,
 )
-from drivers.errors import CommError, ServoError
-from drivers.protocol import ALERT_BIT, StatusError
-from drivers.units import to_signed, to_unsigned
+from trajgen.drivers.errors import CommError, ServoError
+from trajgen.drivers.protocol import ALERT_BIT, StatusError
+from trajgen.drivers.units import to_signed, to_unsigned
 
 DEFAULT_BAUD = 1_000_000
 # The SDK's fixed assumption, used where the port has no latency timer to read.

@@ -20,8 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.control_table import MODELS, WATCHDOG_UNIT_S
-from drivers.units import ZERO_TICK, JointMap
+from trajgen.drivers.control_table import MODELS, WATCHDOG_UNIT_S
+from trajgen.drivers.units import ZERO_TICK, JointMap
 
 BUS_KEYS = ("port", "baud", "ids", "directions", "zeros", "models", "watchdog_s")
 DEFAULT_MODEL = "XM430-W350"

@@ -23,12 +23,12 @@ from typing import Literal
 
 import numpy as np
 
-from drivers.bus import ServoBus
-from drivers.clock import sleep_until
-from drivers.control_table import Register
-from drivers.errors import CommError, DriverError, WatchdogTripped
-from drivers.telemetry import TelemetryWriter
-from drivers.units import JointMap
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.clock import sleep_until
+from trajgen.drivers.control_table import Register
+from trajgen.drivers.errors import CommError, DriverError, WatchdogTripped
+from trajgen.drivers.telemetry import TelemetryWriter
+from trajgen.drivers.units import JointMap
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 

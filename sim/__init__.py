@@ -4,19 +4,19 @@ The simulator consumes trajgen's joint stream (``trajgen.stream.JointTrajectory`
 and nothing else from trajgen. MuJoCo is imported only when a model is built.
 """
 
-from sim.check import (
+from trajgen.sim.check import (
     JointReport,
     TorqueReport,
     assert_torque_ok,
     build_report,
     check_torque,
 )
-from sim.dynamics import inverse_dynamics
-from sim.errors import SimError, SimulationError, TorqueLimitExceeded
-from sim.model import GimbalConfig, build_model, gimbal_config_from_tables, gimbal_mjcf
-from sim.plant import GimbalPlant
-from sim.run import SimRecord, simulate
-from sim.servos import SERVOS, ServoModel, servo_by_name
+from trajgen.sim.dynamics import inverse_dynamics
+from trajgen.sim.errors import SimError, SimulationError, TorqueLimitExceeded
+from trajgen.sim.model import GimbalConfig, build_model, gimbal_config_from_tables, gimbal_mjcf
+from trajgen.sim.plant import GimbalPlant
+from trajgen.sim.run import SimRecord, simulate
+from trajgen.sim.servos import SERVOS, ServoModel, servo_by_name
 
 __all__ = [
     "SERVOS",

@@ -25,9 +25,9 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from sim.errors import TorqueLimitExceeded
-from sim.model import JOINT_NAMES, GimbalConfig
-from sim.run import SimRecord, check_trajectory, simulate
+from trajgen.sim.errors import TorqueLimitExceeded
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.sim.run import SimRecord, check_trajectory, simulate
 
 DEFAULT_RATE_HZ = 200.0
 
@@ -179,8 +179,8 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
     -------
     TorqueReport
     """
-    from sim.dynamics import inverse_dynamics
-    from sim.model import build_model
+    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.model import build_model
 
     model = build_model(config)
     q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
@@ -285,7 +285,7 @@ def resolve_source(source, *, rate_hz=None, config=None):
         source = load_keyframe_file(source)
     if hasattr(source, "tables") and hasattr(source, "spline"):
         if config is None:
-            from sim.model import gimbal_config_from_tables
+            from trajgen.sim.model import gimbal_config_from_tables
 
             config = gimbal_config_from_tables(source.tables, source.path)
         if rate_hz is None:

@@ -6,7 +6,7 @@ import copy
 
 import numpy as np
 
-from sim.errors import SimulationError
+from trajgen.sim.errors import SimulationError
 
 
 def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:

@@ -29,7 +29,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
+from trajgen.sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
 
 JOINT_NAMES = ("pan", "tilt", "roll")
 GIMBAL_TABLE_KEYS = (

@@ -15,9 +15,9 @@ from collections import deque
 
 import numpy as np
 
-from sim.errors import SimulationError
-from sim.model import GimbalConfig, build_model
-from sim.run import (
+from trajgen.sim.errors import SimulationError
+from trajgen.sim.model import GimbalConfig, build_model
+from trajgen.sim.run import (
     SimRecord,
     at_torque_limit,
     check_trajectory,
@@ -195,8 +195,8 @@ class GimbalPlant:
         SimError
             If no goal was received or no step was run after it.
         """
-        from sim.check import build_report
-        from sim.errors import SimError
+        from trajgen.sim.check import build_report
+        from trajgen.sim.errors import SimError
 
         check_trajectory(trajectory)
         if self._first_goal_time is None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.model import JOINT_NAMES
+from trajgen.sim.model import JOINT_NAMES
 
 
 def plot_report(report, path) -> Path:

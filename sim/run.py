@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.errors import SimulationError
-from sim.model import GimbalConfig, build_model
-from sim.servos import SUPPLY_VOLTAGE_V
+from trajgen.sim.errors import SimulationError
+from trajgen.sim.model import GimbalConfig, build_model
+from trajgen.sim.servos import SUPPLY_VOLTAGE_V
 
 _LIMIT_RTOL = 1e-6
 _PROGRESS_STEP = 0.05
@@ -204,7 +204,7 @@ def simulate(
     """
     import mujoco
 
-    from sim.dynamics import inverse_dynamics
+    from trajgen.sim.dynamics import inverse_dynamics
 
     check_trajectory(trajectory)
     config = GimbalConfig() if config is None else config

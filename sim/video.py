@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.model import GimbalConfig, build_model
+from trajgen.sim.model import GimbalConfig, build_model
 
 
 def render_video(

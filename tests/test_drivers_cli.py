@@ -6,11 +6,11 @@ import json
 
 import pytest
 
-from drivers.cli import register
-from drivers.config import BusConfig, bus_config_from_tables
-from drivers.units import JointMap
-from drivers.virtual.bus import VirtualBus
-from drivers.virtual.plant import FirstOrderPlant
+from trajgen.cli import scan, stream
+from trajgen.drivers.config import BusConfig, bus_config_from_tables
+from trajgen.drivers.units import JointMap
+from trajgen.drivers.virtual.bus import VirtualBus
+from trajgen.drivers.virtual.plant import FirstOrderPlant
 
 keyframes = pytest.importorskip("trajgen.keyframes")
 
@@ -27,7 +27,9 @@ def _write(path, extra=""):
 
 def _run(argv):
     parser = argparse.ArgumentParser(prog="trajgen")
-    register(parser.add_subparsers())
+    sub = parser.add_subparsers()
+    stream.register(sub)
+    scan.register(sub)
     args = parser.parse_args([str(a) for a in argv])
     return args.func(args)
 

@@ -10,11 +10,11 @@ import os
 import numpy as np
 import pytest
 
-from drivers.bringup import bring_up
-from drivers.bus import ServoBus
-from drivers.control_table import Register, model_named
-from drivers.streamer import Streamer
-from drivers.units import JointMap
+from trajgen.drivers.bringup import bring_up
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.control_table import Register, model_named
+from trajgen.drivers.streamer import Streamer
+from trajgen.drivers.units import JointMap
 from trajgen.stream import JointTrajectory
 
 pytestmark = pytest.mark.hardware

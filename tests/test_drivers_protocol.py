@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from drivers.control_table import (
+from trajgen.drivers.control_table import (
     MODELS,
     Register,
     describe_hardware_error,
@@ -13,7 +13,7 @@ from drivers.control_table import (
     model_named,
     model_numbered,
 )
-from drivers.protocol import (
+from trajgen.drivers.protocol import (
     BROADCAST_ID,
     Instruction,
     PacketError,
@@ -26,7 +26,7 @@ from drivers.protocol import (
     stuff,
     unstuff,
 )
-from drivers.units import JointMap, to_signed, to_unsigned
+from trajgen.drivers.units import JointMap, to_signed, to_unsigned
 
 # Captured from dynamixel-sdk 4.1.0 (DYNAMIXEL.md): sync write of Goal Position
 # 2048, 1024, -4096 to ids 1, 2, 3, and ping(1).

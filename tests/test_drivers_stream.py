@@ -7,14 +7,14 @@ import time
 import numpy as np
 import pytest
 
-from drivers.bringup import bring_up, operating_mode_for, watchdog_units
-from drivers.bus import ServoBus
-from drivers.control_table import Register
-from drivers.errors import BringUpError, CommError, ServoError, WatchdogTripped
-from drivers.streamer import Streamer, min_jerk_ramp
-from drivers.units import JointMap
-from drivers.virtual.bus import Fault, VirtualBus
-from drivers.virtual.plant import FirstOrderPlant
+from trajgen.drivers.bringup import bring_up, operating_mode_for, watchdog_units
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.control_table import Register
+from trajgen.drivers.errors import BringUpError, CommError, ServoError, WatchdogTripped
+from trajgen.drivers.streamer import Streamer, min_jerk_ramp
+from trajgen.drivers.units import JointMap
+from trajgen.drivers.virtual.bus import Fault, VirtualBus
+from trajgen.drivers.virtual.plant import FirstOrderPlant
 from trajgen.stream import JointTrajectory
 
 RATE_HZ = 200.0
@@ -288,7 +288,7 @@ def test_npz_telemetry(rig, rng, tmp_path):
 
 
 def test_simulated_gimbal_tracks_and_passes_torque_check(rng, tmp_path):
-    sim_plant = pytest.importorskip("sim.plant")
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
     t = np.arange(201) / RATE_HZ
     s = t / t[-1]
     h = 10 * s**3 - 15 * s**4 + 6 * s**5

@@ -7,11 +7,10 @@ import numpy as np
 import pytest
 from conftest import quintic_trajectory
 
-import sim
-from sim.check import check_torque, resolve_source
-from sim.dynamics import inverse_dynamics
-from sim.model import GimbalConfig, build_model
-from trajgen import quat
+from trajgen import quat, sim
+from trajgen.sim.check import check_torque, resolve_source
+from trajgen.sim.dynamics import inverse_dynamics
+from trajgen.sim.model import GimbalConfig, build_model
 from trajgen.spline import BlendingSpline
 
 GENTLE = ([1.0, 0.4, -0.3], 2.0)  # rad, s: peak speed 0.94 rad/s

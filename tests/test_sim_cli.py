@@ -6,8 +6,8 @@ import re
 
 import pytest
 
-from sim.cli import register, run_sim
-from sim.model import GimbalConfig, gimbal_config_from_tables
+from trajgen.cli.sim import register, run_sim
+from trajgen.sim.model import GimbalConfig, gimbal_config_from_tables
 
 keyframes = pytest.importorskip("trajgen.keyframes")
 
@@ -87,7 +87,7 @@ def test_ctrl_c_exits_130(monkeypatch):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr("sim.check.check_torque", interrupted)
+    monkeypatch.setattr("trajgen.sim.check.check_torque", interrupted)
     args = argparse.Namespace(file="x.toml", rate=None, json=None, plot=None, video=None)
     assert run_sim(args) == 130
 
@@ -140,7 +140,6 @@ def test_gimbal_must_be_a_table():
 
 
 def test_trajgen_main_runs_the_builtin_example_and_fails_a_fast_file(tmp_path, capsys):
-    pytest.importorskip("drivers.cli", reason="trajgen.cli also wires the drivers' commands")
     from trajgen.cli import main
 
     assert main(["sim"]) == 0
@@ -152,7 +151,7 @@ def test_trajgen_main_runs_the_builtin_example_and_fails_a_fast_file(tmp_path, c
 def test_progress_line_appears_only_on_long_runs():
     import io
 
-    from sim.cli import _Progress
+    from trajgen.cli.sim import _Progress
 
     quick = _Progress(stream=io.StringIO())
     quick(0.5)
@@ -169,6 +168,6 @@ def test_the_cli_module_imports_without_mujoco_or_matplotlib():
     import subprocess
     import sys
 
-    code = "import sys, sim.cli; print('mujoco' in sys.modules, 'matplotlib' in sys.modules)"
+    code = "import sys, trajgen.cli.sim; print('mujoco' in sys.modules, 'matplotlib' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]

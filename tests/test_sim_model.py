@@ -6,9 +6,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.model import GimbalConfig, build_model, gimbal_mjcf
-from sim.servos import XL430_W250, XM540_W270
 from trajgen import quat
+from trajgen.sim.model import GimbalConfig, build_model, gimbal_mjcf
+from trajgen.sim.servos import XL430_W250, XM540_W270
 
 
 def _pose(model, angles):

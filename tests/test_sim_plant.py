@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from conftest import quintic_trajectory
 
-from sim.errors import SimError
-from sim.plant import GimbalPlant
+from trajgen.sim.errors import SimError
+from trajgen.sim.plant import GimbalPlant
 
 
 def _stream(plant, trajectory):
@@ -96,7 +96,7 @@ def test_bad_calls_are_refused():
 def test_velocity_setpoint_is_smooth_for_tick_quantised_goals():
     # A slow ramp (0.05 rad/s) streamed at 200 Hz in whole ticks moves 0 or 1 tick a
     # frame: differencing two frames would give 0 or 0.31 rad/s; the window gives ~0.05.
-    from sim.plant import VELOCITY_WINDOW_S, GimbalPlant
+    from trajgen.sim.plant import VELOCITY_WINDOW_S, GimbalPlant
 
     plant = GimbalPlant()
     tick = 2 * np.pi / 4096

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from conftest import quintic_trajectory
 
-from sim.dynamics import inverse_dynamics
-from sim.errors import SimulationError
-from sim.model import build_model, gimbal_mjcf
-from sim.run import planned_path, simulate
+from trajgen.sim.dynamics import inverse_dynamics
+from trajgen.sim.errors import SimulationError
+from trajgen.sim.model import build_model, gimbal_mjcf
+from trajgen.sim.run import planned_path, simulate
 from trajgen.stream import JointTrajectory
 
 

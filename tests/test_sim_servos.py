@@ -6,9 +6,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from sim.model import GimbalConfig, build_model
-from sim.run import at_torque_limit
-from sim.servos import SERVOS, XM430_W350, servo_by_name
+from trajgen.sim.model import GimbalConfig, build_model
+from trajgen.sim.run import at_torque_limit
+from trajgen.sim.servos import SERVOS, XM430_W350, servo_by_name
 
 
 def test_xm430_ratings_in_si_units():

@@ -5,10 +5,10 @@ import sys
 import pytest
 from conftest import quintic_trajectory
 
-from sim.check import check_torque
-from sim.plot import plot_report
-from sim.run import simulate
-from sim.video import render_video
+from trajgen.sim.check import check_torque
+from trajgen.sim.plot import plot_report
+from trajgen.sim.run import simulate
+from trajgen.sim.video import render_video
 
 
 def test_video_is_an_mp4(tmp_path):

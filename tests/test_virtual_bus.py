@@ -6,11 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from drivers.bus import ServoBus
-from drivers.control_table import MODELS, Register
-from drivers.errors import CommError, ServoError
-from drivers.virtual.bus import Fault, VirtualBus, WireTiming
-from drivers.virtual.plant import FirstOrderPlant, Plant
+from trajgen.drivers import bus as drivers_bus
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.control_table import MODELS, Register
+from trajgen.drivers.errors import CommError, ServoError
+from trajgen.drivers.virtual.bus import Fault, VirtualBus, WireTiming
+from trajgen.drivers.virtual.plant import FirstOrderPlant, Plant
 
 XM430 = MODELS["XM430-W350"]
 STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
@@ -282,32 +283,29 @@ def test_first_order_plant_exact_response():
 
 
 def test_ftdi_latency_timer_set_through_sysfs(tmp_path, monkeypatch):
-    import drivers.bus
 
     (tmp_path / "ttyUSB7").mkdir()
     timer = tmp_path / "ttyUSB7" / "latency_timer"
     timer.write_text("16\n")
-    monkeypatch.setattr(drivers.bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
-    assert drivers.bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 1
+    monkeypatch.setattr(drivers_bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
+    assert drivers_bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 1
     assert timer.read_text().strip() == "1"
-    assert drivers.bus.set_ftdi_latency_timer("/dev/ttyS0") is None  # no timer: quiet
+    assert drivers_bus.set_ftdi_latency_timer("/dev/ttyS0") is None  # no timer: quiet
 
 
 def test_ftdi_latency_timer_warns_when_stuck_at_16(tmp_path, monkeypatch):
     import builtins
 
-    import drivers.bus
-
     (tmp_path / "ttyUSB7").mkdir()
     timer = tmp_path / "ttyUSB7" / "latency_timer"
     timer.write_text("16\n")
-    monkeypatch.setattr(drivers.bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
+    monkeypatch.setattr(drivers_bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
 
     def read_only(path, mode="r", *args, **kwargs):
         if "w" in mode:
             raise PermissionError(13, "Permission denied", str(path))
         return builtins.open(path, mode, *args, **kwargs)
 
-    monkeypatch.setattr(drivers.bus, "open", read_only, raising=False)
+    monkeypatch.setattr(drivers_bus, "open", read_only, raising=False)
     with pytest.warns(RuntimeWarning, match="/dev/ttyUSB7: FTDI latency timer is 16 ms"):
-        assert drivers.bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 16
+        assert drivers_bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 16

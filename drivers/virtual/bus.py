@@ -37,9 +37,9 @@ from typing import Literal
 
 import numpy as np
 
-from drivers.clock import sleep_until
-from drivers.control_table import Model, Register, model_named
-from drivers.protocol import (
+from trajgen.drivers.clock import sleep_until
+from trajgen.drivers.control_table import Model, Register, model_named
+from trajgen.drivers.protocol import (
     ALERT_BIT,
     BROADCAST_ID,
     Instruction,
@@ -50,9 +50,9 @@ from drivers.protocol import (
     encode_fast_sync_status,
     encode_status,
 )
-from drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
-from drivers.virtual.plant import Plant
-from drivers.virtual.servo import VirtualServo
+from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
+from trajgen.drivers.virtual.plant import Plant
+from trajgen.drivers.virtual.servo import VirtualServo
 
 _OVERLOAD_BIT = 0x20
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).

@@ -12,7 +12,7 @@ fail); a hardware error covered by Shutdown turns torque off.
 
 from __future__ import annotations
 
-from drivers.control_table import (
+from trajgen.drivers.control_table import (
     EEPROM_END,
     POSITION_MODE,
     SIGNED,
@@ -21,8 +21,8 @@ from drivers.control_table import (
     factory_defaults,
     layout,
 )
-from drivers.protocol import StatusError
-from drivers.units import to_signed, to_unsigned
+from trajgen.drivers.protocol import StatusError
+from trajgen.drivers.units import to_signed, to_unsigned
 
 TABLE_SIZE = 1024
 

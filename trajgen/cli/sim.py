@@ -11,7 +11,7 @@ import json
 import sys
 import time
 
-from trajgen.cli import (
+from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
@@ -94,8 +94,8 @@ def run_sim(args) -> int:
 
 
 def _run(args) -> int:
-    from sim.check import check_torque
-    from sim.errors import SimError
+    from trajgen.sim.check import check_torque
+    from trajgen.sim.errors import SimError
 
     try:
         report = check_torque(args.file, rate_hz=args.rate, progress=_Progress())
@@ -112,11 +112,11 @@ def _run(args) -> int:
                 json.dump(report.to_json_dict(), f, indent=2)
             print(f"json: {args.json}")
         if args.plot:
-            from sim.plot import plot_report
+            from trajgen.sim.plot import plot_report
 
             print(f"plot: {plot_report(report, args.plot)}")
         if args.video:
-            from sim.video import render_video
+            from trajgen.sim.video import render_video
 
             print(f"video: {render_video(report.record, args.video, report.config)}")
     except (OSError, ValueError, ModuleNotFoundError) as e:

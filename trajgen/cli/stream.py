@@ -1,7 +1,7 @@
-"""The ``trajgen stream`` and ``trajgen scan`` commands.
+"""The ``trajgen stream`` command.
 
 This module imports quickly: dynamixel-sdk, pyserial and MuJoCo load inside
-``run_stream`` and ``run_scan``.
+``run_stream``.
 """
 
 from __future__ import annotations
@@ -9,15 +9,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import warnings
 from pathlib import Path
 
-from trajgen.cli import (
+from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
     add_file_argument,
     bad_input,
+    baud_rate,
+    open_bus,
     positive_float,
 )
 
@@ -41,12 +42,6 @@ period per frame received, and then prints the torque report.
 exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
 130 interrupted (servos hold their last goal)."""
 
-SCAN_DESCRIPTION = """\
-Broadcast-ping a serial port and list the Dynamixel servos that answer, with
-model and firmware version.
-
-exit status: 0 servos found, 1 none found or the bus failed, 2 bad input."""
-
 
 def _ids(text: str) -> tuple[int, ...]:
     """argparse type: three comma-separated servo ids."""
@@ -57,17 +52,6 @@ def _ids(text: str) -> tuple[int, ...]:
     if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
         raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
     return ids
-
-
-def _baud(text: str) -> int:
-    """argparse type: a positive integer baud rate."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a baud rate > 0, got {text!r}")
-    return value
 
 
 def register(subparsers) -> None:
@@ -81,7 +65,7 @@ def register(subparsers) -> None:
     add_file_argument(p)
     p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
     p.add_argument(
-        "--baud", type=_baud, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
+        "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
     )
     p.add_argument(
         "--ids", type=_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
@@ -107,56 +91,6 @@ def register(subparsers) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
     p.set_defaults(func=run_stream)
 
-    s = subparsers.add_parser(
-        "scan",
-        help="list the Dynamixel servos on a serial port",
-        description=SCAN_DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    s.add_argument("--port", required=True, help="serial device, e.g. /dev/ttyUSB0")
-    s.add_argument("--baud", type=_baud, default=1_000_000, help="baud rate; default 1000000")
-    s.set_defaults(func=run_scan)
-
-
-def _open_bus(port: str, baud: int):
-    """Open a ServoBus, turning the latency-timer warning into a stderr line."""
-    from drivers.bus import ServoBus
-
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", RuntimeWarning)
-        bus = ServoBus(port, baud=baud).open()
-    for w in caught:
-        print(f"trajgen: warning: {w.message}", file=sys.stderr)
-    return bus
-
-
-def run_scan(args) -> int:
-    """Run ``trajgen scan``; returns the exit status."""
-    from drivers.control_table import Model, model_numbered
-    from drivers.errors import CommError
-
-    try:
-        bus = _open_bus(args.port, args.baud)
-    except CommError as e:
-        return bad_input(e)
-    try:
-        found = bus.scan()
-    except CommError as e:
-        print(f"trajgen: scan failed: {e}", file=sys.stderr)
-        return EXIT_FAILED
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
-    finally:
-        bus.close()
-    if not found:
-        print(f"no servos answered on {args.port} at {args.baud} baud")
-        return EXIT_FAILED
-    for servo_id, (number, firmware) in found.items():
-        model = model_numbered(number)
-        name = model.name if isinstance(model, Model) else model
-        print(f"id {servo_id:3d}  model {number:5d} ({name})  firmware {firmware}")
-    return EXIT_OK
-
 
 def run_stream(args) -> int:
     """Run ``trajgen stream``; returns the exit status."""
@@ -169,8 +103,8 @@ def run_stream(args) -> int:
 
 def _plan(args):
     """Everything that can fail on bad input, before any hardware is touched."""
-    from drivers.config import bus_config_from_tables
-    from drivers.units import JointMap
+    from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.drivers.units import JointMap
     from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
@@ -205,8 +139,8 @@ def _bring_up(bus, kf, config, joints, rate):
     """
     import numpy as np
 
-    from drivers.bringup import check_servos, configure, operating_mode_for
-    from drivers.control_table import Register
+    from trajgen.drivers.bringup import check_servos, configure, operating_mode_for
+    from trajgen.drivers.control_table import Register
     from trajgen.stream import plan_joint_trajectory
 
     check_servos(bus, joints, config.models)
@@ -218,8 +152,8 @@ def _bring_up(bus, kf, config, joints, rate):
 
 
 def _stream(args) -> int:
-    from drivers.errors import DriverError
-    from drivers.streamer import Streamer
+    from trajgen.drivers.errors import DriverError
+    from trajgen.drivers.streamer import Streamer
 
     try:
         kf, config, joints, rate, trajectory = _plan(args)
@@ -228,9 +162,9 @@ def _stream(args) -> int:
 
     virtual = plant = None
     if args.virtual:
-        from drivers.virtual.bus import VirtualBus
-        from sim.model import gimbal_config_from_tables
-        from sim.plant import GimbalPlant
+        from trajgen.drivers.virtual.bus import VirtualBus
+        from trajgen.sim.model import gimbal_config_from_tables
+        from trajgen.sim.plant import GimbalPlant
 
         try:
             # Power up at the first frame, as a gimbal parked there would be.
@@ -250,7 +184,7 @@ def _stream(args) -> int:
     status = EXIT_OK
     try:
         try:
-            bus = _open_bus(port, args.baud or config.baud)
+            bus = open_bus(port, args.baud or config.baud)
         except DriverError as e:
             return bad_input(e)
         try:
@@ -283,7 +217,7 @@ def _stream(args) -> int:
 
     result = {"stream": None if streamer is None else streamer.stats.to_json_dict()}
     if plant is not None and status == EXIT_OK:
-        from sim.errors import SimError
+        from trajgen.sim.errors import SimError
 
         try:
             report = plant.report(trajectory)
@@ -295,7 +229,7 @@ def _stream(args) -> int:
         if not report.ok:
             status = EXIT_FAILED
         if args.plot:
-            from sim.plot import plot_report
+            from trajgen.sim.plot import plot_report
 
             try:
                 print(f"plot: {plot_report(report, args.plot)}")

@@ -1,0 +1,7 @@
+"""``python -m trajgen``: the same as the ``trajgen`` command."""
+
+import sys
+
+from trajgen.cli import main
+
+sys.exit(main())

@@ -1,0 +1,54 @@
+"""The ``trajgen`` command line: the one place where the core, the drivers and the simulator meet.
+
+``trajgen`` (the numpy core), ``trajgen.drivers`` and ``trajgen.sim`` never
+import this package. Each subcommand lives in a module of its own that
+registers itself on the parser and imports its heavy dependencies (MuJoCo,
+dynamixel-sdk, matplotlib) only when it runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from trajgen import __version__
+from trajgen.cli import plan, scan, sim, stream
+from trajgen.cli.common import EXIT_INTERRUPTED, bad_input
+from trajgen.keyframes import KeyframeFileError
+
+#: The subcommand modules, in the order ``--help`` lists them.
+COMMANDS = (plan, sim, stream, scan)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``trajgen`` argument parser with every subcommand registered."""
+    parser = argparse.ArgumentParser(
+        prog="trajgen",
+        description=(
+            "Smooth orientation trajectories for pan-tilt-roll gimbals and robot wrists: "
+            "Kim & Nam's circular blending quaternion spline, streamed to Dynamixel servos "
+            "or checked for torque in a MuJoCo model."
+        ),
+        epilog="Exit status: 0 ok, 1 a check or the stream failed, 2 bad input, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"trajgen {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.register(sub)
+    return parser
+
+
+def main(argv=None) -> int:
+    """Entry point; returns the exit status."""
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyframeFileError as e:
+        return bad_input(e)
+    except KeyboardInterrupt:
+        print("trajgen: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())
