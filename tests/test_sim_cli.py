@@ -168,6 +168,9 @@ def test_the_cli_module_imports_without_mujoco_or_matplotlib():
     import subprocess
     import sys
 
-    code = "import sys, trajgen.cli.sim; print('mujoco' in sys.modules, 'matplotlib' in sys.modules)"
+    code = (
+        "import sys, trajgen.cli.sim\n"
+        "print('mujoco' in sys.modules, 'matplotlib' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
