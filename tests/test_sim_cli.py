@@ -169,8 +169,7 @@ def test_the_cli_module_imports_without_mujoco_or_matplotlib():
     import sys
 
     code = (
-        "import sys, trajgen.cli.sim\n"
-        "print('mujoco' in sys.modules, 'matplotlib' in sys.modules)"
+        "import sys, trajgen.cli.sim\nprint('mujoco' in sys.modules, 'matplotlib' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
