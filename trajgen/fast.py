@@ -26,6 +26,10 @@ def _numba_installed() -> bool:
 ENABLED = os.environ.get("TRAJGEN_NUMBA", "1") != "0" and _numba_installed()
 
 
+def use_compiled(samples: int) -> bool:
+    return ENABLED
+
+
 def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Compiled evaluation at times ``t`` (M,) in segments ``seg`` (M,).
 

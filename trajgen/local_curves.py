@@ -22,7 +22,7 @@ from functools import cached_property
 
 import numpy as np
 
-from . import jet as J
+from . import derivatives as D
 from . import quat as Q
 
 POINT, CIRCLE, PARABOLA, GEODESIC = range(4)
@@ -178,7 +178,7 @@ def circle_behaves(p1, p2, p3) -> bool:
 
 
 class LocalCurves:
-    """A table of local curves, evaluated as jets in one vectorised pass."""
+    """A table of local curves, evaluated with their derivatives in one vectorised pass."""
 
     def __init__(self, rows: list[CurveRow]):
         self.kind = np.array([r.kind for r in rows])
@@ -203,6 +203,11 @@ class LocalCurves:
         self.A, self.B = col("A", 3), col("B", 3)
         self.rise = np.array([r.rise for r in rows])
         self.power = np.array([r.power for r in rows], dtype=float)
+        # Derived columns for evaluation.
+        self.kinds_present = set(self.kind.tolist())
+        window = self.t[:, 2] - self.t[:, 0]  # zero for held points
+        self.inv_window = 1.0 / np.where(window > 0, window, 1.0)
+        self.re1, self.re2 = self.radius * self.e1, self.radius * self.e2
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -227,70 +232,136 @@ class LocalCurves:
             self.power,
         )
 
-    def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> J.Jet:
-        """Curves ``ids`` (M,) at times ``t`` (M,): a quaternion jet (order + 1, 4, M)."""
-        out = np.zeros((order + 1, 4, len(t)))
+    def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
+        """Curves ``ids`` (M,) at times ``t`` (M,) and their time derivatives up to ``order``.
+
+        Returns a derivative list (see :mod:`trajgen.derivatives`): ``order + 1``
+        quaternion arrays (4, M).
+        """
         kinds = self.kind[ids]
-        for kind, fn in (
-            (POINT, self._point),
-            (CIRCLE, self._circle),
-            (PARABOLA, self._parabola),
-            (GEODESIC, self._geodesic),
-        ):
-            m = kinds == kind
-            if m.any():
-                out[:, :, m] = fn(ids[m], J.Jet.variable(t[m], order)).c
-        return J.Jet(out)
+        parts = [
+            (kind, fn)
+            for kind, fn in (
+                (POINT, self._point),
+                (CIRCLE, self._circle),
+                (PARABOLA, self._parabola),
+                (GEODESIC, self._geodesic),
+            )
+            if kind in self.kinds_present
+        ]
+        if len(parts) == 1:
+            return parts[0][1](ids, t, order)
+        out = [np.empty((4, len(t))) for _ in range(order + 1)]
+        for kind, fn in parts:
+            m = np.flatnonzero(kinds == kind)
+            if len(m):
+                for o, x in zip(out, fn(ids[m], t[m], order), strict=True):
+                    o[:, m] = x
+        return out
 
-    def _s(self, ids, tj: J.Jet) -> J.Jet:
-        """Normalised time ``s = (t - t_{i-1}) / (t_{i+1} - t_{i-1})`` over the curve's window."""
-        t0, t2 = self.t[ids, 0], self.t[ids, 2]
-        return (tj - t0) * (1.0 / (t2 - t0))
+    def _s(self, ids, t) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised time ``s = (t - t_{i-1}) / (t_{i+1} - t_{i-1})`` and ``ds/dt``."""
+        rate = self.inv_window[ids]
+        return (t - self.t[ids, 0]) * rate, rate
 
-    def _point(self, ids, tj: J.Jet) -> J.Jet:
-        return J.Jet.constant(self.qT[:, ids], tj.order)
+    def _point(self, ids, t, order):
+        q = self.qT[:, ids]
+        return [q] + [np.zeros_like(q) for _ in range(order)]
 
-    def _circle(self, ids, tj: J.Jet) -> J.Jet:
-        s = self._s(ids, tj)
-        g = J.Jet(np.zeros_like(s.c))
+    def _circle(self, ids, t, order):
+        s, rate = self._s(ids, t)
+        g = [np.empty_like(s) for _ in range(order + 1)]  # g and its s-derivatives
         gk, coef = self.g_kind[ids], self.g_coef[ids]
-        m = gk == G_POLY
-        if m.any():
-            g.c[:, m] = J.polyval(coef[m].T, s[m]).c
-        m = gk == G_POWER
-        if m.any():
-            # s ** alpha has infinite derivatives at s = 0 when alpha < 1 (the paper's
-            # power law): there they are taken at s = 1e-12, large but finite.
-            sm = J.Jet(s[m].c.copy())
-            at_zero = sm.c[0] < 1e-12
-            sm.c[0] = np.maximum(sm.c[0], 1e-12)
-            gp = J.power(sm, coef[m, 0])
-            gp.c[0] = np.where(at_zero, 0.0, gp.c[0])
-            g.c[:, m] = gp.c
-        m = gk == G_RATIONAL
-        if m.any():
-            b = coef[m, 0]
-            g.c[:, m] = ((1.0 + b) * s[m] / (b * s[m] + 1.0)).c
-        sin, cos = J.sin_cos(g * self.a3[ids])
-        r = self.radius[ids]
-        e1, e2 = r * self.e1[:, ids], r * self.e2[:, ids]
-        return J.scale(cos, e1) + J.scale(sin, e2) + self.centre[:, ids]
+        for kind, fn in ((G_RATIONAL, _g_rational), (G_POLY, _g_poly), (G_POWER, _g_power)):
+            m = gk == kind
+            if m.all():
+                g = fn(s, coef, order)
+            elif m.any():
+                for o, x in zip(g, fn(s[m], coef[m], order), strict=True):
+                    o[m] = x
+        # theta = a3 g(s): theta^(n) = a3 g^(n) (ds/dt)^n.
+        theta = [self.a3[ids] * g[0]]
+        scale = self.a3[ids]
+        for n in range(1, order + 1):
+            scale = scale * rate
+            theta.append(scale * g[n])
+        cos, sin = np.cos(theta[0]), np.sin(theta[0])
+        e1, e2 = self.re1[:, ids], self.re2[:, ids]
+        # C = centre + P, P = r (cos e1 + sin e2); P_perp = dP/dtheta = r (cos e2 - sin e1).
+        P = e1 * cos + e2 * sin
+        out = [P + self.centre[:, ids]]
+        if order >= 1:
+            P_perp = e2 * cos - e1 * sin
+            out.append(theta[1] * P_perp)
+        if order >= 2:
+            w2 = theta[1] * theta[1]
+            out.append(theta[2] * P_perp - w2 * P)
+        if order >= 3:
+            out.append((theta[3] - w2 * theta[1]) * P_perp - 3.0 * theta[1] * theta[2] * P)
+        return out
 
-    def _parabola(self, ids, tj: J.Jet) -> J.Jet:
-        tau = tj - self.t[ids, 1]
-        v = J.scale(tau, self.A[:, ids]) + J.scale(tau * tau, self.B[:, ids])
-        return J.qmul(J.qexp(v), self.qT[:, ids])
+    def _parabola(self, ids, t, order):
+        tau = t - self.t[ids, 1]
+        A, B = self.A[:, ids], self.B[:, ids]
+        # v(tau) = A tau + B tau^2.
+        v = [tau * (A + B * tau), A + 2.0 * B * tau, 2.0 * B, np.zeros_like(A)][: order + 1]
+        q = self.qT[:, ids]
+        return [D.hamilton(e, q) for e in D.exp(v)]
 
-    def _geodesic(self, ids, tj: J.Jet) -> J.Jet:
-        s = self._s(ids, tj)
-        s_i = (self.t[ids, 1] - self.t[ids, 0]) / (self.t[ids, 2] - self.t[ids, 0])
+    def _geodesic(self, ids, t, order):
+        s, rate = self._s(ids, t)
+        s_i = (self.t[ids, 1] - self.t[ids, 0]) * rate
         rise = self.rise[ids] > 0
         # Rising: h = x^(k+1), x = (s - s_i) / (1 - s_i) on s > s_i, else 0.
         # Settling: h = 1 - x^(k+1), x = (s_i - s) / s_i on s < s_i, else 1.
-        x = J.Jet(np.where(rise, (s - s_i).c / (1 - s_i), (s_i - s).c / s_i))
-        active = x.value > 0
-        x.c[0] = np.maximum(x.c[0], 0.0)
-        xp = J.power(x, self.power[ids])
-        xp = J.Jet(np.where(active, xp.c, 0.0))
-        h = J.Jet(np.where(rise, xp.c, (1.0 - xp).c))
-        return J.qmul(J.qexp(J.scale(h, self.A[:, ids])), self.qT[:, ids])
+        x = np.where(rise, (s - s_i) / (1 - s_i), (s_i - s) / s_i)
+        dx = np.where(rise, rate / (1 - s_i), -rate / s_i)
+        active = x > 0
+        x = np.maximum(x, 0.0)
+        p = self.power[ids]
+        h, falling, dxn = [], np.ones_like(p), np.ones_like(p)
+        for j in range(order + 1):
+            # d^j/dt^j x^p = p (p-1) ... (p-j+1) x^(p-j) x'^j (x is linear in t).
+            xp = falling * x ** np.where(falling == 0, 0.0, p - j) * dxn
+            h.append(np.where(active, xp, 0.0))
+            falling, dxn = falling * (p - j), dxn * dx
+        h = [np.where(rise, hn, (1.0 if n == 0 else 0.0) - hn) for n, hn in enumerate(h)]
+        A, q = self.A[:, ids], self.qT[:, ids]
+        return [D.hamilton(e, q) for e in D.exp([hn * A for hn in h])]
+
+
+def _g_rational(s, coef, order):
+    """``g = (1 + b) s / (1 + b s)`` and its s-derivatives,
+    ``g^(n) = (-b)^(n-1) n! (1 + b) / (1 + b s)^(n+1)``."""
+    b = coef[:, 0]
+    inv = 1.0 / (1.0 + b * s)
+    g = [(1.0 + b) * s * inv]
+    if order >= 1:
+        g.append((1.0 + b) * inv * inv)
+    for n in range(2, order + 1):
+        g.append(-n * b * g[n - 1] * inv)
+    return g
+
+
+def _g_poly(s, coef, order):
+    """Cubic ``c0 + c1 s + c2 s^2 + c3 s^3`` and its s-derivatives."""
+    c0, c1, c2, c3 = coef.T
+    return [
+        c0 + s * (c1 + s * (c2 + s * c3)),
+        c1 + s * (2.0 * c2 + 3.0 * c3 * s),
+        2.0 * c2 + 6.0 * c3 * s,
+        6.0 * c3 + 0.0 * s,
+    ][: order + 1]
+
+
+def _g_power(s, coef, order):
+    """``s ** alpha``; its derivatives at ``s = 0`` are infinite when alpha < 1 (the paper's
+    power law): there they are taken at ``s = 1e-12``, large but finite."""
+    alpha = coef[:, 0]
+    x = np.maximum(s, 1e-12)
+    g, falling = [], np.ones_like(alpha)
+    for j in range(order + 1):
+        g.append(falling * x ** (alpha - j))
+        falling = falling * (alpha - j)
+    g[0] = np.where(s < 1e-12, 0.0, g[0])
+    return g

@@ -102,8 +102,9 @@ class OrientationPath:
                 raise ValueError(
                     f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s."
                 )
-            t = np.clip(t, t0, t1)
-        seg = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+            t = np.minimum(np.maximum(t, t0), t1)
+        seg = np.searchsorted(self.times, t, side="right") - 1
+        seg = np.minimum(np.maximum(seg, 0), len(self.times) - 2)
         return seg, t
 
     def evaluate(self, t, *, max_order: int = 2, frame: str = "space") -> Samples:

@@ -13,8 +13,8 @@ from math import comb
 
 import numpy as np
 
+from . import derivatives as D
 from . import fast
-from . import jet as J
 from . import quat as Q
 from .local_curves import KIND_NAMES, POINT, CurveRow, LocalCurves, NoCircleError, build_curve
 from .path import OrientationPath, check_option, check_times
@@ -22,6 +22,11 @@ from .path import OrientationPath, check_option, check_times
 BOUNDARIES = ("rest", "natural", "closed")
 LOCALS = ("auto", "circle", "parabola")
 REPARAMS = ("paper", "rational")
+
+#: Samples evaluated per block by the numpy path.
+CHUNK = 4096
+#: Sign pattern of the quaternion conjugate, components first (4, 1).
+CONJ = np.array([[1.0], [-1.0], [-1.0], [-1.0]])
 
 #: A closed spline's last keyframe must be within this rotation angle (rad) of its first.
 CLOSED_TOLERANCE = 1e-6
@@ -166,21 +171,63 @@ class BlendingSpline(OrientationPath):
         for m in np.unique(order):
             self._blend[order == m, : 2 * m] = blend_polynomial(int(m))
 
-    def _space_rates(self, t, seg, max_order):
-        if not fast.ENABLED:
-            return super()._space_rates(t, seg, max_order)
-        q, rates = fast.evaluate(self, t, seg)
-        return q, list(rates[:max_order])
+        self._blend_T = self._blend.T.copy()
+        self._inv_h = 1.0 / np.diff(self.times)
+        # _falling[n][j] = j (j-1) ... (j-n+1): the factor of u^(j-n) in the n-th derivative.
+        j = np.arange(deg, dtype=float)
+        falling = [np.ones(deg)]
+        for m in range(1, 4):
+            falling.append(falling[-1] * (j - m + 1))
+        self._falling = [x[:, None] for x in falling]
 
-    def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
+    def _space_rates(self, t, seg, max_order):
+        if fast.use_compiled(len(t)):
+            q, rates = fast.evaluate(self, t, seg)
+            return q, list(rates[:max_order])
+        q = np.empty((len(t), 4))
+        rates = [np.empty((len(t), 3)) for _ in range(max_order)]
+        # Blocks small enough for their temporaries to stay in cache and in the
+        # allocator's pool (large arrays are mapped and unmapped on every call).
+        for a in range(0, len(t), CHUNK):
+            b = min(a + CHUNK, len(t))
+            qb, rb = self._blend_derivatives(t[a:b], seg[a:b], max_order)
+            q[a:b] = qb.T
+            for out, r in zip(rates, rb, strict=True):
+                out[a:b] = r.T
+        return q, rates
+
+    def _blend_derivatives(self, t, seg, order):
+        """The path at times ``t`` (M,) in segments ``seg`` (M,): unit quaternions (4, M) and the
+        space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M)."""
         M = len(t)
         curves = self._curves.evaluate(
             np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
         )
-        c_left, c_right = J.Jet(curves.c[..., :M]), J.Jet(curves.c[..., M:])
-        h = self.times[seg + 1] - self.times[seg]
-        u = (J.Jet.variable(t, order) - self.times[seg]) * (1.0 / h)
-        f = J.polyval(self._blend[seg].T, u)
-        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
-        v = J.qlog(J.qmul(c_right, J.qconj(c_left)))
-        return J.qmul(J.qexp(J.scale(f, v)), c_left)
+        c_left = [c[:, :M] for c in curves]
+        c_right = [c[:, M:] for c in curves]
+        # SPEC 3: Q = exp(f v) C_i with v = log(C_{i+1} C_i*), one slerp with a moving weight.
+        v = D.log(D.qproduct(c_right, [c * CONJ for c in c_left]))
+        rate = self._inv_h[seg]
+        u = (t - self.times[seg]) * rate
+        coef = self._blend_T[:, seg]
+        f = []
+        for n in range(order + 1):
+            # f^(n)(t) = p^(n)(u) / h^n, Horner on the n-th derivative's coefficients.
+            fall = self._falling[n]
+            acc = coef[-1] * fall[-1]
+            for j in range(len(coef) - 2, n - 1, -1):
+                acc = acc * u + coef[j] * fall[j]
+            f.append(acc * rate**n if n else acc)
+        Q = D.qproduct(D.exp(D.product(f, v)), c_left)
+        q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
+        if order == 0:
+            return q, []
+        # omega = 2 vec(Q' Q*), alpha = 2 vec(Q'' Q*), jerk = 2 vec(Q''' Q* + Q'' Q'*)
+        # (the derivatives of 2 vec(Q' Q*); vec(Q' Q'*) = 0).
+        q_conj = Q[0] * CONJ
+        rates = [D.hamilton_vec(Q[n], q_conj) for n in range(1, order + 1)]
+        if order >= 3:
+            rates[2] += D.hamilton_vec(Q[2], Q[1] * CONJ)
+        for r in rates:
+            r *= 2.0
+        return q, rates
