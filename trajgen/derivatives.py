@@ -7,8 +7,9 @@ below (Leibniz, quotient, Faa di Bruno) is written out per order instead of
 through truncated series objects (:mod:`trajgen.jet`), which keeps the number of
 array operations and temporaries low.
 
-The quaternion exp and log take series branches near the identity, as in
-:mod:`trajgen.jet` and with the same thresholds, so the two agree to rounding.
+Functions that are singular or inaccurate at zero angle take series branches
+there, with the threshold of :mod:`trajgen.jet` (``SERIES_BELOW``), each branch
+evaluated only on its own samples.
 """
 
 from __future__ import annotations
@@ -17,9 +18,19 @@ from math import comb
 
 import numpy as np
 
-from .jet import _ATANC, _COS, _SINC, SERIES_BELOW
+from .jet import _COS, _SINC, SERIES_BELOW
 
-__all__ = ["chain", "exp", "hamilton", "hamilton_vec", "log", "product", "qproduct", "quotient"]
+__all__ = [
+    "chain",
+    "cos_sin",
+    "cos_sinc_sqrt",
+    "hamilton",
+    "hamilton_vec",
+    "product",
+    "quotient",
+    "slerp",
+    "vdot",
+]
 
 
 def product(a: list, b: list) -> list:
@@ -129,22 +140,6 @@ def hamilton_vec(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def qproduct(p: list, q: list) -> list:
-    """Leibniz rule for the Hamilton product of quaternion derivative lists (4, M)."""
-    K = min(len(p), len(q)) - 1
-    out = []
-    for n in range(K + 1):
-        acc = hamilton(p[0], q[n])
-        term = np.empty_like(acc) if n else None
-        for j in range(1, n + 1):
-            hamilton(p[j], q[n - j], term)
-            if 0 < j < n:
-                term *= comb(n, j)
-            acc += term
-        out.append(acc)
-    return out
-
-
 def _series(coef: np.ndarray, x: np.ndarray, K: int) -> list:
     """A power series in ``x`` and its first K derivatives with respect to ``x``."""
     out = []
@@ -203,57 +198,71 @@ def _cos_sinc_closed(x, K):
     return cs + ss
 
 
-def exp(v: list) -> list:
-    """``exp(v) = (cos |v|, sin|v| v / |v|)`` for a 3-vector derivative list (3, M) -> (4, M).
-
-    Series in ``x = |v|^2`` below ``SERIES_BELOW`` (as :func:`trajgen.jet.qexp`).
-    """
-    K = len(v) - 1
-    x = vdot(v, v)
+def cos_sinc_sqrt(x: list) -> tuple[list, list]:
+    """``cos sqrt(x)`` and ``sin sqrt(x) / sqrt(x)`` for ``x >= 0`` (a squared angle), with a
+    series below ``SERIES_BELOW`` (as :func:`trajgen.jet.qexp`)."""
+    K = len(x) - 1
     d = _split(x[0] < SERIES_BELOW, _cos_sinc_series, _cos_sinc_closed, [x[:1]], K)
-    cos_a, sinc = chain(d[: K + 1], x), chain(d[K + 1 :], x)
+    return chain(d[: K + 1], x), chain(d[K + 1 :], x)
+
+
+def cos_sin(theta: list) -> tuple[list, list]:
+    """``cos theta`` and ``sin theta``."""
+    c, s = np.cos(theta[0]), np.sin(theta[0])
+    return chain([c, -s, -c, s], theta), chain([s, c, -s, -c], theta)
+
+
+#: phi^2 as a power series in z = |p - q|^2 for points p, q of S^3 at angle phi:
+#: phi = 2 asin(sqrt(z) / 2), phi^2 = 2 sum_{n >= 1} z^n / (n^2 C(2n, n)).
+_PHI2 = np.array([0.0] + [2.0 / (n * n * comb(2 * n, n)) for n in range(1, 9)])
+
+
+def slerp(p: list, q: list, f: list) -> list:
+    """The point dividing the S^3 arc from ``p`` to ``q`` in ratio ``f : 1 - f``.
+
+    ``p``, ``q`` are derivative lists of unit quaternions (4, M), ``f`` of scalars
+    (M,). The classical form ``(sin((1 - f) phi) p + sin(f phi) q) / sin(phi)``,
+    ``phi`` the angle between ``p`` and ``q``; it equals ``exp(f log(q p*)) p``
+    (SPEC 3). The angle is taken from the chord ``z = |q - p|^2``, which is
+    accurate where the two points meet (at the knots); below ``SERIES_BELOW`` the
+    weights are series in ``phi^2`` (``sin(f phi) / sin(phi) = f sinc(f phi) / sinc(phi)``).
+    """
+    K = min(len(p), len(q), len(f)) - 1
+    d = [b - a for a, b in zip(p, q, strict=True)]
+    z = vdot(d, d)
+    w = _split(z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K)
+    return [x + y for x, y in zip(product(w[: K + 1], p), product(w[K + 1 :], q), strict=True)]
+
+
+def _complement(f: list) -> list:
+    return [1.0 - f[0]] + [-x for x in f[1:]]
+
+
+def _slerp_weights_series(z, f, K):
+    phi2 = chain(_series(_PHI2, z[0], K), z)
+    sinc = chain(_series(_SINC, phi2[0], K), phi2)
     out = []
-    for c, sv in zip(cos_a, product(sinc, v), strict=True):
-        e = np.empty((4, *c.shape))
-        e[0], e[1:] = c, sv
-        out.append(e)
+    for g in (_complement(f), f):
+        y = product(product(g, g), phi2)
+        out += product(g, quotient(chain(_series(_SINC, y[0], K), y), sinc))
     return out
 
 
-def log(q: list) -> list:
-    """Inverse of :func:`exp` for unit quaternion derivative lists (4, M) -> (3, M).
-
-    ``atan2(s, w) / s`` (``s = |xyz|``) on most samples; near the identity
-    (``s^2 < SERIES_BELOW w^2``, ``w > 0``) the series ``atan(z) / (z w)`` in
-    ``z^2 = s^2 / w^2``, as :func:`trajgen.jet.qlog`.
-    """
-    K = len(q) - 1
-    w = [x[0] for x in q]
-    xyz = [x[1:] for x in q]
-    s2 = vdot(xyz, xyz)
-    small = (s2[0] < SERIES_BELOW * w[0] ** 2) & (w[0] > 0)
-    scale = _split(small, _log_scale_series, _log_scale_atan2, [w, s2], K)
-    return product(scale, xyz)
-
-
-def _log_scale_series(w, s2, K):
-    """``atan(z) / (z w)``, ``z^2 = s2 / w^2``, as a series."""
-    z2 = quotient(s2, product(w, w))
-    return quotient(chain(_series(_ATANC, z2[0], K), z2), w)
-
-
-def _log_scale_atan2(w, s2, K):
-    """``atan2(s, w) / s`` with ``s = sqrt(s2)``."""
-    s = np.sqrt(s2[0])
-    ss = chain([s, 0.5 / s, -0.25 / (s * s2[0]), 0.375 / (s * s2[0] ** 2)], s2)
-    phi = [np.arctan2(s, w[0])]
-    if K >= 1:
-        # phi' = (w s' - s w') / (w^2 + s^2), differentiated by the quotient rule.
-        num = [w[0] * ss[1] - s * w[1]]
-        if K >= 2:
-            num.append(w[0] * ss[2] - s * w[2])
-        if K >= 3:
-            num.append(w[0] * ss[3] - s * w[3] + w[1] * ss[2] - ss[1] * w[2])
-        den = [x + y for x, y in zip(product(w[:K], w[:K]), product(ss[:K], ss[:K]), strict=True)]
-        phi += quotient(num, den)
-    return quotient(phi, ss)
+def _slerp_weights_closed(z, f, K):
+    x = z[0]
+    r = 1.0 / np.sqrt(x * (4.0 - x))
+    r3 = r * r * r
+    phi = chain(
+        [
+            2.0 * np.arcsin(0.5 * np.sqrt(x)),
+            r,
+            -(2.0 - x) * r3,
+            r3 + 3.0 * (2.0 - x) ** 2 * r3 * r * r,
+        ],
+        z,
+    )
+    sin_phi = cos_sin(phi)[1]
+    out = []
+    for g in (_complement(f), f):
+        out += quotient(cos_sin(product(g, phi))[1], sin_phi)
+    return out

@@ -207,7 +207,11 @@ class LocalCurves:
         self.kinds_present = set(self.kind.tolist())
         window = self.t[:, 2] - self.t[:, 0]  # zero for held points
         self.inv_window = 1.0 / np.where(window > 0, window, 1.0)
-        self.re1, self.re2 = self.radius * self.e1, self.radius * self.e2
+        self.basis = _basis(self).reshape(12, -1)
+        self.ab_gram = np.stack(
+            [(self.A * self.A).sum(0), (self.A * self.B).sum(0), (self.B * self.B).sum(0)]
+        )
+        self.axis_len = np.sqrt(self.ab_gram[0])
 
     def __len__(self) -> int:
         return len(self.kind)
@@ -235,28 +239,40 @@ class LocalCurves:
     def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
         """Curves ``ids`` (M,) at times ``t`` (M,) and their time derivatives up to ``order``.
 
+        Every curve is a combination ``C = a_0 K_0 + a_1 K_1 + a_2 K_2`` of three
+        constant quaternions ``K`` (its ``basis``) with scalar coefficients
+        ``a(t)``; only the coefficients depend on the kind.
+
         Returns a derivative list (see :mod:`trajgen.derivatives`): ``order + 1``
         quaternion arrays (4, M).
         """
+        coef = np.zeros((order + 1, 3, len(t)))
         kinds = self.kind[ids]
-        parts = [
-            (kind, fn)
-            for kind, fn in (
-                (POINT, self._point),
-                (CIRCLE, self._circle),
-                (PARABOLA, self._parabola),
-                (GEODESIC, self._geodesic),
-            )
-            if kind in self.kinds_present
-        ]
-        if len(parts) == 1:
-            return parts[0][1](ids, t, order)
-        out = [np.empty((4, len(t))) for _ in range(order + 1)]
-        for kind, fn in parts:
-            m = np.flatnonzero(kinds == kind)
+        for kind, fn in (
+            (CIRCLE, self._circle),
+            (PARABOLA, self._parabola),
+            (GEODESIC, self._geodesic),
+            (POINT, self._point),
+        ):
+            if kind not in self.kinds_present:
+                continue
+            m = kinds == kind
+            if m.all():
+                coef = fn(ids, t, order)
+                break
+            m = np.flatnonzero(m)
             if len(m):
-                for o, x in zip(out, fn(ids[m], t[m], order), strict=True):
-                    o[:, m] = x
+                coef[:, :, m] = fn(ids[m], t[m], order)
+        # np.take along axis 1 keeps the result component-first in memory (fancy indexing on
+        # the last axis would not).
+        basis = np.take(self.basis, ids, axis=1).reshape(3, 4, len(ids))
+        out = []
+        for n in range(order + 1):
+            a = coef[n]
+            c = basis[0] * a[0]
+            c += basis[1] * a[1]
+            c += basis[2] * a[2]
+            out.append(c)
         return out
 
     def _s(self, ids, t) -> tuple[np.ndarray, np.ndarray]:
@@ -264,51 +280,59 @@ class LocalCurves:
         rate = self.inv_window[ids]
         return (t - self.t[ids, 0]) * rate, rate
 
-    def _point(self, ids, t, order):
-        q = self.qT[:, ids]
-        return [q] + [np.zeros_like(q) for _ in range(order)]
+    @staticmethod
+    def _point(ids, t, order):
+        coef = np.zeros((order + 1, 3, len(t)))
+        coef[0, 0] = 1.0
+        return coef
 
     def _circle(self, ids, t, order):
+        """``C = centre + r cos(theta) e1 + r sin(theta) e2``, ``theta = a3 g(s)``."""
         s, rate = self._s(ids, t)
         g = [np.empty_like(s) for _ in range(order + 1)]  # g and its s-derivatives
-        gk, coef = self.g_kind[ids], self.g_coef[ids]
+        gk, gc = self.g_kind[ids], self.g_coef[ids]
         for kind, fn in ((G_RATIONAL, _g_rational), (G_POLY, _g_poly), (G_POWER, _g_power)):
             m = gk == kind
             if m.all():
-                g = fn(s, coef, order)
+                g = fn(s, gc, order)
             elif m.any():
-                for o, x in zip(g, fn(s[m], coef[m], order), strict=True):
+                for o, x in zip(g, fn(s[m], gc[m], order), strict=True):
                     o[m] = x
-        # theta = a3 g(s): theta^(n) = a3 g^(n) (ds/dt)^n.
-        theta = [self.a3[ids] * g[0]]
+        # theta^(n) = a3 g^(n) (ds/dt)^n.
         scale = self.a3[ids]
+        theta = [scale * g[0]]
         for n in range(1, order + 1):
             scale = scale * rate
             theta.append(scale * g[n])
-        cos, sin = np.cos(theta[0]), np.sin(theta[0])
-        e1, e2 = self.re1[:, ids], self.re2[:, ids]
-        # C = centre + P, P = r (cos e1 + sin e2); P_perp = dP/dtheta = r (cos e2 - sin e1).
-        P = e1 * cos + e2 * sin
-        out = [P + self.centre[:, ids]]
-        if order >= 1:
-            P_perp = e2 * cos - e1 * sin
-            out.append(theta[1] * P_perp)
-        if order >= 2:
-            w2 = theta[1] * theta[1]
-            out.append(theta[2] * P_perp - w2 * P)
-        if order >= 3:
-            out.append((theta[3] - w2 * theta[1]) * P_perp - 3.0 * theta[1] * theta[2] * P)
-        return out
+        coef = np.zeros((order + 1, 3, len(t)))
+        coef[0, 0] = 1.0
+        coef[:, 1], coef[:, 2] = D.cos_sin(theta)
+        return coef
 
     def _parabola(self, ids, t, order):
+        """``C = exp(v) q_i`` with ``v = A tau + B tau^2`` (``tau = t - t_i``): in the plane of
+        A and B, ``C = cos|v| q_i + (sin|v| / |v|) (tau A q_i + tau^2 B q_i)``."""
         tau = t - self.t[ids, 1]
-        A, B = self.A[:, ids], self.B[:, ids]
-        # v(tau) = A tau + B tau^2.
-        v = [tau * (A + B * tau), A + 2.0 * B * tau, 2.0 * B, np.zeros_like(A)][: order + 1]
-        q = self.qT[:, ids]
-        return [D.hamilton(e, q) for e in D.exp(v)]
+        aa, ab, bb = np.take(self.ab_gram, ids, axis=1)
+        # |v|^2 = aa tau^2 + 2 ab tau^3 + bb tau^4 and its tau-derivatives (d tau / dt = 1).
+        x = [tau * tau * (aa + tau * (2.0 * ab + tau * bb))]
+        if order >= 1:
+            x.append(tau * (2.0 * aa + tau * (6.0 * ab + 4.0 * bb * tau)))
+        if order >= 2:
+            x.append(2.0 * aa + tau * (12.0 * ab + 12.0 * bb * tau))
+        if order >= 3:
+            x.append(12.0 * ab + 24.0 * bb * tau)
+        cos_a, sinc = D.cos_sinc_sqrt(x)
+        one = np.ones_like(tau)
+        coef = np.empty((order + 1, 3, len(t)))
+        coef[:, 0] = cos_a
+        coef[:, 1] = D.product(sinc, [tau, one, 0.0 * one, 0.0 * one])
+        coef[:, 2] = D.product(sinc, [tau * tau, 2.0 * tau, 2.0 * one, 0.0 * one])
+        return coef
 
     def _geodesic(self, ids, t, order):
+        """``C = exp(h A) q = cos(h |A|) q + sin(h |A|) (A / |A|) q`` with ``h`` flat on the
+        repeated part (SPEC 2c)."""
         s, rate = self._s(ids, t)
         s_i = (self.t[ids, 1] - self.t[ids, 0]) * rate
         rise = self.rise[ids] > 0
@@ -319,15 +343,37 @@ class LocalCurves:
         active = x > 0
         x = np.maximum(x, 0.0)
         p = self.power[ids]
-        h, falling, dxn = [], np.ones_like(p), np.ones_like(p)
+        angle = self.axis_len[ids]
+        phi, falling, dxn = [], np.ones_like(p), np.ones_like(p)
         for j in range(order + 1):
             # d^j/dt^j x^p = p (p-1) ... (p-j+1) x^(p-j) x'^j (x is linear in t).
-            xp = falling * x ** np.where(falling == 0, 0.0, p - j) * dxn
-            h.append(np.where(active, xp, 0.0))
+            xp = np.where(active, falling * x ** np.where(falling == 0, 0.0, p - j) * dxn, 0.0)
+            phi.append(angle * np.where(rise, xp, (1.0 if j == 0 else 0.0) - xp))
             falling, dxn = falling * (p - j), dxn * dx
-        h = [np.where(rise, hn, (1.0 if n == 0 else 0.0) - hn) for n, hn in enumerate(h)]
-        A, q = self.A[:, ids], self.qT[:, ids]
-        return [D.hamilton(e, q) for e in D.exp([hn * A for hn in h])]
+        coef = np.zeros((order + 1, 3, len(t)))
+        coef[:, 0], coef[:, 1] = D.cos_sin(phi)
+        return coef
+
+
+def _basis(c: LocalCurves) -> np.ndarray:
+    """The constant quaternions (3, 4, C) each curve combines (see :meth:`LocalCurves.evaluate`)."""
+    basis = np.zeros((3, 4, len(c.kind)))
+    basis[0] = c.qT
+    pure = np.zeros((4, len(c.kind)))
+    m = c.kind == CIRCLE
+    basis[0, :, m] = c.centre[:, m].T
+    basis[1, :, m] = (c.radius * c.e1)[:, m].T
+    basis[2, :, m] = (c.radius * c.e2)[:, m].T
+    m = c.kind == PARABOLA
+    pure[1:] = c.A
+    basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
+    pure[1:] = c.B
+    basis[2, :, m] = D.hamilton(pure, c.qT)[:, m].T
+    m = c.kind == GEODESIC
+    length = np.sqrt((c.A * c.A).sum(0))
+    pure[1:] = c.A / np.where(length > 0, length, 1.0)
+    basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
+    return basis
 
 
 def _g_rational(s, coef, order):

@@ -205,11 +205,9 @@ class BlendingSpline(OrientationPath):
         )
         c_left = [c[:, :M] for c in curves]
         c_right = [c[:, M:] for c in curves]
-        # SPEC 3: Q = exp(f v) C_i with v = log(C_{i+1} C_i*), one slerp with a moving weight.
-        v = D.log(D.qproduct(c_right, [c * CONJ for c in c_left]))
         rate = self._inv_h[seg]
         u = (t - self.times[seg]) * rate
-        coef = self._blend_T[:, seg]
+        coef = np.take(self._blend_T, seg, axis=1)
         f = []
         for n in range(order + 1):
             # f^(n)(t) = p^(n)(u) / h^n, Horner on the n-th derivative's coefficients.
@@ -218,7 +216,8 @@ class BlendingSpline(OrientationPath):
             for j in range(len(coef) - 2, n - 1, -1):
                 acc = acc * u + coef[j] * fall[j]
             f.append(acc * rate**n if n else acc)
-        Q = D.qproduct(D.exp(D.product(f, v)), c_left)
+        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
+        Q = D.slerp(c_left, c_right, f)
         q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
         if order == 0:
             return q, []
