@@ -41,7 +41,13 @@ def product(a: list, b: list) -> list:
         acc = a[0] * b[n]
         acc += a[n] * b[0]
         for j in range(1, n):
-            acc += comb(n, j) * a[j] * b[n - j]
+            # The binomial on the scalar factor when one side is a vector (fewer operations).
+            x, y = (
+                (comb(n, j) * a[j], b[n - j])
+                if np.ndim(a[j]) <= np.ndim(b[n - j])
+                else (a[j], comb(n, j) * b[n - j])
+            )
+            acc += x * y
         out.append(acc)
     return out
 
@@ -212,6 +218,15 @@ def cos_sin(theta: list) -> tuple[list, list]:
     return chain([c, -s, -c, s], theta), chain([s, c, -s, -c], theta)
 
 
+def sin(theta: list) -> list:
+    """``sin theta``."""
+    s = np.sin(theta[0])
+    if len(theta) == 1:
+        return [s]
+    c = np.cos(theta[0])
+    return chain([s, c, -s, -c], theta)
+
+
 #: phi^2 as a power series in z = |p - q|^2 for points p, q of S^3 at angle phi:
 #: phi = 2 asin(sqrt(z) / 2), phi^2 = 2 sum_{n >= 1} z^n / (n^2 C(2n, n)).
 _PHI2 = np.array([0.0] + [2.0 / (n * n * comb(2 * n, n)) for n in range(1, 9)])
@@ -261,8 +276,8 @@ def _slerp_weights_closed(z, f, K):
         ],
         z,
     )
-    sin_phi = cos_sin(phi)[1]
+    sin_phi = sin(phi)
     out = []
     for g in (_complement(f), f):
-        out += quotient(cos_sin(product(g, phi))[1], sin_phi)
+        out += quotient(sin(product(g, phi)), sin_phi)
     return out

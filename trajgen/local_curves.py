@@ -23,6 +23,7 @@ from functools import cached_property
 import numpy as np
 
 from . import derivatives as D
+from . import jet as J
 from . import quat as Q
 
 POINT, CIRCLE, PARABOLA, GEODESIC = range(4)
@@ -236,8 +237,8 @@ class LocalCurves:
             self.power,
         )
 
-    def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
-        """Curves ``ids`` (M,) at times ``t`` (M,) and their time derivatives up to ``order``.
+    def derivatives(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
+        """Curves ``ids`` (M,) at times ``t`` (M,) and their time derivatives up to ``order`` <= 3.
 
         Every curve is a combination ``C = a_0 K_0 + a_1 K_1 + a_2 K_2`` of three
         constant quaternions ``K`` (its ``basis``) with scalar coefficients
@@ -323,11 +324,10 @@ class LocalCurves:
         if order >= 3:
             x.append(12.0 * ab + 24.0 * bb * tau)
         cos_a, sinc = D.cos_sinc_sqrt(x)
-        one = np.ones_like(tau)
         coef = np.empty((order + 1, 3, len(t)))
         coef[:, 0] = cos_a
-        coef[:, 1] = D.product(sinc, [tau, one, 0.0 * one, 0.0 * one])
-        coef[:, 2] = D.product(sinc, [tau * tau, 2.0 * tau, 2.0 * one, 0.0 * one])
+        coef[:, 1] = D.product(sinc, [tau, 1.0, 0.0, 0.0])
+        coef[:, 2] = D.product(sinc, [tau * tau, 2.0 * tau, 2.0, 0.0])
         return coef
 
     def _geodesic(self, ids, t, order):
@@ -353,6 +353,78 @@ class LocalCurves:
         coef = np.zeros((order + 1, 3, len(t)))
         coef[:, 0], coef[:, 1] = D.cos_sin(phi)
         return coef
+
+    def evaluate(self, ids: np.ndarray, t: np.ndarray, order: int) -> J.Jet:
+        """Curves ``ids`` (M,) at times ``t`` (M,): a quaternion jet (order + 1, 4, M), any order.
+
+        The reference, written with :mod:`trajgen.jet`; :meth:`derivatives` computes the
+        same in closed form for orders up to 3 (tests check that they agree).
+        """
+        out = np.zeros((order + 1, 4, len(t)))
+        kinds = self.kind[ids]
+        for kind, fn in (
+            (POINT, self._jet_point),
+            (CIRCLE, self._jet_circle),
+            (PARABOLA, self._jet_parabola),
+            (GEODESIC, self._jet_geodesic),
+        ):
+            m = kinds == kind
+            if m.any():
+                out[:, :, m] = fn(ids[m], J.Jet.variable(t[m], order)).c
+        return J.Jet(out)
+
+    def _jet_s(self, ids, tj: J.Jet) -> J.Jet:
+        """Normalised time ``s = (t - t_{i-1}) / (t_{i+1} - t_{i-1})`` over the curve's window."""
+        t0, t2 = self.t[ids, 0], self.t[ids, 2]
+        return (tj - t0) * (1.0 / (t2 - t0))
+
+    def _jet_point(self, ids, tj: J.Jet) -> J.Jet:
+        return J.Jet.constant(self.qT[:, ids], tj.order)
+
+    def _jet_circle(self, ids, tj: J.Jet) -> J.Jet:
+        s = self._jet_s(ids, tj)
+        g = J.Jet(np.zeros_like(s.c))
+        gk, coef = self.g_kind[ids], self.g_coef[ids]
+        m = gk == G_POLY
+        if m.any():
+            g.c[:, m] = J.polyval(coef[m].T, s[m]).c
+        m = gk == G_POWER
+        if m.any():
+            # s ** alpha has infinite derivatives at s = 0 when alpha < 1 (the paper's
+            # power law): there they are taken at s = 1e-12, large but finite.
+            sm = J.Jet(s[m].c.copy())
+            at_zero = sm.c[0] < 1e-12
+            sm.c[0] = np.maximum(sm.c[0], 1e-12)
+            gp = J.power(sm, coef[m, 0])
+            gp.c[0] = np.where(at_zero, 0.0, gp.c[0])
+            g.c[:, m] = gp.c
+        m = gk == G_RATIONAL
+        if m.any():
+            b = coef[m, 0]
+            g.c[:, m] = ((1.0 + b) * s[m] / (b * s[m] + 1.0)).c
+        sin, cos = J.sin_cos(g * self.a3[ids])
+        r = self.radius[ids]
+        e1, e2 = r * self.e1[:, ids], r * self.e2[:, ids]
+        return J.scale(cos, e1) + J.scale(sin, e2) + self.centre[:, ids]
+
+    def _jet_parabola(self, ids, tj: J.Jet) -> J.Jet:
+        tau = tj - self.t[ids, 1]
+        v = J.scale(tau, self.A[:, ids]) + J.scale(tau * tau, self.B[:, ids])
+        return J.qmul(J.qexp(v), self.qT[:, ids])
+
+    def _jet_geodesic(self, ids, tj: J.Jet) -> J.Jet:
+        s = self._jet_s(ids, tj)
+        s_i = (self.t[ids, 1] - self.t[ids, 0]) / (self.t[ids, 2] - self.t[ids, 0])
+        rise = self.rise[ids] > 0
+        # Rising: h = x^(k+1), x = (s - s_i) / (1 - s_i) on s > s_i, else 0.
+        # Settling: h = 1 - x^(k+1), x = (s_i - s) / s_i on s < s_i, else 1.
+        x = J.Jet(np.where(rise, (s - s_i).c / (1 - s_i), (s_i - s).c / s_i))
+        active = x.value > 0
+        x.c[0] = np.maximum(x.c[0], 0.0)
+        xp = J.power(x, self.power[ids])
+        xp = J.Jet(np.where(active, xp.c, 0.0))
+        h = J.Jet(np.where(rise, xp.c, (1.0 - xp).c))
+        return J.qmul(J.qexp(J.scale(h, self.A[:, ids])), self.qT[:, ids])
 
 
 def _basis(c: LocalCurves) -> np.ndarray:

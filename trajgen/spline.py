@@ -15,6 +15,7 @@ import numpy as np
 
 from . import derivatives as D
 from . import fast
+from . import jet as J
 from . import quat as Q
 from .local_curves import KIND_NAMES, POINT, CurveRow, LocalCurves, NoCircleError, build_curve
 from .path import OrientationPath, check_times
@@ -214,7 +215,7 @@ class BlendingSpline(OrientationPath):
         """The path at times ``t`` (M,) in segments ``seg`` (M,): unit quaternions (4, M) and the
         space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M)."""
         M = len(t)
-        curves = self._curves.evaluate(
+        curves = self._curves.derivatives(
             np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
         )
         c_left = [c[:, :M] for c in curves]
@@ -244,3 +245,18 @@ class BlendingSpline(OrientationPath):
         for r in rates:
             r *= 2.0
         return q, rates
+
+    def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
+        """The path as a quaternion jet (order + 1, 4, M), any order: the reference that
+        :meth:`_blend_derivatives` restates in closed form (tests check that they agree)."""
+        M = len(t)
+        curves = self._curves.evaluate(
+            np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
+        )
+        c_left, c_right = J.Jet(curves.c[..., :M]), J.Jet(curves.c[..., M:])
+        h = self.times[seg + 1] - self.times[seg]
+        u = (J.Jet.variable(t, order) - self.times[seg]) * (1.0 / h)
+        f = J.polyval(self._blend[seg].T, u)
+        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
+        v = J.qlog(J.qmul(c_right, J.qconj(c_left)))
+        return J.qmul(J.qexp(J.scale(f, v)), c_left)
