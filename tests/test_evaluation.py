@@ -117,3 +117,39 @@ def test_call_cache_shares_the_scipy_pattern(monkeypatch, rng):
     t2[7] += 1e-9
     s(t2, 1)
     assert calls[-1] == 1
+
+
+@pytest.mark.parametrize("local", ["auto", "circle", "parabola"])
+@pytest.mark.parametrize("reparam", ["rational", "paper"])
+def test_vectorised_construction_matches_one_triple_at_a_time(local, reparam, rng):
+    from trajgen.local_curves import LocalCurves, NoCircleError, build_curve, build_curves
+
+    n = 60
+    q = random_walk(rng, n, 0.6)
+    q[10] = q[11]  # repeated keyframes: geodesic and held-point triples
+    q[20] = q[21] = q[22]
+    q[31] = q[29]  # a reversal (refused by circles)
+    signs = np.where(np.cumsum(np.einsum("ij,ij->i", q[1:], q[:-1]) < 0) % 2, -1.0, 1.0)
+    q[1:] *= signs[:, None]
+    t = np.cumsum(rng.uniform(0.2, 2.0, n))
+    triples = np.stack([q[:-2], q[1:-1], q[2:]], axis=1)
+    times = np.stack([t[:-2], t[1:-1], t[2:]], axis=1)
+    options = {"k": 2, "local": local, "reparam": reparam}
+    if local == "circle":
+        with pytest.raises(NoCircleError) as error:
+            build_curves(triples, times, **options)
+        assert error.value.index == 29  # the triple centred on keyframe 30
+        keep = np.arange(len(triples)) != 29
+        triples, times = triples[keep], times[keep]
+    fast = build_curves(triples, times, **options)
+    rows = [build_curve(a, b, **options) for a, b in zip(triples, times, strict=True)]
+    slow = LocalCurves.from_rows(rows)
+    np.testing.assert_array_equal(fast.kind, slow.kind)
+    np.testing.assert_array_equal(fast.g_kind, slow.g_kind)
+    for name in ("q", "centre", "radius", "e1", "e2", "a3", "g_coef", "A", "B", "rise", "power"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), rtol=1e-9, atol=1e-11)
+    # The same spline either way.
+    ids = np.tile(np.arange(len(triples)), 20)
+    tt = times[ids, 0] + rng.uniform(0, 1, len(ids)) * (times[ids, 2] - times[ids, 0])
+    for a, b in zip(fast.derivatives(ids, tt, 3), slow.derivatives(ids, tt, 3), strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * (1 + np.abs(b).max()))

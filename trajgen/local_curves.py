@@ -178,32 +178,171 @@ def circle_behaves(p1, p2, p3) -> bool:
     return bool((p1 - p2) @ (p3 - p2) <= 0.0)
 
 
+def build_curves(qs: np.ndarray, ts: np.ndarray, *, k: int, local: str, reparam: str):
+    """The local curves through many triples at once: :func:`build_curve` vectorised.
+
+    Parameters
+    ----------
+    qs : ndarray, shape (C, 3, 4)
+        Keyframe triples ``(q_{i-1}, q_i, q_{i+1})``, unit, signs walked (SPEC 1).
+    ts : ndarray, shape (C, 3)
+        Their times (s). A triple of one repeated keyframe gives a held ``POINT``.
+    k, local, reparam
+        As for :func:`build_curve`.
+
+    Returns
+    -------
+    LocalCurves
+        The same table as ``LocalCurves.from_rows([build_curve(...) for each triple])``
+        (to rounding: the 2x2 solve is written out).
+
+    Raises
+    ------
+    NoCircleError
+        For a reversal with ``local="circle"``; its ``index`` is the first such triple.
+    """
+    C = len(qs)
+    p1, p2, p3 = qs[:, 0], qs[:, 1], qs[:, 2]
+    same12 = np.linalg.norm(p1 - p2, axis=1) < SAME_POINT
+    same23 = np.linalg.norm(p2 - p3, axis=1) < SAME_POINT
+    kind = np.empty(C, dtype=int)
+    point, geodesic = same12 & same23, same12 ^ same23
+    distinct = ~(same12 | same23)
+    if local == "auto":
+        circle = distinct & (np.einsum("ij,ij->i", p1 - p2, p3 - p2) <= 0.0)
+    else:
+        circle = distinct if local == "circle" else np.zeros(C, dtype=bool)
+    parabola = distinct & ~circle
+    kind[point], kind[geodesic], kind[circle], kind[parabola] = POINT, GEODESIC, CIRCLE, PARABOLA
+    reversal = circle & (np.linalg.norm(p1 - p3, axis=1) < SAME_POINT)
+    if reversal.any():
+        error = NoCircleError("reversal")
+        error.index = int(np.argmax(reversal))
+        raise error
+
+    q = p2.copy()
+    A, B = np.zeros((C, 3)), np.zeros((C, 3))
+    rise, power = np.zeros(C, dtype=int), np.zeros(C)
+    # GEODESIC (SPEC 2c): from the repeated keyframe to the other one, or back.
+    start = np.where(same12[:, None], p2, p1)
+    end = np.where(same12[:, None], p3, p2)
+    A[geodesic] = Q.log(Q.mul(end[geodesic], Q.conj(start[geodesic])))
+    q[geodesic] = start[geodesic]
+    rise[geodesic] = np.where(same12[geodesic], 1, -1)
+    power[geodesic] = k + 1
+    # PARABOLA (SPEC 2b): v(tau) = A tau + B tau^2 through (tm, Lm), (0, 0), (tp, Lp).
+    m = parabola
+    tm, tp = (ts[m, 0] - ts[m, 1])[:, None], (ts[m, 2] - ts[m, 1])[:, None]
+    Lm = Q.log(Q.mul(p1[m], Q.conj(p2[m])))
+    Lp = Q.log(Q.mul(p3[m], Q.conj(p2[m])))
+    det = tm * tp * (tp - tm)
+    A[m] = (Lm * tp**2 - Lp * tm**2) / det
+    B[m] = (Lp * tm - Lm * tp) / det
+    # CIRCLE (SPEC 2a).
+    centre, e1, e2 = np.zeros((C, 4)), np.zeros((C, 4)), np.zeros((C, 4))
+    radius, a3 = np.zeros(C), np.zeros(C)
+    g_kind, g_coef = np.full(C, G_POLY), np.zeros((C, 4))
+    m = circle
+    if m.any():
+        c, r, e1[m], e2[m], a2, a3[m] = _circles_through(p1[m], p2[m], p3[m])
+        centre[m], radius[m] = c, r
+        s_i = (ts[m, 1] - ts[m, 0]) / (ts[m, 2] - ts[m, 0])
+        g_kind[m], g_coef[m] = _angle_maps(s_i, a2 / a3[m], reparam)
+    return LocalCurves(
+        kind=kind,
+        t=ts,
+        q=q,
+        centre=centre.T.copy(),
+        radius=radius,
+        e1=e1.T.copy(),
+        e2=e2.T.copy(),
+        a3=a3,
+        g_kind=g_kind,
+        g_coef=g_coef,
+        A=A.T.copy(),
+        B=B.T.copy(),
+        rise=rise,
+        power=power,
+    )
+
+
+def _circles_through(p1, p2, p3):
+    """:func:`circle_through` for (C, 4) stacks of distinct, non-reversing triples."""
+
+    def dot(a, b):
+        return np.einsum("ij,ij->i", a, b)
+
+    A, B = p2 - p1, p3 - p1
+    AA, AB, BB = dot(A, A), dot(A, B), dot(B, B)
+    det = AA * BB - AB * AB
+    # [[AA, AB], [AB, BB]] [a, b] = [AA / 2, BB / 2] by Cramer's rule.
+    a = BB * (AA - AB) / (2.0 * det)
+    b = AA * (BB - AB) / (2.0 * det)
+    c = p1 + a[:, None] * A + b[:, None] * B
+    r = np.linalg.norm(p1 - c, axis=1)
+    e1 = (p1 - c) / r[:, None]
+    # e2 from p2; if p2 is diametrically opposite p1 on the circle, from p3.
+    w = (p2 - c) - dot(p2 - c, e1)[:, None] * e1
+    w3 = (p3 - c) - dot(p3 - c, e1)[:, None] * e1
+    use3 = np.linalg.norm(w, axis=1) <= 1e-9 * r
+    w[use3] = w3[use3]
+    e2 = w / np.linalg.norm(w, axis=1)[:, None]
+    a2 = np.arctan2(dot(p2 - c, e2), dot(p2 - c, e1)) % (2 * np.pi)
+    a3 = np.arctan2(dot(p3 - c, e2), dot(p3 - c, e1)) % (2 * np.pi)
+    flip = a3 < a2
+    e2[flip] *= -1.0
+    a2 = np.where(flip, 2 * np.pi - a2, a2)
+    a3 = np.where(flip, 2 * np.pi - a3, a3)
+    return c, r, e1, e2, a2, a3
+
+
+def _angle_maps(s_i: np.ndarray, phi: np.ndarray, reparam: str):
+    """:func:`angle_map` for arrays (C,): kinds (C,) and coefficients (C, 4)."""
+    coef = np.zeros((len(s_i), 4))
+    if reparam == "rational":
+        coef[:, 0] = (phi - s_i) / (s_i * (1 - phi))
+        return np.full(len(s_i), G_RATIONAL), coef
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r, p = 1 - s_i, 1 - phi
+        a_quad = (phi - s_i) / (s_i**2 - s_i)
+        a_cub = (phi - s_i**2) / (s_i**3 - s_i**2)
+        a_mir = (p - r**2) / (r**3 - r**2)
+        alpha = np.log(phi) / np.log(s_i)
+    cases = [  # the paper's cases, in order (see angle_map)
+        (np.abs(phi - s_i) < 1e-12, [0 * s_i, 1 + 0 * s_i, 0 * s_i, 0 * s_i]),
+        ((s_i**2 <= phi) & (phi <= 2 * s_i - s_i**2), [0 * s_i, 1 - a_quad, a_quad, 0 * s_i]),
+        ((s_i**3 <= phi) & (phi < s_i**2), [0 * s_i, 0 * s_i, 1 - a_cub, a_cub]),
+        ((r**3 <= p) & (p < r**2), [0 * s_i, 2 + a_mir, -1 - 2 * a_mir, a_mir]),
+    ]
+    kind = np.full(len(s_i), G_POWER)
+    coef[:, 0] = alpha
+    done = np.zeros(len(s_i), dtype=bool)
+    for cond, values in cases:
+        m = cond & ~done
+        kind[m] = G_POLY
+        coef[m] = np.stack(values, axis=1)[m]
+        done |= m
+    return kind, coef
+
+
 class LocalCurves:
     """A table of local curves, evaluated with their derivatives in one vectorised pass."""
 
-    def __init__(self, rows: list[CurveRow]):
-        self.kind = np.array([r.kind for r in rows])
-        self.t = np.array([r.t for r in rows], dtype=float)  # (C, 3)
-        self.q = np.array([r.q for r in rows], dtype=float)  # (C, 4)
-
-        def col(name, width):
-            """Component-first (width, C), so gathers by curve id are contiguous."""
-            zero = np.zeros(width)
-            values = [zero if getattr(r, name) is None else getattr(r, name) for r in rows]
-            return np.array(values, dtype=float).reshape(len(rows), width).T.copy()
-
+    def __init__(
+        self, *, kind, t, q, centre, radius, e1, e2, a3, g_kind, g_coef, A, B, rise, power
+    ):
+        """Columns, one entry per curve (C of them): ``kind``, ``radius``, ``a3``,
+        ``g_kind``, ``rise``, ``power`` (C,); ``t`` (C, 3); ``q`` (C, 4); ``g_coef``
+        (C, 4); ``centre``, ``e1``, ``e2`` (4, C) and ``A``, ``B`` (3, C), component
+        first so that gathers by curve id are contiguous. Fields a kind does not
+        use are zero. See :class:`CurveRow` for their meaning."""
+        self.kind = np.asarray(kind)
+        self.t, self.q = np.asarray(t, dtype=float), np.asarray(q, dtype=float)
         self.qT = self.q.T.copy()
-        self.centre = col("centre", 4)
-        self.radius = np.array([r.radius for r in rows])
-        self.e1, self.e2 = col("e1", 4), col("e2", 4)
-        self.a3 = np.array([r.a3 for r in rows])
-        self.g_kind = np.array([r.g_kind for r in rows])
-        self.g_coef = np.array(
-            [np.pad(r.g_coef if r.g_coef is not None else [], (0, 4))[:4] for r in rows]
-        )
-        self.A, self.B = col("A", 3), col("B", 3)
-        self.rise = np.array([r.rise for r in rows])
-        self.power = np.array([r.power for r in rows], dtype=float)
+        self.centre, self.radius, self.e1, self.e2 = centre, radius, e1, e2
+        self.a3, self.g_kind, self.g_coef = a3, g_kind, g_coef
+        self.A, self.B = A, B
+        self.rise, self.power = rise, np.asarray(power, dtype=float)
         # Derived columns for evaluation.
         self.kinds_present = set(self.kind.tolist())
         window = self.t[:, 2] - self.t[:, 0]  # zero for held points
@@ -213,6 +352,34 @@ class LocalCurves:
             [(self.A * self.A).sum(0), (self.A * self.B).sum(0), (self.B * self.B).sum(0)]
         )
         self.axis_len = np.sqrt(self.ab_gram[0])
+
+    @classmethod
+    def from_rows(cls, rows: list[CurveRow]) -> LocalCurves:
+        """The table of curves built one at a time (:func:`build_curve`)."""
+
+        def col(name, width):
+            zero = np.zeros(width)
+            values = [zero if getattr(r, name) is None else getattr(r, name) for r in rows]
+            return np.array(values, dtype=float).reshape(len(rows), width).T.copy()
+
+        return cls(
+            kind=np.array([r.kind for r in rows]),
+            t=np.array([r.t for r in rows], dtype=float),
+            q=np.array([r.q for r in rows], dtype=float),
+            centre=col("centre", 4),
+            radius=np.array([r.radius for r in rows]),
+            e1=col("e1", 4),
+            e2=col("e2", 4),
+            a3=np.array([r.a3 for r in rows]),
+            g_kind=np.array([r.g_kind for r in rows]),
+            g_coef=np.array(
+                [np.pad(r.g_coef if r.g_coef is not None else [], (0, 4))[:4] for r in rows]
+            ),
+            A=col("A", 3),
+            B=col("B", 3),
+            rise=np.array([r.rise for r in rows]),
+            power=np.array([r.power for r in rows], dtype=float),
+        )
 
     def __len__(self) -> int:
         return len(self.kind)
