@@ -385,23 +385,20 @@ class LocalCurves:
         return len(self.kind)
 
     @cached_property
-    def row_table(self) -> tuple:
-        """The columns one row per curve, in the order :mod:`trajgen.fast` takes them."""
+    def kernel_table(self) -> tuple:
+        """The columns :mod:`trajgen.fast_kernel` reads, in its order."""
         return (
             self.kind,
             self.t,
-            self.q,
-            self.centre.T.copy(),
-            self.radius,
-            self.e1.T.copy(),
-            self.e2.T.copy(),
+            self.inv_window,
             self.a3,
             self.g_kind,
             self.g_coef,
-            self.A.T.copy(),
-            self.B.T.copy(),
+            self.ab_gram,
             self.rise,
             self.power,
+            self.axis_len,
+            self.basis,
         )
 
     def derivatives(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
