@@ -19,6 +19,7 @@ from math import comb
 import numpy as np
 
 from .jet import _COS, _SINC, SERIES_BELOW
+from .path import run_steps
 
 __all__ = [
     "chain",
@@ -28,7 +29,7 @@ __all__ = [
     "hamilton_vec",
     "product",
     "quotient",
-    "slerp",
+    "slerp_steps",
     "vdot",
 ]
 
@@ -147,17 +148,21 @@ def hamilton_vec(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def _series(coef: np.ndarray, x: np.ndarray, K: int) -> list:
-    """A power series in ``x`` and its first K derivatives with respect to ``x``."""
-    out = []
-    c = coef
-    for _ in range(K + 1):
-        acc = np.full_like(x, c[-1])
-        for cj in c[-2::-1]:
-            acc *= x
-            acc += cj
-        out.append(acc)
-        c = c[1:] * np.arange(1, len(c))
-    return out
+    """A power series in ``x`` and its first K derivatives with respect to ``x``.
+
+    One Horner pass for all K + 1 of them: row n of ``d`` holds the coefficients
+    of the n-th derivative (few samples take the series, so the number of array
+    operations is what counts).
+    """
+    d = np.zeros((K + 1, len(coef)))
+    d[0] = coef
+    for n in range(1, K + 1):
+        d[n, :-n] = d[n - 1, 1 : len(coef) - n + 1] * np.arange(1, len(coef) - n + 1)
+    acc = np.repeat(d[:, -1:], len(x), axis=1)
+    for j in range(len(coef) - 2, -1, -1):
+        acc *= x
+        acc += d[:, j : j + 1]
+    return list(acc)
 
 
 def _split(small: np.ndarray, fn_small, fn_large, args: list, K: int) -> list:
@@ -165,21 +170,24 @@ def _split(small: np.ndarray, fn_small, fn_large, args: list, K: int) -> list:
 
     ``args`` are lists of arrays (M,); the functions return lists of arrays (M,).
     """
+    return run_steps(_split_steps(small, fn_small, fn_large, args, K))
+
+
+def _split_steps(small, fn_small, fn_large, args, K):
+    """:func:`_split` as a generator of steps (one per branch)."""
     if small.all():
         return fn_small(*args, K)
     if not small.any():
         return fn_large(*args, K)
-    parts = []
-    for mask in (small, ~small):
-        idx = np.flatnonzero(mask)
-        parts.append((idx, [[x[idx] for x in arg] for arg in args]))
     out = None
-    for (idx, sub), fn in zip(parts, (fn_small, fn_large), strict=True):
-        values = fn(*sub, K)
+    for mask, fn in ((small, fn_small), (~small, fn_large)):
+        idx = np.flatnonzero(mask)
+        values = fn(*[[x[idx] for x in arg] for arg in args], K)
         if out is None:
             out = [np.empty(len(small)) for _ in values]
         for o, v in zip(out, values, strict=True):
             o[idx] = v
+        yield
     return out
 
 
@@ -232,10 +240,12 @@ def sin(theta: list) -> list:
 _PHI2 = np.array([0.0] + [2.0 / (n * n * comb(2 * n, n)) for n in range(1, 9)])
 
 
-def slerp(p: list, q: list, f: list) -> list:
+def slerp_steps(p: list, q: list, f: list):
     """The point dividing the S^3 arc from ``p`` to ``q`` in ratio ``f : 1 - f``.
 
-    ``p``, ``q`` are derivative lists of unit quaternions (4, M), ``f`` of scalars
+    A generator of steps (for a caller that spreads the work, see
+    :meth:`trajgen.path.OrientationPath.evaluation_steps`); its return value is
+    the result. ``p``, ``q`` are derivative lists of unit quaternions (4, M), ``f`` of scalars
     (M,). The classical form ``(sin((1 - f) phi) p + sin(f phi) q) / sin(phi)``,
     ``phi`` the angle between ``p`` and ``q``; it equals ``exp(f log(q p*)) p``
     (SPEC 3). The angle is taken from the chord ``z = |q - p|^2``, which is
@@ -245,7 +255,10 @@ def slerp(p: list, q: list, f: list) -> list:
     K = min(len(p), len(q), len(f)) - 1
     d = [b - a for a, b in zip(p, q, strict=True)]
     z = vdot(d, d)
-    w = _split(z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K)
+    yield
+    w = yield from _split_steps(
+        z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K
+    )
     return [x + y for x, y in zip(product(w[: K + 1], p), product(w[K + 1 :], q), strict=True)]
 
 
