@@ -216,6 +216,9 @@ def cos_sinc_sqrt(x: list) -> tuple[list, list]:
     """``cos sqrt(x)`` and ``sin sqrt(x) / sqrt(x)`` for ``x >= 0`` (a squared angle), with a
     series below ``SERIES_BELOW`` (as :func:`trajgen.jet.qexp`)."""
     K = len(x) - 1
+    if K == 0:  # values alone are accurate down to 0 without the series
+        a = np.sqrt(x[0])
+        return [np.cos(a)], [np.sin(a) / np.where(a > 0, a, 1.0) + (a == 0)]
     d = _split(x[0] < SERIES_BELOW, _cos_sinc_series, _cos_sinc_closed, [x[:1]], K)
     return chain(d[: K + 1], x), chain(d[K + 1 :], x)
 
@@ -223,16 +226,20 @@ def cos_sinc_sqrt(x: list) -> tuple[list, list]:
 def cos_sin(theta: list) -> tuple[list, list]:
     """``cos theta`` and ``sin theta``."""
     c, s = np.cos(theta[0]), np.sin(theta[0])
-    return chain([c, -s, -c, s], theta), chain([s, c, -s, -c], theta)
+    K = len(theta) - 1
+    ns = -s if K >= 1 else None  # only the orders asked for
+    nc = -c if K >= 2 else None
+    return chain([c, ns, nc, s][: K + 1], theta), chain([s, c, ns, nc][: K + 1], theta)
 
 
 def sin(theta: list) -> list:
     """``sin theta``."""
     s = np.sin(theta[0])
-    if len(theta) == 1:
+    K = len(theta) - 1
+    if K == 0:
         return [s]
     c = np.cos(theta[0])
-    return chain([s, c, -s, -c], theta)
+    return chain([s, c, -s if K >= 2 else None, -c if K >= 3 else None][: K + 1], theta)
 
 
 #: phi^2 as a power series in z = |p - q|^2 for points p, q of S^3 at angle phi:
@@ -256,6 +263,13 @@ def slerp_steps(p: list, q: list, f: list):
     d = [b - a for a, b in zip(p, q, strict=True)]
     z = vdot(d, d)
     yield
+    if K == 0:  # values alone are accurate down to 0 without the series
+        phi = 2.0 * np.arcsin(0.5 * np.sqrt(z[0]))
+        at_knot = phi == 0
+        inv = 1.0 / np.where(at_knot, 1.0, np.sin(phi))
+        wa = np.where(at_knot, 1.0 - f[0], np.sin((1.0 - f[0]) * phi) * inv)
+        wb = np.where(at_knot, f[0], np.sin(f[0] * phi) * inv)
+        return [wa[None] * p[0] + wb[None] * q[0]]
     w = yield from _split_steps(
         z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K
     )
@@ -278,17 +292,16 @@ def _slerp_weights_series(z, f, K):
 
 def _slerp_weights_closed(z, f, K):
     x = z[0]
-    r = 1.0 / np.sqrt(x * (4.0 - x))
-    r3 = r * r * r
-    phi = chain(
-        [
-            2.0 * np.arcsin(0.5 * np.sqrt(x)),
-            r,
-            -(2.0 - x) * r3,
-            r3 + 3.0 * (2.0 - x) ** 2 * r3 * r * r,
-        ],
-        z,
-    )
+    d = [2.0 * np.arcsin(0.5 * np.sqrt(x))]  # phi(z) and its z-derivatives, as far as asked
+    if K >= 1:
+        r = 1.0 / np.sqrt(x * (4.0 - x))
+        d.append(r)
+    if K >= 2:
+        r3 = r * r * r
+        d.append(-(2.0 - x) * r3)
+    if K >= 3:
+        d.append(r3 + 3.0 * (2.0 - x) ** 2 * r3 * r * r)
+    phi = chain(d, z)
     sin_phi = sin(phi)
     out = []
     for g in (_complement(f), f):
