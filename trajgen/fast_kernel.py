@@ -274,12 +274,21 @@ def vec_mul_conj(Q, a, b):
 
 
 @njit
-def evaluate_serial(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
-    for m in range(len(t)):
+def evaluate_range(a, b, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
+    """Samples a..b-1."""
+    for m in range(a, b):
         sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
+
+
+@njit
+def evaluate_serial(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
+    evaluate_range(0, len(t), t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def evaluate_parallel(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
-    for m in numba.prange(len(t)):
-        sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
+    # Ranges of samples across the threads (the per-sample code stays out of the parfor).
+    n, parts = len(t), 64
+    for k in numba.prange(parts):
+        a, b = k * n // parts, (k + 1) * n // parts
+        evaluate_range(a, b, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
