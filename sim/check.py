@@ -5,15 +5,18 @@ Two parts, both per joint:
 (a) Plan: the torque the plan needs (``mj_inverse`` on the planned ``q, qd, qdd``)
     must stay within ``torque_margin * tau_max(qd)``, where
     ``tau_max(w) = tau_stall (1 - |w| / w0)`` at 12 V.
-(b) Simulation: the stream is played to the simulated servos (zero-order hold,
-    1 ms physics); no step may reach the servo's torque limit (the 12 V drive,
-    or the stall-torque clamp when braking), and the joints must
-    stay within ``max_tracking_error_rad`` of the planned path.
+(b) Simulation: the stream is played to the simulated servos (goal positions
+    in whole ticks, zero-order hold, 1 ms physics, the firmware's position loop
+    with the configured gains); no step may reach the servo's torque limit (the
+    12 V drive, or the stall-torque clamp when braking), and the joints must
+    stay within ``max_tracking_error_rad`` of the planned path. With default
+    gains (P 800) an X-series servo lags a moving goal by about speed x 45 ms
+    (``lag_time_s``), so the default 0.05 rad budget holds up to about
+    1.1 rad/s; raise the P gain (on the servos and in ``[gimbal.<joint>]``),
+    slow the motion, or widen the budget.
 
 The verdict ``ok`` needs all three. The simulated torque's own margin against
-``torque_margin x envelope`` is reported but does not decide the verdict: the
-setpoint steps of a zero-order hold add brief torque spikes a real servo's
-current loop absorbs.
+``torque_margin x envelope`` is reported but does not decide the verdict.
 """
 
 from __future__ import annotations
@@ -164,6 +167,18 @@ class TorqueReport:
         return "\n".join(lines)
 
 
+def lag_time_s(config: GimbalConfig, joint: int) -> float:
+    """How far (s) joint ``joint``'s servo lags a goal moving at constant speed.
+
+    The firmware loop's torque ``kp e`` balances the motor's back-EMF and the
+    joint's viscous damping at speed ``w``: ``e = w (K^2 / R + damping) / kp``
+    (Coulomb friction adds a constant ``frictionloss / kp``). 45 ms for an
+    XM430-W350 at P 800.
+    """
+    kp, _, kd, _ = config.loop(joint).mujoco_controller(config.servos[joint])
+    return (kd + config.joints[joint].damping) / kp
+
+
 def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
     """Judge a plan and its simulated run (see the module docstring).
 
@@ -217,7 +232,9 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         if error[k] > config.max_tracking_error_rad:
             reasons.append(
                 f"{name}: tracking error {error[k]:.3f} rad > "
-                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s"
+                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s "
+                f"(P gain {config.joints[j].position_p_gain} lags "
+                f"{1e3 * lag_time_s(config, j):.0f} ms x speed)"
             )
         joints[name] = JointReport(
             name=name,

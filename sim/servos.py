@@ -13,10 +13,10 @@ not published and is stated per field:
   own back-EMF is not part of it: ``<dcmotor>`` models that from the ratings.
 - ``frictionloss``: Coulomb friction (N m). Menagerie's OP3 uses 0.03 for the
   XM430-W350; the others scale it with stall torque (estimate).
-- ``kp``, ``kd``: torque-space position and velocity gains of the simulated
-  servo's controller. kp 21.1 N m/rad for the XM430-W350 is Menagerie's OP3
-  value; the others scale it with stall torque; ``kd = 2 sqrt(kp armature)``
-  damps the servo's own rotor critically (estimate).
+- ``position_p_gain``, ``position_i_gain``, ``position_d_gain``: the
+  firmware's factory defaults of registers 84, 82, 80 (e-Manual control
+  tables; datasheet values). ``sim.firmware`` turns them into the servo's
+  position loop.
 """
 
 from __future__ import annotations
@@ -31,7 +31,6 @@ SUPPLY_VOLTAGE_V = 12.0
 
 _OP3_ARMATURE = 0.045
 _OP3_FRICTIONLOSS = 0.03
-_OP3_KP = 21.1
 _XM430_GEAR = 353.5
 _XM430_STALL = 4.1
 
@@ -62,10 +61,8 @@ class ServoModel:
         Viscous friction (N m s/rad).
     frictionloss : float
         Coulomb friction (N m).
-    kp : float
-        Position gain of the simulated controller (N m/rad).
-    kd : float
-        Velocity gain of the simulated controller (N m s/rad).
+    position_p_gain, position_i_gain, position_d_gain : int
+        Factory defaults of the Position P / I / D Gain registers.
     """
 
     name: str
@@ -78,8 +75,9 @@ class ServoModel:
     armature: float
     damping: float
     frictionloss: float
-    kp: float
-    kd: float
+    position_p_gain: int = 800
+    position_i_gain: int = 0
+    position_d_gain: int = 0
 
     @property
     def torque_constant_nm_a(self) -> float:
@@ -109,10 +107,10 @@ class ServoModel:
         return self.stall_torque_nm * (1.0 - np.abs(speed_rad_s) / self.no_load_speed_rad_s)
 
 
-def _servo(name, stall_nm, stall_a, no_load_rpm, mass_kg, size_mm, gear, armature=None):
+def _servo(name, stall_nm, stall_a, no_load_rpm, mass_kg, size_mm, gear, armature=None, pid=None):
     if armature is None:
         armature = _OP3_ARMATURE * (gear / _XM430_GEAR) ** 2
-    kp = _OP3_KP * stall_nm / _XM430_STALL
+    p, i, d = (800, 0, 0) if pid is None else pid
     return ServoModel(
         name=name,
         stall_torque_nm=stall_nm,
@@ -124,13 +122,16 @@ def _servo(name, stall_nm, stall_a, no_load_rpm, mass_kg, size_mm, gear, armatur
         armature=armature,
         damping=0.01,
         frictionloss=_OP3_FRICTIONLOSS * stall_nm / _XM430_STALL,
-        kp=kp,
-        kd=2.0 * math.sqrt(kp * armature),
+        position_p_gain=p,
+        position_i_gain=i,
+        position_d_gain=d,
     )
 
 
 XM430_W350 = _servo("XM430-W350", 4.1, 2.3, 46.0, 0.082, (28.5, 46.5, 34.0), 353.5, 0.045)
-XL430_W250 = _servo("XL430-W250", 1.5, 1.4, 61.0, 0.0572, (28.5, 46.5, 34.0), 258.5)
+XL430_W250 = _servo(
+    "XL430-W250", 1.5, 1.4, 61.0, 0.0572, (28.5, 46.5, 34.0), 258.5, pid=(640, 0, 4000)
+)
 XH430_W350 = _servo("XH430-W350", 3.4, 1.3, 30.0, 0.082, (28.5, 46.5, 34.0), 353.5, 0.045)
 XM540_W270 = _servo("XM540-W270", 10.6, 4.4, 30.0, 0.165, (33.5, 58.5, 44.0), 272.5)
 
