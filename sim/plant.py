@@ -72,6 +72,14 @@ class GimbalPlant:
         self._data = mujoco.MjData(self._model)
         self._model.opt.disableactuator = 0b111
         self._loops = [self.config.loop(j) for j in range(3)]
+        self._registers = [
+            {
+                "Position P Gain": loop.p_gain,
+                "Position I Gain": loop.i_gain,
+                "Position D Gain": loop.d_gain,
+            }
+            for loop in self._loops
+        ]
         if initial_rad is not None:
             start = np.asarray(initial_rad, dtype=float)
             if start.shape != (3,) or not np.all(np.isfinite(start)):
@@ -132,8 +140,9 @@ class GimbalPlant:
             0, 1 or 2.
         registers : mapping of str to int
             Register values in register units keyed by the SDK's control-table
-            names (``sim.firmware.CONTROL_REGISTERS``); missing ones keep the
-            XM430-W350 defaults.
+            names (``sim.firmware.CONTROL_REGISTERS``); missing ones keep their
+            last value (initially the gains of ``config``, full PWM, no
+            profile, Position Mode).
 
         Raises
         ------
@@ -144,9 +153,11 @@ class GimbalPlant:
             other than 3 or 4 (not simulated).
         """
         self._check_joint(joint)
+        merged = {**self._registers[joint], **registers}
         loop = loop_from_registers(
-            registers, p_divisor=self.config.p_divisor, joint=JOINT_NAMES[joint]
+            merged, p_divisor=self.config.p_divisor, joint=JOINT_NAMES[joint]
         )
+        self._registers[joint] = merged
         integrator_changed = (loop.i_gain > 0) != (self._loops[joint].i_gain > 0)
         self._loops[joint] = loop
         if integrator_changed:

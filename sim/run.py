@@ -164,9 +164,11 @@ def raise_on_new_warnings(before: np.ndarray, data, t_from: float, t_to: float) 
     ``t_from`` and ``t_to`` (s) bound the steps since the counts were taken,
     for the message.
     """
+    after = data.warning.number
+    if not (after > before).any():
+        return
     import mujoco
 
-    after = warning_counts(data)
     risen = np.flatnonzero(after > before)
     if len(risen):
         names = ", ".join(mujoco.mjtWarning(int(i)).name for i in risen)
