@@ -343,7 +343,8 @@ def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
 
     Bodies ``pan_link``, ``tilt_link``, ``roll_link``; hinge joints and
     ``<dcmotor>`` actuators named ``pan``, ``tilt``, ``roll`` (actuator groups
-    0, 1, 2, so each can be switched off with ``opt.disableactuator``); site
+    0, 1, 2, so each can be switched off with ``opt.disableactuator``) and
+    their torque sensors (``<actuatorfrc>``, for ``mujoco.rollout``); site
     ``camera`` at the roll link's origin; every geom is contact-free.
     """
     config = GimbalConfig() if config is None else config
@@ -433,6 +434,11 @@ def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
     {motor("tilt", 1, tilt)}
     {motor("roll", 2, roll)}
   </actuator>
+  <sensor>
+    <actuatorfrc name="pan_torque" actuator="pan"/>
+    <actuatorfrc name="tilt_torque" actuator="tilt"/>
+    <actuatorfrc name="roll_torque" actuator="roll"/>
+  </sensor>
 </mujoco>
 """
 
