@@ -72,14 +72,7 @@ class GimbalPlant:
         self._data = mujoco.MjData(self._model)
         self._model.opt.disableactuator = 0b111
         self._loops = [self.config.loop(j) for j in range(3)]
-        self._registers = [
-            {
-                "Position P Gain": loop.p_gain,
-                "Position I Gain": loop.i_gain,
-                "Position D Gain": loop.d_gain,
-            }
-            for loop in self._loops
-        ]
+        self._registers = self.initial_registers()
         if initial_rad is not None:
             start = np.asarray(initial_rad, dtype=float)
             if start.shape != (3,) or not np.all(np.isfinite(start)):
@@ -89,7 +82,7 @@ class GimbalPlant:
         mujoco.mj_forward(self._model, self._data)
         self._warnings = warning_counts(self._data)
         self._goal = None
-        self._first_goal_time = None
+        self._goal_times: list[float] = []
         self._kt = np.array([s.torque_constant_nm_a for s in self.config.servos])
         self._log: list[np.ndarray] = []
         self._pending_s = 0.0
@@ -98,6 +91,21 @@ class GimbalPlant:
     def time_s(self) -> float:
         """Simulated time (s) since the plant was made."""
         return float(self._data.time)
+
+    def initial_registers(self) -> list[dict[str, int]]:
+        """Per joint, the gain registers of ``config``, to set on the virtual servos.
+
+        So a virtual servo powers up with the gains the keyframe file states
+        (``[gimbal.<joint>]``), as the real one was configured.
+        """
+        return [
+            {
+                "Position P Gain": p.position_p_gain,
+                "Position I Gain": p.position_i_gain,
+                "Position D Gain": p.position_d_gain,
+            }
+            for p in self.config.joints
+        ]
 
     @property
     def loops(self) -> tuple:
@@ -126,8 +134,7 @@ class GimbalPlant:
         goal = np.asarray(positions_rad, dtype=float)
         if goal.shape != (3,) or not np.all(np.isfinite(goal)):
             raise ValueError(f"Expected `positions_rad` to be 3 finite numbers, got {goal!r}.")
-        if self._first_goal_time is None:
-            self._first_goal_time = self.time_s
+        self._goal_times.append(self.time_s)
         self._goal = goal
         self._data.ctrl[:] = goal
 
@@ -263,8 +270,9 @@ class GimbalPlant:
     def report(self, trajectory):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.
 
-        The record is aligned so that the first goal received is the
-        trajectory's first frame; steps before it are left out. The planned
+        The record is aligned so that the goal received ``len(trajectory)``
+        goals before the end is the trajectory's first frame; steps before it
+        are left out. The planned
         part of the check is computed from ``trajectory`` itself.
 
         Parameters
@@ -287,13 +295,16 @@ class GimbalPlant:
         from trajgen.sim.errors import SimError
 
         check_trajectory(trajectory)
-        if self._first_goal_time is None:
+        if not self._goal_times:
             raise SimError("no goal position was received: nothing to report")
+        # The stream's frames are the last goals received (bring-up and the
+        # approach come before them).
+        first = self._goal_times[-min(len(trajectory), len(self._goal_times))]
         log = np.concatenate(self._log) if self._log else np.empty((0, _LOG_COLUMNS))
-        log = log[log[:, 0] >= self._first_goal_time - 1e-12]
+        log = log[log[:, 0] >= first - 1e-12]
         if len(log) == 0:
             raise SimError("no physics step ran after the first goal: nothing to report")
-        t = log[:, 0] - self._first_goal_time + trajectory.t[0]
+        t = log[:, 0] - first + trajectory.t[0]
         record = SimRecord(
             t=t,
             q=log[:, 1:4],

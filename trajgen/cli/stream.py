@@ -174,7 +174,11 @@ def _stream(args) -> int:
         except (ValueError, TypeError) as e:
             return bad_input(e)
         virtual = VirtualBus(
-            plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate
+            plant,
+            ids=joints.ids,
+            models=config.models,
+            lockstep_dt_s=1.0 / rate,
+            registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
         ).start()
         port = virtual.port
     else:
