@@ -167,6 +167,46 @@ class TorqueReport:
         return "\n".join(lines)
 
 
+def _envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j) -> str:
+    return (
+        f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
+        f"{abs(qd_plan[worst, j]):.2f} rad/s exceeds {margin:g} x envelope "
+        f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
+    )
+
+
+def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
+    """Part (a) alone: why the plan leaves ``torque_margin x`` the envelope (empty if not).
+
+    Parameters
+    ----------
+    trajectory : JointTrajectory
+    config : GimbalConfig
+
+    Returns
+    -------
+    tuple of str
+        One reason per joint that leaves it, as in :class:`TorqueReport`.
+    """
+    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.model import build_model
+
+    check_trajectory(trajectory)
+    tau = inverse_dynamics(build_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
+    t = np.asarray(trajectory.t, dtype=float)
+    qd = np.asarray(trajectory.qd, dtype=float)
+    reasons = []
+    for j, name in enumerate(JOINT_NAMES):
+        servo = config.servos[j]
+        plan_margin = config.torque_margin * servo.tau_max(qd[:, j]) - np.abs(tau[:, j])
+        worst = int(np.argmin(plan_margin))
+        if plan_margin[worst] < 0:
+            reasons.append(
+                _envelope_reason(name, servo, config.torque_margin, tau, qd, t, worst, j)
+            )
+    return tuple(reasons)
+
+
 def lag_time_s(config: GimbalConfig, joint: int) -> float:
     """How far (s) joint ``joint``'s servo lags a goal moving at constant speed.
 
@@ -217,11 +257,7 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         reasons = []
         worst = int(np.argmin(plan_margin))
         if plan_margin[worst] < 0:
-            reasons.append(
-                f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
-                f"{abs(qd_plan[worst, j]):.2f} rad/s exceeds {margin:g} x envelope "
-                f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
-            )
+            reasons.append(_envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j))
         if at_limit:
             first = record.t[np.argmax(record.at_limit[:, j])]
             reasons.append(

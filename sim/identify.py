@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trajgen.sim.errors import SimError
 from trajgen.sim.firmware import PositionLoop
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig, JointParams, build_model
 
@@ -190,6 +191,13 @@ class Fit:
     rows: int
     iterations: int
 
+    def _delay_text(self) -> str:
+        if self.delay_interval_s == 0.0:
+            return f"transport delay {1e3 * self.delay_s:.2f} ms (held)"
+        return (
+            f"transport delay {1e3 * self.delay_s:.2f} ms +- {1e3 * self.delay_interval_s:.2f} ms"
+        )
+
     def format(self) -> str:
         """A table of fit, interval and residual per joint, then what is poorly excited."""
         lines = [
@@ -203,10 +211,7 @@ class Fit:
                     f"{name if k == 0 else '':<6}{p:<17}{joint.values[p]:12.5g}"
                     f"{joint.intervals[p]:12.2g}  {_UNITS[p]:<10}{residual}"
                 )
-        lines.append(
-            f"transport delay {1e3 * self.delay_s:.2f} ms +- {1e3 * self.delay_interval_s:.2f} ms; "
-            f"{self.rows} frames, {self.iterations} iterations"
-        )
+        lines.append(f"{self._delay_text()}; {self.rows} frames, {self.iterations} iterations")
         for name, joint in self.joints.items():
             for p in joint.poorly_excited:
                 lines.append(
@@ -219,10 +224,7 @@ class Fit:
     def toml(self, source: str = "") -> str:
         """``[gimbal.<joint>]`` tables with the intervals in comments."""
         lines = [f"# Fitted by trajgen identify{' from ' + source if source else ''}."]
-        lines.append(
-            f"# transport delay {1e3 * self.delay_s:.2f} ms +- {1e3 * self.delay_interval_s:.2f}; "
-            "intervals are 95 %."
-        )
+        lines.append(f"# {self._delay_text()}; intervals are 95 %.")
         for name, joint in self.joints.items():
             lines += [
                 "",
@@ -245,13 +247,14 @@ def _relative(interval, value):
 class _Replay:
     """Batched rollouts of the gimbal replaying logged goals.
 
-    Parameter vector (13,): per joint armature, frictionloss, damping, P gain;
-    then the delay (s).
+    Parameter vector (12,) or (13,): per joint armature, frictionloss,
+    damping, P gain; then the delay (s), else ``delay_s``.
     """
 
     def __init__(self, config: GimbalConfig, logs, *, use_current: bool):
         import mujoco
 
+        self.delay_s = 0.0
         self.model = build_model(config)
         self.dt = config.timestep_s
         self.kp_per_unit = np.array(
@@ -299,7 +302,7 @@ class _Replay:
 
         Parameters
         ----------
-        x : ndarray, shape (13, k)
+        x : ndarray, shape (12 or 13, k)
 
         Returns
         -------
@@ -319,7 +322,7 @@ class _Replay:
             pos = np.empty((k, len(log.t), 3))
             vel, cur = np.empty_like(pos), np.empty_like(pos)
             for i in range(k):
-                when = log.t + x[12, i]
+                when = log.t + (x[12, i] if len(x) > 12 else self.delay_s)
                 for j in range(3):
                     pos[i, :, j] = np.interp(when, grid, qv[i, :, j])
                     vel[i, :, j] = np.interp(when, grid, qv[i, :, 3 + j])
@@ -328,32 +331,36 @@ class _Replay:
         return out
 
     def jacobian(self, x, r):
-        """Finite-difference Jacobian (M, 13) at ``x`` (13, 1) with residual ``r`` (M, 1).
+        """Finite-difference Jacobian (M, n) at ``x`` (n, 1) with residual ``r`` (M, 1).
 
         The joints hardly couple (the reflected rotor inertia dwarfs the links),
         so one rollout perturbs the same parameter of all three joints and each
         joint's residual rows (every third row) are credited to its own
-        parameter: 5 rollouts instead of 13. The optimum is unchanged (the
-        residual is exact); only the step directions are approximate.
+        parameter: 4 or 5 rollouts instead of 12 or 13. The optimum is
+        unchanged (the residual is exact); only the step directions are
+        approximate.
         """
         x = x[:, 0]
+        n = len(x)
         steps = 1e-5 * np.maximum(np.abs(x), 1e-3)
-        columns = np.repeat(x[:, None], 5, axis=1)
+        columns = np.repeat(x[:, None], n - 8, axis=1)
         for kind in range(4):
             columns[kind:12:4, kind] += steps[kind:12:4]
-        columns[12, 4] += steps[12]
+        if n > 12:
+            columns[12, 4] += steps[12]
         dr = self.residuals(columns) - r
-        jac = np.zeros((len(r), 13))
+        jac = np.zeros((len(r), n))
         joint = np.arange(len(r)) % 3
         for kind in range(4):
             for j in range(3):
                 rows = joint == j
                 jac[rows, 4 * j + kind] = dr[rows, kind] / steps[4 * j + kind]
-        jac[:, 12] = dr[:, 4] / steps[12]
+        if n > 12:
+            jac[:, 12] = dr[:, 4] / steps[12]
         return jac
 
     def residuals(self, x):
-        """Weighted residuals, shape (M, k), for ``x`` of shape (13, k)."""
+        """Weighted residuals, shape (M, k), for ``x`` of shape (12 or 13, k)."""
         parts = []
         for (pos, vel, cur), (log, _, _, ok, current) in zip(
             self.predict(x), self.cases, strict=True
@@ -381,46 +388,21 @@ def _sysid():
     return sysid
 
 
-def identify(config: GimbalConfig, logs, *, use_current: bool = True, max_iter: int = 30) -> Fit:
-    """Fit each joint's armature, frictionloss, damping and P gain, and one delay.
+def _fit(sysid, replay, start, max_iter, period=None):
+    """One ``mujoco.sysid`` fit from ``start`` (12 joint values, then maybe the delay).
 
-    Parameters
-    ----------
-    config : GimbalConfig
-        The gimbal (servos, payload); its joints are the starting point.
-    logs : sequence of TelemetryLog
-        One or more logs (``load_telemetry``), all at the same servos.
-    use_current : bool
-        Also fit the logged current, as torque over the torque constant (stall
-        torque / stall current). Position data alone fix the parameters only
-        up to a common scale, which the known back-EMF pins weakly; current
-        pins it, if the servo reports it truly.
-    max_iter : int
-        Gauss-Newton iterations at most.
-
-    Returns
-    -------
-    Fit
-
-    Raises
-    ------
-    IdentifyError
-        If ``mujoco[sysid]`` is missing or no log is given.
+    Returns the fitted vector, its 95 % half-widths and the iteration count.
     """
-    sysid = _sysid()
-    if not logs:
-        raise IdentifyError("no telemetry log to fit")
-    replay = _Replay(config, logs, use_current=use_current)
-    period = 1.0 / min(log.rate_hz for log in logs)
     params = sysid.ParameterDict()
     for j, name in enumerate(JOINT_NAMES):
-        start = config.joints[j]
-        for p in PARAMETERS:
+        for i, p in enumerate(PARAMETERS):
             low, high = _BOUNDS[p]
             # Start off the bounds (a zero friction or damping would sit on one).
-            value = float(np.clip(getattr(start, p), low + 1e-3 * (high - low), high))
+            value = float(np.clip(start[4 * j + i], low + 1e-3 * (high - low), high))
             params.add(sysid.Parameter(f"{name}.{p}", value, low, high))
-    params.add(sysid.Parameter("delay_s", 0.5 * period, 0.0, 2.0 * period))
+    if len(start) > 12:
+        value = float(np.clip(start[12], 0.02 * period, 1.98 * period))
+        params.add(sysid.Parameter("delay_s", value, 0.0, 2.0 * period))
 
     def residual_fn(x, _params):
         x = np.asarray(x, dtype=float)
@@ -440,16 +422,85 @@ def identify(config: GimbalConfig, logs, *, use_current: bool = True, max_iter: 
         jacobian=replay.jacobian,
     )
     x = fitted.as_vector()
+    r = replay.residuals(x[:, None])[:, 0]
+    if not np.all(np.isfinite(r)):
+        raise SimError("the fit diverged (the simulated gimbal went unstable)")
     # Intervals from a full forward-difference Jacobian at the optimum, in scaled
     # coordinates (the raw columns span 1e-2 to 1e3 and would look singular).
-    step = 1e-5 * scale
-    r = replay.residuals(x[:, None])[:, 0]
-    jac_scaled = (replay.residuals(x[:, None] + np.diag(step)) - r[:, None]) / 1e-5
+    jac_scaled = (replay.residuals(x[:, None] + np.diag(1e-5 * scale)) - r[:, None]) / 1e-5
     _, scaled_intervals = sysid.calculate_intervals([r], jac_scaled)
-    intervals = scaled_intervals * scale
+    return x, scaled_intervals * scale, len(result.extras.get("objective", ()))
+
+
+def identify(
+    config: GimbalConfig,
+    logs,
+    *,
+    use_current: bool = True,
+    delay_s: float = 0.0,
+    fit_delay: bool = False,
+    max_iter: int = 30,
+) -> Fit:
+    """Fit each joint's armature, frictionloss, damping and P gain (and a delay).
+
+    Parameters
+    ----------
+    config : GimbalConfig
+        The gimbal (servos, payload); its joints are the starting point.
+    logs : sequence of TelemetryLog
+        One or more logs (``load_telemetry``), all at the same servos.
+    delay_s : float
+        Time (s) from a frame's goal to its present values: 0 when the log's
+        present values are what the servo had as the goal arrived (the
+        virtual bus in lock-step); on hardware the read follows the write by
+        about a millisecond.
+    fit_delay : bool
+        Fit the delay too, starting from ``delay_s`` after a first fit with it held.
+    delay_s : float
+        Time (s) from a frame's goal to its present values: 0 when the log's
+        present values are what the servo had as the goal arrived (the
+        virtual bus in lock-step); on hardware the read follows the write by
+        about a millisecond.
+    fit_delay : bool
+        Fit the delay too, starting from ``delay_s`` after a first fit with it held.
+    use_current : bool
+        Also fit the logged current, as torque over the torque constant (stall
+        torque / stall current). Position data alone fix the parameters only
+        up to a common scale, which the known back-EMF pins weakly; current
+        pins it, if the servo reports it truly.
+    max_iter : int
+        Gauss-Newton iterations at most.
+
+    Returns
+    -------
+    Fit
+
+    Raises
+    ------
+    IdentifyError
+        If ``mujoco[sysid]`` is missing or no log is given.
+    SimError
+        If the fit diverges.
+    """
+    sysid = _sysid()
+    if not logs:
+        raise IdentifyError("no telemetry log to fit")
+    replay = _Replay(config, logs, use_current=use_current)
+    start = [getattr(config.joints[j], p) for j in range(3) for p in PARAMETERS]
+    # The delay trades against the lag (P gain, damping): fit the joints with
+    # the delay held first, then (if asked) everything from there.
+    replay.delay_s = delay_s
+    x, intervals, iterations = _fit(sysid, replay, start, max_iter)
+    delay, delay_interval = delay_s, 0.0
+    if fit_delay:
+        period = 1.0 / min(log.rate_hz for log in logs)
+        x, intervals, more = _fit(sysid, replay, np.append(x, delay_s), max_iter, period)
+        iterations += more
+        delay, delay_interval = float(x[12]), float(intervals[12])
+        replay.delay_s = delay
 
     ok_rows = [case[3] for case in replay.cases]
-    predicted = replay.predict(x[:, None])
+    predicted = replay.predict(x[:12, None])
     joints = {}
     for j, name in enumerate(JOINT_NAMES):
         values = {p: float(x[4 * j + i]) for i, p in enumerate(PARAMETERS)}
@@ -480,9 +531,9 @@ def identify(config: GimbalConfig, logs, *, use_current: bool = True, max_iter: 
         )
     return Fit(
         joints=joints,
-        delay_s=float(x[12]),
-        delay_interval_s=float(intervals[12]),
+        delay_s=delay,
+        delay_interval_s=delay_interval,
         config=dataclasses.replace(config, joints=tuple(joints[n].params for n in JOINT_NAMES)),
         rows=sum(int(ok.sum()) for ok in ok_rows),
-        iterations=len(result.extras.get("objective", ())),
+        iterations=iterations,
     )

@@ -108,7 +108,8 @@ def _plan(args):
     from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
-    kf = load_keyframe_file(args.file)
+    # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
+    kf = args.file if hasattr(args.file, "spline") else load_keyframe_file(args.file)
     config = bus_config_from_tables(kf.tables, kf.path)
     joints = config.joints
     if args.virtual:
