@@ -118,11 +118,17 @@ def test_gimbal_table_parses_every_field():
         ({"servo": {"yaw": "XM430-W350"}}, "[gimbal] servo.yaw: unknown joint (known: pan, "),
         ({"servo": {"tilt": 3}}, "[gimbal] servo.tilt: expected a model name, got 3"),
         ({"servo": 3}, "[gimbal] servo: expected a model name or a table per joint, got 3"),
-        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a number, got 'abc'"),
-        ({"payload_kg": -1}, "[gimbal] payload_kg: expected >= 0.0, got -1.0"),
-        ({"torque_margin": 2}, "[gimbal] torque_margin: expected <= 1.0, got 2.0"),
-        ({"torque_margin": float("nan")}, "[gimbal] torque_margin: expected to be finite, got nan"),
-        ({"payload_offset_m": [0, 0]}, "[gimbal] payload_offset_m: expected 3 numbers, got [0, 0]"),
+        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a finite number >= 0, got 'abc'"),
+        ({"payload_kg": -1}, "[gimbal] payload_kg: expected a finite number >= 0, got -1"),
+        ({"torque_margin": 2}, "[gimbal] torque_margin: expected a finite number in (0, 1], got 2"),
+        (
+            {"torque_margin": float("nan")},
+            "[gimbal] torque_margin: expected a finite number in (0, 1], got nan",
+        ),
+        (
+            {"payload_offset_m": [0, 0]},
+            "[gimbal] payload_offset_m: expected a list of 3 numbers, got [0, 0]",
+        ),
         ({"payload": 1}, "[gimbal] unknown key 'payload' (known: servo, payload_kg, "),
     ],
 )

@@ -259,7 +259,7 @@ def test_bad_arguments():
         Fault("overload")
     with pytest.raises(ValueError, match="Expected `kind` in"):
         Fault("explode")
-    with pytest.raises(ValueError, match="Expected `baud` to be a positive int, got 0"):
+    with pytest.raises(ValueError, match="Expected `baud` to be an integer >= 1, got 0"):
         ServoBus("/dev/null", baud=0)
     with pytest.raises(CommError, match="/nonexistent/tty: cannot open at 1000000 baud"):
         ServoBus("/nonexistent/tty", latency_ms=1.0).open()
