@@ -83,13 +83,21 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
     assert err.startswith("trajgen: error: ") and len(err.splitlines()) == 1
 
 
-def test_ctrl_c_exits_130(monkeypatch):
-    def interrupted(*args, **kwargs):
+def test_ctrl_c_exits_130_and_still_writes_the_json(monkeypatch, tmp_path):
+    def interrupted(*args, progress, **kwargs):
+        progress(0.25)
         raise KeyboardInterrupt
 
     monkeypatch.setattr("trajgen.sim.check.check_torque", interrupted)
-    args = argparse.Namespace(file="x.toml", rate=None, json=None, plot=None, video=None)
+    out = tmp_path / "r.json"
+    args = argparse.Namespace(
+        file=str(keyframes.BUILTIN_EXAMPLE), rate=None, json=str(out), plot=None, video=None
+    )
     assert run_sim(args) == 130
+    done = json.loads(out.read_text())
+    assert done["interrupted"] is True and done["ok"] is None
+    assert done["stage"] == "simulating" and done["simulated_fraction"] == 0.25
+    assert done["rate_hz"] == 200.0 and done["duration_s"] == 8.0
 
 
 def test_gimbal_table_parses_every_field():
