@@ -12,12 +12,12 @@ import argparse
 import sys
 
 from trajgen import __version__
-from trajgen.cli import plan, scan, sim, stream
+from trajgen.cli import plan, scan, sim, stream, virtual_bus
 from trajgen.cli.common import EXIT_INTERRUPTED, bad_input
 from trajgen.keyframes import KeyframeFileError
 
 #: The subcommand modules, in the order ``--help`` lists them.
-COMMANDS = (plan, sim, stream, scan)
+COMMANDS = (plan, sim, stream, scan, virtual_bus)
 
 
 def build_parser() -> argparse.ArgumentParser:
