@@ -3,16 +3,19 @@
 Addresses and sizes come from the model files that ship with
 ``dynamixel-sdk`` (``dynamixel_easy_sdk.control_table.ControlTable``), which
 transcribe the ROBOTIS e-Manual control tables; they are read on first use.
-What those files lack (ratings, current unit, factory defaults used by the
-virtual bus) is stated here, with the e-Manual X-series pages as the source.
+What those files lack is stated here (current unit, factory defaults used by
+the virtual bus, baud rates), with the e-Manual X-series pages as the source;
+the ratings and Model Numbers come from ``trajgen.servo_ratings``, the table the
+simulator reads too.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from enum import Enum
+
+from trajgen.servo_ratings import RATINGS, servo_rating
 
 
 class Register(Enum):
@@ -72,6 +75,18 @@ HARDWARE_ERROR_BITS = {
 # Bus Watchdog unit (e-Manual, "Bus Watchdog (98)").
 WATCHDOG_UNIT_S = 0.020
 
+#: Baud rates an X-series servo can be set to (e-Manual, "Baud Rate (8)"), by register value.
+BAUD_RATES = {
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
+
 
 @dataclass(frozen=True)
 class Model:
@@ -113,32 +128,39 @@ class Model:
         return round(current_a / self.current_unit_a)
 
 
-_RPM = 2.0 * math.pi / 60.0
+#: Present Current unit (A) per model (e-Manual: 2.69 mA; None where register 126
+#: is Present Load, 0.1 % of stall).
+_CURRENT_UNIT_A = {
+    "XM430-W350": 0.00269,
+    "XL430-W250": None,
+    "XH430-W350": 0.00269,
+    "XM540-W270": 0.00269,
+}
 
-# Ratings at 12 V from the e-Manual specification tables; current unit 2.69 mA.
 MODELS: dict[str, Model] = {
-    m.name: m
-    for m in (
-        Model("XM430-W350", 1020, 4.1, 2.3, 46 * _RPM, 0.00269),
-        Model("XL430-W250", 1060, 1.5, 1.4, 61 * _RPM, None),
-        Model("XH430-W350", 1000, 3.4, 1.3, 30 * _RPM, 0.00269),
-        Model("XM540-W270", 1120, 10.6, 4.4, 30 * _RPM, 0.00269),
+    r.name: Model(
+        r.name,
+        r.number,
+        r.stall_torque_nm,
+        r.stall_current_a,
+        r.no_load_speed_rad_s,
+        _CURRENT_UNIT_A[r.name],
     )
+    for r in RATINGS.values()
 }
 
 
 def model_named(name: str) -> Model:
-    """The ``Model`` called ``name``.
+    """The ``Model`` called ``name`` (case and blanks do not matter).
 
     Raises
     ------
+    TypeError
+        If ``name`` is not a string.
     ValueError
         If the model is not one of ``MODELS``.
     """
-    try:
-        return MODELS[name]
-    except KeyError:
-        raise ValueError(f"Unknown servo model {name!r} (known: {', '.join(MODELS)}).") from None
+    return MODELS[servo_rating(name).name]
 
 
 def model_numbered(number: int) -> Model | str:
