@@ -218,6 +218,17 @@ def speed_warning(peak_rad_s: float) -> str | None:
     )
 
 
+def servo_ids(text: str) -> tuple[int, ...]:
+    """argparse type: three comma-separated servo ids (pan, tilt, roll)."""
+    try:
+        ids = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
+    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
+        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
+    return ids
+
+
 def open_bus(port: str, baud: int):
     """Open a ServoBus, turning the latency-timer warning into a stderr line."""
     from trajgen.drivers.bus import ServoBus
