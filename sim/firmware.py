@@ -39,6 +39,7 @@ import numpy as np
 
 from trajgen.sim.errors import SimError
 from trajgen.sim.servos import SUPPLY_VOLTAGE_V, ServoModel
+from trajgen.validate import check_number
 
 PWM_FULL_SCALE = 885
 PULSES_PER_RAD = 4096 / (2.0 * math.pi)
@@ -159,10 +160,7 @@ class PositionLoop:
 
 def check_register(name: str, value, low: int, high: int) -> None:
     """Raise TypeError / ValueError unless ``value`` is an int in ``low..high``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"Expected `{name}` to be an int (register units), got {value!r}.")
-    if not low <= value <= high:
-        raise ValueError(f"Expected `{name}` in {low}..{high}, got {value}.")
+    check_number(name, value, low=low, high=high, integer=True)
 
 
 def loop_from_registers(

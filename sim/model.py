@@ -31,14 +31,15 @@ the keyframe file's ``[gimbal.pan]`` etc.), e.g. to values fitted by
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from trajgen.sim.firmware import P_DIVISOR, PositionLoop, check_register
+from trajgen.errors import KeyframeFileError
+from trajgen.gimbal import JOINT_NAMES
+from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
+from trajgen.validate import check_number, check_numbers
 
-JOINT_NAMES = ("pan", "tilt", "roll")
 GIMBAL_TABLE_KEYS = (
     "servo",
     "payload_kg",
@@ -50,6 +51,11 @@ GIMBAL_TABLE_KEYS = (
 )
 #: Keys of a ``[gimbal.<joint>]`` table.
 JOINT_TABLE_KEYS = ("armature", "frictionloss", "damping", "position_p_gain")
+
+_PAN_HEIGHT_M = 0.05  # pan horn above the base plate
+_TILT_HEIGHT_M = 0.07  # tilt (and roll) axis above the pan horn
+_BRACKET_KG = 0.025
+_CAMERA_SIZE_M = (0.06, 0.04, 0.04)
 
 
 @dataclass(frozen=True)
@@ -65,7 +71,7 @@ class JointParams:
     damping : float
         Viscous friction (N m s/rad), >= 0, besides the motor's back-EMF.
     position_p_gain, position_i_gain, position_d_gain : int
-        Position P / I / D Gain registers (register units, as on the servo).
+        Position P / I / D Gain registers (register units, as on the servo), 0..16383.
 
     Raises
     ------
@@ -81,11 +87,8 @@ class JointParams:
     position_d_gain: int = 0
 
     def __post_init__(self):
-        _check_number("armature", self.armature, low=0.0, open_low=True)
-        _check_number("frictionloss", self.frictionloss, low=0.0)
-        _check_number("damping", self.damping, low=0.0)
-        for name in ("position_p_gain", "position_i_gain", "position_d_gain"):
-            check_register(name, getattr(self, name), 0, 16383)
+        for name, bounds in _JOINT_BOUNDS.items():
+            object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
 
     @classmethod
     def of(cls, servo: ServoModel, **overrides) -> JointParams:
@@ -101,10 +104,13 @@ class JointParams:
         return replace(params, **overrides)
 
 
-_PAN_HEIGHT_M = 0.05  # pan horn above the base plate
-_TILT_HEIGHT_M = 0.07  # tilt (and roll) axis above the pan horn
-_BRACKET_KG = 0.025
-_CAMERA_SIZE_M = (0.06, 0.04, 0.04)
+#: Ranges of JointParams' fields, shared by the class and the [gimbal.<joint>] tables.
+_JOINT_BOUNDS = {
+    "armature": {"low": 0.0, "low_open": True},
+    "frictionloss": {"low": 0.0},
+    "damping": {"low": 0.0},
+    **{f"position_{g}_gain": {"low": 0, "high": 16383, "integer": True} for g in ("p", "i", "d")},
+}
 
 
 @dataclass(frozen=True)
@@ -165,20 +171,11 @@ class GimbalConfig:
             )
         resolved = tuple(s if isinstance(s, ServoModel) else servo_by_name(s) for s in servos)
         object.__setattr__(self, "servos", resolved)
-        offset = self.payload_offset_m
-        if not isinstance(offset, (tuple, list)) or len(offset) != 3:
-            raise ValueError(f"Expected `payload_offset_m` to have 3 entries, got {offset!r}.")
-        for value in offset:
-            _check_number("payload_offset_m", value)
-        object.__setattr__(self, "payload_offset_m", tuple(float(v) for v in offset))
-        _check_number("payload_kg", self.payload_kg, low=0.0)
-        _check_number("torque_margin", self.torque_margin, low=0.0, high=1.0, open_low=True)
-        _check_number("max_tracking_error_rad", self.max_tracking_error_rad, low=0.0, open_low=True)
-        _check_number("timestep_s", self.timestep_s, low=0.0, high=0.001, open_low=True)
-        _check_number("p_divisor", self.p_divisor, low=0.0, open_low=True)
-        joints = self.joints
-        if joints is None:
-            joints = ({},) * 3
+        for name, bounds in _FIELD_BOUNDS.items():
+            object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
+        offset = check_numbers("payload_offset_m", self.payload_offset_m, 3)
+        object.__setattr__(self, "payload_offset_m", offset)
+        joints = ({},) * 3 if self.joints is None else self.joints
         if not isinstance(joints, (tuple, list)) or len(joints) != 3:
             raise ValueError(
                 f"Expected `joints` to hold 3 entries (pan, tilt, roll), got {joints!r}."
@@ -205,16 +202,14 @@ class GimbalConfig:
         )
 
 
-def _check_number(name, value, *, low=None, high=None, open_low=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"Expected `{name}` to be a number, got {value!r}.")
-    if not math.isfinite(value):
-        raise ValueError(f"Expected `{name}` to be finite, got {value!r}.")
-    if low is not None and (value < low or (open_low and value == low)):
-        op = ">" if open_low else ">="
-        raise ValueError(f"Expected `{name}` {op} {low}, got {value!r}.")
-    if high is not None and value > high:
-        raise ValueError(f"Expected `{name}` <= {high}, got {value!r}.")
+#: Ranges of GimbalConfig's number fields, shared by the class and the [gimbal] table.
+_FIELD_BOUNDS = {
+    "payload_kg": {"low": 0.0},
+    "torque_margin": {"low": 0.0, "high": 1.0, "low_open": True},
+    "max_tracking_error_rad": {"low": 0.0, "low_open": True},
+    "timestep_s": {"low": 0.0, "high": 0.001, "low_open": True},
+    "p_divisor": {"low": 0.0, "low_open": True},
+}
 
 
 def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
@@ -257,26 +252,14 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
     kwargs["joints"] = tuple(_joint_from_table(table.get(j, {}), j, path) for j in JOINT_NAMES)
     for key in ("payload_kg", "torque_margin", "max_tracking_error_rad", "p_divisor"):
         if key in table:
-            value = table[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise _file_error(path, f"[gimbal] {key}: expected a number, got {value!r}")
-            kwargs[key] = float(value)
+            error = _field_error(path, key)
+            kwargs[key] = check_number(key, table[key], error=error, **_FIELD_BOUNDS[key])
     if "payload_offset_m" in table:
-        value = table["payload_offset_m"]
-        if (
-            not isinstance(value, list)
-            or len(value) != 3
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
-        ):
-            raise _file_error(path, f"[gimbal] payload_offset_m: expected 3 numbers, got {value!r}")
-        kwargs["payload_offset_m"] = tuple(float(v) for v in value)
-    try:
-        return GimbalConfig(**kwargs)
-    except (TypeError, ValueError) as e:
-        # GimbalConfig says "Expected `payload_kg` >= 0.0, got -1.0."; restate it
-        # in the file's terms: "[gimbal] payload_kg: expected >= 0.0, got -1.0".
-        key, _, rest = str(e).removeprefix("Expected `").partition("` ")
-        raise _file_error(path, f"[gimbal] {key}: expected {rest.rstrip('.')}") from e
+        error = _field_error(path, "payload_offset_m")
+        kwargs["payload_offset_m"] = check_numbers(
+            "payload_offset_m", table["payload_offset_m"], 3, error=error
+        )
+    return GimbalConfig(**kwargs)
 
 
 def _joint_from_table(value, joint: str, path) -> dict:
@@ -288,20 +271,15 @@ def _joint_from_table(value, joint: str, path) -> dict:
     if unknown:
         known = ", ".join(JOINT_TABLE_KEYS)
         raise _file_error(path, f"{where} unknown key '{unknown[0]}' (known: {known})")
-    out = {}
-    for key, v in value.items():
-        integer = key == "position_p_gain"
-        kinds = (int,) if integer else (int, float)
-        if isinstance(v, bool) or not isinstance(v, kinds):
-            what = "an integer (register units)" if integer else "a number"
-            raise _file_error(path, f"{where} {key}: expected {what}, got {v!r}")
-        out[key] = v if integer else float(v)
-    try:
-        JointParams.of(DEFAULT_SERVO, **out)
-    except (TypeError, ValueError) as e:
-        key, _, rest = str(e).removeprefix("Expected `").partition("` ")
-        raise _file_error(path, f"{where} {key}: expected {rest.rstrip('.')}") from e
-    return out
+    return {
+        key: check_number(
+            key,
+            v,
+            error=lambda problem, key=key: _file_error(path, f"{where} {key}: {problem}"),
+            **_JOINT_BOUNDS[key],
+        )
+        for key, v in value.items()
+    }
 
 
 def _servos_from_table(value, path) -> tuple[ServoModel, ServoModel, ServoModel]:
@@ -333,9 +311,11 @@ def _servo_or_error(name, key, path) -> ServoModel:
 
 
 def _file_error(path, message: str):
-    from trajgen.keyframes import KeyframeFileError
-
     return KeyframeFileError(f"{Path(path)}: {message}")
+
+
+def _field_error(path, key: str):
+    return lambda problem: _file_error(path, f"[gimbal] {key}: {problem}")
 
 
 def gimbal_mjcf(config: GimbalConfig | None = None) -> str:

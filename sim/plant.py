@@ -28,6 +28,7 @@ from trajgen.sim.run import (
     warning_counts,
 )
 from trajgen.sim.servos import SUPPLY_VOLTAGE_V
+from trajgen.validate import check_number
 
 # Log columns: time, q (3), qd (3), torque (3), goal (3), drive cap in volts (3).
 _LOG_COLUMNS = 16
@@ -159,7 +160,7 @@ class GimbalPlant:
             For a non-zero Profile Velocity / Acceleration or an Operating Mode
             other than 3 or 4 (not simulated).
         """
-        self._check_joint(joint)
+        joint = self._check_joint(joint)
         merged = {**self._registers[joint], **registers}
         loop = loop_from_registers(
             merged, p_divisor=self.config.p_divisor, joint=JOINT_NAMES[joint]
@@ -189,11 +190,8 @@ class GimbalPlant:
         self._model, self._data = model, data
         self._warnings = warning_counts(data)
 
-    def _check_joint(self, joint) -> None:
-        if isinstance(joint, bool) or not isinstance(joint, (int, np.integer)):
-            raise TypeError(f"Expected `joint` to be an int, got {type(joint).__name__}.")
-        if not 0 <= joint < self.n_joints:
-            raise ValueError(f"Expected `joint` in 0..2, got {joint}.")
+    def _check_joint(self, joint) -> int:
+        return check_number("joint", joint, integer=True, low=0, high=self.n_joints - 1)
 
     def set_torque_enabled(self, joint: int, enabled: bool) -> None:
         """Switch one servo's torque on or off (Torque Enable).
@@ -205,7 +203,7 @@ class GimbalPlant:
         ValueError
             If ``joint`` is not 0, 1 or 2.
         """
-        self._check_joint(joint)
+        joint = self._check_joint(joint)
         if enabled and self._goal is None:
             self._data.ctrl[joint] = self._data.qpos[joint]
         bit = 1 << int(joint)

@@ -79,7 +79,7 @@ def test_registers_that_are_not_simulated_are_refused():
         loop_from_registers({"Profile Acceleration": 10})
     with pytest.raises(UnsupportedServoSetting, match=r"Operating Mode 16 is not simulated"):
         loop_from_registers({"Operating Mode": 16})
-    with pytest.raises(ValueError, match=r"`p_gain` in 0..16383, got 20000"):
+    with pytest.raises(ValueError, match=r"`p_gain` to be an integer in 0..16383, got 20000"):
         loop_from_registers({"Position P Gain": 20000})
     # Feed-forward acts on the profile only: accepted, and without effect.
     assert loop_from_registers({"Feedforward 1st Gain": 100}) == PositionLoop()
