@@ -13,7 +13,14 @@ from trajgen.sim.check import (
 )
 from trajgen.sim.dynamics import inverse_dynamics
 from trajgen.sim.errors import SimError, SimulationError, TorqueLimitExceeded
-from trajgen.sim.model import GimbalConfig, build_model, gimbal_config_from_tables, gimbal_mjcf
+from trajgen.sim.firmware import PositionLoop, UnsupportedServoSetting
+from trajgen.sim.model import (
+    GimbalConfig,
+    JointParams,
+    build_model,
+    gimbal_config_from_tables,
+    gimbal_mjcf,
+)
 from trajgen.sim.plant import GimbalPlant
 from trajgen.sim.run import SimRecord, simulate
 from trajgen.sim.servos import SERVOS, ServoModel, servo_by_name
@@ -22,13 +29,16 @@ __all__ = [
     "SERVOS",
     "GimbalConfig",
     "GimbalPlant",
+    "JointParams",
     "JointReport",
+    "PositionLoop",
     "ServoModel",
     "SimError",
     "SimRecord",
     "SimulationError",
     "TorqueLimitExceeded",
     "TorqueReport",
+    "UnsupportedServoSetting",
     "assert_torque_ok",
     "build_model",
     "build_report",
