@@ -9,6 +9,7 @@ Needs numpy only. Quaternions are scalar first, ``(w, x, y, z)``.
 from . import quat
 from .gimbal import GimbalKinematics, KinematicsError
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
+from .online import ChangeTooLate, OnlineSpline
 from .path import OrientationPath, Samples
 from .sampling import sample_times
 from .spline import BlendingSpline
@@ -20,6 +21,7 @@ __all__ = [
     "BUILTIN_EXAMPLE",
     "JOINT_NAMES",
     "BlendingSpline",
+    "ChangeTooLate",
     "GimbalKinematics",
     "JointFrame",
     "JointTrajectory",
@@ -27,6 +29,7 @@ __all__ = [
     "KeyframeFileError",
     "KinematicsError",
     "OrientationPath",
+    "OnlineSpline",
     "Samples",
     "load_keyframe_file",
     "plan_joint_trajectory",
