@@ -273,3 +273,70 @@ def test_changes_from_another_thread_are_atomic(rng):
                 errors.append(e)
     thread.join()
     assert not errors
+
+
+def _frame_quat(frame):
+    from trajgen.gimbal import forward
+
+    return forward(frame.q)
+
+
+def test_stream_frames_takes_a_change_from_the_next_frame():
+    from trajgen.stream import stream_frames
+
+    s = OnlineSpline([1, 0, 0, 0])
+    s.retarget(Q.from_pan_tilt_roll([0.5, 0.2], [0.2, -0.1], [0.0, 0.1]), [0.8, 1.6], at=0.0)
+    frames = stream_frames(s, 100.0)
+    first = [next(frames) for _ in range(50)]
+    _, old = s.snapshot()
+    at = first[-1].t  # the last frame handed out: changes may start there
+    with pytest.raises(ChangeTooLate):
+        s.retarget(Q.from_pan_tilt_roll(0.0, 0.0, 0.0)[None], [at + 0.5], at=at - 0.01)
+    s.retarget(Q.from_pan_tilt_roll(-0.5, 0.3, 0.0)[None], [at + 0.5], at=at)
+    nxt = next(frames)
+    assert nxt.index == 50 and nxt.t == pytest.approx(0.5)
+    assert Q.distance(_frame_quat(nxt), s(nxt.t)) < 1e-12
+    assert Q.distance(_frame_quat(nxt), old(nxt.t)) > 1e-4  # the old plan went elsewhere
+    for f in first:
+        assert Q.distance(_frame_quat(f), old(f.t)) < 1e-12
+    s.close()
+    rest = list(frames)
+    assert rest[-1].t == pytest.approx(s.t_end) and s.t_end == pytest.approx(at + 0.5)
+    np.testing.assert_allclose(rest[-1].qd, 0.0, atol=1e-9)
+    # Joint angles move continuously: no step larger than the planned speed allows.
+    q = np.array([f.q for f in first + [nxt] + rest])
+    qd = np.array([f.qd for f in first + [nxt] + rest])
+    step = np.abs(np.diff(q, axis=0))
+    assert (step <= 0.01 * np.maximum(np.abs(qd[1:]), np.abs(qd[:-1])) + 1e-6).all()
+
+
+def test_stream_frames_with_changes_from_another_thread(rng):
+    from trajgen.stream import stream_frames
+
+    s = OnlineSpline([1, 0, 0, 0])
+    targets = random_quats(rng, 10, 30.0)
+    frames = stream_frames(s, 200.0)
+    got = [next(frames)]
+
+    def writer():
+        for q in targets:
+            while True:
+                try:
+                    at = s.committed + 0.02
+                    s.retarget(q[None], [at + 0.3], at=at)
+                    break
+                except ChangeTooLate:
+                    continue
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    while thread.is_alive():
+        got.append(next(frames))
+    thread.join()
+    s.close()
+    got += list(frames)
+    assert [f.index for f in got] == list(range(len(got)))
+    assert Q.distance(_frame_quat(got[-1]), targets[-1]) < 1e-9
+    kept = [f for f in got if f.t > s.t_start]
+    for f in kept:
+        assert Q.distance(_frame_quat(f), s(f.t)) < 1e-12

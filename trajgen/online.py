@@ -252,6 +252,11 @@ class OnlineSpline:
         return self._version
 
     @property
+    def committed(self) -> float:
+        """Latest time (s) a stream has used (-inf before any): changes must not be earlier."""
+        return self._committed
+
+    @property
     def closed(self) -> bool:
         """True once :meth:`close` was called: no more changes."""
         return self._closed
