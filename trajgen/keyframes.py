@@ -90,7 +90,8 @@ class KeyframeFile:
         return KeyframeFileError(f"{self.path}: {where}: {problem}")
 
 
-def _number(value, where: str, path: Path) -> float:
+def field_number(value, where: str, path) -> float:
+    """``value`` as a float if it is a finite number, else a KeyframeFileError naming ``where``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise KeyframeFileError(f"{path}: {where}: expected a finite number, got {value!r}")
     return float(value)
@@ -168,7 +169,7 @@ def _stream_rate(table, path: Path) -> float | None:
             raise KeyframeFileError(f"{path}: [stream] unknown key '{key}' (known: rate_hz)")
     if "rate_hz" not in table:
         return None
-    rate = _number(table["rate_hz"], "[stream] rate_hz", path)
+    rate = field_number(table["rate_hz"], "[stream] rate_hz", path)
     if rate <= 0:
         raise KeyframeFileError(f"{path}: [stream] rate_hz: expected > 0, got {rate:g}")
     return rate
@@ -192,36 +193,63 @@ def _keyframes(entries, path: Path) -> tuple[np.ndarray, np.ndarray]:
                 )
         if "t" not in kf:
             raise KeyframeFileError(f"{path}: {where}: field 't' is missing (seconds)")
-        t = _number(kf["t"], f"{where}: field 't'", path)
+        t = field_number(kf["t"], f"{where}: field 't'", path)
         if times and t <= times[-1]:
             raise KeyframeFileError(
                 f"{path}: {where}: field 't': {t:g} s is not after keyframe {i - 1}'s "
                 f"{times[-1]:g} s"
             )
-        angles = [k for k in ("pan", "tilt", "roll") if k in kf]
-        if "quat" in kf:
-            if angles:
-                raise KeyframeFileError(
-                    f"{path}: {where}: give either 'quat' or pan/tilt/roll, not both"
-                )
-            q = kf["quat"]
-            if not isinstance(q, list) or len(q) != 4:
-                raise KeyframeFileError(
-                    f"{path}: {where}: field 'quat': expected [w, x, y, z], got {q!r}"
-                )
-            q = np.array([_number(x, f"{where}: field 'quat'", path) for x in q])
-            if np.linalg.norm(q) < 1e-12:
-                raise KeyframeFileError(f"{path}: {where}: field 'quat': zero quaternion")
-        elif angles:
-            pan, tilt, roll = (
-                math.radians(_number(kf.get(k, 0.0), f"{where}: field '{k}'", path))
-                for k in ("pan", "tilt", "roll")
-            )
-            q = Q.from_pan_tilt_roll(pan, tilt, roll)
-        else:
-            raise KeyframeFileError(
-                f"{path}: {where}: no orientation: give 'quat' or pan/tilt/roll (degrees)"
-            )
+        q = keyframe_orientation(kf, where, path)
         times.append(t)
         quats.append(q)
     return np.array(times), Q.as_quats(np.array(quats))
+
+
+def keyframe_orientation(kf: dict, where: str, path) -> np.ndarray:
+    """The orientation of one keyframe table, checked as a keyframe file checks it.
+
+    Parameters
+    ----------
+    kf : dict
+        The keyframe's fields: ``quat`` ([w, x, y, z]) or any of ``pan``,
+        ``tilt``, ``roll`` (degrees, each defaulting to 0).
+    where : str
+        The keyframe's name in messages, e.g. ``"keyframe 3"`` or ``"line 7"``.
+    path : str or Path
+        Its file (or stream) in messages.
+
+    Returns
+    -------
+    ndarray, shape (4,)
+        The quaternion (w, x, y, z), not normalised.
+
+    Raises
+    ------
+    KeyframeFileError
+        ``"{path}: {where}: ..."`` naming the field at fault.
+    """
+    angles = [k for k in ("pan", "tilt", "roll") if k in kf]
+    if "quat" in kf:
+        if angles:
+            raise KeyframeFileError(
+                f"{path}: {where}: give either 'quat' or pan/tilt/roll, not both"
+            )
+        q = kf["quat"]
+        if not isinstance(q, list) or len(q) != 4:
+            raise KeyframeFileError(
+                f"{path}: {where}: field 'quat': expected [w, x, y, z], got {q!r}"
+            )
+        q = np.array([field_number(x, f"{where}: field 'quat'", path) for x in q])
+        if np.linalg.norm(q) < 1e-12:
+            raise KeyframeFileError(f"{path}: {where}: field 'quat': zero quaternion")
+    elif angles:
+        pan, tilt, roll = (
+            math.radians(field_number(kf.get(k, 0.0), f"{where}: field '{k}'", path))
+            for k in ("pan", "tilt", "roll")
+        )
+        q = Q.from_pan_tilt_roll(pan, tilt, roll)
+    else:
+        raise KeyframeFileError(
+            f"{path}: {where}: no orientation: give 'quat' or pan/tilt/roll (degrees)"
+        )
+    return q

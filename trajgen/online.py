@@ -54,8 +54,8 @@ import numpy as np
 
 from . import jet as J
 from . import quat as Q
-from .path import OrientationPath, check_times
-from .spline import BlendingSpline
+from .path import OrientationPath, check_option, check_times
+from .spline import LOCALS, REPARAMS, BlendingSpline
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
 #: piece grow like 1 / lead^2 (acceleration) and 1 / lead^3 (jerk); measured on
@@ -189,6 +189,9 @@ class OnlineSpline:
         Shortest time (s) from ``at`` to the first new keyframe, >= ``MIN_LEAD_S``
         (0.2 s). 0.5 s keeps a mid-motion retarget's peaks within a few times
         the plan's (see :data:`MIN_LEAD_S`).
+    local, reparam : str, optional
+        Local curves and circle time map, as for
+        :class:`~trajgen.spline.BlendingSpline`.
 
     Raises
     ------
@@ -207,7 +210,7 @@ class OnlineSpline:
     Kim & Nam (1995), see :mod:`trajgen.spline`.
     """
 
-    def __init__(self, q0, t0=0.0, *, k=2, min_lead_s=MIN_LEAD_S):
+    def __init__(self, q0, t0=0.0, *, k=2, min_lead_s=MIN_LEAD_S, local="auto", reparam="rational"):
         q = Q.as_quats(_as_quat_rows(q0, "q0"), "q0")
         if q.shape[0] != 1:
             raise ValueError(f"Expected `q0` to be one quaternion, got shape {q.shape}.")
@@ -219,6 +222,8 @@ class OnlineSpline:
         if not _finite(min_lead_s, "min_lead_s") >= MIN_LEAD_S:
             raise ValueError(f"Expected `min_lead_s` >= {MIN_LEAD_S} s, got {min_lead_s}.")
         self.k = int(k)
+        self.local = check_option("local", local, LOCALS)
+        self.reparam = check_option("reparam", reparam, REPARAMS)
         self.min_lead_s = float(min_lead_s)
         self._hermite = _hermite_matrix(self.k)
         self._plan = _Plan((_Piece(t0, None, None, q[0]),))
@@ -357,7 +362,10 @@ class OnlineSpline:
             plan = self._plan
             piece = self._new_piece(plan, mode, q, t, at)
             kept = [p for p in plan.pieces if p.start < piece.start]
-            first = max(0, int(np.searchsorted([p.start for p in kept], at, side="left")) - 1)
+            # Drop what lies wholly before `at` (before the streamed time, if earlier:
+            # a stream still needs the path from there).
+            drop = min(at, self._committed) if self._committed > -np.inf else at
+            first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
             new_plan = _Plan((*kept[first:], piece))
             if check is not None:
                 check(new_plan)
@@ -394,7 +402,9 @@ class OnlineSpline:
         return self._splice_piece(plan, q, t, at)
 
     def _spline(self, q, t) -> BlendingSpline:
-        return BlendingSpline(q, t, k=self.k, boundary="rest")
+        return BlendingSpline(
+            q, t, k=self.k, boundary="rest", local=self.local, reparam=self.reparam
+        )
 
     def _rest_piece(self, q, t) -> _Piece:
         spline = self._spline(q, t)
