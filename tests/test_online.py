@@ -212,9 +212,9 @@ def test_errors():
         s.retarget(q, [1.5], at=0.1)
     with pytest.raises(ValueError, match="must come after the last keyframe kept"):
         s.extend(q, [0.9], at=0.3)
-    with pytest.raises(TypeError, match="`at` to be a number"):
+    with pytest.raises(TypeError, match="`at` to be a finite number"):
         s.extend(q, [2.0], at="now")
-    with pytest.raises(ValueError, match=r"`k` in 1..3"):
+    with pytest.raises(ValueError, match=r"`k` to be an integer in 1..3"):
         OnlineSpline([1, 0, 0, 0], k=4)
     with pytest.raises(ValueError, match="`q0` to be one quaternion"):
         OnlineSpline([[1, 0, 0, 0], [1, 0, 0, 0]])

@@ -54,8 +54,10 @@ import numpy as np
 
 from . import jet as J
 from . import quat as Q
-from .path import OrientationPath, check_option, check_times
+from .errors import TrajgenError
+from .path import OrientationPath, check_times
 from .spline import LOCALS, REPARAMS, BlendingSpline
+from .validate import check_choice, check_number
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
 #: piece grow like 1 / lead^2 (acceleration) and 1 / lead^3 (jerk); measured on
@@ -66,7 +68,7 @@ MIN_LEAD_S = 0.2
 MODES = ("extend", "retarget")
 
 
-class ChangeTooLate(ValueError):
+class ChangeTooLate(TrajgenError):
     """A change at a time that a stream has already used (see :meth:`OnlineSpline.commit`)."""
 
 
@@ -211,20 +213,17 @@ class OnlineSpline:
     """
 
     def __init__(self, q0, t0=0.0, *, k=2, min_lead_s=MIN_LEAD_S, local="auto", reparam="rational"):
-        q = Q.as_quats(_as_quat_rows(q0, "q0"), "q0")
+        if np.shape(q0) == (4,):
+            q0 = np.reshape(q0, (1, 4))
+        q = Q.as_quats(q0, "q0")
         if q.shape[0] != 1:
             raise ValueError(f"Expected `q0` to be one quaternion, got shape {q.shape}.")
-        t0 = _finite(t0, "t0")
-        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
-            raise TypeError(f"Expected `k` to be an integer, got {type(k).__name__} {k!r}.")
-        if not 1 <= k <= 3:
-            raise ValueError(f"Expected `k` in 1..3, got {k}.")
-        if not _finite(min_lead_s, "min_lead_s") >= MIN_LEAD_S:
-            raise ValueError(f"Expected `min_lead_s` >= {MIN_LEAD_S} s, got {min_lead_s}.")
-        self.k = int(k)
-        self.local = check_option("local", local, LOCALS)
-        self.reparam = check_option("reparam", reparam, REPARAMS)
-        self.min_lead_s = float(min_lead_s)
+        t0 = check_number("t0", t0)
+        # Splices match the old path's jet to order k + 1; jets go to order 4.
+        self.k = check_number("k", k, integer=True, low=1, high=3)
+        self.local = check_choice("local", local, LOCALS)
+        self.reparam = check_choice("reparam", reparam, REPARAMS)
+        self.min_lead_s = check_number("min_lead_s", min_lead_s, low=MIN_LEAD_S)
         self._hermite = _hermite_matrix(self.k)
         self._plan = _Plan((_Piece(t0, None, None, q[0]),))
         self._version = 0
@@ -342,9 +341,9 @@ class OnlineSpline:
         self._change_plan("retarget", quats, times, at, check)
 
     def _change_plan(self, mode, quats, times, at, check) -> None:
-        q = Q.as_quats(_as_quat_rows(quats, "quats"), "quats")
+        q = Q.as_quats(quats, "quats")
         t = check_times(times, len(q))
-        at = _finite(at, "at")
+        at = check_number("at", at)
         with self._change:
             if self._closed:
                 raise ValueError("The spline is closed: no more changes.")
@@ -434,23 +433,3 @@ class OnlineSpline:
         coef[k + 2 :] = self._hermite @ (powers[: k + 1] * r - low @ coef[: k + 2])
         splice = _Splice(at, h, q_a, coef)
         return _Piece(at, spline, splice, spline.quats[-1])
-
-
-def _as_quat_rows(quats, name: str):
-    """Quaternion rows (N, 4) from an array or a scipy Rotation (scalar first)."""
-    if hasattr(quats, "as_quat") and callable(quats.as_quat):
-        xyzw = np.asarray(quats.as_quat(), dtype=float)
-        return np.roll(xyzw, 1, axis=-1).reshape(-1, 4)
-    if name == "q0":
-        arr = np.asarray(quats) if not isinstance(quats, (str, bytes)) else quats
-        if getattr(arr, "shape", None) == (4,):
-            return arr.reshape(1, 4)
-    return quats
-
-
-def _finite(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise TypeError(f"Expected `{name}` to be a number, got {type(value).__name__}.")
-    if not np.isfinite(value):
-        raise ValueError(f"Expected `{name}` to be finite, got {value}.")
-    return float(value)

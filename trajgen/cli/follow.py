@@ -19,8 +19,9 @@ import numpy as np
 
 from trajgen.cli import stream as stream_command
 from trajgen.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, bad_input, open_bus
+from trajgen.errors import KeyframeFileError
 from trajgen.gimbal import GimbalKinematics
-from trajgen.keyframes import KeyframeFileError, field_number, keyframe_orientation
+from trajgen.keyframes import check_keyframes
 from trajgen.online import MODES, ChangeTooLate, OnlineSpline
 from trajgen.sampling import sample_times
 from trajgen.stream import JointTrajectory, stream_frames
@@ -203,10 +204,10 @@ class Follower:
             raise self._error(where, f"field 'mode': expected one of {MODES}, got {mode!r}")
         if ("t" in entry) == ("in" in entry):
             raise self._error(where, "give exactly one of 't' (stream time) or 'in' (from now), s")
-        key = "t" if "t" in entry else "in"
-        t = field_number(entry[key], f"{where}: field '{key}'", self.source)
-        q = keyframe_orientation(entry, where, self.source)
-        return mode, q / np.linalg.norm(q), t, key == "in"
+        keyframe = {k: v for k, v in entry.items() if k not in ("mode", "in")}
+        keyframe["t"] = entry.get("t", entry.get("in"))
+        t, q = check_keyframes([keyframe], f"{self.source}: {where}", minimum=1)
+        return mode, q[0], float(t[0]), "in" in entry
 
     def _error(self, where: str, problem: str) -> KeyframeFileError:
         return KeyframeFileError(f"{self.source}: {where}: {problem}")
