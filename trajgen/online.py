@@ -72,16 +72,16 @@ class ChangeTooLate(TrajgenError):
     """A change at a time that a stream has already used (see :meth:`OnlineSpline.commit`)."""
 
 
-@dataclass(frozen=True)
-class _Splice:
+class _Splice(OrientationPath):
     """The first segment of a spliced piece: ``exp(r(u)) q_a``, ``u = (t - s) / h``."""
 
-    s: float
-    h: float
-    q_a: np.ndarray  # (4,)
-    coef: np.ndarray  # (2k + 3, 3), power basis in u
+    def __init__(self, s: float, h: float, q_a: np.ndarray, coef: np.ndarray):
+        self.s, self.h = s, h
+        self.q_a = q_a  # (4,)
+        self.coef = coef  # (2k + 3, 3), power basis in u
+        self.times = np.array([s, s + h])
 
-    def jet(self, t: np.ndarray, order: int) -> J.Jet:
+    def _jet(self, t: np.ndarray, seg, order: int) -> J.Jet:
         u = (J.Jet.variable(t, order) - self.s) * (1.0 / self.h)
         r = J.Jet(np.stack([J.polyval(self.coef[:, i], u).c for i in range(3)], axis=1))
         return J.qmul(J.qexp(r), self.q_a)
@@ -112,21 +112,41 @@ class _Piece:
     def key_quats(self) -> np.ndarray:
         return self.q_end[None] if self.spline is None else self.spline.quats
 
-    def jet(self, t: np.ndarray, order: int) -> J.Jet:
-        out = np.zeros((order + 1, 4, len(t)))
+    def _parts(self, t: np.ndarray):
+        """Masks (M,) of the held, spliced and blended times; the blended ones' segments."""
         hold = t >= self.t_end
+        spliced = np.zeros(len(t), bool)
+        if self.splice is not None:
+            spliced = ~hold & (t < self.spline.times[1])
+        blended = ~hold & ~spliced
+        times = self.spline.times if self.spline is not None else t[:0]
+        seg = np.clip(np.searchsorted(times, t[blended], side="right") - 1, 0, len(times) - 2)
+        return hold, spliced, blended, seg
+
+    def jet(self, t: np.ndarray, order: int) -> J.Jet:
+        """The piece as a quaternion jet (order + 1, 4, M): exact, for splicing."""
+        out = np.zeros((order + 1, 4, len(t)))
+        hold, spliced, blended, seg = self._parts(t)
         out[0, :, hold] = self.q_end
-        if self.spline is not None:
-            times = self.spline.times
-            spliced = ~hold & (t < times[1]) if self.splice else np.zeros(len(t), bool)
-            blended = ~hold & ~spliced
-            if spliced.any():
-                out[:, :, spliced] = self.splice.jet(t[spliced], order).c
-            if blended.any():
-                tb = t[blended]
-                seg = np.clip(np.searchsorted(times, tb, side="right") - 1, 0, len(times) - 2)
-                out[:, :, blended] = self.spline._jet(tb, seg, order).c
+        if spliced.any():
+            out[:, :, spliced] = self.splice._jet(t[spliced], None, order).c
+        if blended.any():
+            out[:, :, blended] = self.spline._jet(t[blended], seg, order).c
         return J.Jet(out)
+
+    def space_rates(self, t: np.ndarray, max_order: int):
+        """Unit quaternions (M, 4) and space-frame rates of orders 1..max_order (M, 3),
+        the blended part by the spline's own (compiled, where enabled) evaluation."""
+        q = np.empty((len(t), 4))
+        rates = [np.zeros((len(t), 3)) for _ in range(max_order)]
+        hold, spliced, blended, seg = self._parts(t)
+        q[hold] = self.q_end
+        for mask, path, s in ((spliced, self.splice, None), (blended, self.spline, seg)):
+            if mask.any():
+                q[mask], part = path._space_rates(t[mask], s, max_order)
+                for r, p in zip(rates, part, strict=True):
+                    r[mask] = p
+        return q, rates
 
 
 class _Plan(OrientationPath):
@@ -135,7 +155,7 @@ class _Plan(OrientationPath):
     def __init__(self, pieces: tuple[_Piece, ...]):
         self.pieces = pieces
         self.starts = np.array([p.start for p in pieces])
-        self.times = np.concatenate([[pieces[0].start], pieces[-1].key_times])
+        self.times = np.unique(np.concatenate([[pieces[0].start], pieces[-1].key_times]))
 
     @property
     def t_start(self) -> float:
@@ -161,6 +181,16 @@ class _Plan(OrientationPath):
             m = seg == j
             out[:, :, m] = self.pieces[j].jet(t[m], order).c
         return J.Jet(out)
+
+    def _space_rates(self, t, seg, max_order):
+        q = np.empty((len(t), 4))
+        rates = [np.empty((len(t), 3)) for _ in range(max_order)]
+        for j in np.unique(seg):
+            m = seg == j
+            q[m], part = self.pieces[j].space_rates(t[m], max_order)
+            for r, p in zip(rates, part, strict=True):
+                r[m] = p
+        return q, rates
 
 
 def _hermite_matrix(k: int) -> np.ndarray:
@@ -247,7 +277,8 @@ class OnlineSpline:
 
     @property
     def times(self) -> np.ndarray:
-        """Keyframe times (s), shape (N,): ``t_start`` and the last piece's keyframes."""
+        """Times (s), shape (N,): ``t_start`` and the keyframes the last change planned
+        through (the keyframe before the splice, and those after it)."""
         return self._plan.times
 
     @property
@@ -353,7 +384,7 @@ class OnlineSpline:
                 )
             self._check_not_streamed(at)
             lead = t[0] - at
-            if lead < self.min_lead_s:
+            if lead < self.min_lead_s - 1e-9:
                 raise ValueError(
                     f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
                     f"it must be at least {self.min_lead_s} s after it."

@@ -314,15 +314,35 @@ def online_spline(kf) -> OnlineSpline:
 
 
 def run_follow(args) -> int:
-    """Run ``trajgen follow``; returns the exit status."""
+    """Run ``trajgen follow`` on the lines of stdin; returns the exit status."""
     try:
-        return _follow(args)
+        return follow(args, sys.stdin)[0]
     except KeyboardInterrupt:
         print("trajgen: interrupted: the servos hold their last goal", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 
-def _follow(args) -> int:
+def follow(args, lines):
+    """``trajgen follow`` with keyframe lines from ``lines``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``trajgen follow`` options.
+    lines : iterable of str, or callable
+        The JSON lines (read on a thread of their own while the stream runs),
+        or a function of the :class:`Follower` that returns them (to time them
+        against the stream).
+
+    Returns
+    -------
+    status : int
+        Exit status.
+    follower : Follower or None
+        What was streamed and the changes (None if the input was refused).
+    report : TorqueReport or None
+        With --virtual, the torque report of what was streamed.
+    """
     from trajgen.drivers.errors import DriverError
     from trajgen.drivers.streamer import Streamer
 
@@ -330,15 +350,16 @@ def _follow(args) -> int:
         kf, config, joints, rate, trajectory = stream_command._plan(args)
         spline = online_spline(kf)
     except (ValueError, TypeError, OSError) as e:  # KeyframeFileError, KinematicsError
-        return bad_input(e)
+        return bad_input(e), None, None
     follower = Follower(spline, rate)
+    lines = lines(follower) if callable(lines) else lines
 
     virtual = plant = None
     if args.virtual:
         try:
             virtual, plant = stream_command.start_virtual(kf, config, joints, rate, trajectory.q[0])
         except (ValueError, TypeError) as e:
-            return bad_input(e)
+            return bad_input(e), None, None
         port = virtual.port
     else:
         port = args.port or config.port
@@ -349,7 +370,7 @@ def _follow(args) -> int:
         try:
             bus = open_bus(port, args.baud or config.baud)
         except DriverError as e:
-            return bad_input(e)
+            return bad_input(e), None, None
         try:
             present = _bring_up(bus, config, joints, follower.kinematics)
             streamer = Streamer(
@@ -358,7 +379,7 @@ def _follow(args) -> int:
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
             )
-            reader = threading.Thread(target=follower.read, args=(sys.stdin,), daemon=True)
+            reader = threading.Thread(target=follower.read, args=(lines,), daemon=True)
             reader.start()
             streamer.run(follower.frames(start=present), rate_hz=rate)
         except DriverError as e:
@@ -383,9 +404,10 @@ def _follow(args) -> int:
         "stream": None if streamer is None else streamer.stats.to_json_dict(),
         "follow": follower.summary(),
     }
+    report = None
     if plant is not None and status == EXIT_OK:
-        status = stream_command.torque_report(plant, follower.trajectory(), args, result)
-    return stream_command.write_json(args, result, status)
+        status, report = stream_command.torque_report(plant, follower.trajectory(), args, result)
+    return stream_command.write_json(args, result, status), follower, report
 
 
 def _bring_up(bus, config, joints, kinematics) -> np.ndarray:

@@ -212,7 +212,7 @@ def _stream(args) -> int:
 
     result = {"stream": None if streamer is None else streamer.stats.to_json_dict()}
     if plant is not None and status == EXIT_OK:
-        status = torque_report(plant, trajectory, args, result)
+        status, _ = torque_report(plant, trajectory, args, result)
     return write_json(args, result, status)
 
 
@@ -229,16 +229,16 @@ def start_virtual(kf, config, joints, rate, first_q):
     return virtual.start(), plant
 
 
-def torque_report(plant, trajectory, args, result: dict) -> int:
+def torque_report(plant, trajectory, args, result: dict):
     """Print (and plot with --plot) the torque report of ``trajectory`` as streamed to
-    ``plant``; add it to ``result``; return the exit status."""
+    ``plant``; add it to ``result``; return the exit status and the report (or None)."""
     from trajgen.sim.errors import SimError
 
     try:
         report = plant.report(trajectory)
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
-        return EXIT_FAILED
+        return EXIT_FAILED, None
     print(report.format())
     result["torque"] = report.to_json_dict()
     status = EXIT_OK if report.ok else EXIT_FAILED
@@ -248,8 +248,8 @@ def torque_report(plant, trajectory, args, result: dict) -> int:
         try:
             print(f"plot: {plot_report(report, args.plot)}")
         except (OSError, ValueError) as e:
-            return bad_input(e)
-    return status
+            return bad_input(e), report
+    return status, report
 
 
 def write_json(args, result: dict, status: int) -> int:
