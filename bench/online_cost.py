@@ -20,11 +20,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import threading
 import time
 
 import numpy as np
 
+from trajgen import fast
 from trajgen import quat as Q
 from trajgen.drivers.clock import sleep_until
 from trajgen.online import ChangeTooLate, OnlineSpline
@@ -152,8 +154,18 @@ def streaming(seconds, rng, margin_s):
     print(f"Change at `at = committed + {1e3 * margin_s:g} ms`; latency: request to first frame.\n")
     print("| run | frames | lateness p50 / p99 / max ms | late > 1 period | latency ms |")
     print("|---|---|---|---|---|")
-    for label, changes in (("peer: no changes", False), ("changes", True)):
-        late, lat = paced_stream(seconds, 1000.0, changes, rng, margin_s)
+    default = sys.getswitchinterval()
+    runs = (
+        ("peer: no changes", False, default),
+        (f"changes, GIL switch interval {1e3 * default:g} ms", True, default),
+        ("changes, GIL switch interval 0.5 ms", True, 5e-4),
+    )
+    for label, changes, switch in runs:
+        sys.setswitchinterval(switch)
+        try:
+            late, lat = paced_stream(seconds, 1000.0, changes, rng, margin_s)
+        finally:
+            sys.setswitchinterval(default)
         latency = f"{ms(lat)} (n = {len(lat)})" if len(lat) else "-"
         print(f"| {label} | {len(late)} | {ms(late)} | {int((late > 1e-3).sum())} | {latency} |")
     print()
@@ -186,7 +198,8 @@ def main():
     args = parser.parse_args()
     rng = np.random.default_rng(11)
     print("# OnlineSpline: cost of a change, frames, latency, peaks\n")
-    print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, numpy-only path")
+    cpu = platform.processor() or platform.machine()
+    print(f"{cpu}, {os.cpu_count()} cores, numba kernel for blended segments: {fast.ENABLED}")
     print(f"load average before: {os.getloadavg()}\n")
     change_costs(rng, args.repeats)
     frame_costs(rng, 50)
