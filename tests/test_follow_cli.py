@@ -129,3 +129,12 @@ def test_follow_bad_input_exit_2(tmp_path, capsys):
     natural.write_text(text)
     assert main(["follow", str(natural), "--virtual"]) == 2
     assert "[spline] boundary: follow needs 'rest'" in capsys.readouterr().err
+
+
+def test_a_frame_the_gimbal_cannot_take_ends_the_stream_at_the_frame_before(follower):
+    # A change made around the follower's checks, into gimbal lock.
+    follower.spline.retarget(Q.from_pan_tilt_roll(0.0, np.radians(85), 0.0)[None], [0.8], at=0.3)
+    follower.spline.close()
+    frames = list(follower.frames())
+    assert "gimbal lock" in follower.fault
+    assert 0.3 < frames[-1].t < 0.8 and len(frames) == len(follower.trajectory())

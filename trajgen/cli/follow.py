@@ -19,7 +19,7 @@ import numpy as np
 
 from trajgen.cli import stream as stream_command
 from trajgen.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, bad_input, open_bus
-from trajgen.errors import KeyframeFileError
+from trajgen.errors import KeyframeFileError, KinematicsError
 from trajgen.gimbal import GimbalKinematics
 from trajgen.keyframes import check_keyframes
 from trajgen.online import MODES, ChangeTooLate, OnlineSpline
@@ -126,6 +126,8 @@ class Follower:
         self._pending: list[tuple[float, float]] = []  # (arrival, at) of changes not yet seen
         self._lock = threading.Lock()
         self._last_q = None
+        #: Why the stream ended early ("" if it did not).
+        self.fault = ""
 
     # -- lines -------------------------------------------------------------
 
@@ -235,7 +237,17 @@ class Follower:
         start : array_like, shape (3,), optional
             Joint angles whose 2 pi branch the first frame's pan and roll take.
         """
-        for frame in stream_frames(self.spline, self.rate_hz, self.kinematics, start=start):
+        frames = stream_frames(self.spline, self.rate_hz, self.kinematics, start=start)
+        while True:
+            try:
+                frame = next(frames)
+            except StopIteration:
+                return
+            except KinematicsError as e:
+                # Every change was checked on the stream's grid, so this is a path that
+                # passed its check between samples: end here, the servos hold the last goal.
+                self.fault = str(e)
+                return
             with self._lock:
                 self._last_q = frame.q
                 if self._pending:
@@ -382,11 +394,11 @@ def follow(args, lines):
             reader = threading.Thread(target=follower.read, args=(lines,), daemon=True)
             reader.start()
             streamer.run(follower.frames(start=present), rate_hz=rate)
+            if follower.fault:
+                print(f"trajgen: stream stopped: {follower.fault}", file=sys.stderr)
+                status = EXIT_FAILED
         except DriverError as e:
             print(f"trajgen: stream failed: {e}", file=sys.stderr)
-            status = EXIT_FAILED
-        except ValueError as e:  # KinematicsError from the stream (a check let it pass)
-            print(f"trajgen: stream stopped: {e}", file=sys.stderr)
             status = EXIT_FAILED
         finally:
             bus.close()
