@@ -12,12 +12,12 @@ import argparse
 import sys
 
 from trajgen import __version__
-from trajgen.cli import fit, plan, scan, sim, stream
+from trajgen.cli import fit, plan, scan, sim, stream, sweep
 from trajgen.cli.common import EXIT_INTERRUPTED, bad_input
 from trajgen.keyframes import KeyframeFileError
 
 #: The subcommand modules, in the order ``--help`` lists them.
-COMMANDS = (plan, sim, stream, scan, fit)
+COMMANDS = (plan, sim, stream, scan, fit, sweep)
 
 
 def build_parser() -> argparse.ArgumentParser:
