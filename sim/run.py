@@ -130,6 +130,26 @@ def goal_ticks_rad(q_rad) -> np.ndarray:
     return np.round(np.asarray(q_rad, dtype=float) * PULSES_PER_RAD) / PULSES_PER_RAD
 
 
+def step_frames(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Physics steps of a stream: each step's start time and the frame it holds.
+
+    Frame ``i`` is held from ``t[i]`` to ``t[i + 1]``, the last one for one
+    stream period.
+
+    Returns
+    -------
+    step_t : ndarray, shape (K,)
+        Step start times (s).
+    frame : ndarray of int, shape (K,)
+        Index of the frame held during each step.
+    """
+    ts = np.asarray(trajectory.t, dtype=float)
+    period = 1.0 / float(trajectory.rate_hz)
+    n_steps = int(round((ts[-1] - ts[0] + period) / timestep_s))
+    step_t = ts[0] + np.arange(n_steps) * timestep_s
+    return step_t, np.searchsorted(ts, step_t + 1e-9, side="right") - 1
+
+
 def step_and_record(model, data, q, qd, torque) -> None:
     """Step ``len(q)`` times, recording each step's start state and its torque.
 
@@ -242,20 +262,16 @@ def simulate(
     config = GimbalConfig() if config is None else config
     model = build_model(config)
     data = mujoco.MjData(model)
-    ts = np.asarray(trajectory.t, dtype=float)
     q_plan = np.asarray(trajectory.q, dtype=float)
     goals = goal_ticks_rad(q_plan)
-
     dt = config.timestep_s
-    period = 1.0 / float(trajectory.rate_hz)
-    n_steps = int(round((ts[-1] - ts[0] + period) / dt))
-    step_t = ts[0] + np.arange(n_steps) * dt
-    frame = np.searchsorted(ts, step_t + 1e-9, side="right") - 1
+    step_t, frame = step_frames(trajectory, dt)
+    n_steps = len(step_t)
     # First step of each frame's hold, and one past the last step.
     bounds = np.append(np.flatnonzero(np.diff(frame, prepend=-1)), n_steps)
 
     data.qpos[:] = q_plan[0]
-    data.time = ts[0]
+    data.time = step_t[0]
     mujoco.mj_forward(model, data)
     warnings = warning_counts(data)
     q = np.empty((n_steps, 3))
