@@ -273,6 +273,7 @@ class VirtualBus:
             servo.set("Goal Position", servo.present_ticks(int(ticks[self._joint[servo_id]])))
             self.plant.set_control(self._joint[servo_id], self._control(servo))
             self.plant.set_torque_enabled(self._joint[servo_id], servo.torque_on)
+        self._index_ids()
         self._goal_written = False
         self._polled = False
         self._last_packet_s = {i: time.monotonic() for i in ids}
@@ -409,6 +410,8 @@ class VirtualBus:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
         j = self._joint[servo_id]
         servo = self.servos[servo_id]
+        if "ID" in names:
+            self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
         if names & set(CONTROL_REGISTERS):
@@ -546,7 +549,13 @@ class VirtualBus:
         """The servos (by power-up id) whose ID register is ``servo_id``, or all on broadcast."""
         if servo_id == BROADCAST_ID:
             return list(self.ids)
-        return [i for i in self.ids if self.servos[i].servo_id == servo_id]
+        return self._by_id.get(servo_id, [])
+
+    def _index_ids(self) -> None:
+        """Re-read every ID register (after a write of ID or a factory reset)."""
+        self._by_id: dict[int, list[int]] = {}
+        for i in self.ids:
+            self._by_id.setdefault(self.servos[i].servo_id, []).append(i)
 
     def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
@@ -667,6 +676,7 @@ class VirtualBus:
         """A servo rebooted: the plant follows its registers (torque off, goal = present)."""
         servo = self.servos[servo_id]
         j = self._joint[servo_id]
+        self._index_ids()
         self.plant.set_torque_enabled(j, False)
         self.plant.set_control(j, self._control(servo))
         self._goal_rad[j] = self._goal_for_plant(servo)
