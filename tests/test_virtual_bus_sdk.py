@@ -430,3 +430,14 @@ def test_virtual_bus_command_refuses_bad_input(args, message):
     assert proc.returncode == 2
     assert message in err
     assert out == ""  # no port was opened
+
+
+def test_installed_registers_eeprom_survive_reboot_ram_does_not(sdk):
+    s = sdk(registers={1: {"Max Position Limit": 3000, "LED": 1}})
+    assert s.read(1, MAX_POSITION_LIMIT, 4) == 3000
+    assert s.read(1, LED, 1) == 1
+    assert s.ph.reboot(s.port, 1) == (COMM_SUCCESS, 0)
+    assert s.read(1, MAX_POSITION_LIMIT, 4) == 3000
+    assert s.read(1, LED, 1) == 0
+    assert s.ph.factoryReset(s.port, 1, 0x01) == (COMM_SUCCESS, 0)
+    assert s.read(1, MAX_POSITION_LIMIT, 4) == 4095

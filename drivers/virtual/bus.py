@@ -78,11 +78,8 @@ _SWITCH_INTERVAL_S = 1e-3
 # runs per hold of the lock (when the plant has fallen behind the wall clock).
 _SIM_WAKE_S = 0.005
 _MAX_STEPS_PER_HOLD = 10
-# The registers the plant fills (Realtime Tick .. Present Temperature).
-_PRESENT_NAMES = (
-    "Realtime Tick",
-    "Present Temperature",
-)
+# The first and last of the registers the plant fills (addresses 120..146).
+_PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
 _CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
@@ -475,8 +472,8 @@ class VirtualBus:
 
     def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
         """Whether a read of ``address``.. touches the registers the plant fills."""
-        low = servo.items[_PRESENT_NAMES[0]][0]
-        high = sum(servo.items[_PRESENT_NAMES[1]])
+        low = servo.items[_PRESENT_FIRST][0]
+        high = sum(servo.items[_PRESENT_LAST])
         return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     # -- serving -----------------------------------------------------------

@@ -130,14 +130,14 @@ class VirtualServo:
         self.firmware = firmware
         self.turn_offset_ticks = 0
         self.pending: tuple[int, bytes] | None = None
-        self._installed = {
+        installed = {
             k.value if isinstance(k, Register) else k: int(v) for k, v in (registers or {}).items()
         }
-        unknown = set(self._installed) - set(self.items)
+        unknown = set(installed) - set(self.items)
         if unknown:
             raise KeyError(f"{model.name} has no register {sorted(unknown)[0]!r}")
-        self._installed.setdefault("ID", servo_id)
-        self._load(self.items, self._installed)
+        installed.setdefault("ID", servo_id)
+        self._load(self.items, installed)
 
     # -- registers ----------------------------------------------------------
 
@@ -319,10 +319,7 @@ class VirtualServo:
         Goal Position becomes the present position (the servo holds still when
         torque comes back on).
         """
-        ram = [n for n, (a, _) in self.items.items() if a >= EEPROM_END]
-        self._load(
-            ram, {n: v for n, v in self._installed.items() if self.items[n][0] >= EEPROM_END}
-        )
+        self._load([n for n, (a, _) in self.items.items() if a >= EEPROM_END], {})
         self.pending = None
         self.wrap_turns(plant_ticks)
         self.set("Goal Position", self.present_ticks(plant_ticks))
@@ -330,6 +327,5 @@ class VirtualServo:
     def factory_reset(self, option: int, plant_ticks: int) -> None:
         """FACTORY_RESET with ``option`` (a key of ``FACTORY_RESET_KEEPS``), then reboot."""
         kept = {n: self.get(n) for n in FACTORY_RESET_KEEPS[option]}
-        self._installed = {}
         self._load(self.items, kept)
         self.reboot(plant_ticks)
