@@ -11,6 +11,7 @@ from .gimbal import GimbalKinematics, KinematicsError
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
 from .path import OrientationPath, Samples
 from .sampling import sample_times
+from .smooth import SmoothSpline
 from .spline import BlendingSpline
 from .stream import JOINT_NAMES, JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
 
@@ -28,6 +29,7 @@ __all__ = [
     "KinematicsError",
     "OrientationPath",
     "Samples",
+    "SmoothSpline",
     "load_keyframe_file",
     "plan_joint_trajectory",
     "quat",
