@@ -285,3 +285,63 @@ def test_evaluation_outside_the_range_raises():
     s = SmoothSpline(ptr([0, 0, 0], [10, 0, 0]), [0.0, 1.0])
     with pytest.raises(ValueError, match=r"Time 1.5 s is outside the path's range \[0.0, 1.0\]"):
         s(1.5)
+
+
+# --- keyframe files: [spline] method ------------------------------------------------
+
+KEYS = """
+[[keyframes]]
+t = 0.0
+pan = 0.0
+
+[[keyframes]]
+t = 1.0
+pan = 30.0
+
+[[keyframes]]
+t = 2.5
+tilt = 20.0
+"""
+
+
+@pytest.mark.parametrize(
+    "spline,cls,options",
+    [
+        ("", "SmoothSpline", {}),
+        (
+            "[spline]\nmethod = 'smooth'\nboundary = 'natural'\n",
+            "SmoothSpline",
+            {"boundary": "natural"},
+        ),
+        ("[spline]\nmethod = 'blending'\n", "BlendingSpline", {}),
+        ("[spline]\nk = 3\n", "BlendingSpline", {"k": 3}),  # written for the blending spline
+    ],
+)
+def test_keyframe_file_selects_the_method(tmp_path, spline, cls, options):
+    from trajgen.keyframes import load_keyframe_file
+
+    path = tmp_path / "keys.toml"
+    path.write_text(spline + KEYS)
+    kf = load_keyframe_file(path)
+    assert type(kf.spline()).__name__ == cls
+    assert kf.spline_options == options
+
+
+@pytest.mark.parametrize(
+    "spline,match",
+    [
+        ("method = 'fast'", r"\[spline\] method: expected one of smooth, blending, got 'fast'"),
+        ("method = 'smooth'\nk = 2", r"\[spline\] k: applies to method = 'blending' only"),
+        (
+            "method = 'smooth'\nboundary = 'closed'",
+            r"\[spline\] boundary = 'closed': applies to method = 'blending' only",
+        ),
+    ],
+)
+def test_keyframe_file_method_errors(tmp_path, spline, match):
+    from trajgen.keyframes import KeyframeFileError, load_keyframe_file
+
+    path = tmp_path / "keys.toml"
+    path.write_text(f"[spline]\n{spline}\n" + KEYS)
+    with pytest.raises(KeyframeFileError, match=match):
+        load_keyframe_file(path)

@@ -1,9 +1,10 @@
 """Keyframe files (TOML): orientations at times, spline options, and tables for other packages.
 
 ```toml
-[spline]            # optional: BlendingSpline keywords
-k = 2
-boundary = "rest"
+[spline]            # optional
+method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
+boundary = "rest"   # k, local, reparam (and "closed") are the blending spline's;
+                    # a file giving them without `method` gets method = "blending"
 
 [stream]            # optional
 rate_hz = 200
@@ -34,12 +35,19 @@ from pathlib import Path
 import numpy as np
 
 from . import quat as Q
+from .smooth import SmoothSpline
 from .spline import BOUNDARIES, LOCALS, REPARAMS, BlendingSpline
 
 #: The built-in example: a gentle pan/tilt look-around.
 BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
 
-SPLINE_KEYS = ("k", "boundary", "local", "reparam")
+SPLINE_KEYS = ("method", "k", "boundary", "local", "reparam")
+#: ``[spline] method`` -> spline class. The default is chosen by the torque race
+#: (README, "The torque race"): the lowest peak torque rate of the rest-to-rest methods.
+METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
+DEFAULT_METHOD = "smooth"
+#: Keys only the blending spline takes; a file giving one without ``method`` gets it.
+BLENDING_ONLY = ("k", "local", "reparam")
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 #: Top-level tables, and the package that checks each.
 TABLES = {
@@ -67,7 +75,7 @@ class KeyframeFile:
     quats : ndarray, shape (N, 4)
         Keyframe orientations (w, x, y, z).
     spline_options : dict
-        Keywords for :class:`~trajgen.spline.BlendingSpline`.
+        Keywords for the spline class (everything in ``[spline]`` but ``method``).
     rate_hz : float or None
         The ``[stream]`` rate, if given.
     tables : dict
@@ -80,10 +88,12 @@ class KeyframeFile:
     spline_options: dict
     rate_hz: float | None = None
     tables: dict = field(default_factory=dict)
+    #: ``[spline] method``: "smooth" or "blending".
+    method: str = DEFAULT_METHOD
 
-    def spline(self) -> BlendingSpline:
+    def spline(self) -> SmoothSpline | BlendingSpline:
         """The file's spline (already checked to build when the file was loaded)."""
-        return BlendingSpline(self.quats, self.times, **self.spline_options)
+        return METHODS[self.method](self.quats, self.times, **self.spline_options)
 
     def error(self, where: str, problem: str) -> KeyframeFileError:
         """A :class:`KeyframeFileError` for this file: ``"{path}: {where}: {problem}"``."""
@@ -128,14 +138,15 @@ def load_keyframe_file(path) -> KeyframeFile:
         if name not in TABLES:
             raise KeyframeFileError(f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})")
     options = _spline_options(data.get("spline", {}), path)
+    method = options.pop("method", DEFAULT_METHOD)
     rate_hz = _stream_rate(data.get("stream", {}), path)
     times, quats = _keyframes(data.get("keyframes"), path)
     try:
-        BlendingSpline(quats, times, **options)
+        METHODS[method](quats, times, **options)
     except (ValueError, TypeError) as e:
         raise KeyframeFileError(f"{path}: {e}") from None
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables)
+    return KeyframeFile(path, times, quats, options, rate_hz, tables, method)
 
 
 def _table(value, name: str, path: Path) -> dict:
@@ -153,11 +164,25 @@ def _spline_options(table, path: Path) -> dict:
             )
         if key == "k" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise KeyframeFileError(f"{path}: [spline] k: expected an integer >= 1, got {value!r}")
-        allowed = {"boundary": BOUNDARIES, "local": LOCALS, "reparam": REPARAMS}.get(key)
+        allowed = {
+            "method": tuple(METHODS),
+            "boundary": BOUNDARIES,
+            "local": LOCALS,
+            "reparam": REPARAMS,
+        }.get(key)
         if allowed and value not in allowed:
             raise KeyframeFileError(
                 f"{path}: [spline] {key}: expected one of {', '.join(allowed)}, got {value!r}"
             )
+    blending_only = [k for k in BLENDING_ONLY if k in table]
+    if table.get("boundary") == "closed":
+        blending_only.append("boundary = 'closed'")
+    if blending_only and table.get("method") == "smooth":
+        raise KeyframeFileError(
+            f"{path}: [spline] {blending_only[0]}: applies to method = 'blending' only"
+        )
+    if blending_only and "method" not in table:  # a file written for the blending spline
+        table = {"method": "blending", **table}
     return dict(table)
 
 
