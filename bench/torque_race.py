@@ -164,6 +164,8 @@ def _minimax_spline_class():
         jerk (of the flat curve, sampled 40 times per segment), instead of taking those
         of the C4 quintic spline (which minimises the integral of squared jerk)."""
 
+        MEAN_WEIGHT = 3.0  # of 0.3, 1 and 3 tried, 3 gave the lowest peaks
+
         def _knot_rates(self, D, h):
             from scipy.optimize import linprog
 
@@ -192,14 +194,26 @@ def _minimax_spline_class():
                 consts.append(h[i] ** -3 * right[0])  # times D_i
             A = np.vstack(blocks)
             out = np.zeros((3, n, 3))  # (v, a, j) x knot x axis
+            # Minimise z + MEAN_WEIGHT * mean |jerk| subject to |jerk| <= s <= z at the
+            # samples: the mean term picks one of the many minimax solutions (alone,
+            # the peak leaves every other segment free to wander).
+            S = len(A)
+            eye = np.eye(S)
+            A_ub = np.block(
+                [
+                    [A, np.zeros((S, 1)), -eye],
+                    [-A, np.zeros((S, 1)), -eye],
+                    [np.zeros((S, nv)), -np.ones((S, 1)), eye],
+                ]
+            )
+            cost = np.concatenate([np.zeros(nv), [1.0], np.full(S, self.MEAN_WEIGHT / S)])
             for axis in range(3):
                 c = np.concatenate([k * D[i, axis] for i, k in enumerate(consts)])
-                ones = -np.ones((len(A), 1))
                 res = linprog(
-                    np.append(np.zeros(nv), 1.0),
-                    A_ub=np.vstack([np.hstack([A, ones]), np.hstack([-A, ones])]),
-                    b_ub=np.concatenate([-c, c]),
-                    bounds=[(None, None)] * nv + [(0, None)],
+                    cost,
+                    A_ub=A_ub,
+                    b_ub=np.concatenate([-c, c, np.zeros(S)]),
+                    bounds=[(None, None)] * nv + [(0, None)] * (S + 1),
                     method="highs",
                 )
                 if res.status != 0:
