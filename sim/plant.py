@@ -25,6 +25,7 @@ from trajgen.sim.run import (
     raise_on_new_warnings,
     warning_counts,
 )
+from trajgen.validate import check_number
 
 #: Window (s) over which the velocity setpoint is the mean rate of the goals.
 VELOCITY_WINDOW_S = 0.025
@@ -75,9 +76,10 @@ class GimbalPlant:
         self._warnings = warning_counts(self._data)
         self._goal = None
         self._goals: deque[tuple[float, np.ndarray]] = deque()
-        self._first_goal_time = None
+        self._goal_times: list[float] = []
         self._kt = np.array([s.torque_constant_nm_a for s in self.config.servos])
         self._log: list[np.ndarray] = []
+        self.control: list[dict] = [{} for _ in range(3)]
 
     @property
     def time_s(self) -> float:
@@ -104,8 +106,7 @@ class GimbalPlant:
             self._goals.popleft()
         then, old = self._goals[0]
         velocity = (goal - old) / (now - then) if now > then else np.zeros(3)
-        if self._first_goal_time is None:
-            self._first_goal_time = now
+        self._goal_times.append(now)
         self._goal = goal
         self._data.ctrl[0::3] = goal
         self._data.ctrl[1::3] = velocity
@@ -121,16 +122,28 @@ class GimbalPlant:
         ValueError
             If ``joint`` is not 0, 1 or 2.
         """
-        if isinstance(joint, bool) or not isinstance(joint, (int, np.integer)):
-            raise TypeError(f"Expected `joint` to be an int, got {type(joint).__name__}.")
-        if not 0 <= joint < self.n_joints:
-            raise ValueError(f"Expected `joint` in 0..2, got {joint}.")
+        joint = check_number("joint", joint, integer=True, low=0, high=self.n_joints - 1)
         if enabled and self._goal is None:
             self._data.ctrl[3 * joint] = self._data.qpos[joint]
             self._data.ctrl[3 * joint + 1] = 0.0
         bit = 1 << int(joint)
         mask = self._model.opt.disableactuator
         self._model.opt.disableactuator = (mask & ~bit) if enabled else (mask | bit)
+
+    def set_control(self, joint: int, registers) -> None:
+        """Receive a servo's position-loop registers (``drivers.virtual.plant.Plant``).
+
+        Interim: stored only; the MuJoCo servo model does not follow them yet.
+        """
+        self.control[joint] = dict(registers)
+
+    def present_pwm(self) -> np.ndarray:
+        """Drive output as a fraction of the supply, shape (3,).
+
+        Interim stand-in: actuator torque over stall torque, clipped to [-1, 1].
+        """
+        stall = np.array([s.stall_torque_nm for s in self.config.servos])
+        return np.clip(self._data.actuator_force / stall, -1.0, 1.0)
 
     def advance(self, dt_s: float) -> None:
         """Run the physics for ``dt_s`` seconds (rounded to whole time steps).
@@ -175,8 +188,9 @@ class GimbalPlant:
     def report(self, trajectory):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.
 
-        The record is aligned so that the first goal received is the
-        trajectory's first frame; steps before it are left out. The planned
+        The record is aligned so that the goal received ``len(trajectory)``
+        goals before the end is the trajectory's first frame; steps before it
+        are left out. The planned
         part of the check is computed from ``trajectory`` itself.
 
         Parameters
@@ -199,13 +213,16 @@ class GimbalPlant:
         from trajgen.sim.errors import SimError
 
         check_trajectory(trajectory)
-        if self._first_goal_time is None:
+        if not self._goal_times:
             raise SimError("no goal position was received: nothing to report")
+        # The stream's frames are the last goals received (bring-up and the
+        # approach come before them).
+        first = self._goal_times[-min(len(trajectory), len(self._goal_times))]
         log = np.array(self._log).reshape(-1, 13)
-        log = log[log[:, 0] >= self._first_goal_time - 1e-12]
+        log = log[log[:, 0] >= first - 1e-12]
         if len(log) == 0:
             raise SimError("no physics step ran after the first goal: nothing to report")
-        t = log[:, 0] - self._first_goal_time + trajectory.t[0]
+        t = log[:, 0] - first + trajectory.t[0]
         record = SimRecord(
             t=t,
             q=log[:, 1:4],

@@ -5,11 +5,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from trajgen import jet as J
 from trajgen import quat as Q
 from trajgen.smooth import (
     SmoothSpline,
-    _exp_derivatives,
     knot_system,
     solve_block_tridiagonal,
 )
@@ -173,17 +171,6 @@ def test_derivatives_match_finite_differences(rng):
             fd = (s(tt + e, order - 1, frame=frame) - s(tt - e, order - 1, frame=frame)) / (2 * e)
             scale = np.abs(fd).max()
             np.testing.assert_allclose(s(tt, order, frame=frame), fd, atol=1e-7 * scale)
-
-
-def test_closed_form_exp_derivatives_match_jet_arithmetic(rng):
-    """The chain rule in x = |r|^2 against trajgen.jet, near and far from r = 0."""
-    M = 400
-    r = rng.normal(size=(4, 3, M)) * np.geomspace(1e-7, 2.5, M)
-    E = _exp_derivatives(r)
-    c = np.stack([r[k] / np.prod(np.arange(1, k + 1)) for k in range(4)])
-    ref = J.qexp(J.Jet(c))
-    for k in range(4):
-        np.testing.assert_allclose(E[k], ref.derivative(k), atol=1e-12 * (1 + np.abs(E[k]).max()))
 
 
 def test_sign_of_keyframes_does_not_matter(rng):

@@ -274,8 +274,9 @@ def test_property_random_keyframes(seed, n, k, local, boundary):
         (dict(times=[0.0, 1.0, 1.0]), ValueError, r"strictly increasing, got times\[1\] = 1.0"),
         (dict(times=[0.0, 1.0]), ValueError, r"`times` to have shape \(3,\)"),
         (dict(times=[0.0, np.inf, 2.0]), ValueError, "`times` must be finite"),
-        (dict(k=0), ValueError, "`k` >= 1, got 0"),
-        (dict(k=1.5), TypeError, "`k` to be an integer, got float 1.5"),
+        (dict(k=0), ValueError, r"`k` to be an integer in 1\.\.6, got 0"),
+        (dict(k=7), ValueError, r"`k` to be an integer in 1\.\.6, got 7"),
+        (dict(k=1.5), TypeError, r"`k` to be an integer in 1\.\.6, got 1.5"),
         (dict(k=True), TypeError, "`k` to be an integer"),
         (dict(boundary="free"), ValueError, "`boundary` to be one of .* got 'free'"),
         (dict(local="spline"), ValueError, "`local` to be one of .* got 'spline'"),
@@ -308,13 +309,35 @@ def test_evaluation_errors():
     s = BlendingSpline(GENTLE, GENTLE_T)
     with pytest.raises(ValueError, match=r"Time 5.5 s is outside the path's range \[0.0, 5.0\]"):
         s(5.5)
-    with pytest.raises(ValueError, match="`order` in 0..3, got 4"):
+    with pytest.raises(ValueError, match=r"`order` to be an integer in 0\.\.3, got 4"):
         s(1.0, 4)
-    with pytest.raises(ValueError, match="`max_order` in 0..3, got -1"):
+    with pytest.raises(ValueError, match=r"`max_order` to be an integer in 0\.\.3, got -1"):
         s.evaluate(1.0, max_order=-1)
     with pytest.raises(ValueError, match="`frame` to be one of"):
         s(1.0, 1, frame="world")
     with pytest.raises(ValueError, match="`t` to be finite"):
         s(np.nan)
-    with pytest.raises(ValueError, match="`rate_hz` > 0, got 0"):
+    with pytest.raises(ValueError, match="`rate_hz` to be a finite number > 0, got 0"):
         s.sample(0)
+
+
+def test_closed_sampling_runs_from_the_first_to_the_last_keyframe_time():
+    quats = ptr([0, 0, 0], [40, 10, 0], [-20, 20, 5], [0, 0, 0])
+    spline = BlendingSpline(quats, [0.0, 1.0, 2.5, 4.0], boundary="closed")
+    s = spline.sample(100)
+    assert s.t[0] == 0.0 and s.t[-1] == 4.0 and (np.diff(s.t) > 0).all()
+    assert Q.distance(s.q[-1], s.q[0]) < 1e-12  # the loop closes at t_end
+    assert spline.evaluate(5.0).t[0] == 5.0  # a time beyond the loop is kept as given
+
+
+def test_a_scipy_rotation_is_accepted_and_converted_at_the_boundary():
+    Rotation = pytest.importorskip("scipy.spatial.transform").Rotation
+    keys = Rotation.from_euler("ZYX", [[0, 0, 0], [35, -10, 0], [60, 15, 5]], degrees=True)
+    spline = BlendingSpline(keys, [0.0, 1.5, 3.0])
+    wxyz = np.roll(keys.as_quat(), 1, axis=1)  # scipy is scalar last
+    np.testing.assert_allclose(spline([0.0, 1.5, 3.0]), wxyz, atol=1e-12)
+    back = Rotation.from_quat(np.roll(spline(1.5), -1))
+    assert (back * keys[1].inv()).magnitude() < 1e-12
+    # A single Rotation is one keyframe: too few.
+    with pytest.raises(ValueError, match="at least 2 keyframes, got 1"):
+        BlendingSpline(keys[0], [0.0])

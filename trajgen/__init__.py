@@ -7,13 +7,15 @@ Needs numpy only. Quaternions are scalar first, ``(w, x, y, z)``.
 """
 
 from . import quat
-from .gimbal import GimbalKinematics, KinematicsError
+from .errors import KinematicsError, PlanTooLarge, TrajgenError
+from .gimbal import JOINT_NAMES, GimbalKinematics
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
+from .online import ChangeTooLate, OnlineSpline
 from .path import OrientationPath, Samples
 from .sampling import sample_times
 from .smooth import SmoothSpline
 from .spline import BlendingSpline
-from .stream import JOINT_NAMES, JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
+from .stream import JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
 
 __version__ = "0.1.0"
 
@@ -21,6 +23,7 @@ __all__ = [
     "BUILTIN_EXAMPLE",
     "JOINT_NAMES",
     "BlendingSpline",
+    "ChangeTooLate",
     "GimbalKinematics",
     "JointFrame",
     "JointTrajectory",
@@ -28,8 +31,11 @@ __all__ = [
     "KeyframeFileError",
     "KinematicsError",
     "OrientationPath",
+    "OnlineSpline",
+    "PlanTooLarge",
     "Samples",
     "SmoothSpline",
+    "TrajgenError",
     "load_keyframe_file",
     "plan_joint_trajectory",
     "quat",

@@ -16,13 +16,15 @@ segment and axis, and the derivatives of ``exp(r)`` follow from those of
 from __future__ import annotations
 
 from fractions import Fraction
-from math import comb, factorial
+from math import comb
 
 import numpy as np
 
+from . import derivatives as D
 from . import jet as J
 from . import quat as Q
-from .path import OrientationPath, check_option, check_times
+from .path import OrientationPath, check_times
+from .validate import check_choice
 
 BOUNDARIES = ("rest", "natural")
 
@@ -48,12 +50,6 @@ def _mirrored(h: list) -> np.ndarray:
 
 _H = np.array(_H_EXACT, dtype=float)
 _H_RIGHT = _mirrored(_H_EXACT)
-
-# Taylor coefficients in x = a^2 of S(x) = sin(a)/a and C(x) = cos(a), enough terms for
-# x < _SERIES_BELOW to full precision (the next term is < 1e-19 there).
-_SERIES_BELOW = 0.25
-_S_SERIES = np.array([(-1) ** n / factorial(2 * n + 1) for n in range(10)])
-_C_SERIES = np.array([(-1) ** n / factorial(2 * n) for n in range(10)])
 
 
 def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
@@ -182,7 +178,7 @@ class SmoothSpline(OrientationPath):
                 "SmoothSpline supports boundary 'rest' or 'natural'; 'closed' needs a cyclic "
                 "knot solve that is not implemented (use BlendingSpline for loops)."
             )
-        self.boundary = check_option("boundary", boundary, BOUNDARIES)
+        self.boundary = check_choice("boundary", boundary, BOUNDARIES)
         # SPEC 1: one sign per consecutive pair, the shortest geodesic.
         for i in range(1, n):
             if q[i] @ q[i - 1] < 0:
@@ -265,87 +261,21 @@ class SmoothSpline(OrientationPath):
         """Unit quaternions (M, 4) and space-frame angular derivatives of orders
         1..max_order (each (M, 3)), in closed form.
 
-        ``q = E q_i`` with ``E = exp(r)`` and ``q_i`` fixed on a segment, so
+        ``q = E q_i`` with ``E = exp(r) = (C(x), S(x) r)``, ``x = r . r``, ``C`` and
+        ``S`` the cosine and sinc of ``sqrt x``, and ``q_i`` fixed on a segment, so
         ``omega = 2 vec(E' E*)``, ``alpha = 2 vec(E'' E*)`` (``E' E'*`` is a scalar)
         and ``jerk = 2 vec(E''' E* + E'' E'*)``.
         """
-        E = _exp_derivatives(self._tangent(t, seg, max_order))
+        r = list(self._tangent(t, seg, max_order))
+        C, S = D.cos_sinc_sqrt(D.vdot(r, r))
+        E = [np.concatenate([c[None], v]) for c, v in zip(C, D.product(S, r), strict=True)]
         q = Q.mul(E[0].T, self.quats[seg])
-        rates = [2.0 * _vec_mul_conj(E[m], E[0]) for m in range(1, min(max_order, 2) + 1)]
+        conj = [e * _CONJ for e in E[: 2 if max_order >= 3 else 1]]
+        rates = [2.0 * D.hamilton_vec(E[m], conj[0]).T for m in range(1, min(max_order, 2) + 1)]
         if max_order >= 3:
-            rates.append(2.0 * (_vec_mul_conj(E[3], E[0]) + _vec_mul_conj(E[2], E[1])))
+            jerk = D.hamilton_vec(E[3], conj[0]) + D.hamilton_vec(E[2], conj[1])
+            rates.append(2.0 * jerk.T)
         return q, rates
 
 
-def _vec_mul_conj(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Vector part of ``p q*`` for quaternions stored (4, M); result (M, 3)."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return np.stack(
-        [
-            qw * px - pw * qx - py * qz + pz * qy,
-            qw * py - pw * qy - pz * qx + px * qz,
-            qw * pz - pw * qz - px * qy + py * qx,
-        ],
-        axis=-1,
-    )
-
-
-def _sinc_derivatives(x: np.ndarray, order: int) -> tuple[np.ndarray, list[np.ndarray]]:
-    """``C = cos(sqrt x)`` and ``S, S', ..., S^(order)`` of ``S = sin(sqrt x) / sqrt x``
-    (derivatives with respect to x), for x >= 0; series below ``_SERIES_BELOW``."""
-    small = x < _SERIES_BELOW
-    a = np.sqrt(x)
-    half_tan = np.tan(0.5 * a)  # cos and sin from one tangent (cheaper than both)
-    tt = half_tan * half_tan
-    C = (1.0 - tt) / (1.0 + tt)
-    S = [np.divide(2.0 * half_tan / (1.0 + tt), a, out=np.ones_like(a), where=~small)]
-    xs = np.where(small, 1.0, x)
-    # 2x S' = C - S; 2x S'' = -S/2 - 3 S'; 2x S''' = -S'/2 - 5 S''.
-    if order >= 1:
-        S.append((C - S[0]) / (2.0 * xs))
-    if order >= 2:
-        S.append((-0.5 * S[0] - 3.0 * S[1]) / (2.0 * xs))
-    if order >= 3:
-        S.append((-0.5 * S[1] - 5.0 * S[2]) / (2.0 * xs))
-    if small.any():
-        xk = x[small]
-        C[small] = np.polynomial.polynomial.polyval(xk, _C_SERIES)
-        series = _S_SERIES
-        for d in range(order + 1):
-            S[d][small] = np.polynomial.polynomial.polyval(xk, series)
-            series = series[1:] * np.arange(1, len(series))
-    return C, S
-
-
-def _exp_derivatives(r: np.ndarray) -> np.ndarray:
-    """``exp(r)`` and its time derivatives from those of r (K + 1, 3, M): (K + 1, 4, M).
-
-    ``exp(r) = (C(x), S(x) r)`` with ``x = r . r``; the chain rule in x, with
-    ``C' = -S/2`` (so ``C'' = -S'/2``, ``C''' = -S''/2``).
-    """
-    order = len(r) - 1
-    x = np.einsum("im,im->m", r[0], r[0])
-    C, S = _sinc_derivatives(x, order)
-    E = np.empty((order + 1, 4, x.size))
-    E[0, 0] = C
-    np.multiply(S[0], r[0], out=E[0, 1:])
-    if order == 0:
-        return E
-    x1 = 2.0 * np.einsum("im,im->m", r[0], r[1])
-    s1 = S[1] * x1  # d/dt S(x(t))
-    E[1, 0] = -0.5 * S[0] * x1
-    E[1, 1:] = s1 * r[0] + S[0] * r[1]
-    if order == 1:
-        return E
-    x2 = 2.0 * (np.einsum("im,im->m", r[1], r[1]) + np.einsum("im,im->m", r[0], r[2]))
-    s2 = S[2] * x1 * x1 + S[1] * x2
-    E[2, 0] = -0.5 * (S[1] * x1 * x1 + S[0] * x2)
-    E[2, 1:] = s2 * r[0] + 2.0 * s1 * r[1] + S[0] * r[2]
-    if order == 2:
-        return E
-    x3 = 2.0 * (3.0 * np.einsum("im,im->m", r[1], r[2]) + np.einsum("im,im->m", r[0], r[3]))
-    s3 = S[3] * x1**3 + 3.0 * S[2] * x1 * x2 + S[1] * x3
-    E[3, 0] = -0.5 * (S[2] * x1**3 + 3.0 * S[1] * x1 * x2 + S[0] * x3)
-    E[3, 1:] = s3 * r[0] + 3.0 * s2 * r[1] + 3.0 * s1 * r[2] + S[0] * r[3]
-    return E
+_CONJ = np.array([1.0, -1.0, -1.0, -1.0])[:, None]
