@@ -9,6 +9,7 @@ from trajgen import quat as Q
 from trajgen.smooth import (
     SmoothSpline,
     knot_system,
+    solve_block_cyclic,
     solve_block_tridiagonal,
 )
 
@@ -102,6 +103,44 @@ def test_block_thomas_matches_numpy_solve_on_the_assembled_matrix(rng):
     np.testing.assert_allclose(solve_block_tridiagonal(diag, upper, rhs), expected, rtol=1e-10)
 
 
+def test_cyclic_solve_matches_numpy_solve_on_the_assembled_matrix(rng):
+    for n in (3, 4, 9):  # n = 3: the loop's two knots couple twice
+        diag, upper, rhs = knot_system(
+            rng.normal(size=(n - 1, 3)), rng.uniform(0.2, 2.0, n - 1), "closed"
+        )
+        m = len(diag)
+        A = np.zeros((2 * m, 2 * m))
+        for k in range(m):
+            A[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += diag[k]
+            nxt = (k + 1) % m
+            A[2 * k : 2 * k + 2, 2 * nxt : 2 * nxt + 2] += upper[k]
+            A[2 * nxt : 2 * nxt + 2, 2 * k : 2 * k + 2] += upper[k].T
+        assert np.linalg.eigvalsh(A).min() > 0
+        expected = np.linalg.solve(A, rhs.reshape(2 * m, 3)).reshape(m, 2, 3)
+        np.testing.assert_allclose(solve_block_cyclic(diag, upper, rhs), expected, rtol=1e-9)
+
+
+def closed_keys(rng, n=6):
+    q, t = random_keys(rng, n)
+    q[-1] = -q[0]  # the same orientation, the other sign
+    return q, t
+
+
+def test_closed_loop_is_c3_round_the_seam_and_wraps(rng):
+    q, t = closed_keys(rng)
+    s = SmoothSpline(q, t, boundary="closed")
+    assert Q.distance(s(t), q).max() < 1e-13
+    end = s._space_rates(t[-1:], np.array([len(t) - 2]), 3)
+    start = s._space_rates(t[:1], np.array([0]), 3)
+    assert Q.distance(end[0], start[0]).max() < 1e-13
+    for a, b in zip(end[1], start[1], strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-11 * (1 + np.abs(a).max()))
+    period = t[-1] - t[0]
+    tt = np.linspace(t[0], t[-1], 50)
+    assert Q.distance(s(tt + 2 * period), s(tt)).max() < 1e-12
+    np.testing.assert_allclose(s(tt - period, 3), s(tt, 3), atol=1e-9)
+
+
 def test_single_axis_is_the_flat_quintic_spline(rng):
     """All keyframes about one axis: the rotation angle is twice the flat quintic spline."""
     n = 7
@@ -136,9 +175,9 @@ def test_exact_at_keyframes_unit_norm_and_rest_ends(rng):
     assert np.abs(S.jerk[[0, -1]]).max() > 1e-3  # rest means v = a = 0, not jerk
 
 
-@pytest.mark.parametrize("boundary", ["rest", "natural"])
+@pytest.mark.parametrize("boundary", ["rest", "natural", "closed"])
 def test_c3_at_every_knot(rng, boundary):
-    q, t = random_keys(rng, 8)
+    q, t = closed_keys(rng, 8) if boundary == "closed" else random_keys(rng, 8)
     s = SmoothSpline(q, t, boundary=boundary)
     for order in range(4):
         before, after = one_sided(s, order)
@@ -229,7 +268,7 @@ def test_unsorted_and_sparse_times_give_the_same_values(rng):
     seed=st.integers(0, 2**32 - 1),
     n=st.integers(2, 9),
     spread=st.floats(0.05, 1.5),
-    boundary=st.sampled_from(["rest", "natural"]),
+    boundary=st.sampled_from(["rest", "natural", "closed"]),
 )
 def test_property_random_keyframes(seed, n, spread, boundary):
     rng = np.random.default_rng(seed)
@@ -237,6 +276,9 @@ def test_property_random_keyframes(seed, n, spread, boundary):
     q = steps.copy()
     for i in range(1, n):
         q[i] = Q.mul(steps[i], q[i - 1])
+    if boundary == "closed":
+        n = max(n, 3)
+        q = np.vstack([q[: n - 1], q[:1]])
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
     s = SmoothSpline(q, t, boundary=boundary)
     S = s.evaluate(np.linspace(t[0], t[-1], 301), max_order=3)
@@ -258,7 +300,7 @@ def test_property_random_keyframes(seed, n, spread, boundary):
         (dict(times=[0.0, 1.0, 1.0]), ValueError, r"strictly increasing, got times\[1\] = 1.0"),
         (dict(times=[0.0, 1.0]), ValueError, r"`times` to have shape \(3,\)"),
         (dict(boundary="free"), ValueError, "`boundary` to be one of .* got 'free'"),
-        (dict(boundary="closed"), ValueError, "'closed' needs a cyclic knot solve"),
+        (dict(boundary="closed"), ValueError, "last keyframe to repeat the first; they are 20 deg"),
     ],
 )
 def test_bad_input_raises_with_a_message_naming_it(kwargs, exc, match):
@@ -319,10 +361,7 @@ def test_keyframe_file_selects_the_method(tmp_path, spline, cls, options):
     [
         ("method = 'fast'", r"\[spline\] method: expected one of smooth, blending, got 'fast'"),
         ("method = 'smooth'\nk = 2", r"\[spline\] k: applies to method = 'blending' only"),
-        (
-            "method = 'smooth'\nboundary = 'closed'",
-            r"\[spline\] boundary = 'closed': applies to method = 'blending' only",
-        ),
+        ("method = 'smooth'\nreparam = 'paper'", r"\[spline\] reparam: applies to method"),
     ],
 )
 def test_keyframe_file_method_errors(tmp_path, spline, match):

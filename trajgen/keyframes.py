@@ -3,8 +3,9 @@
 ```toml
 [spline]            # optional
 method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
-boundary = "rest"   # k, local, reparam (and "closed") are the blending spline's;
-                    # a file giving them without `method` gets method = "blending"
+boundary = "rest"   # "rest", "natural" or "closed" (both methods)
+                    # k, local, reparam are the blending spline's keywords; a file
+                    # giving them without `method` gets method = "blending"
 
 [stream]            # optional
 rate_hz = 200
@@ -301,8 +302,6 @@ def _spline_options(table, path: Path) -> dict:
         if key in table:
             check_choice(key, table[key], allowed, error=_error(path, f"[spline] {key}"))
     blending_only = [k for k in BLENDING_ONLY if k in table]
-    if table.get("boundary") == "closed":
-        blending_only.append("boundary = 'closed'")
     if blending_only and table.get("method") == "smooth":
         raise KeyframeFileError(
             f"{path}: [spline] {blending_only[0]}: applies to method = 'blending' only"

@@ -24,9 +24,10 @@ from . import derivatives as D
 from . import jet as J
 from . import quat as Q
 from .path import OrientationPath, check_times
+from .spline import check_closed
 from .validate import check_choice
 
-BOUNDARIES = ("rest", "natural")
+BOUNDARIES = ("rest", "natural", "closed")
 
 # Septic Hermite basis in the power basis (columns u^0..u^7): H_m^(k)(0) = delta_mk,
 # H_m^(k)(1) = 0 for k = 0..3. Exact fractions, so that H_m(1 - u) expands exactly.
@@ -66,15 +67,17 @@ def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
         Segment increments ``log(q_{i+1} q_i*)``.
     h : ndarray, shape (n - 1,)
         Segment durations (s).
-    boundary : {"rest", "natural"}
+    boundary : {"rest", "natural", "closed"}
         ``"rest"``: ``v = a = 0`` at both ends (free knots 1..n-2); ``"natural"``:
-        free ends with zero jerk and snap (free knots 0..n-1).
+        free ends with zero jerk and snap (free knots 0..n-1); ``"closed"``: knot
+        n-1 is knot 0 (free knots 0..n-2), and the last segment couples them.
 
     Returns
     -------
     diag : ndarray, shape (m, 2, 2)
-    upper : ndarray, shape (m - 1, 2, 2)
+    upper : ndarray, shape (m - 1, 2, 2), or (m, 2, 2) when closed
         Block coupling knot ``k`` to ``k + 1``; the lower blocks are its transposes.
+        When closed the last one couples knot m - 1 to knot 0.
     rhs : ndarray, shape (m, 2, 3)
     """
     h = h[:, None, None]
@@ -94,6 +97,10 @@ def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
     rhs[1:] += b_right
     if boundary == "rest":
         return diag[1:-1], upper[1:-1], rhs[1:-1]
+    if boundary == "closed":
+        diag[0] += diag[-1]
+        rhs[0] += rhs[-1]
+        return diag[:-1], upper, rhs[:-1]
     return diag, upper, rhs
 
 
@@ -134,6 +141,38 @@ def solve_block_tridiagonal(diag, upper, rhs) -> np.ndarray:
     return y
 
 
+def solve_block_cyclic(diag, upper, rhs) -> np.ndarray:
+    """Solve a symmetric block-tridiagonal system with the corner blocks of a loop, O(m).
+
+    ``A = T + E G E^T``: ``T`` the system without the corners (block Thomas), ``E``
+    picks knots 0 and m - 1, ``G = [[0, W^T], [W, 0]]`` with ``W = upper[-1]`` (row
+    knot m - 1, column knot 0). Woodbury: ``x = y - Z (I + G E^T Z)^-1 G E^T y``
+    with ``T y = b``, ``T Z = E``, both from one block solve.
+
+    Parameters
+    ----------
+    diag : ndarray, shape (m, b, b)
+    upper : ndarray, shape (m, b, b)
+    rhs : ndarray, shape (m, b, c)
+
+    Returns
+    -------
+    ndarray, shape (m, b, c)
+    """
+    m, b, c = rhs.shape
+    E = np.zeros((m, b, 2 * b))
+    E[0, :, :b] = np.eye(b)
+    E[-1, :, b:] += np.eye(b)
+    solved = solve_block_tridiagonal(diag, upper[:-1], np.concatenate([rhs, E], axis=2))
+    y, Z = solved[..., :c], solved[..., c:]
+    G = np.zeros((2 * b, 2 * b))
+    G[:b, b:], G[b:, :b] = upper[-1].T, upper[-1]
+    EtZ = np.concatenate([Z[0], Z[-1]])  # (2b, 2b)
+    Ety = np.concatenate([y[0], y[-1]])  # (2b, c)
+    correction = np.linalg.solve(np.eye(2 * b) + G @ EtZ, G @ Ety)
+    return y - np.einsum("kij,jc->kic", Z, correction)
+
+
 class SmoothSpline(OrientationPath):
     """C3 orientation path through keyframes with globally chosen knot rates.
 
@@ -149,11 +188,12 @@ class SmoothSpline(OrientationPath):
         (normalised here). N >= 2.
     times : array_like, shape (N,)
         Keyframe times (s), strictly increasing.
-    boundary : {"rest", "natural"}, optional
+    boundary : {"rest", "natural", "closed"}, optional
         ``"rest"``: angular velocity and acceleration are zero at both ends (the
         jerk is not); ``"natural"``: free end rates chosen so that the flat spline's
-        jerk and snap vanish at the ends (it starts moving). Default "rest".
-        ``"closed"`` is not offered: it needs a cyclic block solve.
+        jerk and snap vanish at the ends (it starts moving); ``"closed"``: a loop
+        whose last keyframe repeats the first, C3 all the way round (the knot
+        solve is cyclic; times outside the range wrap). Default "rest".
 
     Raises
     ------
@@ -173,12 +213,10 @@ class SmoothSpline(OrientationPath):
         if n < 2:
             raise ValueError(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
-        if boundary == "closed":
-            raise ValueError(
-                "SmoothSpline supports boundary 'rest' or 'natural'; 'closed' needs a cyclic "
-                "knot solve that is not implemented (use BlendingSpline for loops)."
-            )
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
+        if boundary == "closed":
+            check_closed(q)
+        self.periodic = boundary == "closed"
         # SPEC 1: one sign per consecutive pair, the shortest geodesic.
         for i in range(1, n):
             if q[i] @ q[i - 1] < 0:
@@ -194,11 +232,17 @@ class SmoothSpline(OrientationPath):
 
     def _knot_rates(self, D, h):
         n = len(D) + 1
-        x = solve_block_tridiagonal(*knot_system(D, h, self.boundary))
+        system = knot_system(D, h, self.boundary)
         v, a = np.zeros((n, 3)), np.zeros((n, 3))
         if self.boundary == "rest":
+            x = solve_block_tridiagonal(*system)
             v[1:-1], a[1:-1] = x[:, 0], x[:, 1]
+        elif self.boundary == "closed":  # knot n - 1 is knot 0
+            x = solve_block_cyclic(*system)
+            v[:-1], a[:-1] = x[:, 0], x[:, 1]
+            v[-1], a[-1] = v[0], a[0]
         else:
+            x = solve_block_tridiagonal(*system)
             v, a = x[:, 0], x[:, 1]
         hc = h[:, None]
         # j_i = J0_i, j_{n-1} = J1_{n-2}.
