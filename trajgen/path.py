@@ -114,7 +114,8 @@ class OrientationPath:
         Returns
         -------
         Samples
-            ``q`` (M, 4), ``omega``, ``alpha``, ``jerk`` (M, 3) or None.
+            ``t`` (M,) the times asked for; ``q`` (M, 4), ``omega``, ``alpha``,
+            ``jerk`` (M, 3) or None.
 
         Raises
         ------
@@ -123,7 +124,8 @@ class OrientationPath:
         """
         max_order = _check_order("max_order", max_order)
         check_choice("frame", frame, FRAMES)
-        seg, ta = self._segment(_as_times(t).reshape(-1))
+        t_in = _as_times(t).reshape(-1)
+        seg, ta = self._segment(t_in)
         q, rates = self._space_rates(ta, seg, max_order)
         if frame == "body":
             # w_b = R^T w_s, a_b = R^T a_s, j_b = R^T (j_s - w_s x a_s).
@@ -131,7 +133,8 @@ class OrientationPath:
                 rates[2] = rates[2] - np.cross(rates[0], rates[1])
             rates = [Q.rotate(Q.conj(q), r) for r in rates]
         derivs = rates + [None] * (3 - len(rates))
-        return Samples(ta, q, *derivs)
+        # A closed path keeps the caller's times (t_end stays t_end, not t_start).
+        return Samples(t_in if self.periodic else ta, q, *derivs)
 
     def evaluation_steps(self, t, *, max_order: int = 2):
         """:meth:`evaluate` (space frame) as a generator of small steps.

@@ -40,6 +40,19 @@ MAX_K = 6
 CLOSED_TOLERANCE = 1e-6
 
 
+def check_closed(quats: np.ndarray) -> None:
+    """Refuse keyframes (N, 4) that cannot make a closed loop: N < 3, or a last
+    keyframe more than :data:`CLOSED_TOLERANCE` away from the first."""
+    if len(quats) < 3:
+        raise ValueError(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
+    gap = float(Q.distance(quats[0], quats[-1]))
+    if gap > CLOSED_TOLERANCE:
+        raise ValueError(
+            "boundary='closed' needs the last keyframe to repeat the first; they are "
+            f"{np.degrees(gap):.4g} deg apart."
+        )
+
+
 def blend_polynomial(m: int) -> np.ndarray:
     """Power-basis coefficients (2m,) of the blend polynomial of degree 2m - 1:
 
@@ -122,14 +135,7 @@ class BlendingSpline(OrientationPath):
         self.local = check_choice("local", local, LOCALS)
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         if boundary == "closed":
-            if n < 3:
-                raise ValueError(f"A closed spline needs at least 3 keyframes, got {n}.")
-            gap = float(Q.distance(q[0], q[-1]))
-            if gap > CLOSED_TOLERANCE:
-                raise ValueError(
-                    "boundary='closed' needs the last keyframe to repeat the first; they are "
-                    f"{np.degrees(gap):.4g} deg apart."
-                )
+            check_closed(q)
         # SPEC 1: one sign per consecutive pair, the shortest geodesic: q_i flips when
         # q_i . q_{i-1} < 0 with q_{i-1} already flipped, i.e. by the product of the signs so far.
         flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0
