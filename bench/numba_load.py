@@ -7,12 +7,15 @@
    whole process (``python -m trajgen plan --out plan.csv``), with numba off
    (``TRAJGEN_NUMBA=0``), on the default policy (``auto``: loaded only from
    ``trajgen.fast.LOAD_SAMPLES`` samples) and forced on (``1``); median of 5 (3 at 100 kHz),
-   interleaved. Target (issue 10): no command slower with numba installed.
+   interleaved; wall time and the process's CPU time (user + system), which a
+   busy machine disturbs less. Target (issue 10): no command slower with numba
+   installed.
 
     python bench/numba_load.py
 """
 
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -61,7 +64,9 @@ def run(code, env=None):
 
 
 def plan_time(rate, numba, out):
+    """Wall time and CPU time (user + system) of one ``trajgen plan`` process (s)."""
     env = dict(os.environ, TRAJGEN_NUMBA=numba)
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(
         [sys.executable, "-m", "trajgen", "plan", "--rate", str(rate), "--out", out],
@@ -70,7 +75,10 @@ def plan_time(rate, numba, out):
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
-    return time.perf_counter() - t0
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu
 
 
 def main():
@@ -87,7 +95,10 @@ def main():
         f"kernel {numba_s * 1e9:.0f} ns; break-even {extra / (numpy_s - numba_s):,.0f} samples"
     )
     print()
-    print("| trajgen plan | samples | TRAJGEN_NUMBA=0 (s) | auto (s) | =1 (s) | auto / off |")
+    print(
+        "| trajgen plan | samples | TRAJGEN_NUMBA=0 wall / CPU (s) | auto wall / CPU (s) "
+        "| =1 wall / CPU (s) | auto / off (CPU) |"
+    )
     print("|---|---|---|---|---|---|")
     out = os.path.join(tempfile.mkdtemp(), "plan.csv")
     for rate in (100, 1000, 100_000):
@@ -95,10 +106,10 @@ def main():
         for _ in range(5 if rate < 100_000 else 3):
             for m in times:
                 times[m].append(plan_time(rate, m, out))
-        med = {m: float(np.median(v)) for m, v in times.items()}
+        med = {m: np.median(np.array(v), axis=0) for m, v in times.items()}
+        cells = " | ".join(f"{med[m][0]:.2f} / {med[m][1]:.2f}" for m in ("0", "auto", "1"))
         print(
-            f"| --rate {rate} | {8 * rate + 1:,} | {med['0']:.2f} | {med['auto']:.2f} "
-            f"| {med['1']:.2f} | {med['auto'] / med['0']:.2f} |",
+            f"| --rate {rate} | {8 * rate + 1:,} | {cells} | {med['auto'][1] / med['0'][1]:.2f} |",
             flush=True,
         )
 
