@@ -31,7 +31,8 @@ import sys
 import threading
 import time
 import tty
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -90,34 +91,48 @@ class Fault:
 
     Attributes
     ----------
-    kind : {"drop", "corrupt", "delay", "close", "overload", "watchdog"}
+    kind : {"drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"}
         drop: replies are not sent. corrupt: replies get a wrong CRC. delay:
-        replies come ``delay_s`` late. close: the pty master closes (the port
-        goes away). overload: servo ``servo_id`` latches hardware error bit 5
-        (torque off, since the default Shutdown covers it). watchdog: servo
-        ``servo_id``'s Bus Watchdog trips.
+        replies come ``delay_s`` late. short: servo ``servo_id``'s reply
+        loses ``n_bytes`` data bytes but stays well formed (valid CRC; in a
+        fast sync read, its part of the one packet). wrong_id: servo
+        ``servo_id``'s reply carries id ``reply_id`` (valid CRC). close: the
+        pty master closes (the port goes away). overload: servo ``servo_id``
+        latches hardware error bit 5 (torque off, since the default Shutdown
+        covers it). watchdog: servo ``servo_id``'s Bus Watchdog trips.
     at_frame : int
         Number of Goal Position sync writes received before the fault starts.
     servo_id : int or None
-        The servo affected (required for overload and watchdog); None means
-        every servo's replies.
+        The servo affected (required for short, wrong_id, overload and
+        watchdog); None means every servo's replies.
     count : int or None
-        How many replies drop / corrupt / delay affect; None: all from then on.
+        How many replies drop / corrupt / delay / short / wrong_id affect;
+        None: all from then on.
     delay_s : float
         Extra delay (s) for ``kind="delay"``.
+    n_bytes : int or None
+        Data bytes a short reply loses; None: all of them (an empty reply).
+    reply_id : int or None
+        The id a wrong_id reply carries; None: ``servo_id + 1``.
+    address : int or None
+        Only replies to reads (READ, SYNC_READ, FAST_SYNC_READ) of this start
+        address are affected; None: any reply.
     """
 
-    kind: Literal["drop", "corrupt", "delay", "close", "overload", "watchdog"]
+    kind: Literal["drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"]
     at_frame: int = 0
     servo_id: int | None = None
     count: int | None = None
     delay_s: float = 0.0
+    n_bytes: int | None = None
+    reply_id: int | None = None
+    address: int | None = None
 
     def __post_init__(self) -> None:
-        kinds = ("drop", "corrupt", "delay", "close", "overload", "watchdog")
+        kinds = ("drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog")
         if self.kind not in kinds:
             raise ValueError(f"Expected `kind` in {kinds}, got {self.kind!r}.")
-        if self.kind in ("overload", "watchdog") and self.servo_id is None:
+        if self.kind in ("short", "wrong_id", "overload", "watchdog") and self.servo_id is None:
             raise ValueError(f"Expected a `servo_id` for a {self.kind} fault, got None.")
 
 
@@ -142,6 +157,13 @@ class VirtualBus:
     fast_sync_read : bool, optional
         Whether the servos answer Fast Sync Read; False emulates firmware that
         predates it (no answer), to exercise the driver's fallback.
+    registers : mapping of int to mapping of Register to int, optional
+        Initial register values per servo id, over the factory defaults: what
+        whoever assembled the robot installed (position limits, Drive Mode...),
+        or a latched Hardware Error Status.
+    goal_log_size : int, optional
+        How many of the latest frames ``goal_log`` keeps (memory stays
+        constant on long streams).
 
     Raises
     ------
@@ -154,8 +176,11 @@ class VirtualBus:
         Device path of the pty's slave side: open it as a serial port.
     servos : dict of int to VirtualServo
         The servos by id.
-    goal_log : list of ndarray, shape (n,)
-        Goal ticks of every Goal Position sync write received, in ``ids`` order.
+    goal_log : deque of ndarray, shape (n,)
+        Goal ticks of the latest ``goal_log_size`` Goal Position sync writes
+        received, in ``ids`` order.
+    frames_received : int
+        Goal Position sync writes received so far.
     bytes_received, bytes_sent : int
         Bytes read from and written to the host.
     lock : threading.Lock
@@ -176,6 +201,8 @@ class VirtualBus:
         timing: WireTiming | None = None,
         faults: Sequence[Fault] = (),
         fast_sync_read: bool = True,
+        registers: Mapping[int, Mapping[Register, int]] | None = None,
+        goal_log_size: int = 100_000,
     ) -> None:
         ids = tuple(ids)
         if len(ids) != plant.n_joints:
@@ -191,11 +218,15 @@ class VirtualBus:
         self.plant = plant
         self.ids = ids
         self.servos = {i: VirtualServo(i, m) for i, m in zip(ids, resolved, strict=True)}
+        for servo_id, values in (registers or {}).items():
+            for register, value in values.items():
+                self.servos[servo_id].set(register, value)
         self.lockstep_dt_s = lockstep_dt_s
         self.timing = timing
         self.fast_sync_read = fast_sync_read
         self._faults = [[f, f.count] for f in faults]
-        self.goal_log: list[np.ndarray] = []
+        self.goal_log: deque[np.ndarray] = deque(maxlen=goal_log_size)
+        self.frames_received = 0
         self.bytes_received = 0
         self.bytes_sent = 0
         self._goal_rad = np.asarray(plant.read()[0], dtype=float).copy()
@@ -256,11 +287,6 @@ class VirtualBus:
 
     def __exit__(self, *exc) -> None:
         self.stop()
-
-    @property
-    def frames_received(self) -> int:
-        """Goal Position sync writes received so far."""
-        return len(self.goal_log)
 
     # -- serving -----------------------------------------------------------
 
@@ -354,7 +380,7 @@ class VirtualBus:
             replies = [(packet.servo_id, self._unicast(packet.servo_id, inst, params))]
         else:
             replies = []
-        return self._apply_reply_faults(replies)
+        return self._apply_reply_faults(replies, packet)
 
     def _status(self, servo_id: int, error: int, data: bytes = b"") -> bytes:
         if self.servos[servo_id].alert:
@@ -417,6 +443,7 @@ class VirtualBus:
         if (address, size) == (goal_address, goal_size):
             goals = [self.servos[i].get(Register.GOAL_POSITION) for i in self.ids]
             self.goal_log.append(np.array(goals, dtype=np.int64))
+            self.frames_received += 1
             if self.lockstep_dt_s is not None:
                 self.plant.advance(self.lockstep_dt_s)
 
@@ -496,7 +523,13 @@ class VirtualBus:
                 self._trip_watchdog(fault.servo_id)
         return []
 
-    def _apply_reply_faults(self, replies: list) -> list[tuple[int, bytes, float]]:
+    def _apply_reply_faults(self, replies: list, request) -> list[tuple[int, bytes, float]]:
+        read = request.instruction in (
+            Instruction.READ,
+            Instruction.SYNC_READ,
+            Instruction.FAST_SYNC_READ,
+        )
+        address = request.params[0] | request.params[1] << 8 if read else None
         out = []
         for reply in replies:
             servo_id, data = reply[0], reply[1]
@@ -504,9 +537,11 @@ class VirtualBus:
             members = reply[2] if len(reply) == 3 else [servo_id]
             extra_s = 0.0
             dropped = False
-            for entry in self._active(("drop", "corrupt", "delay")):
+            for entry in self._active(_REPLY_FAULTS):
                 fault, remaining = entry
                 if fault.servo_id is not None and fault.servo_id not in members:
+                    continue
+                if fault.address is not None and fault.address != address:
                     continue
                 if remaining is not None:
                     if remaining <= 0:
@@ -516,8 +551,44 @@ class VirtualBus:
                     dropped = True
                 elif fault.kind == "corrupt":
                     data = data[:-1] + bytes([data[-1] ^ 0xFF])
+                elif fault.kind in ("short", "wrong_id"):
+                    data = _reshape_reply(data, members, fault)
                 else:
                     extra_s += fault.delay_s
             if not dropped:
                 out.append((servo_id, data, extra_s))
         return out
+
+
+_REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id")
+
+
+def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
+    """A well-formed reply (valid CRC) with ``fault.servo_id``'s part short or re-addressed.
+
+    ``reply`` is a status packet, or a fast sync read reply whose parts are
+    ``ERR ID DATA CRC2`` for ``members`` in order.
+    """
+    packet = decode(reply)
+    reply_id = fault.servo_id + 1 if fault.reply_id is None else fault.reply_id
+
+    def reshaped(servo_id: int, error: int, data: bytes) -> tuple[int, int, bytes]:
+        if fault.kind == "wrong_id":
+            return reply_id, error, data
+        keep = 0 if fault.n_bytes is None else max(0, len(data) - fault.n_bytes)
+        return servo_id, error, data[:keep]
+
+    if packet.servo_id != BROADCAST_ID:  # one servo's status packet
+        servo_id, error, data = reshaped(packet.servo_id, packet.params[0], packet.params[1:])
+        return encode_status(servo_id, error, data)
+    # Fast sync read: the packet's params are every part except the last CRC2.
+    body = reply[8:]
+    size = len(body) // len(members) - 4
+    entries = []
+    for k, servo_id in enumerate(members):
+        part = body[k * (size + 4) : (k + 1) * (size + 4)]
+        error, data = part[0], part[2 : 2 + size]
+        if servo_id == fault.servo_id:
+            servo_id, error, data = reshaped(servo_id, error, data)
+        entries.append((error, servo_id, data))
+    return encode_fast_sync_status(entries)
