@@ -124,7 +124,8 @@ class StreamStats:
     stall_max_s : float
         Longest stall (s): the largest single shift.
     delay_s : float
-        Total shift (s): how far behind its plan the stream ran at the end.
+        Total shift (s): how far behind its plan the stream ran at the end
+        (each stall's lateness plus the Bus Watchdog poll that follows it).
     reads : int
         Telemetry group reads done.
     comm_errors : int
@@ -501,6 +502,7 @@ class Streamer:
             late = time.monotonic() - (planned + shift)
             if late > stall_s:  # never catch up: shift the rest of the stream instead
                 self._stall(late)
+                stats.delay_s += time.monotonic() - planned - shift
                 shift = time.monotonic() - planned
             sent = time.monotonic()
             ticks = self.joints.to_ticks(q)
@@ -529,8 +531,8 @@ class Streamer:
         stats = self.stats
         stats.stalls += 1
         stats.stall_max_s = max(stats.stall_max_s, late_s)
-        stats.delay_s += late_s
-        if stats.delay_s > self.max_delay_s:
+        if stats.delay_s + late_s > self.max_delay_s:
+            stats.delay_s += late_s
             raise StreamLagging(
                 f"the stream fell {stats.delay_s:.3f} s behind its plan (bound "
                 f"{self.max_delay_s:g} s) after {stats.stalls} stalls, the last "
