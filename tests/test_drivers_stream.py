@@ -91,11 +91,11 @@ def test_every_goal_received_equals_the_plan(rig, rng, tmp_path):
     assert len(r.virtual.goal_log) == stats.approach_frames + len(trajectory)
     # The stats are sane.
     assert stats.frames_sent == stats.frames_planned == len(trajectory)
-    # Never faster than planned: stalls (a busy host) only stretch the stream.
+    # Never faster than planned: stalls (a busy host) only stretch the stream, by at
+    # most the total shift (which includes the approach's).
     duration_s = trajectory.t[-1] - trajectory.t[0]
-    assert stats.achieved_rate_hz == pytest.approx(
-        RATE_HZ * duration_s / (duration_s + stats.delay_s), rel=0.02
-    )
+    assert stats.achieved_rate_hz <= 1.01 * RATE_HZ
+    assert stats.achieved_rate_hz >= 0.98 * RATE_HZ * duration_s / (duration_s + stats.delay_s)
     assert 0 <= stats.period_error_p50_s <= stats.period_error_p99_s <= stats.period_error_max_s
     assert stats.period_error_p50_s < 0.5 / RATE_HZ
     assert stats.overruns <= 0.05 * len(trajectory)
