@@ -45,6 +45,7 @@ from trajgen.drivers.control_table import (
 )
 from trajgen.drivers.errors import BringUpError, CommError
 from trajgen.drivers.units import RAD_PER_TICK, TICKS_PER_REV, JointMap
+from trajgen.gimbal import JOINT_NAMES
 
 #: Drive Mode bits (e-Manual, "Drive Mode (10)").
 DRIVE_MODE_REVERSE = 0x01
@@ -89,8 +90,8 @@ def joint_names_for(joints: JointMap, joint_names: Sequence[str] | None = None) 
         if len(joint_names) != len(joints):
             raise ValueError(f"Expected {len(joints)} `joint_names`, got {len(joint_names)}.")
         return tuple(joint_names)
-    if len(joints) == 3:
-        return ("pan", "tilt", "roll")
+    if len(joints) == len(JOINT_NAMES):
+        return JOINT_NAMES
     return tuple(f"joint {k}" for k in range(len(joints)))
 
 

@@ -20,11 +20,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from trajgen.drivers.control_table import MODELS, WATCHDOG_UNIT_S
+from trajgen.drivers.control_table import BAUD_RATES, WATCHDOG_UNIT_S
 from trajgen.drivers.units import ZERO_TICK, JointMap
+from trajgen.gimbal import JOINT_NAMES
+from trajgen.servo_ratings import DEFAULT_SERVO, servo_rating
+from trajgen.validate import check_number, check_numbers
 
 BUS_KEYS = ("port", "baud", "ids", "directions", "zeros", "models", "watchdog_s")
-DEFAULT_MODEL = "XM430-W350"
+DEFAULT_BAUD = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -46,37 +49,25 @@ class BusConfig:
     """
 
     port: str | None = None
-    baud: int = 1_000_000
+    baud: int = DEFAULT_BAUD
     joints: JointMap = field(default_factory=JointMap)
-    models: tuple[str, ...] = (DEFAULT_MODEL,) * 3
+    models: tuple[str, ...] = (DEFAULT_SERVO,) * 3
     watchdog_s: float = 0.1
 
 
-def _error(path, key: str, problem: str):
-    from trajgen.keyframes import KeyframeFileError
+def _error(path, key: str):
+    """A factory for ``KeyframeFileError("{path}: [bus] {key}: {problem}")``."""
+    from trajgen.errors import KeyframeFileError
 
     where = "[bus]" if not key else f"[bus] {key}"
-    return KeyframeFileError(f"{path}: {where}: {problem}")
-
-
-def _int_list(table: dict, key: str, path, default: tuple[int, ...]) -> tuple[int, ...]:
-    value = table.get(key, list(default))
-    if (
-        not isinstance(value, list)
-        or len(value) != 3
-        or not all(isinstance(v, int) and not isinstance(v, bool) for v in value)
-    ):
-        raise _error(path, key, f"expected a list of 3 integers, got {value!r}")
-    return tuple(value)
+    return lambda problem: KeyframeFileError(f"{path}: {where}: {problem}")
 
 
 def _default_models(tables: dict) -> tuple[str, ...]:
-    servo = tables.get("gimbal", {}).get("servo", DEFAULT_MODEL)
-    if isinstance(servo, str):
-        return (servo,) * 3
+    servo = tables.get("gimbal", {}).get("servo", DEFAULT_SERVO)
     if isinstance(servo, dict):
-        return tuple(str(servo.get(j, DEFAULT_MODEL)) for j in ("pan", "tilt", "roll"))
-    return (DEFAULT_MODEL,) * 3
+        return tuple(servo.get(j, DEFAULT_SERVO) for j in JOINT_NAMES)
+    return (servo,) * 3
 
 
 def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
@@ -92,44 +83,76 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
     Returns
     -------
     BusConfig
+        Model names canonical (``"xm430-w350"`` becomes ``"XM430-W350"``).
 
     Raises
     ------
     KeyframeFileError
-        If a key is unknown or a value has the wrong type or range.
+        If a key is unknown or a value has the wrong type or range; the baud
+        rate must be one an X-series servo supports (``BAUD_RATES``).
     """
     table = tables.get("bus", {})
     if not isinstance(table, dict):
-        raise _error(path, "", f"expected a table, got {table!r}")
+        raise _error(path, "")(f"expected a table, got {table!r}")
     for key in table:
         if key not in BUS_KEYS:
-            raise _error(path, key, f"unknown key (known: {', '.join(BUS_KEYS)})")
+            raise _error(path, key)(f"unknown key (known: {', '.join(BUS_KEYS)})")
     port = table.get("port")
-    if port is not None and not isinstance(port, str):
-        raise _error(path, "port", f"expected a device path string, got {port!r}")
-    baud = table.get("baud", 1_000_000)
-    if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
-        raise _error(path, "baud", f"expected a positive integer, got {baud!r}")
-    ids = _int_list(table, "ids", path, (1, 2, 3))
-    directions = _int_list(table, "directions", path, (1, 1, 1))
-    zeros = _int_list(table, "zeros", path, (ZERO_TICK,) * 3)
-    if len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
-        raise _error(path, "ids", f"expected 3 distinct ids in 0..252, got {list(ids)}")
+    if port is not None and (not isinstance(port, str) or not port):
+        raise _error(path, "port")(f"expected a device path string, got {port!r}")
+    baud = check_number(
+        "baud", table.get("baud", DEFAULT_BAUD), integer=True, error=_error(path, "baud")
+    )
+    if baud not in BAUD_RATES.values():
+        raise _error(path, "baud")(f"expected one of {baud_rates_text()}, got {baud}")
+    ids = check_numbers(
+        "ids",
+        table.get("ids", [1, 2, 3]),
+        3,
+        integer=True,
+        low=0,
+        high=252,
+        error=_error(path, "ids"),
+    )
+    if len(set(ids)) != 3:
+        raise _error(path, "ids")(f"expected 3 distinct ids, got {list(ids)}")
+    directions = check_numbers(
+        "directions",
+        table.get("directions", [1, 1, 1]),
+        3,
+        integer=True,
+        error=_error(path, "directions"),
+    )
     if not all(d in (1, -1) for d in directions):
-        raise _error(path, "directions", f"expected +1 or -1 each, got {list(directions)}")
+        raise _error(path, "directions")(f"expected +1 or -1 each, got {list(directions)}")
+    zeros = check_numbers(
+        "zeros",
+        table.get("zeros", [ZERO_TICK] * 3),
+        3,
+        integer=True,
+        low=0,
+        high=4095,
+        error=_error(path, "zeros"),
+    )
     joints = JointMap(ids, directions, zeros)
     models = table.get("models", _default_models(tables))
     models = (models,) * 3 if isinstance(models, str) else models
     if not isinstance(models, (list, tuple)) or len(models) != 3:
-        raise _error(path, "models", f"expected a model name or a list of 3, got {models!r}")
-    for name in models:
-        if name not in MODELS:
-            raise _error(path, "models", f"unknown model {name!r} (known: {', '.join(MODELS)})")
-    watchdog_s = table.get("watchdog_s", 0.1)
-    if (
-        isinstance(watchdog_s, bool)
-        or not isinstance(watchdog_s, (int, float))
-        or not WATCHDOG_UNIT_S <= watchdog_s <= 127 * WATCHDOG_UNIT_S
-    ):
-        raise _error(path, "watchdog_s", f"expected a number in 0.02..2.54, got {watchdog_s!r}")
-    return BusConfig(port, baud, joints, tuple(models), float(watchdog_s))
+        raise _error(path, "models")(f"expected a model name or a list of 3, got {models!r}")
+    try:
+        models = tuple(servo_rating(name).name for name in models)
+    except (TypeError, ValueError) as e:
+        raise _error(path, "models")(str(e)) from None
+    watchdog_s = check_number(
+        "watchdog_s",
+        table.get("watchdog_s", 0.1),
+        low=WATCHDOG_UNIT_S,
+        high=127 * WATCHDOG_UNIT_S,
+        error=_error(path, "watchdog_s"),
+    )
+    return BusConfig(port, baud, joints, models, watchdog_s)
+
+
+def baud_rates_text() -> str:
+    """The supported baud rates, for messages: ``"9600, 57600, ..., 4500000"``."""
+    return ", ".join(str(b) for b in BAUD_RATES.values())

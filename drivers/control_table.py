@@ -3,16 +3,19 @@
 Addresses and sizes come from the model files that ship with
 ``dynamixel-sdk`` (``dynamixel_easy_sdk.control_table.ControlTable``), which
 transcribe the ROBOTIS e-Manual control tables; they are read on first use.
-What those files lack (ratings, current unit, factory defaults used by the
-virtual bus) is stated here, with the e-Manual X-series pages as the source.
+What those files lack is stated here (current unit, factory defaults used by
+the virtual bus, baud rates), with the e-Manual X-series pages as the source;
+the ratings and Model Numbers come from ``trajgen.servo_ratings``, the table the
+simulator reads too.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 from enum import Enum
+
+from trajgen.servo_ratings import RATINGS, servo_rating
 
 
 class Register(Enum):
@@ -72,6 +75,18 @@ HARDWARE_ERROR_BITS = {
 # Bus Watchdog unit (e-Manual, "Bus Watchdog (98)").
 WATCHDOG_UNIT_S = 0.020
 
+#: Baud rates an X-series servo can be set to (e-Manual, "Baud Rate (8)"), by register value.
+BAUD_RATES = {
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
+
 
 @dataclass(frozen=True)
 class Model:
@@ -113,32 +128,39 @@ class Model:
         return round(current_a / self.current_unit_a)
 
 
-_RPM = 2.0 * math.pi / 60.0
+#: Present Current unit (A) per model (e-Manual: 2.69 mA; None where register 126
+#: is Present Load, 0.1 % of stall).
+_CURRENT_UNIT_A = {
+    "XM430-W350": 0.00269,
+    "XL430-W250": None,
+    "XH430-W350": 0.00269,
+    "XM540-W270": 0.00269,
+}
 
-# Ratings at 12 V from the e-Manual specification tables; current unit 2.69 mA.
 MODELS: dict[str, Model] = {
-    m.name: m
-    for m in (
-        Model("XM430-W350", 1020, 4.1, 2.3, 46 * _RPM, 0.00269),
-        Model("XL430-W250", 1060, 1.5, 1.4, 61 * _RPM, None),
-        Model("XH430-W350", 1000, 3.4, 1.3, 30 * _RPM, 0.00269),
-        Model("XM540-W270", 1120, 10.6, 4.4, 30 * _RPM, 0.00269),
+    r.name: Model(
+        r.name,
+        r.number,
+        r.stall_torque_nm,
+        r.stall_current_a,
+        r.no_load_speed_rad_s,
+        _CURRENT_UNIT_A[r.name],
     )
+    for r in RATINGS.values()
 }
 
 
 def model_named(name: str) -> Model:
-    """The ``Model`` called ``name``.
+    """The ``Model`` called ``name`` (case and blanks do not matter).
 
     Raises
     ------
+    TypeError
+        If ``name`` is not a string.
     ValueError
         If the model is not one of ``MODELS``.
     """
-    try:
-        return MODELS[name]
-    except KeyError:
-        raise ValueError(f"Unknown servo model {name!r} (known: {', '.join(MODELS)}).") from None
+    return MODELS[servo_rating(name).name]
 
 
 def model_numbered(number: int) -> Model | str:
@@ -184,27 +206,184 @@ def layout(model: Model) -> dict[Register, tuple[int, int]]:
     return out
 
 
-def factory_defaults(model: Model) -> dict[Register, int]:
-    """Factory default values of the registers the virtual bus gives meaning to.
-
-    e-Manual X-series control tables: Baud Rate 1 (57600), Return Delay Time 250
-    (500 us), Operating Mode 3, position limits 0..4095, Shutdown 52 (overheating,
-    electrical shock, overload), Status Return Level 2 (reply to everything).
-    """
-    return {
-        Register.MODEL_NUMBER: model.number,
-        Register.ID: 1,
-        Register.BAUD_RATE: 1,
-        Register.RETURN_DELAY_TIME: 250,
-        Register.OPERATING_MODE: POSITION_MODE,
-        Register.MAX_POSITION_LIMIT: 4095,
-        Register.MIN_POSITION_LIMIT: 0,
-        Register.SHUTDOWN: 52,
-        Register.STATUS_RETURN_LEVEL: 2,
-    }
-
-
 def describe_hardware_error(status: int) -> str:
     """Names of the bits set in a Hardware Error Status value, e.g. ``"overload"``."""
     names = [name for bit, name in HARDWARE_ERROR_BITS.items() if status >> bit & 1]
     return ", ".join(names) or f"unknown bits {status:#04x}"
+
+
+# -- What the e-Manual says of each register, for the virtual servo --------------
+#
+# Addresses and sizes come from the SDK's model files (``layout`` above and
+# ``control_items``); what those files lack is stated here from the e-Manual
+# X-series control tables (XM430-W350, XL430-W250, XH430-W350, XM540-W270 pages:
+# access, initial value, range). A range that depends on another register (Goal
+# Position within the position limits, Goal PWM within PWM Limit...) is in
+# ``LIMITED_BY``.
+
+
+@dataclass(frozen=True)
+class RegisterRule:
+    """Access, initial value and range of one register (e-Manual control table).
+
+    Attributes
+    ----------
+    writable : bool
+        RW (True) or R (False).
+    initial : int or None
+        Value at power-up; None where the servo sets it itself (Goal Position =
+        present position, present values measured, Model Number...).
+    low, high : int or None
+        Range a write must fall in (data range error outside); None: any value
+        the register holds.
+    signed : bool
+        Whether the register holds a two's-complement value.
+    """
+
+    writable: bool
+    initial: int | None
+    low: int | None = None
+    high: int | None = None
+    signed: bool = False
+
+
+def _rw(initial, low, high, signed=False):
+    return RegisterRule(True, initial, low, high, signed)
+
+
+def _r(initial=None, signed=False):
+    return RegisterRule(False, initial, signed=signed)
+
+
+_GAIN = (0, 16_383)
+
+#: Rules of the X-series registers (XM430-W350 values; see MODEL_RULES for the others).
+X_SERIES_RULES: dict[str, RegisterRule] = {
+    "Model Number": _r(),
+    "Model Information": _r(0),
+    "Firmware Version": _r(),
+    "ID": _rw(1, 0, 252),
+    "Baud Rate": _rw(1, 0, 7),
+    "Return Delay Time": _rw(250, 0, 254),
+    "Drive Mode": _rw(0, 0, 13),
+    "Operating Mode": _rw(3, 0, 16),
+    "Secondary(Shadow) ID": _rw(255, 0, 255),
+    "Protocol Type": _rw(2, 1, 2),
+    "Homing Offset": _rw(0, -1_044_479, 1_044_479, signed=True),
+    "Moving Threshold": _rw(10, 0, 1023),
+    "Temperature Limit": _rw(80, 0, 100),
+    "Max Voltage Limit": _rw(160, 95, 160),
+    "Min Voltage Limit": _rw(95, 95, 160),
+    "PWM Limit": _rw(885, 0, 885),
+    "Current Limit": _rw(1193, 0, 1193),
+    "Velocity Limit": _rw(350, 0, 1023),
+    "Max Position Limit": _rw(4095, 0, 4095, signed=True),
+    "Min Position Limit": _rw(0, 0, 4095, signed=True),
+    "Shutdown": _rw(52, 0, 255),
+    "Torque Enable": _rw(0, 0, 1),
+    "LED": _rw(0, 0, 1),
+    "Status Return Level": _rw(2, 0, 2),
+    "Registered Instruction": _r(0),
+    "Hardware Error Status": _r(0),
+    "Velocity I Gain": _rw(1920, *_GAIN),
+    "Velocity P Gain": _rw(100, *_GAIN),
+    "Position D Gain": _rw(0, *_GAIN),
+    "Position I Gain": _rw(0, *_GAIN),
+    "Position P Gain": _rw(800, *_GAIN),
+    "Feedforward 2nd Gain": _rw(0, *_GAIN),
+    "Feedforward 1st Gain": _rw(0, *_GAIN),
+    # 1..127 arms it, 0 disarms (and clears a trip); the servo writes -1 on a trip.
+    "Bus Watchdog": _rw(0, 0, 127, signed=True),
+    "Goal PWM": _rw(None, None, None, signed=True),
+    "Goal Current": _rw(None, None, None, signed=True),
+    "Goal Velocity": _rw(0, None, None, signed=True),
+    "Profile Acceleration": _rw(0, 0, 32_767),
+    "Profile Velocity": _rw(0, 0, 32_767),
+    "Goal Position": _rw(None, -1_048_575, 1_048_575, signed=True),
+    "Realtime Tick": _r(0),
+    "Moving": _r(0),
+    "Moving Status": _r(0),
+    "Present PWM": _r(0, signed=True),
+    "Present Current": _r(0, signed=True),
+    "Present Load": _r(0, signed=True),
+    "Present Velocity": _r(0, signed=True),
+    "Present Position": _r(0, signed=True),
+    "Velocity Trajectory": _r(0, signed=True),
+    "Position Trajectory": _r(0, signed=True),
+    "Present Input Voltage": _r(120),
+    "Present Temperature": _r(30),
+}
+
+#: Where the other models differ from X_SERIES_RULES (their e-Manual pages).
+MODEL_RULES: dict[str, dict[str, RegisterRule]] = {
+    "XM430-W350": {},
+    "XL430-W250": {
+        "Temperature Limit": _rw(72, 0, 100),
+        "Max Voltage Limit": _rw(140, 60, 140),
+        "Min Voltage Limit": _rw(60, 60, 140),
+        "Velocity Limit": _rw(265, 0, 1023),
+        "Velocity I Gain": _rw(1000, *_GAIN),
+        "Position D Gain": _rw(4000, *_GAIN),
+        "Position P Gain": _rw(640, *_GAIN),
+    },
+    "XH430-W350": {
+        "Current Limit": _rw(648, 0, 648),
+        "Velocity Limit": _rw(130, 0, 1023),
+        "Position P Gain": _rw(900, *_GAIN),
+    },
+    "XM540-W270": {
+        "Current Limit": _rw(2047, 0, 2047),
+        "Velocity Limit": _rw(128, 0, 1023),
+    },
+}
+
+#: Registers whose range is set by other registers: a write outside it is
+#: refused with the data limit error. Goal Position's limits apply in Position
+#: Mode only; the others are symmetric, +-the limit register.
+LIMITED_BY = {
+    "Goal Position": ("Min Position Limit", "Max Position Limit"),
+    "Goal PWM": ("PWM Limit",),
+    "Goal Current": ("Current Limit",),
+    "Goal Velocity": ("Velocity Limit",),
+}
+
+#: Indirect Address / Indirect Data blocks of the X-series: (first Indirect
+#: Address, first Indirect Data, count). Indirect Address n is 2 bytes, Indirect
+#: Data n 1 byte; Indirect Address n initially points at Indirect Data n, and
+#: may point anywhere in 64..661 (e-Manual, "Indirect Address").
+INDIRECT_BLOCKS = ((168, 224, 28), (578, 634, 28))
+INDIRECT_TARGETS = (64, 661)
+
+
+def rules(model: Model) -> dict[str, RegisterRule]:
+    """Every register rule of ``model``, Indirect Address / Data n included."""
+    out = dict(X_SERIES_RULES)
+    out.update(MODEL_RULES[model.name])
+    n = 0
+    for _, data0, count in INDIRECT_BLOCKS:
+        for k in range(count):
+            n += 1
+            out[f"Indirect Address {n}"] = _rw(data0 + k, *INDIRECT_TARGETS)
+            out[f"Indirect Data {n}"] = _rw(0, 0, 255)
+    return out
+
+
+@functools.cache
+def control_items(model: Model) -> dict[str, tuple[int, int]]:
+    """Address and size (bytes) of every register of ``model``, by SDK name.
+
+    From the SDK's model file, plus every Indirect Address / Data n (the file
+    lists only the first of each block). Only registers with a rule are kept.
+    """
+    from dynamixel_easy_sdk.control_table import ControlTable
+
+    table = ControlTable.getControlTable(model.number)
+    known = rules(model)
+    out = {name: (item.address, item.size) for name, item in table.items() if name in known}
+    n = 0
+    for address0, data0, count in INDIRECT_BLOCKS:
+        for k in range(count):
+            n += 1
+            out[f"Indirect Address {n}"] = (address0 + 2 * k, 2)
+            out[f"Indirect Data {n}"] = (data0 + k, 1)
+    return out

@@ -75,9 +75,10 @@ class GimbalPlant:
         self._warnings = warning_counts(self._data)
         self._goal = None
         self._goals: deque[tuple[float, np.ndarray]] = deque()
-        self._first_goal_time = None
+        self._goal_times: list[float] = []
         self._kt = np.array([s.torque_constant_nm_a for s in self.config.servos])
         self._log: list[np.ndarray] = []
+        self.control: list[dict] = [{} for _ in range(3)]
 
     @property
     def time_s(self) -> float:
@@ -104,8 +105,7 @@ class GimbalPlant:
             self._goals.popleft()
         then, old = self._goals[0]
         velocity = (goal - old) / (now - then) if now > then else np.zeros(3)
-        if self._first_goal_time is None:
-            self._first_goal_time = now
+        self._goal_times.append(now)
         self._goal = goal
         self._data.ctrl[0::3] = goal
         self._data.ctrl[1::3] = velocity
@@ -131,6 +131,21 @@ class GimbalPlant:
         bit = 1 << int(joint)
         mask = self._model.opt.disableactuator
         self._model.opt.disableactuator = (mask & ~bit) if enabled else (mask | bit)
+
+    def set_control(self, joint: int, registers) -> None:
+        """Receive a servo's position-loop registers (``drivers.virtual.plant.Plant``).
+
+        Interim: stored only; the MuJoCo servo model does not follow them yet.
+        """
+        self.control[joint] = dict(registers)
+
+    def present_pwm(self) -> np.ndarray:
+        """Drive output as a fraction of the supply, shape (3,).
+
+        Interim stand-in: actuator torque over stall torque, clipped to [-1, 1].
+        """
+        stall = np.array([s.stall_torque_nm for s in self.config.servos])
+        return np.clip(self._data.actuator_force / stall, -1.0, 1.0)
 
     def advance(self, dt_s: float) -> None:
         """Run the physics for ``dt_s`` seconds (rounded to whole time steps).
@@ -175,8 +190,9 @@ class GimbalPlant:
     def report(self, trajectory):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.
 
-        The record is aligned so that the first goal received is the
-        trajectory's first frame; steps before it are left out. The planned
+        The record is aligned so that the goal received ``len(trajectory)``
+        goals before the end is the trajectory's first frame; steps before it
+        are left out. The planned
         part of the check is computed from ``trajectory`` itself.
 
         Parameters
@@ -199,13 +215,16 @@ class GimbalPlant:
         from trajgen.sim.errors import SimError
 
         check_trajectory(trajectory)
-        if self._first_goal_time is None:
+        if not self._goal_times:
             raise SimError("no goal position was received: nothing to report")
+        # The stream's frames are the last goals received (bring-up and the
+        # approach come before them).
+        first = self._goal_times[-min(len(trajectory), len(self._goal_times))]
         log = np.array(self._log).reshape(-1, 13)
-        log = log[log[:, 0] >= self._first_goal_time - 1e-12]
+        log = log[log[:, 0] >= first - 1e-12]
         if len(log) == 0:
             raise SimError("no physics step ran after the first goal: nothing to report")
-        t = log[:, 0] - self._first_goal_time + trajectory.t[0]
+        t = log[:, 0] - first + trajectory.t[0]
         record = SimRecord(
             t=t,
             q=log[:, 1:4],

@@ -1,8 +1,8 @@
 """Dynamixel X-series servo data for the simulated gimbal (SI units, 12 V ratings).
 
 Ratings (stall torque, stall current, no-load speed at 12 V), mass, housing size
-and gear ratio are from the ROBOTIS e-Manual specification tables. The rest is
-not published and is stated per field:
+and gear ratio come from ``trajgen.servo_ratings``, the table the drivers read
+too. The rest is not published and is stated per field:
 
 - ``armature``: reflected rotor inertia (kg m^2). 0.045 for the XM430-W350 is
   Menagerie's ROBOTIS OP3 value (no stated source). The XH430-W350 has the same
@@ -26,7 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-RPM_TO_RAD_S = 2.0 * math.pi / 60.0
+from trajgen.servo_ratings import DEFAULT_SERVO as _DEFAULT_NAME
+from trajgen.servo_ratings import RATINGS, servo_rating
+
 SUPPLY_VOLTAGE_V = 12.0
 
 _OP3_ARMATURE = 0.045
@@ -109,39 +111,41 @@ class ServoModel:
         return self.stall_torque_nm * (1.0 - np.abs(speed_rad_s) / self.no_load_speed_rad_s)
 
 
-def _servo(name, stall_nm, stall_a, no_load_rpm, mass_kg, size_mm, gear, armature=None):
+def _servo(name: str, armature: float | None = None) -> ServoModel:
+    r = RATINGS[name]
     if armature is None:
-        armature = _OP3_ARMATURE * (gear / _XM430_GEAR) ** 2
-    kp = _OP3_KP * stall_nm / _XM430_STALL
+        armature = _OP3_ARMATURE * (r.gear_ratio / _XM430_GEAR) ** 2
+    kp = _OP3_KP * r.stall_torque_nm / _XM430_STALL
     return ServoModel(
-        name=name,
-        stall_torque_nm=stall_nm,
-        stall_current_a=stall_a,
-        no_load_speed_rad_s=no_load_rpm * RPM_TO_RAD_S,
-        mass_kg=mass_kg,
-        size_m=tuple(s / 1000.0 for s in size_mm),
-        gear_ratio=gear,
+        name=r.name,
+        stall_torque_nm=r.stall_torque_nm,
+        stall_current_a=r.stall_current_a,
+        no_load_speed_rad_s=r.no_load_speed_rad_s,
+        mass_kg=r.mass_kg,
+        size_m=r.size_m,
+        gear_ratio=r.gear_ratio,
         armature=armature,
         damping=0.01,
-        frictionloss=_OP3_FRICTIONLOSS * stall_nm / _XM430_STALL,
+        frictionloss=_OP3_FRICTIONLOSS * r.stall_torque_nm / _XM430_STALL,
         kp=kp,
         kd=2.0 * math.sqrt(kp * armature),
     )
 
 
-XM430_W350 = _servo("XM430-W350", 4.1, 2.3, 46.0, 0.082, (28.5, 46.5, 34.0), 353.5, 0.045)
-XL430_W250 = _servo("XL430-W250", 1.5, 1.4, 61.0, 0.0572, (28.5, 46.5, 34.0), 258.5)
-XH430_W350 = _servo("XH430-W350", 3.4, 1.3, 30.0, 0.082, (28.5, 46.5, 34.0), 353.5, 0.045)
-XM540_W270 = _servo("XM540-W270", 10.6, 4.4, 30.0, 0.165, (33.5, 58.5, 44.0), 272.5)
+XM430_W350 = _servo("XM430-W350", 0.045)
+XL430_W250 = _servo("XL430-W250")
+XH430_W350 = _servo("XH430-W350", 0.045)
+XM540_W270 = _servo("XM540-W270")
 
 SERVOS: dict[str, ServoModel] = {
     s.name: s for s in (XM430_W350, XL430_W250, XH430_W350, XM540_W270)
 }
-DEFAULT_SERVO = XM430_W350
+DEFAULT_SERVO = SERVOS[_DEFAULT_NAME]
 
 
 def servo_by_name(name: str) -> ServoModel:
-    """Look up a servo model by its name (e.g. ``"XM430-W350"``, case-insensitive).
+    """Look up a servo model by its name (e.g. ``"XM430-W350"``; case and blanks do not
+    matter, see :func:`trajgen.servo_ratings.servo_rating`).
 
     Raises
     ------
@@ -150,9 +154,4 @@ def servo_by_name(name: str) -> ServoModel:
     ValueError
         If the model is unknown; the message lists the known ones.
     """
-    if not isinstance(name, str):
-        raise TypeError(f"Expected servo `name` to be a string, got {type(name).__name__}.")
-    servo = SERVOS.get(name.upper())
-    if servo is None:
-        raise ValueError(f"unknown model {name!r} (known: {', '.join(SERVOS)})")
-    return servo
+    return SERVOS[servo_rating(name).name]

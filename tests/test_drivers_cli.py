@@ -65,12 +65,12 @@ def test_bus_table_defaults_and_values():
     ("table", "match"),
     [
         ({"speed": 1}, r"f.toml: \[bus\] speed: unknown key \(known: port, baud"),
-        ({"baud": "fast"}, r"f.toml: \[bus\] baud: expected a positive integer, got 'fast'"),
-        ({"ids": [1, 1, 2]}, r"\[bus\] ids: expected 3 distinct ids in 0..252, got \[1, 1, 2\]"),
+        ({"baud": "fast"}, r"f.toml: \[bus\] baud: expected an integer, got 'fast'"),
+        ({"ids": [1, 1, 2]}, r"\[bus\] ids: expected 3 distinct ids, got \[1, 1, 2\]"),
         ({"ids": [1, 2]}, r"\[bus\] ids: expected a list of 3 integers, got \[1, 2\]"),
         ({"directions": [1, 0, 1]}, r"\[bus\] directions: expected \+1 or -1 each, got"),
         ({"models": "XM999"}, r"\[bus\] models: unknown model 'XM999' \(known: XM430-W350"),
-        ({"watchdog_s": 5}, r"\[bus\] watchdog_s: expected a number in 0.02..2.54, got 5"),
+        ({"watchdog_s": 5}, r"\[bus\] watchdog_s: expected a finite number in 0.02..2.54, got 5"),
         ({"port": 3}, r"\[bus\] port: expected a device path string, got 3"),
     ],
 )
@@ -181,14 +181,14 @@ def test_scan_bad_port_exits_2(capsys):
 
 
 class _SignalAtFrame(FirstOrderPlant):
-    """A plant that sends this process ``signum`` when the ``frame``-th goal arrives."""
+    """A plant that sends this process ``signum`` when its ``frame``-th set of goals arrives."""
 
     def __init__(self, frame, signum):
         super().__init__(time_constant_s=0.01)
         self.frame, self.signum, self.frames = frame, signum, 0
 
-    def advance(self, dt_s):
-        super().advance(dt_s)
+    def set_goal(self, positions_rad):
+        super().set_goal(positions_rad)
         self.frames += 1
         if self.frames == self.frame:
             os.kill(os.getpid(), self.signum)
@@ -219,7 +219,7 @@ def test_stop_signal_stops_safely_and_keeps_every_record(
     assert torque == [not torque_off] * 3
     if not torque_off:
         assert watchdog == [0, 0, 0]  # held goals are not dropped by a watchdog later
-    assert 40 <= received < 81
+    assert 30 <= received < 81  # stopped mid-stream (bring-up sets goals too)
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["status"] == status and result["stopped_by"] == f"interrupted by {name}"
     assert result["on_stop"] == ("torque_off" if torque_off else "hold")

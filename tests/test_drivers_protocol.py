@@ -191,10 +191,11 @@ def test_layout_agrees_with_emanual_addresses():
 
 def test_models_and_names():
     assert model_named("XL430-W250").number == 1060
+    assert model_named(" xl430-w250") is MODELS["XL430-W250"]
     assert model_numbered(1020) is MODELS["XM430-W350"]
     assert model_numbered(30) == "mx_28"
     assert model_numbered(9999) == "unknown"
-    with pytest.raises(ValueError, match="Unknown servo model 'XM999'"):
+    with pytest.raises(ValueError, match="unknown model 'XM999'"):
         model_named("XM999")
 
 

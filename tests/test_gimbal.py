@@ -358,17 +358,25 @@ def test_default_kinematics():
             ValueError,
             "Expected `limits_rad` tilt within [-pi/2, pi/2], got [-2, 1] rad.",
         ),
-        ({"lock_margin_rad": 0.0}, ValueError, "Expected `lock_margin_rad` in (0, pi/2), got 0.0."),
-        ({"lock_margin_rad": 1.6}, ValueError, "Expected `lock_margin_rad` in (0, pi/2), got 1.6."),
+        (
+            {"lock_margin_rad": 0.0},
+            ValueError,
+            "Expected `lock_margin_rad` to be a finite number in (0, 1.5708), got 0.0.",
+        ),
+        (
+            {"lock_margin_rad": 1.6},
+            ValueError,
+            "Expected `lock_margin_rad` to be a finite number in (0, 1.5708), got 1.6.",
+        ),
         (
             {"lock_margin_rad": "0.1"},
             TypeError,
-            "Expected `lock_margin_rad` to be a number, got str.",
+            "Expected `lock_margin_rad` to be a finite number in (0, 1.5708), got '0.1'.",
         ),
         (
             {"lock_margin_rad": True},
             TypeError,
-            "Expected `lock_margin_rad` to be a number, got bool.",
+            "Expected `lock_margin_rad` to be a finite number in (0, 1.5708), got True.",
         ),
     ],
 )

@@ -30,8 +30,9 @@ from trajgen.stream import JointTrajectory
 RATE_HZ = 200.0
 MODELS = ("XM430-W350",) * 3
 PRESENT_POSITION, PRESENT_BLOCK = 132, 126  # read addresses: one register, the state block
-# Registers a host can write (EEPROM and RAM up to Goal Position); Present values follow.
-WRITABLE = slice(0, 126)
+# Registers a host can write: EEPROM and RAM up to Goal Position (Realtime Tick at 120 and
+# the present values after it change by themselves).
+WRITABLE = slice(0, 120)
 
 
 def _ramp(q_end, duration_s=0.3, q_start=(0.0, 0.0, 0.0)):

@@ -38,7 +38,7 @@ def test_lookup_is_case_insensitive_and_names_the_known_models():
     assert servo_by_name("xm540-w270") is SERVOS["XM540-W270"]
     with pytest.raises(ValueError, match=r"unknown model 'XM999' \(known: XM430-W350, "):
         servo_by_name("XM999")
-    with pytest.raises(TypeError, match=r"servo `name` to be a string, got int"):
+    with pytest.raises(TypeError, match=r"Expected a servo model name, got 430"):
         servo_by_name(430)
 
 

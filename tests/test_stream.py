@@ -198,12 +198,12 @@ def test_custom_kinematics_limits_apply():
 @pytest.mark.parametrize(
     "rate_hz, error, message",
     [
-        (0.0, ValueError, "Expected `rate_hz` > 0, got 0.0."),
-        (-100, ValueError, "Expected `rate_hz` > 0, got -100."),
-        (math.nan, ValueError, "Expected `rate_hz` > 0, got nan."),
-        (math.inf, ValueError, "Expected `rate_hz` > 0, got inf."),
-        ("100", TypeError, "Expected `rate_hz` to be a number, got str."),
-        (True, TypeError, "Expected `rate_hz` to be a number, got bool."),
+        (0.0, ValueError, "Expected `rate_hz` to be a finite number > 0, got 0.0."),
+        (-100, ValueError, "Expected `rate_hz` to be a finite number > 0, got -100."),
+        (math.nan, ValueError, "Expected `rate_hz` to be a finite number > 0, got nan."),
+        (math.inf, ValueError, "Expected `rate_hz` to be a finite number > 0, got inf."),
+        ("100", TypeError, "Expected `rate_hz` to be a finite number > 0, got '100'."),
+        (True, TypeError, "Expected `rate_hz` to be a finite number > 0, got True."),
     ],
 )
 def test_rate_is_validated_at_the_call(rate_hz, error, message):

@@ -7,12 +7,13 @@ Needs numpy only. Quaternions are scalar first, ``(w, x, y, z)``.
 """
 
 from . import quat
-from .gimbal import GimbalKinematics, KinematicsError
+from .errors import KinematicsError, PlanTooLarge, TrajgenError
+from .gimbal import JOINT_NAMES, GimbalKinematics
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
 from .path import OrientationPath, Samples
 from .sampling import sample_times
 from .spline import BlendingSpline
-from .stream import JOINT_NAMES, JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
+from .stream import JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
 
 __version__ = "0.1.0"
 
@@ -27,7 +28,9 @@ __all__ = [
     "KeyframeFileError",
     "KinematicsError",
     "OrientationPath",
+    "PlanTooLarge",
     "Samples",
+    "TrajgenError",
     "load_keyframe_file",
     "plan_joint_trajectory",
     "quat",

@@ -23,7 +23,8 @@ import numpy as np
 
 from . import jet as J
 from . import quat as Q
-from .path import FRAMES, OrientationPath, Samples, check_option, check_times
+from .path import FRAMES, OrientationPath, Samples, check_times
+from .validate import check_choice
 
 __all__ = ["PiecewiseSlerp", "Squad", "SphericalBezier", "PiecewiseCircles", "ScipyRotationSpline"]
 
@@ -211,7 +212,7 @@ class ScipyRotationSpline(OrientationPath):
     def evaluate(self, t, *, max_order: int = 2, frame: str = "space") -> Samples:
         if max_order not in (0, 1, 2):
             raise ValueError("scipy's RotationSpline gives no jerk: `max_order` must be 0..2.")
-        check_option("frame", frame, FRAMES)
+        check_choice("frame", frame, FRAMES)
         _, ta = self._segment(np.atleast_1d(np.asarray(t, dtype=float)))
         q = self._spline(ta).as_quat(scalar_first=True)
         rates = [self._spline(ta, n) for n in range(1, max_order + 1)]

@@ -19,19 +19,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen import quat
+from trajgen.errors import KinematicsError
+from trajgen.validate import check_number
 
 TWO_PI = 2.0 * math.pi
 
-#: Joint order, as ``trajgen.stream.JOINT_NAMES`` (which imports this module).
-_JOINTS = ("pan", "tilt", "roll")
+#: The gimbal's joints, in the order of every (..., 3) joint array in trajgen,
+#: ``trajgen.sim`` and ``trajgen.drivers``.
+JOINT_NAMES = ("pan", "tilt", "roll")
 
 #: Default joint limits (rad), rows pan, tilt, roll: one full turn of pan
 #: either way, the whole tilt range (the lock margin narrows it), half a turn of roll.
 DEFAULT_LIMITS_RAD = ((-TWO_PI, TWO_PI), (-math.pi / 2, math.pi / 2), (-math.pi, math.pi))
-
-
-class KinematicsError(ValueError):
-    """A path the gimbal cannot follow: gimbal lock or a joint limit."""
 
 
 def as_angles(angles, name: str = "angles", *, single: bool = False) -> np.ndarray:
@@ -247,7 +246,7 @@ class GimbalKinematics:
             raise ValueError(f"Expected `limits_rad` to have shape (3, 2), got {lim.shape}.")
         if not np.isfinite(lim).all():
             raise ValueError(f"Expected `limits_rad` to be finite, got {lim.tolist()}.")
-        for name, (low, high) in zip(_JOINTS, lim, strict=True):
+        for name, (low, high) in zip(JOINT_NAMES, lim, strict=True):
             if not low < high:
                 raise ValueError(
                     f"Expected `limits_rad` {name} low < high, got [{low:.6g}, {high:.6g}] rad."
@@ -257,13 +256,14 @@ class GimbalKinematics:
                 "Expected `limits_rad` tilt within [-pi/2, pi/2], "
                 f"got [{lim[1, 0]:.6g}, {lim[1, 1]:.6g}] rad."
             )
-        margin = self.lock_margin_rad
-        if isinstance(margin, bool) or not isinstance(margin, (int, float, np.number)):
-            raise TypeError(
-                f"Expected `lock_margin_rad` to be a number, got {type(margin).__name__}."
-            )
-        if not 0.0 < margin < math.pi / 2:
-            raise ValueError(f"Expected `lock_margin_rad` in (0, pi/2), got {margin}.")
+        margin = check_number(
+            "lock_margin_rad",
+            self.lock_margin_rad,
+            low=0.0,
+            high=math.pi / 2,
+            low_open=True,
+            high_open=True,
+        )
         object.__setattr__(self, "limits_rad", tuple((float(lo), float(hi)) for lo, hi in lim))
         object.__setattr__(self, "lock_margin_rad", float(margin))
 
@@ -362,7 +362,7 @@ class GimbalKinematics:
         j = int(np.argmax(outside[i]))
         low, high = deg(lim[j])
         raise KinematicsError(
-            f"{_JOINTS[j]} reaches {deg(a[i, j]):.1f} deg at {when}, "
+            f"{JOINT_NAMES[j]} reaches {deg(a[i, j]):.1f} deg at {when}, "
             f"outside its limits [{low:.1f}, {high:.1f}] deg"
         )
 

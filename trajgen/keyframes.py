@@ -20,13 +20,23 @@ quat = [1.0, 0.0, 0.0, 0.0]   # (w, x, y, z), instead of pan / tilt / roll
 ```
 
 Other top-level tables (``[gimbal]`` for the simulator, ``[bus]`` for the
-drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check.
+drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
+(``trajgen.cli.common.load_checked`` checks them all before any command works).
 Keyframes are counted from 1 in messages, as a person reading the file would.
+
+Large files: ``tomllib`` takes about 100 s and 0.6 GB for a 70 MB file of a
+million keyframes. The common layout, a run of ``[[keyframes]]`` tables whose
+lines are each ``t``, ``pan``, ``tilt`` or ``roll`` ``= <decimal number>``, is
+read by :func:`_read_keyframe_run` with one regular expression instead, and
+only the rest of the file goes to ``tomllib``. Anything outside that subset of
+TOML (quoted keys, ``quat``, ``inf``, underscores, a repeated key, an odd
+line) makes the whole file go through ``tomllib``, so the result and every
+message are exactly tomllib's.
 """
 
 from __future__ import annotations
 
-import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,13 +44,21 @@ from pathlib import Path
 import numpy as np
 
 from . import quat as Q
-from .spline import BOUNDARIES, LOCALS, REPARAMS, BlendingSpline
+from .errors import KeyframeFileError
+from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
+from .validate import check_choice, check_number
 
 #: The built-in example: a gentle pan/tilt look-around.
 BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
 
+#: The stream rate (Hz) every command uses when neither the command line nor
+#: the file's ``[stream] rate_hz`` gives one.
+DEFAULT_RATE_HZ = 200.0
+
 SPLINE_KEYS = ("k", "boundary", "local", "reparam")
+STREAM_KEYS = ("rate_hz",)
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
+ANGLE_KEYS = ("pan", "tilt", "roll")
 #: Top-level tables, and the package that checks each.
 TABLES = {
     "spline": "trajgen",
@@ -50,9 +68,13 @@ TABLES = {
     "bus": "drivers",
 }
 
-
-class KeyframeFileError(ValueError):
-    """A keyframe file that cannot be used; the message is one line naming file and field."""
+__all__ = [
+    "BUILTIN_EXAMPLE",
+    "DEFAULT_RATE_HZ",
+    "KeyframeFile",
+    "KeyframeFileError",
+    "load_keyframe_file",
+]
 
 
 @dataclass(frozen=True)
@@ -80,20 +102,39 @@ class KeyframeFile:
     spline_options: dict
     rate_hz: float | None = None
     tables: dict = field(default_factory=dict)
+    _spline: list = field(default_factory=list, repr=False, compare=False)
 
     def spline(self) -> BlendingSpline:
-        """The file's spline (already checked to build when the file was loaded)."""
-        return BlendingSpline(self.quats, self.times, **self.spline_options)
+        """The file's spline, built on first use and kept.
+
+        Raises
+        ------
+        KeyframeFileError
+            If the spline refuses the keyframes (a reversal with
+            ``local = "circle"``, a ``"closed"`` loop that does not close).
+        """
+        if not self._spline:
+            try:
+                self._spline.append(BlendingSpline(self.quats, self.times, **self.spline_options))
+            except (ValueError, TypeError) as e:
+                raise KeyframeFileError(f"{self.path}: {e}") from None
+        return self._spline[0]
+
+    def stream_rate(self, rate_hz: float | None = None) -> float:
+        """``rate_hz`` if given, else the file's ``[stream] rate_hz``, else the default.
+
+        The default is :data:`DEFAULT_RATE_HZ`, the same for every command.
+        """
+        return rate_hz or self.rate_hz or DEFAULT_RATE_HZ
 
     def error(self, where: str, problem: str) -> KeyframeFileError:
         """A :class:`KeyframeFileError` for this file: ``"{path}: {where}: {problem}"``."""
         return KeyframeFileError(f"{self.path}: {where}: {problem}")
 
 
-def _number(value, where: str, path: Path) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise KeyframeFileError(f"{path}: {where}: expected a finite number, got {value!r}")
-    return float(value)
+def _error(path: Path, where: str):
+    """``problem -> KeyframeFileError("{path}: {where}: {problem}")``, for ``trajgen.validate``."""
+    return lambda problem: KeyframeFileError(f"{path}: {where}: {problem}")
 
 
 def load_keyframe_file(path) -> KeyframeFile:
@@ -111,117 +152,225 @@ def load_keyframe_file(path) -> KeyframeFile:
     ------
     KeyframeFileError
         Missing or unreadable file, invalid TOML, an unknown table or key, a
-        missing or mistyped field, times not increasing, or keyframes the spline
-        refuses; the message names the file, the keyframe and the field.
+        missing or mistyped field, times not increasing; the message names the
+        file, the keyframe and the field. (What the spline itself refuses is
+        raised by :meth:`KeyframeFile.spline`.)
     """
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise KeyframeFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise KeyframeFileError(f"{path}: is a directory, not a keyframe file") from None
     except (OSError, UnicodeDecodeError) as e:
         raise KeyframeFileError(f"{path}: cannot read: {e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise KeyframeFileError(f"{path}: invalid TOML: {e}") from None
+    data, columns = _parse(text, path)
 
     for name in data:
         if name not in TABLES:
             raise KeyframeFileError(f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})")
     options = _spline_options(data.get("spline", {}), path)
     rate_hz = _stream_rate(data.get("stream", {}), path)
-    times, quats = _keyframes(data.get("keyframes"), path)
-    try:
-        BlendingSpline(quats, times, **options)
-    except (ValueError, TypeError) as e:
-        raise KeyframeFileError(f"{path}: {e}") from None
+    if columns is None:
+        columns = _keyframe_columns(data.get("keyframes"), path)
+    times, quats = _keyframes(columns, path)
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
     return KeyframeFile(path, times, quats, options, rate_hz, tables)
 
 
+def _toml(text: str, path: Path) -> dict:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise KeyframeFileError(f"{path}: invalid TOML: {e}") from None
+
+
+def _parse(text: str, path: Path) -> tuple[dict, dict | None]:
+    """The file's tables, and its keyframe columns when the fast reader could take them."""
+    run = _read_keyframe_run(text)
+    if run is not None:
+        rest, columns = run
+        try:
+            data = tomllib.loads(rest)
+        except tomllib.TOMLDecodeError:
+            data = None  # let tomllib report it against the whole file
+        if data is not None and "keyframes" not in data:
+            return data, columns
+    return _toml(text, path), None
+
+
+# --- the fast reader -------------------------------------------------------------
+_HEADER = re.compile(r"^[ \t]*\[\[keyframes\]\][ \t]*(?:#[^\n]*)?\r?$", re.M)
+# A TOML decimal number without underscores (no leading zeros, as TOML requires).
+_NUMBER = r"[+-]?(?:0|[1-9][0-9]*)(?:\.[0-9]+)?(?:[eE][+-]?[0-9]+)?"
+_LINE = re.compile(
+    r"^[ \t]*(?:(\[\[keyframes\]\])|(t|pan|tilt|roll)[ \t]*=[ \t]*(" + _NUMBER + r"))"
+    r"[ \t]*(?:#[^\n]*)?\r?$",
+    re.M,
+)
+_CONTENT = re.compile(r"^[ \t]*[^ \t\r\n#]", re.M)
+_OTHER_HEADER = re.compile(r"^[ \t]*\[(?!\[keyframes\]\][ \t]*(?:#[^\n]*)?\r?$)", re.M)
+_BLOCK_CHARS = 1 << 22  # read the run in pieces of about 4 MB to bound memory
+
+
+def _read_keyframe_run(text: str) -> tuple[str, dict] | None:
+    """Read the first run of plain ``[[keyframes]]`` tables with a regular expression.
+
+    Returns
+    -------
+    tuple of (str, dict) or None
+        The file without the run (for ``tomllib``) and the keyframe columns
+        ``{"t", "pan", "tilt", "roll": float array (N,), NaN where absent}``;
+        None if the run holds anything the reader does not handle.
+    """
+    first = _HEADER.search(text)
+    if first is None:
+        return None
+    end_match = _OTHER_HEADER.search(text, first.start())
+    end = len(text) if end_match is None else end_match.start()
+    run = text[first.start() : end]
+    codes = {"t": 0, "pan": 1, "tilt": 2, "roll": 3}
+    pieces = []  # per block: keyframe index, key code, value of each key line
+    n = 0
+    start = 0
+    while start < len(run):
+        stop = len(run)
+        if stop - start > _BLOCK_CHARS:
+            cut = _HEADER.search(run, start + _BLOCK_CHARS)
+            stop = cut.start() if cut else len(run)
+        block = run[start:stop]
+        found = _LINE.findall(block)
+        if len(found) != len(_CONTENT.findall(block)):
+            return None  # a line the reader does not handle
+        headers = np.array([r[0] != "" for r in found])
+        index = n + np.cumsum(headers) - 1
+        key_lines = ~headers
+        code = np.array([codes[r[1]] for r in found if r[1]], dtype=np.int8)
+        value = np.array([r[2] for r in found if r[1]], dtype=float)
+        pieces.append((index[key_lines], code, value))
+        n += int(headers.sum())
+        start = stop
+    index, code, value = (np.concatenate(p) for p in zip(*pieces, strict=True))
+    if np.bincount(index * 4 + code, minlength=4 * n).max(initial=0) > 1:
+        return None  # a repeated key: tomllib's error
+    table = np.full((n, 4), np.nan)
+    table[index, code] = value
+    columns = {key: table[:, c] for key, c in codes.items()}
+    columns["quat"] = np.full((n, 4), np.nan)
+    return text[: first.start()] + "\n" + text[end:], columns
+
+
+# --- tables ------------------------------------------------------------------------
 def _table(value, name: str, path: Path) -> dict:
     if not isinstance(value, dict):
         raise KeyframeFileError(f"{path}: [{name}] must be a table, got {value!r}")
     return value
 
 
+def _check_keys(table: dict, name: str, known, path: Path) -> None:
+    for key in table:
+        if key not in known:
+            raise KeyframeFileError(
+                f"{path}: [{name}] unknown key '{key}' (known: {', '.join(known)})"
+            )
+
+
 def _spline_options(table, path: Path) -> dict:
+    """The ``[spline]`` table, checked: keywords for ``BlendingSpline``."""
     table = _table(table, "spline", path)
-    for key, value in table.items():
-        if key not in SPLINE_KEYS:
-            raise KeyframeFileError(
-                f"{path}: [spline] unknown key '{key}' (known: {', '.join(SPLINE_KEYS)})"
-            )
-        if key == "k" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise KeyframeFileError(f"{path}: [spline] k: expected an integer >= 1, got {value!r}")
-        allowed = {"boundary": BOUNDARIES, "local": LOCALS, "reparam": REPARAMS}.get(key)
-        if allowed and value not in allowed:
-            raise KeyframeFileError(
-                f"{path}: [spline] {key}: expected one of {', '.join(allowed)}, got {value!r}"
-            )
+    _check_keys(table, "spline", SPLINE_KEYS, path)
+    if "k" in table:
+        check_number(
+            "k", table["k"], integer=True, low=1, high=MAX_K, error=_error(path, "[spline] k")
+        )
+    for key, allowed in (("boundary", BOUNDARIES), ("local", LOCALS), ("reparam", REPARAMS)):
+        if key in table:
+            check_choice(key, table[key], allowed, error=_error(path, f"[spline] {key}"))
     return dict(table)
 
 
 def _stream_rate(table, path: Path) -> float | None:
+    """The ``[stream]`` table, checked: its ``rate_hz`` or None."""
     table = _table(table, "stream", path)
-    for key in table:
-        if key != "rate_hz":
-            raise KeyframeFileError(f"{path}: [stream] unknown key '{key}' (known: rate_hz)")
+    _check_keys(table, "stream", STREAM_KEYS, path)
     if "rate_hz" not in table:
         return None
-    rate = _number(table["rate_hz"], "[stream] rate_hz", path)
-    if rate <= 0:
-        raise KeyframeFileError(f"{path}: [stream] rate_hz: expected > 0, got {rate:g}")
-    return rate
+    return check_number(
+        "rate_hz", table["rate_hz"], low=0.0, low_open=True, error=_error(path, "[stream] rate_hz")
+    )
 
 
-def _keyframes(entries, path: Path) -> tuple[np.ndarray, np.ndarray]:
+# --- keyframes -----------------------------------------------------------------------
+def _keyframe_columns(entries, path: Path) -> dict:
+    """Type-check the parsed ``[[keyframes]]`` and lay them out as columns (see
+    :func:`_read_keyframe_run`); a quaternion goes in ``"quat"`` (N, 4)."""
     if entries is None:
         raise KeyframeFileError(f"{path}: no [[keyframes]] (at least 2 are needed)")
-    if not isinstance(entries, list) or len(entries) < 2:
-        count = len(entries) if isinstance(entries, list) else "not a list of tables"
-        raise KeyframeFileError(f"{path}: [[keyframes]]: at least 2 are needed, got {count}")
-    times, quats = [], []
-    for i, kf in enumerate(entries, start=1):
-        where = f"keyframe {i}"
+    if not isinstance(entries, list):
+        raise KeyframeFileError(
+            f"{path}: [[keyframes]]: at least 2 are needed, got not a list of tables"
+        )
+    n = len(entries)
+    columns = {key: np.full(n, np.nan) for key in ("t", *ANGLE_KEYS)}
+    columns["quat"] = np.full((n, 4), np.nan)
+    for i, kf in enumerate(entries):
+        where = f"keyframe {i + 1}"
         if not isinstance(kf, dict):
             raise KeyframeFileError(f"{path}: {where}: expected a table, got {kf!r}")
-        for key in kf:
+        for key, value in kf.items():
             if key not in KEYFRAME_KEYS:
                 raise KeyframeFileError(
                     f"{path}: {where}: unknown field '{key}' (known: {', '.join(KEYFRAME_KEYS)})"
                 )
-        if "t" not in kf:
-            raise KeyframeFileError(f"{path}: {where}: field 't' is missing (seconds)")
-        t = _number(kf["t"], f"{where}: field 't'", path)
-        if times and t <= times[-1]:
-            raise KeyframeFileError(
-                f"{path}: {where}: field 't': {t:g} s is not after keyframe {i - 1}'s "
-                f"{times[-1]:g} s"
-            )
-        angles = [k for k in ("pan", "tilt", "roll") if k in kf]
-        if "quat" in kf:
-            if angles:
-                raise KeyframeFileError(
-                    f"{path}: {where}: give either 'quat' or pan/tilt/roll, not both"
-                )
-            q = kf["quat"]
-            if not isinstance(q, list) or len(q) != 4:
-                raise KeyframeFileError(
-                    f"{path}: {where}: field 'quat': expected [w, x, y, z], got {q!r}"
-                )
-            q = np.array([_number(x, f"{where}: field 'quat'", path) for x in q])
-            if np.linalg.norm(q) < 1e-12:
-                raise KeyframeFileError(f"{path}: {where}: field 'quat': zero quaternion")
-        elif angles:
-            pan, tilt, roll = (
-                math.radians(_number(kf.get(k, 0.0), f"{where}: field '{k}'", path))
-                for k in ("pan", "tilt", "roll")
-            )
-            q = Q.from_pan_tilt_roll(pan, tilt, roll)
-        else:
-            raise KeyframeFileError(
-                f"{path}: {where}: no orientation: give 'quat' or pan/tilt/roll (degrees)"
-            )
-        times.append(t)
-        quats.append(q)
-    return np.array(times), Q.as_quats(np.array(quats))
+            field_error = _error(path, f"{where}: field '{key}'")
+            if key != "quat":
+                columns[key][i] = check_number(key, value, error=field_error)
+            elif not isinstance(value, list) or len(value) != 4:
+                raise field_error(f"expected [w, x, y, z], got {value!r}")
+            else:
+                columns["quat"][i] = [check_number(key, x, error=field_error) for x in value]
+    return columns
+
+
+def _first(mask: np.ndarray) -> int:
+    return int(np.argmax(mask))
+
+
+def _keyframes(columns: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Check the keyframe columns as a whole; times (N,) and unit quaternions (N, 4)."""
+    t, quat = columns["t"], columns["quat"]
+    n = len(t)
+    if n < 2:
+        raise KeyframeFileError(f"{path}: [[keyframes]]: at least 2 are needed, got {n}")
+    has_quat = ~np.isnan(quat[:, 0])
+    has_angle = ~np.isnan(np.column_stack([columns[k] for k in ANGLE_KEYS])).all(axis=1)
+    if np.isnan(t).any():
+        i = _first(np.isnan(t))
+        raise KeyframeFileError(f"{path}: keyframe {i + 1}: field 't' is missing (seconds)")
+    both = has_quat & has_angle
+    if both.any():
+        raise KeyframeFileError(
+            f"{path}: keyframe {_first(both) + 1}: give either 'quat' or pan/tilt/roll, not both"
+        )
+    neither = ~has_quat & ~has_angle
+    if neither.any():
+        raise KeyframeFileError(
+            f"{path}: keyframe {_first(neither) + 1}: no orientation: give 'quat' or "
+            "pan/tilt/roll (degrees)"
+        )
+    late = np.diff(t) <= 0
+    if late.any():
+        i = _first(late) + 1
+        raise KeyframeFileError(
+            f"{path}: keyframe {i + 1}: field 't': {t[i]:g} s is not after keyframe {i}'s "
+            f"{t[i - 1]:g} s"
+        )
+    zero = has_quat & (np.linalg.norm(np.nan_to_num(quat), axis=1) < 1e-12)
+    if zero.any():
+        raise KeyframeFileError(
+            f"{path}: keyframe {_first(zero) + 1}: field 'quat': zero quaternion"
+        )
+    pan, tilt, roll = (np.radians(np.nan_to_num(columns[k])) for k in ANGLE_KEYS)
+    quats = np.where(has_quat[:, None], quat, Q.from_pan_tilt_roll(pan, tilt, roll))
+    return t.copy(), Q.as_quats(quats)

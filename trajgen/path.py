@@ -15,6 +15,7 @@ import numpy as np
 from . import jet as J
 from . import quat as Q
 from .sampling import sample_times
+from .validate import check_choice, check_number
 
 FRAMES = ("space", "body")
 
@@ -54,17 +55,8 @@ def check_times(times, n: int) -> np.ndarray:
     return t
 
 
-def check_option(name: str, value, allowed: tuple[str, ...]) -> str:
-    """``value`` if it is one of ``allowed``, else ValueError naming ``name``."""
-    if not isinstance(value, str) or value not in allowed:
-        raise ValueError(f"Expected `{name}` to be one of {allowed}, got {value!r}.")
-    return value
-
-
 def _check_order(name: str, value, top: int = 3) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= value <= top:
-        raise ValueError(f"Expected `{name}` in 0..{top}, got {value!r}.")
-    return int(value)
+    return check_number(name, value, integer=True, low=0, high=top)
 
 
 class OrientationPath:
@@ -129,7 +121,7 @@ class OrientationPath:
             If a time is outside the range, or ``max_order`` or ``frame`` is unknown.
         """
         max_order = _check_order("max_order", max_order)
-        check_option("frame", frame, FRAMES)
+        check_choice("frame", frame, FRAMES)
         seg, ta = self._segment(_as_times(t).reshape(-1))
         q, rates = self._space_rates(ta, seg, max_order)
         if frame == "body":

@@ -18,8 +18,10 @@ def as_quats(quats, name: str = "quats") -> np.ndarray:
 
     Parameters
     ----------
-    quats : array_like, shape (N, 4)
-        Scalar-first quaternions of any sign and non-zero norm.
+    quats : array_like, shape (N, 4), or scipy.spatial.transform.Rotation
+        Scalar-first quaternions of any sign and non-zero norm, or a scipy
+        ``Rotation`` (converted from scipy's scalar-last order here; scipy is
+        not imported).
     name : str
         Argument name used in error messages.
 
@@ -35,6 +37,8 @@ def as_quats(quats, name: str = "quats") -> np.ndarray:
     ValueError
         If the shape is not (N, 4), a value is not finite, or a row has zero norm.
     """
+    if _is_scipy_rotation(quats):
+        quats = np.roll(np.atleast_2d(quats.as_quat()), 1, axis=-1)  # (x, y, z, w) -> (w, x, y, z)
     try:
         q = np.asarray(quats, dtype=float)
     except (TypeError, ValueError) as e:
@@ -48,6 +52,12 @@ def as_quats(quats, name: str = "quats") -> np.ndarray:
     if (norm < 1e-12).any():
         raise ValueError(f"`{name}` row {int(np.argmax(norm < 1e-12))} has zero norm.")
     return q / norm[:, None]
+
+
+def _is_scipy_rotation(obj) -> bool:
+    """True for a ``scipy.spatial.transform.Rotation``, without importing scipy."""
+    cls = type(obj)
+    return cls.__name__ == "Rotation" and cls.__module__.startswith("scipy.spatial.transform")
 
 
 def mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:

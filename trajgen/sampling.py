@@ -1,4 +1,4 @@
-"""Fixed-rate sample times."""
+"""Fixed-rate sample times, and the limit on how many a plan may hold."""
 
 from __future__ import annotations
 
@@ -6,13 +6,66 @@ import math
 
 import numpy as np
 
+from .errors import PlanTooLarge
+from .validate import check_number
 
-def sample_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
+#: The most samples a plan holds in memory by default: 5 million rows (about
+#: 7 h at 200 Hz, 83 min at 1 kHz). Evaluating one sample with its angular
+#: velocity and acceleration takes about 1 KiB of temporaries, so this keeps a
+#: plan within a few GiB. ``trajgen plan`` writes CSV in blocks and may go
+#: beyond it with ``--max-samples``.
+MAX_SAMPLES = 5_000_000
+
+
+def sample_count(t_start: float, t_end: float, rate_hz: float) -> float:
+    """How many samples :func:`sample_times` gives (``inf`` if it would overflow).
+
+    A float, so that an absurd plan (``t = 1e308``, ``rate 1e9``) can be
+    refused with its count before anything is allocated.
+    """
+    periods = (t_end - t_start) * rate_hz
+    if not math.isfinite(periods):
+        return math.inf
+    return math.floor(periods + 1e-9) + 2.0  # at most one extra sample at t_end
+
+
+def check_sample_count(
+    t_start: float, t_end: float, rate_hz: float, max_samples: int = MAX_SAMPLES
+) -> int:
+    """The sample count of ``[t_start, t_end]`` at ``rate_hz``, refused above ``max_samples``.
+
+    Raises
+    ------
+    PlanTooLarge
+        With the count and the limit, before any array is allocated.
+    """
+    count = sample_count(t_start, t_end, rate_hz)
+    if count > max_samples:
+        shown = "more than 1e300" if not math.isfinite(count) else f"{count:.4g}"
+        raise PlanTooLarge(
+            f"{t_end - t_start:.6g} s at {rate_hz:g} Hz is {shown} samples, over the limit of "
+            f"{max_samples:,} (lower the rate, or shorten the motion)"
+        )
+    return int(count)
+
+
+def sample_times(
+    t_start: float, t_end: float, rate_hz: float, *, max_samples: int = MAX_SAMPLES
+) -> np.ndarray:
     """Times from ``t_start`` to ``t_end`` inclusive at ``rate_hz``.
 
     Samples fall at ``t_start + i / rate_hz``; the last one is at ``t_end`` even
     when the duration is not a whole number of periods (it is then closer than
     one period to the one before it).
+
+    Parameters
+    ----------
+    t_start, t_end : float
+        First and last time (s).
+    rate_hz : float
+        Sample rate (Hz), > 0.
+    max_samples : int, optional
+        Refuse plans longer than this (default :data:`MAX_SAMPLES`).
 
     Returns
     -------
@@ -21,15 +74,15 @@ def sample_times(t_start: float, t_end: float, rate_hz: float) -> np.ndarray:
 
     Raises
     ------
-    ValueError
+    TypeError, ValueError
         If ``rate_hz`` is not a positive finite number or ``t_end <= t_start``.
+    PlanTooLarge
+        If there would be more than ``max_samples`` samples.
     """
-    if isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float, np.number)):
-        raise TypeError(f"Expected `rate_hz` to be a number, got {type(rate_hz).__name__}.")
-    if not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"Expected `rate_hz` > 0, got {rate_hz}.")
+    rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
     if not t_end > t_start:
         raise ValueError(f"Expected t_end > t_start, got {t_start} .. {t_end}.")
+    check_sample_count(t_start, t_end, rate_hz, max_samples)
     period = 1.0 / rate_hz
     # Whole periods that fit, with a tolerance so 2.0 s at 100 Hz gives 201 samples.
     n = math.floor((t_end - t_start) / period + 1e-9)

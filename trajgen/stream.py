@@ -14,10 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.gimbal import GimbalKinematics, KinematicsError, as_angles, joint_rates
+from trajgen.errors import KinematicsError
+from trajgen.gimbal import JOINT_NAMES, GimbalKinematics, as_angles, joint_rates  # noqa: F401 (JOINT_NAMES re-exported)
 from trajgen.sampling import sample_times
-
-JOINT_NAMES = ("pan", "tilt", "roll")
 
 
 @dataclass(frozen=True)

@@ -2,19 +2,35 @@
 
 ``VirtualBus`` opens a pty, puts its slave side in raw mode, and answers
 packets on the master side from a background thread, so the real driver, the
-real ``dynamixel-sdk`` and the real pyserial run unchanged against
-``VirtualBus.port``. Instructions: PING (also broadcast), READ, WRITE, REBOOT,
-SYNC_WRITE, SYNC_READ, FAST_SYNC_READ; CRC and byte stuffing as in the
-e-Manual; per-servo control tables and rules in ``drivers.virtual.servo``.
+real ``dynamixel-sdk`` and the real pyserial (or any other Dynamixel tool) run
+unchanged against ``VirtualBus.port``. Instructions: PING (also broadcast),
+READ, WRITE, REG_WRITE, ACTION, FACTORY_RESET, REBOOT, CLEAR, SYNC_READ,
+SYNC_WRITE, FAST_SYNC_READ, BULK_READ, BULK_WRITE, FAST_BULK_READ; anything
+else gets the Instruction Error. WRITE, REG_WRITE, ACTION, REBOOT, CLEAR and
+FACTORY_RESET may be broadcast (no reply, as on a real bus); Status Return
+Level decides which instructions are answered. CRC and byte stuffing as in
+the e-Manual; per-servo control tables and register rules in
+``drivers.virtual.servo``.
 
-Servo motion comes from a ``Plant``. Two clocks:
+Servo motion comes from a ``Plant``: one lock guards it, and every plant call
+is made holding it. Two clocks:
 
-- lock-step (``lockstep_dt_s`` given): the plant advances by exactly that much
-  on every Sync Write of Goal Position and at no other time, so a test's result
-  does not depend on the host's timing;
-- real-time (``lockstep_dt_s=None``): before each packet is handled, the plant
-  advances by the wall-clock time since the last packet (the plant is only
-  observed through packets, so this is the same as a thread stepping it).
+- real time (``lockstep_dt_s=None``, the default): a simulation thread
+  advances the plant in steps of ``sim_step_s`` on the wall clock, whether
+  packets arrive or not, so simulated time tracks wall time and a reply after
+  a pause costs no catch-up; packets are answered from the state the plant has
+  reached;
+- lock-step (``lockstep_dt_s`` given): simulated time advances only with the
+  host's traffic, by exactly ``lockstep_dt_s`` per period, so a run does not
+  depend on the host's timing and goes as fast as the plant computes. A period
+  ends at each packet that writes Goal Position (by any instruction): the
+  plant first runs the period that ends as the goal arrives, under the goals
+  it had, then takes the new goal. A poll (a read of the present-value
+  registers, 120..147, with no goal written since the previous poll) also
+  ends a period, so a client that writes one goal and polls until the servo
+  is there sees it move. A read that follows a goal write returns the state at
+  the moment the goal was written: a telemetry row labelled with the goal's
+  time holds what the servo saw at that time.
 
 ``WireTiming`` adds what a pty lacks: byte time at the baud rate, each servo's
 Return Delay Time, its turnaround, and the USB adapter's latency. ``Fault``
@@ -39,7 +55,7 @@ from typing import Literal
 import numpy as np
 
 from trajgen.drivers.clock import sleep_until
-from trajgen.drivers.control_table import Model, Register, model_named
+from trajgen.drivers.control_table import WATCHDOG_UNIT_S, Model, model_named
 from trajgen.drivers.protocol import (
     ALERT_BIT,
     BROADCAST_ID,
@@ -52,12 +68,36 @@ from trajgen.drivers.protocol import (
     encode_status,
 )
 from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
-from trajgen.drivers.virtual.plant import Plant
-from trajgen.drivers.virtual.servo import VirtualServo
+from trajgen.drivers.virtual.plant import CONTROL_REGISTERS, PWM_FULL_SCALE, Plant
+from trajgen.drivers.virtual.servo import FACTORY_RESET_KEEPS, VirtualServo
 
 _OVERLOAD_BIT = 0x20
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).
 _SWITCH_INTERVAL_S = 1e-3
+# Most simulation steps run per hold of the lock when the plant has fallen behind.
+_MAX_STEPS_PER_HOLD = 5
+# The registers the plant fills (Realtime Tick .. Present Temperature).
+_PRESENT_NAMES = (
+    "Realtime Tick",
+    "Present Temperature",
+)
+# CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
+_CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
+# Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
+# the one ROBOTIS' examples use to decide a goal is reached (pulses).
+IN_POSITION_TICKS = 20
+# Status Return Level (68): which instructions get a status packet.
+_ANSWERED_AT_LEVEL = {
+    0: {Instruction.PING},
+    1: {
+        Instruction.PING,
+        Instruction.READ,
+        Instruction.SYNC_READ,
+        Instruction.FAST_SYNC_READ,
+        Instruction.BULK_READ,
+        Instruction.FAST_BULK_READ,
+    },
+}
 
 
 @dataclass(frozen=True)
@@ -116,7 +156,8 @@ class Fault:
         The id a wrong_id reply carries; None: ``servo_id + 1``.
     address : int or None
         Only replies to reads (READ, SYNC_READ, FAST_SYNC_READ) of this start
-        address are affected; None: any reply.
+        address are affected; None: any reply. (short and wrong_id leave fast
+        bulk read replies alone.)
     """
 
     kind: Literal["drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"]
@@ -144,38 +185,43 @@ class VirtualBus:
     plant : Plant
         Joint ``j`` is the servo ``ids[j]``.
     ids : sequence of int, optional
-        Servo ids, one per plant joint.
+        Servo ids at power-up, one per plant joint.
     models : str or sequence of str, optional
         Model name for every servo, or one per servo.
     lockstep_dt_s : float or None, optional
-        Lock-step period (s): the plant advances this much per Goal Position
-        sync write. None: real-time.
+        Lock-step period (s), see the module docstring. None: real time.
     timing : WireTiming or None, optional
         Wire timing to emulate; None answers as fast as possible.
     faults : sequence of Fault, optional
         Failures to inject.
     fast_sync_read : bool, optional
-        Whether the servos answer Fast Sync Read; False emulates firmware that
-        predates it (no answer), to exercise the driver's fallback.
-    registers : mapping of int to mapping of Register to int, optional
-        Initial register values per servo id, over the factory defaults: what
-        whoever assembled the robot installed (position limits, Drive Mode...),
-        or a latched Hardware Error Status.
+        Whether the servos answer Fast Sync Read and Fast Bulk Read; False
+        emulates firmware that predates them (no answer), to exercise the
+        driver's fallback.
+    registers : mapping of int to mapping of str to int, optional
+        Per servo id, register values set before power-up (as someone
+        configured the servo; see ``VirtualServo``).
     goal_log_size : int, optional
         How many of the latest frames ``goal_log`` keeps (memory stays
         constant on long streams).
+    sim_step_s : float, optional
+        Real time: the simulation thread's step (s).
 
     Raises
     ------
     ValueError
-        If the ids do not match the plant's joints or a model is unknown.
+        If the ids do not match the plant's joints, a model is unknown, or a
+        period is not positive.
+    TypeError
+        If ``plant`` is not a ``Plant``.
 
     Attributes
     ----------
     port : str
         Device path of the pty's slave side: open it as a serial port.
     servos : dict of int to VirtualServo
-        The servos by id.
+        The servos by their power-up id (a servo answers to its ID register,
+        which a host may change).
     goal_log : deque of ndarray, shape (n,)
         Goal ticks of the latest ``goal_log_size`` Goal Position sync writes
         received, in ``ids`` order.
@@ -183,9 +229,11 @@ class VirtualBus:
         Goal Position sync writes received so far.
     bytes_received, bytes_sent : int
         Bytes read from and written to the host.
+    sim_time_s : float
+        Simulated time (s) the bus has advanced the plant by.
     lock : threading.Lock
-        Held while a packet is handled: hold it to look at ``servos`` or the
-        plant from another thread while the bus runs.
+        Held around every plant call and while a packet is handled: hold it to
+        look at ``servos`` or the plant from another thread while the bus runs.
     error : Exception or None
         What stopped the bus when the plant raised (the port then closes, so
         the driver sees it go away).
@@ -201,9 +249,12 @@ class VirtualBus:
         timing: WireTiming | None = None,
         faults: Sequence[Fault] = (),
         fast_sync_read: bool = True,
-        registers: Mapping[int, Mapping[Register, int]] | None = None,
+        registers: Mapping[int, Mapping[str, int]] | None = None,
         goal_log_size: int = 100_000,
+        sim_step_s: float = 1e-3,
     ) -> None:
+        if not isinstance(plant, Plant):
+            raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
         ids = tuple(ids)
         if len(ids) != plant.n_joints:
             raise ValueError(
@@ -215,13 +266,18 @@ class VirtualBus:
         resolved: list[Model] = [model_named(n) for n in names]
         if lockstep_dt_s is not None and not lockstep_dt_s > 0:
             raise ValueError(f"Expected `lockstep_dt_s` > 0 or None, got {lockstep_dt_s}.")
+        if not sim_step_s > 0:
+            raise ValueError(f"Expected `sim_step_s` > 0, got {sim_step_s}.")
+        registers = registers or {}
         self.plant = plant
         self.ids = ids
-        self.servos = {i: VirtualServo(i, m) for i, m in zip(ids, resolved, strict=True)}
-        for servo_id, values in (registers or {}).items():
-            for register, value in values.items():
-                self.servos[servo_id].set(register, value)
+        self.servos = {
+            i: VirtualServo(i, m, registers=registers.get(i))
+            for i, m in zip(ids, resolved, strict=True)
+        }
+        self._joint = {i: j for j, i in enumerate(ids)}
         self.lockstep_dt_s = lockstep_dt_s
+        self.sim_step_s = sim_step_s
         self.timing = timing
         self.fast_sync_read = fast_sync_read
         self._faults = [[f, f.count] for f in faults]
@@ -229,32 +285,39 @@ class VirtualBus:
         self.frames_received = 0
         self.bytes_received = 0
         self.bytes_sent = 0
+        self.sim_time_s = 0.0
+        self.lock = threading.Lock()
         self._goal_rad = np.asarray(plant.read()[0], dtype=float).copy()
-        for servo_id, ticks in zip(ids, rad_to_servo_ticks(self._goal_rad), strict=True):
-            self.servos[servo_id].set(Register.GOAL_POSITION, int(ticks))
+        ticks = rad_to_servo_ticks(self._goal_rad)
+        for servo_id in ids:
+            servo = self.servos[servo_id]
+            servo.set("Goal Position", servo.present_ticks(int(ticks[self._joint[servo_id]])))
+            self.plant.set_control(self._joint[servo_id], self._control(servo))
+            self.plant.set_torque_enabled(self._joint[servo_id], servo.torque_on)
+        self._goal_written = False
+        self._polled = False
         self._last_packet_s = {i: time.monotonic() for i in ids}
-        self._last_advance_s = time.monotonic()
         self._wire_free_s = 0.0
         self._master = -1
         self._slave = -1
-        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
-        self.lock = threading.Lock()
         self.port = ""
         self.error: Exception | None = None
         self._late: list[tuple[float, int, bytes]] = []
         self._late_count = 0
         self._switch_interval_s = sys.getswitchinterval()
+        self._started_s = time.monotonic()
 
     # -- life cycle --------------------------------------------------------
 
     def start(self) -> VirtualBus:
-        """Open the pty and start answering; returns self.
+        """Open the pty and start answering (and, in real time, simulating); returns self.
 
         While running, the interpreter's thread switch interval is 1 ms
-        (restored by ``stop``): the driver busy-waits for replies in the same
-        process, and at the default 5 ms the bus thread answers late. (0.1 ms
-        was worse: the two threads then thrash over the GIL.)
+        (restored by ``stop``): a driver in the same process busy-waits for
+        replies, and at the default 5 ms the bus thread answers late. (0.1 ms
+        was worse: the threads then thrash over the GIL.)
         """
         self._switch_interval_s = sys.getswitchinterval()
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
@@ -262,23 +325,29 @@ class VirtualBus:
         tty.setraw(self._slave)
         self.port = os.ttyname(self._slave)
         self._stop.clear()
-        self._last_advance_s = time.monotonic()
-        self._thread = threading.Thread(target=self._serve, name="virtual-bus", daemon=True)
-        self._thread.start()
+        self._started_s = time.monotonic()
+        self._last_packet_s = dict.fromkeys(self.ids, self._started_s)
+        targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
+        self._threads = [
+            threading.Thread(target=t, name=f"virtual-bus{t.__name__}", daemon=True)
+            for t in targets
+        ]
+        for thread in self._threads:
+            thread.start()
         return self
 
     def stop(self) -> None:
-        """Stop answering and close the pty."""
+        """Stop answering and simulating, and close the pty."""
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        self._threads = []
         for fd in (self._master, self._slave):
             if fd >= 0:
                 try:
                     os.close(fd)
                 except OSError:
-                    pass  # closed by a "close" fault
+                    pass  # closed by a "close" fault or a plant failure
         self._master = self._slave = -1
         sys.setswitchinterval(self._switch_interval_s)
 
@@ -287,6 +356,134 @@ class VirtualBus:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    @property
+    def wall_time_s(self) -> float:
+        """Wall-clock time (s) since ``start``."""
+        return time.monotonic() - self._started_s
+
+    def _fail(self, error: Exception) -> None:
+        """The plant failed: remember why and close the port (the host sees it go)."""
+        self.error = error
+        self._stop.set()
+        if self._master >= 0:
+            try:
+                os.close(self._master)
+            except OSError:
+                pass
+            self._master = -1
+
+    # -- the plant -----------------------------------------------------------
+
+    def _advance(self, dt_s: float) -> None:
+        """Advance the plant by ``dt_s`` (lock held)."""
+        self.plant.advance(dt_s)
+        self.sim_time_s += dt_s
+
+    def _simulate(self) -> None:
+        """Real time: step the plant on the wall clock, whatever the traffic."""
+        step = self.sim_step_s
+        done = 0
+        while not self._stop.is_set():
+            due = int((time.monotonic() - self._started_s) / step)
+            if due > done:
+                steps = min(due - done, _MAX_STEPS_PER_HOLD)
+                try:
+                    with self.lock:
+                        self._advance(steps * step)
+                        self._check_watchdogs(time.monotonic())
+                except Exception as e:  # the plant failed: the port goes away
+                    self._fail(e)
+                    return
+                done += steps
+                if done < due:
+                    time.sleep(0)  # behind: let the serving thread in, then catch up
+                    continue
+            wait = self._started_s + (done + 1) * step - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+
+    @staticmethod
+    def _control(servo: VirtualServo) -> dict[str, int]:
+        return {name: servo.get(name) for name in CONTROL_REGISTERS}
+
+    def _goal_for_plant(self, servo: VirtualServo) -> float:
+        """The plant angle (rad) of a servo's Goal Position, clamped to its limits."""
+        goal = servo.get("Goal Position")
+        if servo.position_mode:
+            goal = min(max(goal, servo.get("Min Position Limit")), servo.get("Max Position Limit"))
+        return float(servo_ticks_to_rad(servo.plant_ticks(goal)))
+
+    def _written(self, servo_id: int, names: set[str]) -> None:
+        """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
+        j = self._joint[servo_id]
+        servo = self.servos[servo_id]
+        if "Torque Enable" in names:
+            self.plant.set_torque_enabled(j, servo.torque_on)
+        if names & set(CONTROL_REGISTERS):
+            self.plant.set_control(j, self._control(servo))
+        if "Goal Position" in names:
+            self._goal_rad[j] = self._goal_for_plant(servo)
+            self._goal_written = True
+
+    def _commit_goals(self) -> None:
+        """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
+        if not self._goal_written:
+            return
+        self._goal_written = False
+        if self.lockstep_dt_s is not None:
+            self._advance(self.lockstep_dt_s)
+            self._polled = False
+        self.plant.set_goal(self._goal_rad.copy())
+
+    def _refresh_present(self, *, poll: bool) -> None:
+        """Fill every servo's present-value registers from the plant.
+
+        In lock-step, a poll with no goal written since the previous poll ends
+        a period first.
+        """
+        if poll and self.lockstep_dt_s is not None:
+            if self._polled:
+                self._advance(self.lockstep_dt_s)
+            self._polled = True
+        position, velocity, current = self.plant.read()
+        pwm = self.plant.present_pwm()
+        ticks = rad_to_servo_ticks(position)
+        tick_ms = round(self.sim_time_s * 1000) % 32_768
+        for j, servo_id in enumerate(self.ids):
+            servo = self.servos[servo_id]
+            present = servo.present_ticks(int(ticks[j]))
+            speed = round(velocity[j] / VELOCITY_UNIT_RAD_S)
+            goal = servo.get("Goal Position")
+            servo.set("Realtime Tick", tick_ms)
+            servo.set("Present Position", present)
+            servo.set("Present Velocity", speed)
+            servo.set("Present Current", servo.model.current_raw(current[j]))
+            servo.set("Present PWM", round(pwm[j] * PWM_FULL_SCALE))
+            servo.set("Position Trajectory", goal)
+            servo.set("Velocity Trajectory", 0)
+            servo.set("Moving", abs(speed) > servo.get("Moving Threshold"))
+            servo.set("Moving Status", self._moving_status(servo, goal - present))
+
+    @staticmethod
+    def _moving_status(servo: VirtualServo, error_ticks: int) -> int:
+        """Moving Status (123): bit 0 in position, bits 4-5 the profile's shape.
+
+        The goal is a step (no profile generator is emulated), so Profile
+        Ongoing (bit 1) and Following Error (bit 3) stay 0; bits 4-5 say
+        which profile the registers ask for: 00 step, 01 rectangular
+        (velocity only), 11 trapezoidal.
+        """
+        status = int(abs(error_ticks) <= IN_POSITION_TICKS)
+        if servo.get("Profile Velocity"):
+            status |= 0x30 if servo.get("Profile Acceleration") else 0x10
+        return status
+
+    def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
+        """Whether a read of ``address``.. touches the registers the plant fills."""
+        low = servo.items[_PRESENT_NAMES[0]][0]
+        high = sum(servo.items[_PRESENT_NAMES[1]])
+        return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     # -- serving -----------------------------------------------------------
 
@@ -302,7 +499,7 @@ class VirtualBus:
                 if not ready:
                     continue
                 data = os.read(self._master, 4096)
-            except OSError:
+            except (OSError, ValueError):
                 return  # master closed
             arrival_s = time.monotonic()
             self.bytes_received += len(data)
@@ -312,9 +509,9 @@ class VirtualBus:
                     with self.lock:
                         replies = self._handle(raw, arrival_s)
                 except Exception as e:  # the plant failed: the port goes away
-                    self.error = e
-                    replies = None
-                if replies is None:  # "close" fault, or the plant failed
+                    self._fail(e)
+                    return
+                if replies is None:  # "close" fault
                     os.close(self._master)
                     self._master = -1
                     return
@@ -344,7 +541,7 @@ class VirtualBus:
         for servo_id, reply, extra_s in replies:
             if self.timing is not None:
                 servo = self.servos.get(servo_id)
-                delay = 2e-6 * servo.get(Register.RETURN_DELAY_TIME) if servo else 0.0
+                delay = 2e-6 * servo.get("Return Delay Time") if servo else 0.0
                 t += self.timing.turnaround_s + delay + len(reply) * self.timing.byte_time_s
                 sleep_until(t + self.timing.adapter_latency_s)
             if extra_s:
@@ -354,149 +551,277 @@ class VirtualBus:
                 self._write(reply)
         self._wire_free_s = t
 
+    def _addressed(self, servo_id: int) -> list[int]:
+        """The servos (by power-up id) whose ID register is ``servo_id``, or all on broadcast."""
+        if servo_id == BROADCAST_ID:
+            return list(self.ids)
+        return [i for i in self.ids if self.servos[i].servo_id == servo_id]
+
     def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
         try:
             packet = decode(raw)
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
-        self._advance_real_time(arrival_s)
-        targets = self.ids if packet.servo_id == BROADCAST_ID else (packet.servo_id,)
-        for servo_id in targets:
-            if servo_id in self.servos:
-                self._check_watchdog(servo_id, arrival_s)
-                self._last_packet_s[servo_id] = arrival_s
-        inst, params = packet.instruction, packet.params
-        if inst == Instruction.SYNC_WRITE:
-            self._sync_write(params)
-            return self._after_frame()
-        if inst == Instruction.FAST_SYNC_READ and not self.fast_sync_read:
-            replies = []
-        elif inst in (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ):
-            replies = self._sync_read(params, fast=inst == Instruction.FAST_SYNC_READ)
-        elif packet.servo_id == BROADCAST_ID and inst == Instruction.PING:
-            replies = [(i, self._status(i, 0, self._ping_data(i))) for i in self.ids]
-        elif packet.servo_id in self.servos:
-            replies = [(packet.servo_id, self._unicast(packet.servo_id, inst, params))]
-        else:
-            replies = []
+        if self.lockstep_dt_s is not None:
+            self._check_watchdogs(arrival_s)
+        for servo_id in self._addressed(packet.servo_id):
+            self._last_packet_s[servo_id] = arrival_s
+        handler = self._HANDLERS.get(packet.instruction, VirtualBus._unknown)
+        replies = handler(self, packet.servo_id, packet.params)
+        self._commit_goals()
+        if packet.instruction == Instruction.SYNC_WRITE and self._after_frame() is None:
+            return None
         return self._apply_reply_faults(replies, packet)
 
     def _status(self, servo_id: int, error: int, data: bytes = b"") -> bytes:
-        if self.servos[servo_id].alert:
+        servo = self.servos[servo_id]
+        if servo.alert:
             error |= ALERT_BIT
-        return encode_status(servo_id, error, data)
+        return encode_status(servo.servo_id, error, data)
 
-    def _ping_data(self, servo_id: int) -> bytes:
+    def _answers(self, servo_id: int, instruction: int) -> bool:
+        """Whether Status Return Level lets a servo answer ``instruction``."""
+        level = self.servos[servo_id].get("Status Return Level")
+        return level >= 2 or instruction in _ANSWERED_AT_LEVEL[level]
+
+    def _unicast_replies(self, packet_id: int, instruction: int, answer) -> list[tuple[int, bytes]]:
+        """Run ``answer(servo id) -> (error, data)`` per servo addressed; reply unless broadcast."""
+        replies = []
+        for servo_id in self._addressed(packet_id):
+            error, data = answer(servo_id)
+            if packet_id != BROADCAST_ID and self._answers(servo_id, instruction):
+                replies.append((servo_id, self._status(servo_id, error, data)))
+        return replies
+
+    # -- instructions ----------------------------------------------------------
+
+    def _unknown(self, packet_id: int, params: bytes) -> list:
+        if packet_id == BROADCAST_ID:
+            return []
+        return [(i, self._status(i, StatusError.INSTRUCTION)) for i in self._addressed(packet_id)]
+
+    def _ping(self, packet_id: int, params: bytes) -> list:
+        def answer(servo_id):
+            servo = self.servos[servo_id]
+            number = servo.get("Model Number")
+            return 0, bytes([number & 0xFF, number >> 8, servo.get("Firmware Version")])
+
+        targets = self._addressed(packet_id)
+        return [(i, self._status(i, *answer(i))) for i in targets]
+
+    def _read_one(self, servo_id: int, address: int, length: int) -> tuple[int, bytes]:
         servo = self.servos[servo_id]
-        number = servo.get(Register.MODEL_NUMBER)
-        return bytes([number & 0xFF, number >> 8, servo.get(Register.FIRMWARE_VERSION)])
+        self._refresh_present(poll=self._reads_present(servo, address, length))
+        return servo.read(address, length)
 
-    def _unicast(self, servo_id: int, inst: int, params: bytes) -> bytes:
+    def _read(self, packet_id: int, params: bytes) -> list:
+        if packet_id == BROADCAST_ID:
+            return []
+        if len(params) != 4:
+            return self._unicast_replies(
+                packet_id, Instruction.READ, lambda i: (StatusError.DATA_LENGTH, b"")
+            )
+        address, length = _word(params, 0), _word(params, 2)
+        return self._unicast_replies(
+            packet_id, Instruction.READ, lambda i: self._read_one(i, address, length)
+        )
+
+    def _write_one(self, servo_id: int, address: int, data: bytes) -> int:
+        error, names = self.servos[servo_id].write(address, data)
+        if not error:
+            self._written(servo_id, names)
+        return error
+
+    def _write_instruction(self, packet_id: int, params: bytes) -> list:
+        if len(params) < 3:
+            return self._unicast_replies(
+                packet_id, Instruction.WRITE, lambda i: (StatusError.DATA_LENGTH, b"")
+            )
+        address = _word(params, 0)
+        return self._unicast_replies(
+            packet_id, Instruction.WRITE, lambda i: (self._write_one(i, address, params[2:]), b"")
+        )
+
+    def _reg_write(self, packet_id: int, params: bytes) -> list:
+        def answer(servo_id):
+            servo = self.servos[servo_id]
+            if len(params) < 3:
+                return StatusError.DATA_LENGTH, b""
+            error = servo.check_write(_word(params, 0), params[2:])[0]
+            if not error:
+                servo.pending = (_word(params, 0), bytes(params[2:]))
+                servo.set("Registered Instruction", 1)
+            return error, b""
+
+        return self._unicast_replies(packet_id, Instruction.REG_WRITE, answer)
+
+    def _action(self, packet_id: int, params: bytes) -> list:
+        def answer(servo_id):
+            servo = self.servos[servo_id]
+            if servo.pending is None:
+                return StatusError.INSTRUCTION, b""
+            (address, data), servo.pending = servo.pending, None
+            servo.set("Registered Instruction", 0)
+            return self._write_one(servo_id, address, data), b""
+
+        return self._unicast_replies(packet_id, Instruction.ACTION, answer)
+
+    def _plant_ticks(self, servo_id: int) -> int:
+        return int(rad_to_servo_ticks(self.plant.read()[0][self._joint[servo_id]]))
+
+    def _after_reset(self, servo_id: int) -> None:
+        """A servo rebooted: the plant follows its registers (torque off, goal = present)."""
         servo = self.servos[servo_id]
-        if inst == Instruction.PING:
-            return self._status(servo_id, 0, self._ping_data(servo_id))
-        if inst == Instruction.READ and len(params) == 4:
-            self._refresh_present()
-            address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-            error, data = servo.read(address, length)
-            return self._status(servo_id, error, data)
-        if inst == Instruction.WRITE and len(params) >= 3:
-            address = params[0] | params[1] << 8
-            error = servo.write(address, params[2:])
-            if error == 0 and self._apply_write(servo_id, address, len(params) - 2):
-                self.plant.set_goal(self._goal_rad.copy())
-            return self._status(servo_id, error)
-        if inst == Instruction.REBOOT:
-            servo.reboot()
-            self.plant.set_torque_enabled(self.ids.index(servo_id), False)
-            return self._status(servo_id, 0)
-        if inst in (Instruction.READ, Instruction.WRITE):
-            return self._status(servo_id, StatusError.DATA_LENGTH)
-        return self._status(servo_id, StatusError.INSTRUCTION)
+        j = self._joint[servo_id]
+        self.plant.set_torque_enabled(j, False)
+        self.plant.set_control(j, self._control(servo))
+        self._goal_rad[j] = self._goal_for_plant(servo)
+        self._goal_written = True
 
-    def _apply_write(self, servo_id: int, address: int, length: int) -> bool:
-        """Pass a torque change to the plant; True if Goal Position was written."""
-        j = self.ids.index(servo_id)
-        servo = self.servos[servo_id]
-        if address <= servo.layout[Register.TORQUE_ENABLE][0] < address + length:
-            self.plant.set_torque_enabled(j, servo.torque_on)
-        goal_address = servo.layout[Register.GOAL_POSITION][0]
-        if address <= goal_address < address + length:
-            self._goal_rad[j] = servo_ticks_to_rad(servo.get(Register.GOAL_POSITION))
-            return True
-        return False
+    def _reboot(self, packet_id: int, params: bytes) -> list:
+        replies = self._unicast_replies(packet_id, Instruction.REBOOT, lambda i: (0, b""))
+        for servo_id in self._addressed(packet_id):  # after the reply, as a servo does
+            self.servos[servo_id].reboot(self._plant_ticks(servo_id))
+            self._after_reset(servo_id)
+        return replies
 
-    def _sync_write(self, params: bytes) -> None:
+    def _factory_reset(self, packet_id: int, params: bytes) -> list:
+        option = params[0] if len(params) == 1 else None
+        if option == 0xFF and packet_id == BROADCAST_ID:
+            return []  # firmware 42 and later ignore a broadcast reset of the ID
+        if option not in FACTORY_RESET_KEEPS:
+            error = StatusError.DATA_LENGTH if len(params) != 1 else StatusError.DATA_RANGE
+            return self._unicast_replies(
+                packet_id, Instruction.FACTORY_RESET, lambda i: (error, b"")
+            )
+        replies = self._unicast_replies(packet_id, Instruction.FACTORY_RESET, lambda i: (0, b""))
+        for servo_id in self._addressed(packet_id):
+            self.servos[servo_id].factory_reset(option, self._plant_ticks(servo_id))
+            self._after_reset(servo_id)
+        return replies
+
+    def _clear(self, packet_id: int, params: bytes) -> list:
+        def answer(servo_id):
+            servo = self.servos[servo_id]
+            if len(params) != len(_CLEAR_PARAMS):
+                return StatusError.DATA_LENGTH, b""
+            if bytes(params) != _CLEAR_PARAMS:
+                return StatusError.DATA_RANGE, b""
+            self._refresh_present(poll=False)
+            if servo.get("Moving"):
+                return StatusError.RESULT_FAIL, b""
+            plant_goal = servo.plant_ticks(servo.get("Goal Position"))
+            servo.wrap_turns(self._plant_ticks(servo_id))
+            servo.set("Goal Position", servo.present_ticks(plant_goal))  # the same angle
+            return 0, b""
+
+        return self._unicast_replies(packet_id, Instruction.CLEAR, answer)
+
+    def _sync_write(self, packet_id: int, params: bytes) -> list:
         if len(params) < 4:
-            return
-        address, size = params[0] | params[1] << 8, params[2] | params[3] << 8
+            return []
+        address, size = _word(params, 0), _word(params, 2)
         body = params[4:]
-        goal_changed = False
         for k in range(0, len(body) - size, size + 1):
-            servo_id, data = body[k], body[k + 1 : k + 1 + size]
-            if servo_id in self.servos and self.servos[servo_id].write(address, data) == 0:
-                goal_changed |= self._apply_write(servo_id, address, size)
-        if goal_changed:  # once per packet: the plant sees one set of goals per frame
-            self.plant.set_goal(self._goal_rad.copy())
-        goal_address, goal_size = self.servos[self.ids[0]].layout[Register.GOAL_POSITION]
-        if (address, size) == (goal_address, goal_size):
-            goals = [self.servos[i].get(Register.GOAL_POSITION) for i in self.ids]
+            for servo_id in self._addressed(body[k]):
+                self._write_one(servo_id, address, body[k + 1 : k + 1 + size])
+        servo = self.servos[self.ids[0]]
+        if (address, size) == servo.items["Goal Position"]:
+            goals = [self.servos[i].get("Goal Position") for i in self.ids]
             self.goal_log.append(np.array(goals, dtype=np.int64))
             self.frames_received += 1
-            if self.lockstep_dt_s is not None:
-                self.plant.advance(self.lockstep_dt_s)
+        return []
 
-    def _sync_read(self, params: bytes, *, fast: bool) -> list[tuple[int, bytes]]:
+    def _bulk_write(self, packet_id: int, params: bytes) -> list:
+        k = 0
+        while k + 5 <= len(params):
+            servo_key, address, size = params[k], _word(params, k + 1), _word(params, k + 3)
+            for servo_id in self._addressed(servo_key):
+                self._write_one(servo_id, address, params[k + 5 : k + 5 + size])
+            k += 5 + size
+        return []
+
+    def _group_read(self, requests: list[tuple[int, int, int]], fast: bool) -> list:
+        """Answer (servo id, address, length) requests in order: one status each, or one in all."""
+        if fast and not self.fast_sync_read:
+            return []
+        found = [
+            (servo_id, address, length)
+            for servo_key, address, length in requests
+            for servo_id in self._addressed(servo_key)
+            if self._answers(servo_id, Instruction.READ)
+        ]
+        poll = any(self._reads_present(self.servos[i], a, n) for i, a, n in found)
+        self._refresh_present(poll=poll)  # once: the servos sample together
+        entries = [(i, *self.servos[i].read(a, n)) for i, a, n in found]
+        if not fast:
+            return [(i, self._status(i, e, d)) for i, e, d in entries]
+        if not entries:
+            return []
+        packet = encode_fast_sync_status(
+            [
+                (e | (ALERT_BIT if self.servos[i].alert else 0), self.servos[i].servo_id, d)
+                for i, e, d in entries
+            ]
+        )
+        return [(entries[-1][0], packet, [i for i, _, _ in entries])]
+
+    def _sync_read(self, packet_id: int, params: bytes, *, fast: bool = False) -> list:
         if len(params) < 5:
             return []
-        address, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-        self._refresh_present()
-        entries = []
-        for servo_id in params[4:]:
-            if servo_id in self.servos:
-                error, data = self.servos[servo_id].read(address, length)
-                entries.append((servo_id, error, data))
-        if fast:
-            return [
-                (
-                    entries[-1][0] if entries else BROADCAST_ID,
-                    encode_fast_sync_status(
-                        [
-                            (e | (ALERT_BIT if self.servos[i].alert else 0), i, d)
-                            for i, e, d in entries
-                        ]
-                    ),
-                    [i for i, _, _ in entries],
-                )
-            ]
-        return [(i, self._status(i, e, d)) for i, e, d in entries]
+        address, length = _word(params, 0), _word(params, 2)
+        return self._group_read([(i, address, length) for i in params[4:]], fast)
 
-    def _refresh_present(self) -> None:
-        position, velocity, current = self.plant.read()
-        ticks = rad_to_servo_ticks(position)
-        for j, servo_id in enumerate(self.ids):
+    def _bulk_read(self, packet_id: int, params: bytes, *, fast: bool = False) -> list:
+        if len(params) < 5 or len(params) % 5:
+            return []
+        requests = [
+            (params[k], _word(params, k + 1), _word(params, k + 3))
+            for k in range(0, len(params), 5)
+        ]
+        return self._group_read(requests, fast)
+
+    def _fast_sync_read(self, packet_id: int, params: bytes) -> list:
+        return self._sync_read(packet_id, params, fast=True)
+
+    def _fast_bulk_read(self, packet_id: int, params: bytes) -> list:
+        return self._bulk_read(packet_id, params, fast=True)
+
+    _HANDLERS = {
+        Instruction.PING: _ping,
+        Instruction.READ: _read,
+        Instruction.WRITE: _write_instruction,
+        Instruction.REG_WRITE: _reg_write,
+        Instruction.ACTION: _action,
+        Instruction.FACTORY_RESET: _factory_reset,
+        Instruction.REBOOT: _reboot,
+        Instruction.CLEAR: _clear,
+        Instruction.SYNC_READ: _sync_read,
+        Instruction.SYNC_WRITE: _sync_write,
+        Instruction.FAST_SYNC_READ: _fast_sync_read,
+        Instruction.BULK_READ: _bulk_read,
+        Instruction.BULK_WRITE: _bulk_write,
+        Instruction.FAST_BULK_READ: _fast_bulk_read,
+    }
+
+    # -- the Bus Watchdog ----------------------------------------------------------
+
+    def _check_watchdogs(self, now_s: float) -> None:
+        for servo_id in self.ids:
             servo = self.servos[servo_id]
-            servo.set(Register.PRESENT_POSITION, int(ticks[j]))
-            servo.set(Register.PRESENT_VELOCITY, round(velocity[j] / VELOCITY_UNIT_RAD_S))
-            servo.set(Register.PRESENT_CURRENT, servo.model.current_raw(current[j]))
-
-    def _advance_real_time(self, now_s: float) -> None:
-        if self.lockstep_dt_s is None:
-            self.plant.advance(now_s - self._last_advance_s)
-            self._last_advance_s = now_s
-
-    def _check_watchdog(self, servo_id: int, now_s: float) -> None:
-        servo = self.servos[servo_id]
-        period_s = 0.020 * servo.get(Register.BUS_WATCHDOG)
-        if servo.torque_on and period_s > 0 and now_s - self._last_packet_s[servo_id] > period_s:
-            self._trip_watchdog(servo_id)
+            period_s = WATCHDOG_UNIT_S * servo.get("Bus Watchdog")
+            if (
+                servo.torque_on
+                and period_s > 0
+                and now_s - self._last_packet_s[servo_id] > period_s
+            ):
+                self._trip_watchdog(servo_id)
 
     def _trip_watchdog(self, servo_id: int) -> None:
-        """Bus Watchdog -1, and the servo stops where it is."""
-        servo = self.servos[servo_id]
-        servo.set(Register.BUS_WATCHDOG, -1)
-        j = self.ids.index(servo_id)
+        """Bus Watchdog -1, and the servo stops where it is (its registers keep their goal)."""
+        self.servos[servo_id].set("Bus Watchdog", -1)
+        j = self._joint[servo_id]
         self._goal_rad[j] = self.plant.read()[0][j]
         self.plant.set_goal(self._goal_rad.copy())
 
@@ -516,7 +841,7 @@ class VirtualBus:
             if fault.kind == "close":
                 return None
             if fault.kind == "overload":
-                j = self.ids.index(fault.servo_id)
+                j = self._joint[fault.servo_id]
                 self.servos[fault.servo_id].raise_hardware_error(_OVERLOAD_BIT)
                 self.plant.set_torque_enabled(j, self.servos[fault.servo_id].torque_on)
             else:
@@ -524,16 +849,14 @@ class VirtualBus:
         return []
 
     def _apply_reply_faults(self, replies: list, request) -> list[tuple[int, bytes, float]]:
-        read = request.instruction in (
-            Instruction.READ,
-            Instruction.SYNC_READ,
-            Instruction.FAST_SYNC_READ,
-        )
-        address = request.params[0] | request.params[1] << 8 if read else None
+        inst = request.instruction
+        reads = (Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
+        address = _word(request.params, 0) if inst in reads and len(request.params) >= 2 else None
+        reshapable = inst != Instruction.FAST_BULK_READ
         out = []
         for reply in replies:
             servo_id, data = reply[0], reply[1]
-            # A fast sync read reply carries every servo in it.
+            # A fast read reply carries every servo in it.
             members = reply[2] if len(reply) == 3 else [servo_id]
             extra_s = 0.0
             dropped = False
@@ -542,6 +865,8 @@ class VirtualBus:
                 if fault.servo_id is not None and fault.servo_id not in members:
                     continue
                 if fault.address is not None and fault.address != address:
+                    continue
+                if fault.kind in ("short", "wrong_id") and not reshapable:
                     continue
                 if remaining is not None:
                     if remaining <= 0:
@@ -567,7 +892,7 @@ def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
     """A well-formed reply (valid CRC) with ``fault.servo_id``'s part short or re-addressed.
 
     ``reply`` is a status packet, or a fast sync read reply whose parts are
-    ``ERR ID DATA CRC2`` for ``members`` in order.
+    ``ERR ID DATA CRC2`` for ``members`` in order, all of one data size.
     """
     packet = decode(reply)
     reply_id = fault.servo_id + 1 if fault.reply_id is None else fault.reply_id
@@ -581,14 +906,18 @@ def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
     if packet.servo_id != BROADCAST_ID:  # one servo's status packet
         servo_id, error, data = reshaped(packet.servo_id, packet.params[0], packet.params[1:])
         return encode_status(servo_id, error, data)
-    # Fast sync read: the packet's params are every part except the last CRC2.
-    body = reply[8:]
+    body = reply[8:]  # after INST: every part, the last CRC2 included
     size = len(body) // len(members) - 4
     entries = []
-    for k, servo_id in enumerate(members):
+    for k, member in enumerate(members):
         part = body[k * (size + 4) : (k + 1) * (size + 4)]
-        error, data = part[0], part[2 : 2 + size]
-        if servo_id == fault.servo_id:
+        servo_id, error, data = part[1], part[0], part[2 : 2 + size]
+        if member == fault.servo_id:
             servo_id, error, data = reshaped(servo_id, error, data)
         entries.append((error, servo_id, data))
     return encode_fast_sync_status(entries)
+
+
+def _word(params: bytes, k: int) -> int:
+    """The little-endian 16-bit word at ``params[k]``."""
+    return params[k] | params[k + 1] << 8

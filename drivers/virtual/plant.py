@@ -6,14 +6,58 @@ Angles are in the servos' own frame (0 rad = tick 2048, no direction flip).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Protocol, runtime_checkable
 
 import numpy as np
+
+from trajgen.drivers.units import RAD_PER_TICK
+
+#: The registers that shape an X-series servo's position loop, by their SDK
+#: control-table names: what ``Plant.set_control`` receives.
+CONTROL_REGISTERS = (
+    "Position P Gain",
+    "Position I Gain",
+    "Position D Gain",
+    "Feedforward 1st Gain",
+    "Feedforward 2nd Gain",
+    "PWM Limit",
+    "Goal PWM",
+    "Profile Velocity",
+    "Profile Acceleration",
+    "Operating Mode",
+)
+
+#: Present PWM / Goal PWM / PWM Limit value of 100 % of the supply (e-Manual).
+PWM_FULL_SCALE = 885
+
+#: Position P Gain scale: KP = P / 128, PWM units per pulse of error (e-Manual).
+P_GAIN_DIVISOR = 128
 
 
 @runtime_checkable
 class Plant(Protocol):
     """The mechanics behind the virtual servos (``sim.plant.GimbalPlant`` is one).
+
+    The virtual bus's simulation thread owns the plant: every call below is
+    made with the bus's one lock held, so a plant needs no locking of its own.
+
+    Contract with the virtual bus:
+
+    - ``set_control(joint: int, registers: Mapping[str, int]) -> None`` — the
+      servo's registers that shape its position loop, in register units, keyed
+      by the SDK control-table names: "Position P Gain", "Position I Gain",
+      "Position D Gain", "Feedforward 1st Gain", "Feedforward 2nd Gain",
+      "PWM Limit", "Goal PWM", "Profile Velocity", "Profile Acceleration",
+      "Operating Mode"; the virtual bus calls it for every joint at start and
+      whenever one of those registers is written (and after
+      REBOOT/FACTORY_RESET);
+    - ``present_pwm() -> ndarray (n_joints,)`` — the drive's output as a
+      fraction of the supply in [-1, 1] (the bus turns it into Present PWM,
+      885 = 100%).
+
+    ``set_goal``, ``set_torque_enabled``, ``advance`` and ``read`` are as
+    before: goals in rad, time in s, present values in SI units.
 
     Attributes
     ----------
@@ -29,11 +73,17 @@ class Plant(Protocol):
     def set_torque_enabled(self, joint: int, enabled: bool) -> None:
         """Torque on or off for one joint (off: the joint is free)."""
 
+    def set_control(self, joint: int, registers: Mapping[str, int]) -> None:
+        """The position-loop registers of one joint's servo (``CONTROL_REGISTERS``)."""
+
     def advance(self, dt_s: float) -> None:
         """Move time forward by ``dt_s`` seconds."""
 
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Present position (rad), velocity (rad/s), current (A), each (n_joints,)."""
+
+    def present_pwm(self) -> np.ndarray:
+        """Drive output as a fraction of the supply, in [-1, 1], shape (n_joints,)."""
 
 
 class FirstOrderPlant:
@@ -42,7 +92,10 @@ class FirstOrderPlant:
     With torque on, each angle moves toward its goal as ``dq/dt = (goal - q) / tau``
     (solved exactly over each ``advance``); with torque off it stays where it is.
     The current is ``current_per_rad_a`` times the position error, a stand-in
-    for the load.
+    for the load. The drive output is a plain P loop on the error, as the
+    X-series computes it with no profile: ``PWM = Position P Gain / 128`` per
+    pulse of error, clipped to the smaller of PWM Limit and Goal PWM, 885 =
+    100 % of the supply. The gains shape the reported PWM only, not the motion.
 
     Parameters
     ----------
@@ -60,6 +113,12 @@ class FirstOrderPlant:
     ValueError
         If ``n_joints`` < 1, ``time_constant_s`` < 0, or ``initial_rad`` has the
         wrong shape.
+
+    Attributes
+    ----------
+    control : list of dict of str to int
+        Per joint, the last ``set_control`` registers (XM430-W350 factory
+        values until then: P 800, PWM Limit and Goal PWM 885).
     """
 
     def __init__(
@@ -84,6 +143,10 @@ class FirstOrderPlant:
         self._qd = np.zeros(n_joints)
         self._goal = q0.copy()
         self._torque = np.zeros(n_joints, dtype=bool)
+        defaults = {name: 0 for name in CONTROL_REGISTERS}
+        defaults.update({"Position P Gain": 800, "PWM Limit": 885, "Goal PWM": 885})
+        defaults["Operating Mode"] = 3
+        self.control = [dict(defaults) for _ in range(n_joints)]
         self.time_s = 0.0
 
     def set_goal(self, positions_rad: np.ndarray) -> None:
@@ -93,6 +156,19 @@ class FirstOrderPlant:
     def set_torque_enabled(self, joint: int, enabled: bool) -> None:
         """Torque on or off for one joint."""
         self._torque[joint] = enabled
+
+    def set_control(self, joint: int, registers: Mapping[str, int]) -> None:
+        """The position-loop registers of one joint's servo (``CONTROL_REGISTERS``).
+
+        Raises
+        ------
+        ValueError
+            If a key is not one of ``CONTROL_REGISTERS``.
+        """
+        unknown = set(registers) - set(CONTROL_REGISTERS)
+        if unknown:
+            raise ValueError(f"Expected keys among CONTROL_REGISTERS, got {sorted(unknown)}.")
+        self.control[joint].update({k: int(v) for k, v in registers.items()})
 
     def advance(self, dt_s: float) -> None:
         """Move time forward by ``dt_s`` seconds."""
@@ -112,3 +188,19 @@ class FirstOrderPlant:
         """Present position (rad), velocity (rad/s), current (A), each (n_joints,)."""
         error = np.where(self._torque, self._goal - self._q, 0.0)
         return self._q.copy(), self._qd.copy(), self.current_per_rad_a * error
+
+    def present_pwm(self) -> np.ndarray:
+        """Drive output as a fraction of the supply, in [-1, 1], shape (n_joints,).
+
+        ``clip(P / 128 * error_pulses, +-min(PWM Limit, Goal PWM)) / 885``; 0
+        with torque off.
+        """
+        error_pulses = (self._goal - self._q) / RAD_PER_TICK
+        out = np.zeros(self.n_joints)
+        for j, registers in enumerate(self.control):
+            if not self._torque[j]:
+                continue
+            limit = min(registers["PWM Limit"], abs(registers["Goal PWM"]))
+            pwm = registers["Position P Gain"] / P_GAIN_DIVISOR * error_pulses[j]
+            out[j] = np.clip(pwm, -limit, limit) / PWM_FULL_SCALE
+        return out

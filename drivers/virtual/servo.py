@@ -1,62 +1,68 @@
 """One emulated X-series servo: its control table and the rules on writing it.
 
 The control table is a byte array laid out as the model's (addresses from the
-SDK's model files). Rules emulated, from the e-Manual: read-only registers
-refuse writes (access error); EEPROM (address < 64) refuses writes while torque
-is on (access error); a tripped Bus Watchdog (-1) makes Goal Position refuse
-writes (data range error) until 0 is written to it; Goal Position outside the
-position limits in Position Mode is refused (data limit error); torque cannot
-be enabled while a hardware error that Shutdown covers is latched (result
-fail); a hardware error covered by Shutdown turns torque off.
+SDK's model files, access, initial values and ranges from the e-Manual, see
+``drivers.control_table.rules``). Rules emulated, from the e-Manual:
+
+- a write must cover whole registers (data length error), of registers that
+  exist and are writable (access error); EEPROM (address < 64) refuses writes
+  while torque is on (access error);
+- a value outside its register's range is refused (data range error), a goal
+  outside the limit register that bounds it (Goal Position within the position
+  limits in Position Mode, Goal PWM / Current / Velocity within PWM / Current /
+  Velocity Limit) too (data limit error);
+- a tripped Bus Watchdog (-1) makes the goal registers refuse writes (data
+  range error) until 0 is written to it;
+- torque cannot be enabled while a hardware error that Shutdown covers is
+  latched (result fail); such an error turns torque off;
+- Indirect Data n reads and writes the byte Indirect Address n points at;
+- changing Operating Mode resets the gains and the profile;
+- REBOOT resets the RAM area (address >= 64) to its initial values, keeping
+  the EEPROM; FACTORY_RESET resets both (keeping ID, or ID and Baud Rate).
+
+Values the servo stores itself (present values) are clamped to their register
+size, so no simulated quantity can overflow a register.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
+
 from trajgen.drivers.control_table import (
     EEPROM_END,
+    LIMITED_BY,
     POSITION_MODE,
-    SIGNED,
     Model,
     Register,
-    factory_defaults,
-    layout,
+    RegisterRule,
+    control_items,
+    rules,
 )
 from trajgen.drivers.protocol import StatusError
-from trajgen.drivers.units import to_signed, to_unsigned
+from trajgen.drivers.units import TICKS_PER_REV
 
-TABLE_SIZE = 1024
+#: Goal registers a tripped Bus Watchdog locks.
+_GOALS = ("Goal PWM", "Goal Current", "Goal Velocity", "Goal Position")
 
-_READ_ONLY_NAMES = (
-    "Model Number",
-    "Model Information",
-    "Firmware Version",
-    "Registered Instruction",
-    "Hardware Error Status",
-    "Realtime Tick",
-    "Moving",
-    "Moving Status",
-    "Present PWM",
-    "Present Current",
-    "Present Load",
-    "Present Velocity",
-    "Present Position",
-    "Velocity Trajectory",
-    "Position Trajectory",
-    "Present Input Voltage",
-    "Present Temperature",
+#: What changing Operating Mode resets (DYNAMIXEL.md, e-Manual "Operating Mode").
+_MODE_RESETS = (
+    "Velocity I Gain",
+    "Velocity P Gain",
+    "Position D Gain",
+    "Position I Gain",
+    "Position P Gain",
+    "Feedforward 2nd Gain",
+    "Feedforward 1st Gain",
+    "Profile Acceleration",
+    "Profile Velocity",
 )
 
+#: FACTORY_RESET options (Protocol 2.0): what each keeps.
+FACTORY_RESET_KEEPS = {0xFF: (), 0x01: ("ID",), 0x02: ("ID", "Baud Rate")}
 
-def _read_only_bytes(model: Model) -> frozenset[int]:
-    from dynamixel_easy_sdk.control_table import ControlTable
 
-    table = ControlTable.getControlTable(model.number)
-    out = set()
-    for name in _READ_ONLY_NAMES:
-        if name in table:
-            item = table[name]
-            out.update(range(item.address, item.address + item.size))
-    return frozenset(out)
+def _name(register: Register | str) -> str:
+    return register.value if isinstance(register, Register) else register
 
 
 class VirtualServo:
@@ -67,101 +73,275 @@ class VirtualServo:
     servo_id : int
         Its ID (0..252).
     model : Model
-        Its model (addresses, defaults, current unit).
+        Its model (addresses, rules, current unit).
     firmware : int, optional
         Firmware Version register value.
+    registers : mapping of str or Register to int, optional
+        Values stored before power-up, as someone configured the servo
+        (installed position limits, a gain...): EEPROM ones survive a reboot,
+        RAM ones last until it; FACTORY_RESET forgets both.
+
+    Attributes
+    ----------
+    memory : bytearray
+        The control table's bytes (Indirect Data bytes hold their own value;
+        reads and writes through them are redirected by ``read``/``write``).
+    turn_offset_ticks : int
+        Whole turns (in ticks) that CLEAR or REBOOT removed from Present
+        Position: Present Position = plant ticks + Homing Offset - this.
+    pending : tuple of (int, bytes) or None
+        The write a REG_WRITE registered, until ACTION.
+
+    Raises
+    ------
+    KeyError
+        If ``registers`` names a register the model does not have.
     """
 
-    def __init__(self, servo_id: int, model: Model, *, firmware: int = 48) -> None:
+    def __init__(
+        self,
+        servo_id: int,
+        model: Model,
+        *,
+        firmware: int = 48,
+        registers: Mapping[Register | str, int] | None = None,
+    ) -> None:
         self.model = model
-        self.layout = layout(model)
-        self.memory = bytearray(TABLE_SIZE)
-        self._read_only = _read_only_bytes(model)
-        for register, value in factory_defaults(model).items():
-            self.set(register, value)
-        self.set(Register.ID, servo_id)
-        self.set(Register.FIRMWARE_VERSION, firmware)
+        self.items = control_items(model)
+        self.rules: dict[str, RegisterRule] = rules(model)
+        self.table_end = max(a + s for a, s in self.items.values())
+        self.memory = bytearray(self.table_end)
+        self._owner: dict[int, str] = {}
+        for name, (address, size) in self.items.items():
+            for a in range(address, address + size):
+                self._owner[a] = name
+        self._indirect: dict[int, str] = {}  # Indirect Data byte -> its Indirect Address name
+        for name, (address, _) in self.items.items():
+            if name.startswith("Indirect Data "):
+                self._indirect[address] = "Indirect Address " + name.rsplit(" ", 1)[1]
+        self.firmware = firmware
+        self.turn_offset_ticks = 0
+        self.pending: tuple[int, bytes] | None = None
+        self._installed = {_name(k): int(v) for k, v in (registers or {}).items()}
+        unknown = set(self._installed) - set(self.items)
+        if unknown:
+            raise KeyError(f"{model.name} has no register {sorted(unknown)[0]!r}")
+        self._installed.setdefault("ID", servo_id)
+        self._load(self.items, self._installed)
+
+    # -- registers ----------------------------------------------------------
+
+    def _item(self, register: Register | str) -> tuple[int, int]:
+        name = _name(register)
+        if name == "Present Current" and name not in self.items:
+            name = "Present Load"  # XL430: the same address, another unit
+        return self.items[name]
+
+    def _signed(self, name: str) -> bool:
+        rule = self.rules.get(name)
+        return rule is not None and rule.signed
+
+    def get(self, register: Register | str) -> int:
+        """A register's value (signed where signed)."""
+        name = _name(register)
+        address, size = self._item(register)
+        value = int.from_bytes(self.memory[address : address + size], "little")
+        if self._signed(name) and value >= 1 << (8 * size - 1):
+            value -= 1 << (8 * size)
+        return value
+
+    def set(self, register: Register | str, value: int) -> None:
+        """Store a value, bypassing the write rules (the servo itself).
+
+        The value is clamped to what the register can hold.
+        """
+        name = _name(register)
+        address, size = self._item(register)
+        bits = 8 * size
+        low, high = (
+            (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
+            if self._signed(name)
+            else (0, (1 << bits) - 1)
+        )
+        value = min(max(int(value), low), high)
+        self.memory[address : address + size] = (value & ((1 << bits) - 1)).to_bytes(size, "little")
+
+    def _load(self, names: Iterable[str], installed: Mapping[str, int]) -> None:
+        """Set ``names`` to their installed or initial values."""
+        for name in names:
+            rule = self.rules[name]
+            if name in installed:
+                self.set(name, installed[name])
+            elif rule.initial is not None:
+                self.set(name, rule.initial)
+        self.set("Model Number", self.model.number)
+        self.set("Firmware Version", self.firmware)
+        if "Goal PWM" in names:
+            self.set("Goal PWM", installed.get("Goal PWM", self.get("PWM Limit")))
+        if "Goal Current" in names and "Current Limit" in self.items:
+            self.set("Goal Current", installed.get("Goal Current", self.get("Current Limit")))
 
     @property
     def servo_id(self) -> int:
-        """Its ID."""
-        return self.get(Register.ID)
-
-    def get(self, register: Register) -> int:
-        """A register's value (signed where signed)."""
-        address, size = self.layout[register]
-        value = int.from_bytes(self.memory[address : address + size], "little")
-        return to_signed(value, size) if register in SIGNED else value
-
-    def set(self, register: Register, value: int) -> None:
-        """Store a register's value, bypassing the write rules (the servo itself)."""
-        address, size = self.layout[register]
-        self.memory[address : address + size] = to_unsigned(int(value), size).to_bytes(
-            size, "little"
-        )
+        """Its ID (the ID register)."""
+        return self.get("ID")
 
     @property
     def torque_on(self) -> bool:
         """Whether Torque Enable is 1."""
-        return self.get(Register.TORQUE_ENABLE) == 1
+        return self.get("Torque Enable") == 1
 
     @property
     def watchdog_tripped(self) -> bool:
         """Whether the Bus Watchdog reads -1."""
-        return self.get(Register.BUS_WATCHDOG) == -1
+        return self.get("Bus Watchdog") == -1
 
-    def read(self, address: int, length: int) -> tuple[int, bytes]:
-        """READ: (status error, data)."""
-        if address + length > TABLE_SIZE or length == 0:
-            return StatusError.ACCESS, b""
-        return 0, bytes(self.memory[address : address + length])
-
-    def check_write(self, address: int, data: bytes) -> int:
-        """The status error a WRITE of ``data`` at ``address`` would get (0: allowed)."""
-        span = range(address, address + len(data))
-        if not data or span.stop > TABLE_SIZE or any(a in self._read_only for a in span):
-            return StatusError.ACCESS
-        if address < EEPROM_END and self.torque_on:
-            return StatusError.ACCESS
-        goal_address, goal_size = self.layout[Register.GOAL_POSITION]
-        if address <= goal_address < span.stop:
-            if self.watchdog_tripped:
-                return StatusError.DATA_RANGE
-            if len(data) < goal_address - address + goal_size:
-                return StatusError.DATA_LENGTH
-            offset = goal_address - address
-            goal = to_signed(int.from_bytes(data[offset : offset + goal_size], "little"), 4)
-            limits = self.get(Register.MIN_POSITION_LIMIT), self.get(Register.MAX_POSITION_LIMIT)
-            if self.get(Register.OPERATING_MODE) == POSITION_MODE and not (
-                limits[0] <= goal <= limits[1]
-            ):
-                return StatusError.DATA_LIMIT
-        torque_address = self.layout[Register.TORQUE_ENABLE][0]
-        if address <= torque_address < span.stop and data[torque_address - address] == 1:
-            if self.get(Register.HARDWARE_ERROR_STATUS) & self.get(Register.SHUTDOWN):
-                return StatusError.RESULT_FAIL
-        return 0
-
-    def write(self, address: int, data: bytes) -> int:
-        """WRITE if allowed; returns the status error (0: written)."""
-        error = self.check_write(address, data)
-        if error == 0:
-            self.memory[address : address + len(data)] = data
-        return error
-
-    def raise_hardware_error(self, bits: int) -> None:
-        """Latch hardware error ``bits``; torque goes off if Shutdown covers them."""
-        self.set(Register.HARDWARE_ERROR_STATUS, self.get(Register.HARDWARE_ERROR_STATUS) | bits)
-        if bits & self.get(Register.SHUTDOWN):
-            self.set(Register.TORQUE_ENABLE, 0)
-
-    def reboot(self) -> None:
-        """REBOOT: clear hardware errors, torque off, Bus Watchdog 0."""
-        self.set(Register.HARDWARE_ERROR_STATUS, 0)
-        self.set(Register.TORQUE_ENABLE, 0)
-        self.set(Register.BUS_WATCHDOG, 0)
+    @property
+    def position_mode(self) -> bool:
+        """Whether Operating Mode is Position Mode (goals within the position limits)."""
+        return self.get("Operating Mode") == POSITION_MODE
 
     @property
     def alert(self) -> bool:
         """Whether the status ERR byte carries the Alert bit (a hardware error is latched)."""
-        return self.get(Register.HARDWARE_ERROR_STATUS) != 0
+        return self.get("Hardware Error Status") != 0
+
+    # -- reading and writing --------------------------------------------------
+
+    def target(self, address: int) -> int:
+        """The byte that ``address`` stands for (through Indirect Data)."""
+        pointer = self._indirect.get(address)
+        return address if pointer is None else self.get(pointer)
+
+    def read(self, address: int, length: int) -> tuple[int, bytes]:
+        """READ: (status error, data); Indirect Data bytes read their targets."""
+        if length == 0 or address + length > self.table_end:
+            return StatusError.ACCESS, b""
+        return 0, bytes(self.memory[self.target(a)] for a in range(address, address + length))
+
+    def _resolve(self, address: int, data: bytes) -> tuple[int, dict[int, int]]:
+        """(status error, {target byte: value}) for a write of ``data`` at ``address``."""
+        if not data:
+            return StatusError.DATA_LENGTH, {}
+        if address + len(data) > self.table_end:
+            return StatusError.ACCESS, {}
+        return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
+
+    def _new_value(self, name: str, bytes_: dict[int, int]) -> int:
+        address, size = self.items[name]
+        raw = bytes(bytes_.get(a, self.memory[a]) for a in range(address, address + size))
+        value = int.from_bytes(raw, "little")
+        if self._signed(name) and value >= 1 << (8 * size - 1):
+            value -= 1 << (8 * size)
+        return value
+
+    def check_write(self, address: int, data: bytes) -> tuple[int, dict[int, int], set[str]]:
+        """What a WRITE of ``data`` at ``address`` would do.
+
+        Returns
+        -------
+        error : int
+            The status error (0: allowed).
+        bytes_ : dict of int to int
+            Target byte address -> value (Indirect Data resolved).
+        names : set of str
+            The registers written.
+        """
+        error, bytes_ = self._resolve(address, data)
+        if error:
+            return error, {}, set()
+        names = set()
+        for a in bytes_:
+            name = self._owner.get(a)
+            if name is None:
+                return StatusError.ACCESS, {}, set()
+            names.add(name)
+        for name in names:
+            start, size = self.items[name]
+            if any(a not in bytes_ for a in range(start, start + size)):
+                return StatusError.DATA_LENGTH, {}, set()
+            if not self.rules[name].writable:
+                return StatusError.ACCESS, {}, set()
+            if start < EEPROM_END and self.torque_on:
+                return StatusError.ACCESS, {}, set()
+        for name in names:
+            error = self._check_value(name, self._new_value(name, bytes_), bytes_)
+            if error:
+                return error, {}, set()
+        return 0, bytes_, names
+
+    def _check_value(self, name: str, value: int, bytes_: dict[int, int]) -> int:
+        rule = self.rules[name]
+        if name in _GOALS and self.watchdog_tripped:
+            return StatusError.DATA_RANGE
+        if rule.low is not None and not rule.low <= value <= rule.high:
+            return StatusError.DATA_RANGE
+        limits = LIMITED_BY.get(name)
+        if limits is not None and all(n in self.items for n in limits):
+            bounds = [self._new_value(n, bytes_) for n in limits]
+            if name == "Goal Position":
+                if self.get("Operating Mode") == POSITION_MODE and not (
+                    bounds[0] <= value <= bounds[1]
+                ):
+                    return StatusError.DATA_LIMIT
+            elif abs(value) > bounds[0]:
+                return StatusError.DATA_LIMIT
+        if name == "Torque Enable" and value == 1:
+            if self.get("Hardware Error Status") & self.get("Shutdown"):
+                return StatusError.RESULT_FAIL
+        return 0
+
+    def write(self, address: int, data: bytes) -> tuple[int, set[str]]:
+        """WRITE if allowed: (status error, registers written); 0 means written."""
+        error, bytes_, names = self.check_write(address, data)
+        if error:
+            return error, set()
+        old_mode = self.get("Operating Mode")
+        for a, byte in bytes_.items():
+            self.memory[a] = byte
+        if "Operating Mode" in names and self.get("Operating Mode") != old_mode:
+            self._load(_MODE_RESETS, {})
+            names |= set(_MODE_RESETS)
+        return 0, names
+
+    # -- what the servo does by itself -------------------------------------------
+
+    def raise_hardware_error(self, bits: int) -> None:
+        """Latch hardware error ``bits``; torque goes off if Shutdown covers them."""
+        self.set("Hardware Error Status", self.get("Hardware Error Status") | bits)
+        if bits & self.get("Shutdown"):
+            self.set("Torque Enable", 0)
+
+    def wrap_turns(self, plant_ticks: int) -> None:
+        """Drop whole turns from Present Position (CLEAR, power-up): it reads 0..4095."""
+        present = plant_ticks + self.get("Homing Offset") - self.turn_offset_ticks
+        self.turn_offset_ticks += present - present % TICKS_PER_REV
+
+    def present_ticks(self, plant_ticks: int) -> int:
+        """Present Position for the plant at ``plant_ticks`` (servo frame, 2048 = 0 rad)."""
+        return plant_ticks + self.get("Homing Offset") - self.turn_offset_ticks
+
+    def plant_ticks(self, register_ticks: int) -> int:
+        """The plant position (ticks) a position register value stands for."""
+        return register_ticks - self.get("Homing Offset") + self.turn_offset_ticks
+
+    def reboot(self, plant_ticks: int) -> None:
+        """REBOOT: RAM registers back to their initial values, Present Position in one turn.
+
+        Goal Position becomes the present position (the servo holds still when
+        torque comes back on).
+        """
+        ram = [n for n, (a, _) in self.items.items() if a >= EEPROM_END]
+        self._load(
+            ram, {n: v for n, v in self._installed.items() if self.items[n][0] >= EEPROM_END}
+        )
+        self.pending = None
+        self.wrap_turns(plant_ticks)
+        self.set("Goal Position", self.present_ticks(plant_ticks))
+
+    def factory_reset(self, option: int, plant_ticks: int) -> None:
+        """FACTORY_RESET with ``option`` (a key of ``FACTORY_RESET_KEEPS``), then reboot."""
+        kept = {n: self.get(n) for n in FACTORY_RESET_KEEPS[option]}
+        self._installed = {}
+        self._load(self.items, kept)
+        self.reboot(plant_ticks)

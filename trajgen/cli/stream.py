@@ -35,6 +35,7 @@ from trajgen.cli.common import (
     open_bus,
     positive_float,
 )
+from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 STREAM_DESCRIPTION = """\
 Plan the joint stream of a keyframe file and stream it to Dynamixel X-series
@@ -67,7 +68,6 @@ exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
 2 bad input, 128 + signal number when stopped by a signal (130 SIGINT,
 143 SIGTERM, 129 SIGHUP)."""
 
-JOINTS = ("pan", "tilt", "roll")
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
