@@ -28,6 +28,10 @@ class BringUpError(DriverError):
     """The servos on the bus do not match the configuration (missing, wrong model)."""
 
 
+class OutsideLimits(DriverError):
+    """A goal would leave a servo's installed position limits; it is not sent."""
+
+
 class StreamLagging(DriverError):
     """The stream fell further behind its plan than allowed (host stalls, a slow bus)."""
 

@@ -43,7 +43,7 @@ from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import (
     CommError,
     DriverError,
-    ServoError,
+    OutsideLimits,
     StreamLagging,
     WatchdogTripped,
 )
@@ -372,7 +372,7 @@ class Streamer:
         BringUpError
             If a joint reads farther than ``max_approach_rad`` from the first
             frame (nothing is sent; the servos hold or are released).
-        CommError, ServoError, WatchdogTripped, StreamLagging
+        CommError, ServoError, WatchdogTripped, StreamLagging, OutsideLimits
             On a fault, after the safe stop; ``self.stats`` holds the statistics
             and ``self.stop_errors`` anything the safe stop could not do.
         KeyboardInterrupt
@@ -479,7 +479,7 @@ class Streamer:
         outside = (ticks < bounds[:, 0]) | (ticks > bounds[:, 1])
         if outside.any():
             j = int(np.flatnonzero(outside)[0])
-            raise ServoError(
+            raise OutsideLimits(
                 f"{self.joint_names[j]}: goal tick {ticks[j]} at t = {t:.3f} s is outside "
                 f"{bounds[j, 0]}..{bounds[j, 1]} (servo {self.joints.ids[j]}'s position limits); "
                 "not sent"

@@ -17,6 +17,7 @@ from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import (
     BringUpError,
     CommError,
+    OutsideLimits,
     ServoError,
     StreamLagging,
     WatchdogTripped,
@@ -254,7 +255,7 @@ def test_limits_and_drive_mode_are_kept_and_guard_the_stream(rig):
     frames = list(trajectory) + list(_ramp((0.2, math.radians(40), 0.0), q_start=(0.2, 0.35, 0)))
     streamer = Streamer(bus, JointMap(), goal_bounds_ticks=setup.goal_bounds_ticks)
     with pytest.raises(
-        ServoError, match=r"tilt: goal tick 23\d\d at t = .* is outside 1800\.\.2300 .*; not sent"
+        OutsideLimits, match=r"tilt: goal tick 23\d\d at t = .* is outside 1800\.\.2300 .*; not"
     ):
         streamer.run(frames, rate_hz=RATE_HZ)
     assert max(goal[1] for goal in virtual.goal_log) <= 2300
