@@ -305,9 +305,10 @@ def check_plan(
     Raises
     ------
     BringUpError
-        If a servo's Drive Mode selects the time-based profile, a joint's plan
-        leaves its position limits (or needs more than one turn where limits
-        are installed), or a joint starts too far from the first frame.
+        If a servo's Drive Mode selects the time-based profile, a servo reads
+        a position outside its limits, a joint's plan leaves its position
+        limits (or needs more than one turn where limits are installed), or a
+        joint starts too far from the first frame.
     """
     names = joint_names_for(joints, joint_names)
     set_limits = dict(set_limits or {})
@@ -334,6 +335,12 @@ def check_plan(
                 "installed; refusing to stream"
             )
         if mode == POSITION_MODE:
+            if not low <= servo.present <= high:
+                raise BringUpError(
+                    f"servo {servo.servo_id} ({names[j]}) reads Present Position "
+                    f"{servo.present} ({_deg(joints, j, servo.present)}), outside its position "
+                    f"limits {low}..{high}; move it inside by hand (torque off); refusing to stream"
+                )
             outside = np.flatnonzero((ticks[:, j] < low) | (ticks[:, j] > high))
             if len(outside):
                 k = outside[0]

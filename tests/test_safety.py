@@ -395,3 +395,17 @@ def test_goal_log_is_bounded(rig):
     bus.read(1, Register.GOAL_POSITION)  # the bus has handled every packet before this reply
     assert virtual.frames_received == 50
     assert len(virtual.goal_log) == 10 and virtual.goal_log[-1][0] == 2049
+
+
+def test_present_position_outside_the_limits_is_refused_before_any_change(rig):
+    plant = FirstOrderPlant(initial_rad=np.array([0.0, 0.5, 0.0]))  # tilt at tick 2374
+    limits = {Register.MIN_POSITION_LIMIT: 1800, Register.MAX_POSITION_LIMIT: 2300}
+    virtual, bus = rig(plant, registers={2: limits})
+    before = _memory(virtual)
+    with pytest.raises(
+        BringUpError,
+        match=r"servo 2 \(tilt\) reads Present Position 2374 \(28\.7 deg\), outside its "
+        r"position limits 1800\.\.2300",
+    ):
+        bring_up(bus, JointMap(), MODELS, _ramp((0.0, 0.3, 0.0), q_start=(0.0, 0.3, 0.0)))
+    assert _memory(virtual) == before
