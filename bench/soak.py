@@ -99,9 +99,7 @@ def soak(rate_hz: float, minutes: float, read_every: int, watchdog_s: float) -> 
     ) as virtual:
         with ServoBus(virtual.port, baud=BAUD) as bus:
             bring_up(bus, joints, ("XM430-W350",) * 3, path, watchdog_s=watchdog_s)
-            streamer = Streamer(
-                bus, joints, telemetry_every=read_every, max_delay_s=math.inf, stall_s=None
-            )
+            streamer = Streamer(bus, joints, telemetry_every=read_every, max_delay_s=None)
             rss_start = rss_mb()
             start = time.monotonic()
             try:

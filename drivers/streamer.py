@@ -49,6 +49,7 @@ from trajgen.drivers.errors import (
 )
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import JointMap
+from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 
@@ -280,8 +281,9 @@ class Streamer:
     stall_s : float, optional
         Lateness (s) past which a frame counts as a stall and the stream's
         clock shifts; default half a period.
-    max_delay_s : float, optional
-        Fail the stream (``StreamLagging``) when the total shift passes this (s).
+    max_delay_s : float or None, optional
+        Fail the stream (``StreamLagging``) when the total shift passes this
+        (s); None: no bound (stalls are still counted).
 
     Attributes
     ----------
@@ -311,23 +313,20 @@ class Streamer:
         max_approach_rad: float = MAX_APPROACH_RAD,
         goal_bounds_ticks: np.ndarray | None = None,
         stall_s: float | None = None,
-        max_delay_s: float = MAX_DELAY_S,
+        max_delay_s: float | None = MAX_DELAY_S,
     ) -> None:
-        if isinstance(telemetry_every, bool) or not isinstance(telemetry_every, int):
-            raise TypeError(f"Expected `telemetry_every` to be an int, got {telemetry_every!r}.")
-        if telemetry_every < 1:
-            raise ValueError(f"Expected `telemetry_every` >= 1, got {telemetry_every}.")
-        if on_stop not in ("hold", "torque_off"):
-            raise ValueError(f"Expected `on_stop` 'hold' or 'torque_off', got {on_stop!r}.")
-        for name, value in (
-            ("poll_s", poll_s),
-            ("approach_speed_rad_s", approach_speed_rad_s),
-            ("max_approach_rad", max_approach_rad),
-            ("max_delay_s", max_delay_s),
-            ("stall_s", 1.0 if stall_s is None else stall_s),
-        ):
-            if not value > 0:
-                raise ValueError(f"Expected `{name}` > 0, got {value}.")
+        positive = {"low": 0.0, "low_open": True}
+        telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
+        check_choice("on_stop", on_stop, ("hold", "torque_off"))
+        poll_s = check_number("poll_s", poll_s, **positive)
+        approach_speed_rad_s = check_number(
+            "approach_speed_rad_s", approach_speed_rad_s, **positive
+        )
+        max_approach_rad = check_number("max_approach_rad", max_approach_rad, **positive)
+        if stall_s is not None:
+            stall_s = check_number("stall_s", stall_s, **positive)
+        if max_delay_s is not None:
+            max_delay_s = check_number("max_delay_s", max_delay_s, **positive)
         if goal_bounds_ticks is not None:
             goal_bounds_ticks = np.asarray(goal_bounds_ticks)
             if goal_bounds_ticks.shape != (len(joints), 2):
@@ -531,7 +530,7 @@ class Streamer:
         stats = self.stats
         stats.stalls += 1
         stats.stall_max_s = max(stats.stall_max_s, late_s)
-        if stats.delay_s + late_s > self.max_delay_s:
+        if self.max_delay_s is not None and stats.delay_s + late_s > self.max_delay_s:
             stats.delay_s += late_s
             raise StreamLagging(
                 f"the stream fell {stats.delay_s:.3f} s behind its plan (bound "

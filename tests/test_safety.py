@@ -409,3 +409,31 @@ def test_present_position_outside_the_limits_is_refused_before_any_change(rig):
     ):
         bring_up(bus, JointMap(), MODELS, _ramp((0.0, 0.3, 0.0), q_start=(0.0, 0.3, 0.0)))
     assert _memory(virtual) == before
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        (
+            {"max_delay_s": 0},
+            ValueError,
+            r"Expected `max_delay_s` to be a finite number > 0, got 0",
+        ),
+        ({"stall_s": -1.0}, ValueError, r"Expected `stall_s` to be a finite number > 0, got -1"),
+        ({"max_approach_rad": "1"}, TypeError, r"Expected `max_approach_rad` to be a finite"),
+        (
+            {"goal_bounds_ticks": [[0, 4095]]},
+            ValueError,
+            r"Expected `goal_bounds_ticks` of shape \(3, 2\), got \(1, 2\)",
+        ),
+    ],
+)
+def test_streamer_safety_options_are_checked(rig, kwargs, error, match):
+    _, bus = rig()
+    with pytest.raises(error, match=match):
+        Streamer(bus, JointMap(), **kwargs)
+
+
+def test_reply_faults_name_their_servo():
+    with pytest.raises(ValueError, match=r"Expected a `servo_id` for a short fault, got None"):
+        Fault("short")
