@@ -236,6 +236,7 @@ class Outcome:
 
     status: int = EXIT_OK
     stopped_by: str = ""
+    untouched: bool = False
     refused: bool = False
     bring_up: dict | None = None
     streamer: object = None
@@ -408,6 +409,7 @@ def _run(args, signals: _StopSignals, outcome: Outcome):
         outcome.stopped_by = str(e)
         outcome.status = 128 + e.signum if isinstance(e, Interrupted) else EXIT_FAILED
         streamed = outcome.streamer is not None and outcome.streamer.stats is not None
+        outcome.untouched = bus is None
         outcome.refused = isinstance(e, BringUpError) and not streamed
         if bus is not None and not streamed and not outcome.refused:
             # Stopped during bring-up, possibly after it changed something: stop safely.
@@ -431,7 +433,9 @@ def report(args, p: Plan, plant, outcome: Outcome) -> int:
         print(stats.format())
     for message in outcome.stop_errors:
         print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
-    if outcome.refused:
+    if outcome.untouched:
+        state = "no servo was touched"
+    elif outcome.refused:
         state = "bring-up refused before torque on: no servo was moved"
     elif args.torque_off:
         state = "the servos were released (torque off)"
