@@ -19,7 +19,12 @@ The Bus Watchdog is set to its longest, 2.54 s (``--watchdog``): on a shared
 machine the host stalls for more than the command line's 100 ms, which would
 (rightly) stop the stream; here the stalls are counted instead.
 
+``--latency-ms`` widens the reply timeouts likewise (the driver's default on
+a pseudo-terminal is 16 ms: a reply more than about 34 ms late is a retry,
+three in a row a fault).
+
 Run: .venv/bin/python bench/soak.py [--minutes 10] [--read-every 1] [--watchdog 2.54]
+[--latency-ms 16]
 """
 
 from __future__ import annotations
@@ -88,7 +93,9 @@ def rss_mb() -> float:
     return math.nan
 
 
-def soak(rate_hz: float, minutes: float, read_every: int, watchdog_s: float) -> dict:
+def soak(
+    rate_hz: float, minutes: float, read_every: int, watchdog_s: float, latency_ms: float
+) -> dict:
     """One long stream; returns its row of figures."""
     path = SinePath(rate_hz, 60 * minutes)
     joints = JointMap()
@@ -97,7 +104,7 @@ def soak(rate_hz: float, minutes: float, read_every: int, watchdog_s: float) -> 
     with VirtualBus(
         plant, lockstep_dt_s=1 / rate_hz, timing=WireTiming(baud=BAUD), goal_log_size=1000
     ) as virtual:
-        with ServoBus(virtual.port, baud=BAUD) as bus:
+        with ServoBus(virtual.port, baud=BAUD, latency_ms=latency_ms) as bus:
             bring_up(bus, joints, ("XM430-W350",) * 3, path, watchdog_s=watchdog_s)
             streamer = Streamer(bus, joints, telemetry_every=read_every, max_delay_s=None)
             rss_start = rss_mb()
@@ -143,12 +150,22 @@ def main() -> None:
         help="Bus Watchdog (s); the longest by default, so that a stall of the shared host "
         "is counted rather than ending the soak (a stall past it stops the stream)",
     )
+    parser.add_argument(
+        "--latency-ms",
+        type=float,
+        default=16.0,
+        help="adapter latency (ms) in the reply timeouts (timeout = wire time + 2 x this + 2 ms)",
+    )
     args = parser.parse_args()
-    rows = [soak(rate, args.minutes, args.read_every, args.watchdog) for rate in args.rates]
+    rows = [
+        soak(rate, args.minutes, args.read_every, args.watchdog, args.latency_ms)
+        for rate in args.rates
+    ]
     print(
         f"virtual bus on a pty, wire timing {BAUD / 1e6:g} Mbps, {platform.machine()} "
         f"{platform.python_version()}, {os.cpu_count()} cores; {args.minutes:g} min per rate, "
-        f"read back every {args.read_every} frame(s), Bus Watchdog {args.watchdog:g} s; "
+        f"read back every {args.read_every} frame(s), Bus Watchdog {args.watchdog:g} s, "
+        f"reply timeouts with {args.latency_ms:g} ms latency; "
         "period error = |actual - planned interval|"
     )
     print()

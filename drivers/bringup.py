@@ -287,7 +287,9 @@ def check_plan(
         From ``inspect``.
     joints : JointMap
     trajectory : JointTrajectory or object with ``t`` (M,) and ``q`` (M, n)
-        The plan: times (s) and joint angles (rad).
+        The plan: times (s) and joint angles (rad), the first row the first
+        frame. A row with time NaN is a bound, not a frame (an online stream's
+        joint limits).
     joint_names : sequence of str, optional
         For messages (default pan, tilt, roll).
     set_limits : mapping of int to (int, int), optional
@@ -346,8 +348,10 @@ def check_plan(
                 k = outside[0]
                 goal = ticks[k, j]
                 which, limit = ("Min", low) if goal < low else ("Max", high)
+                # A time-less row is a bound of where an online stream may go.
+                when = f"at t = {t[k]:.3f} s" if np.isfinite(t[k]) else "within its joint limits"
                 raise BringUpError(
-                    f"{names[j]} leaves its position limits at t = {t[k]:.3f} s: "
+                    f"{names[j]} leaves its position limits {when}: "
                     f"{math.degrees(q[k, j]):.1f} deg (tick {goal}) is past the {which} Position "
                     f"Limit {limit} ({_deg(joints, j, limit)}) of servo {servo.servo_id}; "
                     "change the plan, or change the limits with --set-limits; refusing to stream"

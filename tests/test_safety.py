@@ -334,11 +334,11 @@ def test_stall_longer_than_the_watchdog_stops_before_the_next_goal(rig):
     bring_up(bus, JointMap(), MODELS, trajectory, watchdog_s=0.1)
     streamer = Streamer(bus, JointMap())
     with pytest.raises(
-        WatchdogTripped, match=r"tripped .* after a 19\d\.\d ms stall, before frame 30"
+        WatchdogTripped, match=r"tripped .* after a \d+\.\d ms stall, before frame 30"
     ):
         streamer.run(_stalling(trajectory, {30: 0.2}), rate_hz=RATE_HZ)
     assert virtual.frames_received == 30
-    assert streamer.stats.stalls >= 1
+    assert streamer.stats.stalls >= 1 and streamer.stats.stall_max_s >= 0.2 - 1 / RATE_HZ
 
 
 def test_lateness_past_the_bound_fails_the_stream(rig):
@@ -394,7 +394,7 @@ def test_goal_log_is_bounded(rig):
         bus.sync_write(Register.GOAL_POSITION, {1: tick})
     bus.read(1, Register.GOAL_POSITION)  # the bus has handled every packet before this reply
     assert virtual.frames_received == 50
-    assert len(virtual.goal_log) == 10 and virtual.goal_log[-1][0] == 2049
+    assert 10 <= len(virtual.goal_log) < 20 and virtual.goal_log[-1][0] == 2049
 
 
 def test_present_position_outside_the_limits_is_refused_before_any_change(rig):

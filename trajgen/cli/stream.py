@@ -24,7 +24,6 @@ import sys
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from trajgen.cli.common import (
     EXIT_FAILED,
@@ -32,8 +31,10 @@ from trajgen.cli.common import (
     add_file_argument,
     bad_input,
     baud_rate,
+    check_output_path,
     open_bus,
     positive_float,
+    servo_ids,
 )
 from trajgen.gimbal import JOINT_NAMES as JOINTS
 
@@ -52,7 +53,7 @@ before torque on (limits are never widened; --set-limits is the only way to
 write them; Drive Mode is never written); a joint farther than --max-approach
 from the first frame is refused; after a host stall the rest of the stream is
 shifted in time, never replayed faster, and the stream fails once it is more
-than --max-delay behind its plan.
+than --max-delay behind its plan (not with --virtual: see --max-delay).
 
 The file's [bus] table may set port, baud, ids, directions, zeros, models and
 watchdog_s; flags override it. On any stop (end, fault, Ctrl-C, SIGTERM,
@@ -69,17 +70,8 @@ exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
 143 SIGTERM, 129 SIGHUP)."""
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-
-
-def _ids(text: str) -> tuple[int, ...]:
-    """argparse type: three comma-separated servo ids."""
-    try:
-        ids = tuple(int(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
-    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
-        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
-    return ids
+#: Default --max-delay (s), as ``trajgen.drivers.streamer.MAX_DELAY_S`` (which loads the SDK).
+MAX_DELAY_S = 1.0
 
 
 def _limits(text: str) -> tuple[str, float, float]:
@@ -104,27 +96,7 @@ def register(subparsers) -> None:
         description=STREAM_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_file_argument(p)
-    p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
-    p.add_argument(
-        "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
-    )
-    p.add_argument(
-        "--ids", type=_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
-    )
-    p.add_argument(
-        "--rate",
-        type=positive_float,
-        metavar="HZ",
-        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
-    )
-    p.add_argument(
-        "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
-    )
-    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
-    p.add_argument(
-        "--torque-off", action="store_true", help="release the servos when the stream stops"
-    )
+    add_stream_arguments(p)
     p.add_argument(
         "--set-limits",
         type=_limits,
@@ -143,9 +115,36 @@ def register(subparsers) -> None:
     p.add_argument(
         "--max-delay",
         type=positive_float,
-        default=1.0,
         metavar="S",
-        help="fail the stream when host stalls have put it this far behind its plan (default 1 s)",
+        help="fail the stream when host stalls have put it this far behind its plan "
+        f"(default {MAX_DELAY_S:g} s; with --virtual no bound, as its lock-step simulation "
+        "does not depend on the host's timing)",
+    )
+    p.set_defaults(func=run_stream)
+
+
+def add_stream_arguments(p) -> None:
+    """The file, bus, rate, output and --virtual options (shared with ``trajgen follow``)."""
+    add_file_argument(p)
+    p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
+    p.add_argument(
+        "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
+    )
+    p.add_argument(
+        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
+    )
+    p.add_argument(
+        "--rate",
+        type=positive_float,
+        metavar="HZ",
+        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
+    )
+    p.add_argument(
+        "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
+    )
+    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
+    p.add_argument(
+        "--torque-off", action="store_true", help="release the servos when the stream stops"
     )
     p.add_argument(
         "--virtual",
@@ -153,7 +152,6 @@ def register(subparsers) -> None:
         help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
     )
     p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
-    p.set_defaults(func=run_stream)
 
 
 # -- signals -----------------------------------------------------------------
@@ -241,24 +239,25 @@ class Outcome:
     bring_up: dict | None = None
     streamer: object = None
     stop_errors: list[str] = field(default_factory=list)
-    torque: dict | None = None
 
 
-def plan(args) -> Plan:
-    """Load the keyframe file and plan the stream; no hardware.
+def _plan(args):
+    """Everything that can fail on bad input, before any hardware is touched.
+
+    Shared with ``trajgen follow``. Returns ``(kf, config, joints, rate, trajectory)``.
 
     Raises
     ------
     ValueError, TypeError, OSError
-        Bad input (KeyframeFileError and KinematicsError are ValueErrors).
+        Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
     """
-    import numpy as np
-
     from trajgen.drivers.config import bus_config_from_tables
-    from trajgen.drivers.units import TICKS_PER_REV, JointMap
+    from trajgen.drivers.units import JointMap
     from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
+    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
+    check_output_path("--json", args.json, (".json",))
     kf = load_keyframe_file(args.file)
     config = bus_config_from_tables(kf.tables, kf.path)
     joints = config.joints
@@ -272,15 +271,24 @@ def plan(args) -> Plan:
         raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
     if args.ids:
         joints = JointMap(args.ids, joints.directions, joints.zeros)
-    for option, path, suffixes in (
-        ("--telemetry", args.telemetry, (".csv", ".npz")),
-        ("--json", args.json, (".json",)),
-    ):
-        if path and not path.endswith(suffixes):
-            raise ValueError(f"{option}: expected a {' or '.join(suffixes)} path, got {path!r}")
-        if path and not Path(path).resolve().parent.is_dir():
-            raise ValueError(f"{option}: no such directory for {path!r}")
-    set_limits = {}
+    rate = args.rate or kf.rate_hz or 200.0
+    trajectory = plan_joint_trajectory(kf.spline(), rate)
+    return kf, config, joints, rate, trajectory
+
+
+def _set_limits(args, joints) -> dict[int, tuple[int, int]]:
+    """``--set-limits`` as servo id -> (min, max) ticks, through each joint's mapping.
+
+    Raises
+    ------
+    ValueError
+        If a limit falls outside the registers' range 0..4095.
+    """
+    import numpy as np
+
+    from trajgen.drivers.units import TICKS_PER_REV
+
+    limits = {}
     for joint, low_deg, high_deg in args.set_limits or ():
         j = JOINTS.index(joint)
         angles = np.zeros((2, len(JOINTS)))
@@ -291,10 +299,20 @@ def plan(args) -> Plan:
                 f"--set-limits {joint}={low_deg:g}:{high_deg:g}: ticks {ticks[0]}..{ticks[1]} "
                 f"fall outside the registers' range 0..{TICKS_PER_REV - 1}"
             )
-        set_limits[joints.ids[j]] = (ticks[0], ticks[1])
-    rate = args.rate or kf.rate_hz or 200.0
-    trajectory = plan_joint_trajectory(kf.spline(), rate)
-    return Plan(kf, config, joints, rate, trajectory, set_limits)
+        limits[joints.ids[j]] = (ticks[0], ticks[1])
+    return limits
+
+
+def plan(args) -> Plan:
+    """The stream command's plan (``_plan``) and its ``--set-limits``; no hardware.
+
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad input.
+    """
+    kf, config, joints, rate, trajectory = _plan(args)
+    return Plan(kf, config, joints, rate, trajectory, _set_limits(args, joints))
 
 
 def open_port(args, p: Plan):
@@ -307,18 +325,21 @@ def open_port(args, p: Plan):
     """
     if not args.virtual:
         return args.port or p.config.port, None, None
+    virtual, plant = start_virtual(p.kf, p.config, p.joints, p.rate_hz, p.trajectory.q[0])
+    return virtual.port, virtual, plant
+
+
+def start_virtual(kf, config, joints, rate, first_q):
+    """The simulated gimbal of the file's [gimbal] table, powered up at ``first_q``
+    (rad, as a gimbal parked at the first frame would be), behind a virtual bus in
+    lock-step with the stream; returns ``(virtual_bus, plant)``."""
     from trajgen.drivers.virtual.bus import VirtualBus
     from trajgen.sim.model import gimbal_config_from_tables
     from trajgen.sim.plant import GimbalPlant
 
-    # Power up at the first frame, as a gimbal parked there would be.
-    plant = GimbalPlant(
-        gimbal_config_from_tables(p.kf.tables, p.kf.path), initial_rad=p.trajectory.q[0]
-    )
-    virtual = VirtualBus(
-        plant, ids=p.joints.ids, models=p.config.models, lockstep_dt_s=1.0 / p.rate_hz
-    ).start()
-    return virtual.port, virtual, plant
+    plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), initial_rad=first_q)
+    virtual = VirtualBus(plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate)
+    return virtual.start(), plant
 
 
 def bring_up_servos(bus, args, p: Plan):
@@ -357,7 +378,7 @@ def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
         on_stop="torque_off" if args.torque_off else "hold",
         max_approach_rad=math.radians(args.max_approach),
         goal_bounds_ticks=setup.goal_bounds_ticks,
-        max_delay_s=args.max_delay,
+        max_delay_s=args.max_delay or (None if args.virtual else MAX_DELAY_S),
     )
     try:
         outcome.streamer.run(p.trajectory)
@@ -450,43 +471,53 @@ def report(args, p: Plan, plant, outcome: Outcome) -> int:
         print(f"servos: {state.removeprefix('the servos ')}")
     if args.telemetry and stats is not None:
         print(f"telemetry: {args.telemetry}")
+    result = {
+        "status": outcome.status,
+        "stopped_by": outcome.stopped_by,
+        "on_stop": "torque_off" if args.torque_off else "hold",
+        "stop_errors": outcome.stop_errors,
+        "bring_up": outcome.bring_up,
+        "stream": None if stats is None else stats.to_json_dict(),
+    }
     if plant is not None and outcome.status == EXIT_OK:
-        from trajgen.sim.errors import SimError
+        outcome.status, _ = torque_report(plant, p.trajectory, args, result)
+        result["status"] = outcome.status
+    return write_json(args, result, outcome.status)
+
+
+def torque_report(plant, trajectory, args, result: dict):
+    """Print (and plot with --plot) the torque report of ``trajectory`` as streamed to
+    ``plant``; add it to ``result``; return the exit status and the report (or None)."""
+    from trajgen.sim.errors import SimError
+
+    try:
+        report = plant.report(trajectory)
+    except SimError as e:
+        print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+        return EXIT_FAILED, None
+    print(report.format())
+    result["torque"] = report.to_json_dict()
+    status = EXIT_OK if report.ok else EXIT_FAILED
+    if args.plot:
+        from trajgen.sim.plot import plot_report
 
         try:
-            torque = plant.report(p.trajectory)
-        except SimError as e:
-            print(f"trajgen: simulation failed: {e}", file=sys.stderr)
-            return EXIT_FAILED
-        print(torque.format())
-        outcome.torque = torque.to_json_dict()
-        if not torque.ok:
-            outcome.status = EXIT_FAILED
-        if args.plot:
-            from trajgen.sim.plot import plot_report
+            print(f"plot: {plot_report(report, args.plot)}")
+        except (OSError, ValueError) as e:
+            return bad_input(e), report
+    return status, report
 
-            try:
-                print(f"plot: {plot_report(torque, args.plot)}")
-            except (OSError, ValueError) as e:
-                return bad_input(e)
+
+def write_json(args, result: dict, status: int) -> int:
+    """Write ``result`` to --json if given; return ``status`` (or bad input)."""
     if args.json:
-        result = {
-            "status": outcome.status,
-            "stopped_by": outcome.stopped_by,
-            "on_stop": "torque_off" if args.torque_off else "hold",
-            "stop_errors": outcome.stop_errors,
-            "bring_up": outcome.bring_up,
-            "stream": None if stats is None else stats.to_json_dict(),
-        }
-        if outcome.torque is not None:
-            result["torque"] = outcome.torque
         try:
             with open(args.json, "w", encoding="utf-8") as f:
                 json.dump(result, f, indent=2)
         except OSError as e:
             return bad_input(e)
         print(f"json: {args.json}")
-    return outcome.status
+    return status
 
 
 def run_stream(args) -> int:
