@@ -1,8 +1,9 @@
 """Streaming a joint trajectory to the servos at a fixed rate.
 
-Each frame's deadline is absolute: ``start + (frame.t - first.t)`` on
-``time.monotonic``, so a frame a little late does not push the later ones (no
-drift). Per frame: one Sync Write of Goal Position. Every ``telemetry_every``
+Each frame's deadline is absolute: ``start + (frame.t - first.t)`` on the
+stream's clock (``time.monotonic`` by default, or a ``SimulatedClock`` against
+a lock-step virtual bus), so a frame a little late does not push the later
+ones (no drift). Per frame: one Sync Write of Goal Position. Every ``telemetry_every``
 frames: one group read of present current, velocity and position (Fast Sync
 Read, or Sync Read where the servos do not answer it: said with a
 ``RuntimeWarning``), whose ERR bytes reveal a hardware error (Alert bit).
@@ -26,7 +27,6 @@ statistics; CSV telemetry is written as it goes).
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
@@ -38,7 +38,7 @@ import numpy as np
 
 from trajgen.drivers.bringup import MAX_APPROACH_RAD, check_start, joint_names_for
 from trajgen.drivers.bus import ServoBus
-from trajgen.drivers.clock import sleep_until
+from trajgen.drivers.clock import WALL_CLOCK
 from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import (
     CommError,
@@ -284,6 +284,10 @@ class Streamer:
     max_delay_s : float or None, optional
         Fail the stream (``StreamLagging``) when the total shift passes this
         (s); None: no bound (stalls are still counted).
+    clock : object with ``now()`` and ``sleep_until(deadline_s)``, optional
+        What the deadlines run on: the host's monotonic clock, or a
+        ``drivers.clock.SimulatedClock`` against a lock-step virtual bus (the
+        stream then runs as fast as the simulation allows, and never stalls).
 
     Attributes
     ----------
@@ -314,6 +318,7 @@ class Streamer:
         goal_bounds_ticks: np.ndarray | None = None,
         stall_s: float | None = None,
         max_delay_s: float | None = MAX_DELAY_S,
+        clock=WALL_CLOCK,
     ) -> None:
         positive = {"low": 0.0, "low_open": True}
         telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
@@ -347,6 +352,7 @@ class Streamer:
         self.goal_bounds_ticks = goal_bounds_ticks
         self.stall_s = stall_s
         self.max_delay_s = max_delay_s
+        self.clock = clock
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []
 
@@ -490,20 +496,21 @@ class Streamer:
         period = 1.0 / stats.rate_hz
         stall_s = 0.5 * period if self.stall_s is None else self.stall_s
         poll_every = max(1, round(self.poll_s * stats.rate_hz))
-        start = time.monotonic() + period
+        clock = self.clock
+        start = clock.now() + period
         shift = 0.0  # this phase's clock shift (s), from stalls
         t_first = None
         nan = np.full(len(ids), math.nan)
         for k, (t, q) in enumerate(frames):
             t_first = t if t_first is None else t_first
             planned = start + (t - t_first)
-            sleep_until(planned + shift)
-            late = time.monotonic() - (planned + shift)
+            clock.sleep_until(planned + shift)
+            late = clock.now() - (planned + shift)
             if late > stall_s:  # never catch up: shift the rest of the stream instead
                 self._stall(late)
-                stats.delay_s += time.monotonic() - planned - shift
-                shift = time.monotonic() - planned
-            sent = time.monotonic()
+                stats.delay_s += clock.now() - planned - shift
+                shift = clock.now() - planned
+            sent = clock.now()
             ticks = self.joints.to_ticks(q)
             self._check_bounds(ticks, t)
             self.bus.sync_write(Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True)))

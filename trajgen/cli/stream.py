@@ -258,7 +258,8 @@ def _plan(args):
 
     check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
     check_output_path("--json", args.json, (".json",))
-    kf = load_keyframe_file(args.file)
+    # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
+    kf = args.file if hasattr(args.file, "spline") else load_keyframe_file(args.file)
     config = bus_config_from_tables(kf.tables, kf.path)
     joints = config.joints
     if args.virtual:
@@ -338,7 +339,14 @@ def start_virtual(kf, config, joints, rate, first_q):
     from trajgen.sim.plant import GimbalPlant
 
     plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), initial_rad=first_q)
-    virtual = VirtualBus(plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate)
+    virtual = VirtualBus(
+        plant,
+        ids=joints.ids,
+        models=config.models,
+        lockstep_dt_s=1.0 / rate,
+        # The servos power up with the gains the file states ([gimbal.<joint>]).
+        registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
+    )
     return virtual.start(), plant
 
 
@@ -368,6 +376,7 @@ def bring_up_servos(bus, args, p: Plan):
 
 def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
     """Stream the brought-up plan (the streamer's statistics go in ``outcome``)."""
+    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
     from trajgen.drivers.streamer import Streamer
 
     outcome.streamer = Streamer(
@@ -379,6 +388,8 @@ def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
         max_approach_rad=math.radians(args.max_approach),
         goal_bounds_ticks=setup.goal_bounds_ticks,
         max_delay_s=args.max_delay or (None if args.virtual else MAX_DELAY_S),
+        # Lock-step: simulated time moves with the frames, so do not wait for them.
+        clock=SimulatedClock() if args.virtual else WALL_CLOCK,
     )
     try:
         outcome.streamer.run(p.trajectory)
