@@ -53,7 +53,7 @@ before torque on (limits are never widened; --set-limits is the only way to
 write them; Drive Mode is never written); a joint farther than --max-approach
 from the first frame is refused; after a host stall the rest of the stream is
 shifted in time, never replayed faster, and the stream fails once it is more
-than --max-delay behind its plan (not with --virtual: see --max-delay).
+than --max-delay behind its plan.
 
 The file's [bus] table may set port, baud, ids, directions, zeros, models and
 watchdog_s; flags override it. On any stop (end, fault, Ctrl-C, SIGTERM,
@@ -115,10 +115,10 @@ def register(subparsers) -> None:
     p.add_argument(
         "--max-delay",
         type=positive_float,
+        default=MAX_DELAY_S,
         metavar="S",
         help="fail the stream when host stalls have put it this far behind its plan "
-        f"(default {MAX_DELAY_S:g} s; with --virtual no bound, as its lock-step simulation "
-        "does not depend on the host's timing)",
+        f"(default {MAX_DELAY_S:g} s; --virtual runs on simulated time and never stalls)",
     )
     p.set_defaults(func=run_stream)
 
@@ -387,7 +387,7 @@ def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
         on_stop="torque_off" if args.torque_off else "hold",
         max_approach_rad=math.radians(args.max_approach),
         goal_bounds_ticks=setup.goal_bounds_ticks,
-        max_delay_s=args.max_delay or (None if args.virtual else MAX_DELAY_S),
+        max_delay_s=args.max_delay,
         # Lock-step: simulated time moves with the frames, so do not wait for them.
         clock=SimulatedClock() if args.virtual else WALL_CLOCK,
     )
