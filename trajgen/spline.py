@@ -18,7 +18,7 @@ from . import fast
 from . import jet as J
 from . import quat as Q
 from .local_curves import KIND_NAMES, NoCircleError, build_curves
-from .path import OrientationPath, check_times
+from .path import OrientationPath, check_times, run_steps
 from .validate import check_choice, check_number
 
 BOUNDARIES = ("rest", "natural", "closed")
@@ -219,21 +219,32 @@ class BlendingSpline(OrientationPath):
         # allocator's pool (large arrays are mapped and unmapped on every call).
         for a in range(0, len(t), CHUNK):
             b = min(a + CHUNK, len(t))
-            qb, rb = self._blend_derivatives(t[a:b], seg[a:b], max_order)
+            qb, rb = run_steps(self._blend_steps(t[a:b], seg[a:b], max_order))
             q[a:b] = qb.T
             for out, r in zip(rates, rb, strict=True):
                 out[a:b] = r.T
         return q, rates
 
-    def _blend_derivatives(self, t, seg, order):
+    def _space_rate_steps(self, t, seg, max_order):
+        if len(t) > CHUNK or fast.use_compiled(len(t)):
+            return self._space_rates(t, seg, max_order)
+        q, rates = yield from self._blend_steps(t, seg, max_order)
+        return q.T, [r.T for r in rates]
+
+    def _blend_steps(self, t, seg, order):
         """The path at times ``t`` (M,) in segments ``seg`` (M,): unit quaternions (4, M) and the
-        space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M)."""
+        space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M).
+
+        A generator that pauses between stages (see :meth:`_space_rate_steps`); its
+        return value is the result.
+        """
         M = len(t)
-        curves = self._curves.derivatives(
+        curves = yield from self._curves.derivative_steps(
             np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
         )
         c_left = [c[:, :M] for c in curves]
         c_right = [c[:, M:] for c in curves]
+        yield
         rate = self._inv_h[seg]
         u = (t - self.times[seg]) * rate
         coef = np.take(self._blend_T, seg, axis=1)
@@ -245,8 +256,10 @@ class BlendingSpline(OrientationPath):
             for j in range(len(coef) - 2, n - 1, -1):
                 acc = acc * u + coef[j] * fall[j]
             f.append(acc * rate**n if n else acc)
+        yield
         # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
-        Q = D.slerp(c_left, c_right, f)
+        Q = yield from D.slerp_steps(c_left, c_right, f)
+        yield
         q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
         if order == 0:
             return q, []
