@@ -786,8 +786,8 @@ def plot(results: list[Result], bounds: dict[tuple[str, str], Bound], path: str)
                 ax.axvline(bounds[(motion, pace)].rate_nm_s, color="k", ls="--", lw=1)
             ax.set_xlim(left=low / 2)  # bars on a log axis start at its left edge
             for i, v in enumerate(values):
-                label = " refused" if np.isnan(v) else f" {v:.3g}"
-                ax.text(low / 2 if np.isnan(v) else v, y[i], label, va="center", fontsize=6)
+                text = " refused" if np.isnan(v) else f" {v:.3g}"
+                ax.text(low / 2 if np.isnan(v) else v, y[i], text, va="center", fontsize=6)
             if row == 0:
                 ax.set_title(f"{motion}, {pace}", fontsize=10)
             if col == 0:
