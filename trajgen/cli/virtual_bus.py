@@ -114,11 +114,15 @@ def run_virtual_bus(args) -> int:
             if virtual.error is not None:
                 break
     finally:
+        wall_s = virtual.wall_time_s
         virtual.stop()
         for s, handler in previous.items():
             signal.signal(s, handler)
     if virtual.error is not None:
         print(f"trajgen: simulation failed: {virtual.error}", file=sys.stderr)
         return EXIT_FAILED
-    print(f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated", file=sys.stderr)
+    print(
+        f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated in {wall_s:.3f} s",
+        file=sys.stderr,
+    )
     return EXIT_OK
