@@ -148,6 +148,7 @@ def _bring_up(bus, kf, config, joints, rate):
 
 
 def _stream(args) -> int:
+    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
     from trajgen.drivers.errors import DriverError
     from trajgen.drivers.streamer import Streamer
 
@@ -180,6 +181,8 @@ def _stream(args) -> int:
                 joints,
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
+                # Lock-step: simulated time moves with the frames, so do not wait for them.
+                clock=WALL_CLOCK if virtual is None else SimulatedClock(),
             )
             streamer.run(trajectory)
         except DriverError as e:
