@@ -255,4 +255,4 @@ def test_trajgen_sim_and_the_virtual_stream_agree(tmp_path, capsys):
     # (torque on, holding against gravity for a few polled periods).
     for joint in ("pan", "tilt", "roll"):
         for key in ("max_tracking_error_rad", "peak_torque_nm", "rms_torque_nm"):
-            assert virtual[joint][key] == pytest.approx(offline[joint][key], rel=1e-4, abs=1e-7)
+            assert virtual[joint][key] == pytest.approx(offline[joint][key], rel=1e-3, abs=1e-6)
