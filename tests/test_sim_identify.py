@@ -251,8 +251,9 @@ def test_trajgen_sim_and_the_virtual_stream_agree(tmp_path, capsys):
     capsys.readouterr()
     offline = json.loads((tmp_path / "sim.json").read_text())["joints"]
     virtual = json.loads((tmp_path / "bus.json").read_text())["torque"]["joints"]
-    # Equal but for the bring-up the virtual servos sit through before the stream
-    # (torque on, holding against gravity for a few polled periods).
+    # Equal but for the start: `trajgen sim` switches the servos on at the first
+    # frame, the virtual ones have held it against gravity through bring-up.
+    # (The previous plant differed by 2-4x in peak torque.)
     for joint in ("pan", "tilt", "roll"):
         for key in ("max_tracking_error_rad", "peak_torque_nm", "rms_torque_nm"):
-            assert virtual[joint][key] == pytest.approx(offline[joint][key], rel=1e-3, abs=1e-6)
+            assert virtual[joint][key] == pytest.approx(offline[joint][key], rel=1e-2)
