@@ -398,7 +398,7 @@ def _fit(sysid, replay, start, max_iter, period=None):
         for i, p in enumerate(PARAMETERS):
             low, high = _BOUNDS[p]
             # Start off the bounds (a zero friction or damping would sit on one).
-            value = float(np.clip(start[4 * j + i], low + 1e-3 * (high - low), high))
+            value = float(np.clip(start[4 * j + i], low + 2e-3 * (high - low), high))
             params.add(sysid.Parameter(f"{name}.{p}", value, low, high))
     if len(start) > 12:
         value = float(np.clip(start[12], 0.02 * period, 1.98 * period))
