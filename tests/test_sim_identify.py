@@ -96,6 +96,31 @@ def test_excite_then_identify_recovers_a_simulated_gimbal(tmp_path, capsys):
     assert len(kf.times) == 2  # the keyframes kept, the old [gimbal.pan] replaced
     assert "# my gimbal" in fitted.read_text() and "# +- " in fitted.read_text()
 
+    # A servo whose current reads 30 % high: --fit-current-scale finds the factor.
+    import csv
+
+    with open(log, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for row in rows:
+        for joint in ("pan", "tilt", "roll"):
+            row[f"current_a_{joint}"] = str(1.3 * float(row[f"current_a_{joint}"]))
+    scaled = tmp_path / "scaled.csv"
+    with open(scaled, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    argv = ["identify", nominal, scaled, "--out", fitted, "--fit-current-scale"]
+    assert _run(identify, argv) == 0
+    out = capsys.readouterr().out
+    scale = float(out.split("current scale ")[1].split()[0])
+    assert scale == pytest.approx(1.3, rel=0.05)
+    kf = load_keyframe_file(fitted)
+    config = gimbal_config_from_tables(kf.tables, kf.path)
+    for j, joint in enumerate(("pan", "tilt", "roll")):
+        assert config.joints[j].position_p_gain == pytest.approx(
+            TRUE[joint]["position_p_gain"], rel=0.05
+        )
+
 
 def test_a_gentle_move_does_not_excite_damping(tmp_path, capsys):
     # A slow pan-only move: tilt and roll never move, so nothing about them is known.
