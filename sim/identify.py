@@ -2,19 +2,24 @@
 
 For each joint: ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping``
 (N m s/rad) and the Position P Gain (register units, which also tests the P
-divisor: a servo whose firmware divides by 256 fits half its register value),
-plus one transport delay (s) between a goal's time label and the present
-values read in the same frame.
+divisor: a servo whose firmware divides by 256 fits half its register value);
+optionally the transport delay (s) from a goal's time label to the present
+values read in its frame, and one scale between the logged current and the
+simulated torque over the torque constant.
 
 The model is the one ``trajgen sim`` runs (``sim.model``, the firmware loop of
 ``sim.firmware``). Each log's goals are replayed, held for one stream period,
 from the first logged state; the residual is the logged present position
-(rad) and velocity (weighted by ``VELOCITY_WEIGHT_S``) minus the simulated
-ones at each frame's time plus the delay. The fit is ``mujoco.sysid``'s
-box-constrained Gauss-Newton (``mujoco.minimize.least_squares``) over batched
-``mujoco.rollout`` rollouts; the confidence intervals are
-``mujoco.sysid.calculate_intervals`` (95 %, from the Jacobian at the optimum
-and the residual variance).
+(rad), velocity (weighted by ``VELOCITY_WEIGHT_S``) and current (weighted by
+``CURRENT_WEIGHT_RAD_A``) minus the simulated ones at each frame's time plus
+the delay. The fit is ``mujoco.sysid``'s optimizer (box-constrained
+Gauss-Newton, ``mujoco.minimize.least_squares``) over batched ``mujoco.rollout``
+replays, with a Jacobian that perturbs one parameter kind of all three joints
+per rollout (``_Replay.jacobian``); the 95 % confidence intervals are
+``mujoco.sysid.calculate_intervals`` on a full finite-difference Jacobian at
+the optimum. The rest of ``mujoco.sysid`` (its ``TimeSeries`` and ``MjSpec``
+model modifiers) is not used: the parameters here are plain ``MjModel``
+fields, set in place.
 
 ``mujoco.sysid`` needs the ``mujoco[sysid]`` extra (``pip install
 'trajgen[sysid]'``); it is imported only here.
