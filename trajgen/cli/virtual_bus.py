@@ -85,7 +85,8 @@ def run_virtual_bus(args) -> int:
         from trajgen.sim.model import gimbal_config_from_tables
         from trajgen.sim.plant import GimbalPlant
 
-        plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path))
+        # Served until stopped and never reported on: no step record kept.
+        plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), record=False)
     except (ValueError, TypeError, OSError) as e:  # KeyframeFileError included
         return bad_input(e)
     from trajgen.drivers.virtual.bus import VirtualBus
