@@ -56,9 +56,13 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     thread = threading.Thread(target=writer, daemon=True)
     thread.start()
     out = tmp_path / "follow.json"
-    assert main(["follow", "--virtual", "--json", str(out)]) == 0
+    # 0, or 1 if the simulated torque check fails (its tracking error depends on the
+    # machine's load through the real-time plant): the stream itself must not fault.
+    assert main(["follow", "--virtual", "--json", str(out)]) in (0, 1)
     thread.join(timeout=5)
-    result = json.loads(out.read_text())["follow"]
+    run = json.loads(out.read_text())
+    assert run["stream"]["fault"] == "" and "torque" in run
+    result = run["follow"]
     assert result["accepted"] == 4 and result["skipped"] == 1
     assert "line 3" in result["skipped_lines"][0]
     assert result["latency_s"]["n"] == 4 and result["latency_s"]["max"] < 0.5
