@@ -29,6 +29,8 @@ from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import CommError, DriverError, WatchdogTripped
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import JointMap
+from trajgen.gimbal import JOINT_NAMES
+from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 
@@ -201,23 +203,19 @@ class Streamer:
         joints: JointMap,
         *,
         telemetry: str | Path | None = None,
-        joint_names: Iterable[str] = ("pan", "tilt", "roll"),
+        joint_names: Iterable[str] = JOINT_NAMES,
         telemetry_every: int = 1,
         poll_s: float = 0.05,
         on_stop: Literal["hold", "torque_off"] = "hold",
         approach_speed_rad_s: float = 0.5,
         fast_read: bool = True,
     ) -> None:
-        if isinstance(telemetry_every, bool) or not isinstance(telemetry_every, int):
-            raise TypeError(f"Expected `telemetry_every` to be an int, got {telemetry_every!r}.")
-        if telemetry_every < 1:
-            raise ValueError(f"Expected `telemetry_every` >= 1, got {telemetry_every}.")
-        if on_stop not in ("hold", "torque_off"):
-            raise ValueError(f"Expected `on_stop` 'hold' or 'torque_off', got {on_stop!r}.")
-        if not poll_s > 0:
-            raise ValueError(f"Expected `poll_s` > 0, got {poll_s}.")
-        if not approach_speed_rad_s > 0:
-            raise ValueError(f"Expected `approach_speed_rad_s` > 0, got {approach_speed_rad_s}.")
+        telemetry_every = check_number("telemetry_every", telemetry_every, integer=True, low=1)
+        check_choice("on_stop", on_stop, ("hold", "torque_off"))
+        poll_s = check_number("poll_s", poll_s, low=0.0, low_open=True)
+        approach_speed_rad_s = check_number(
+            "approach_speed_rad_s", approach_speed_rad_s, low=0.0, low_open=True
+        )
         self.bus = bus
         self.joints = joints
         self.telemetry_path = telemetry

@@ -25,11 +25,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from trajgen.keyframes import DEFAULT_RATE_HZ
 from trajgen.sim.errors import TorqueLimitExceeded
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate
-
-DEFAULT_RATE_HZ = 200.0
 
 
 @dataclass(frozen=True)
@@ -151,10 +150,15 @@ class TorqueReport:
         ]
         for j in self.joints.values():
             lines.append(
-                f"{j.name:<6}{j.servo:<12}{j.peak_planned_torque_nm:8.3f}{j.peak_torque_nm:8.3f}"
-                f"{j.peak_torque_rate_nm_s:9.2f}{j.rms_torque_nm:8.3f}"
-                f"{j.worst_planned_margin_nm:9.3f}{j.peak_speed_rad_s:8.2f}"
-                f"{math.degrees(j.max_tracking_error_rad):8.2f}{j.steps_at_limit:8d}"
+                f"{j.name:<6}{j.servo:<12}"
+                + _cell(j.peak_planned_torque_nm, 8, 3)
+                + _cell(j.peak_torque_nm, 8, 3)
+                + _cell(j.peak_torque_rate_nm_s, 9, 2)
+                + _cell(j.rms_torque_nm, 8, 3)
+                + _cell(j.worst_planned_margin_nm, 9, 3)
+                + _cell(j.peak_speed_rad_s, 8, 2)
+                + _cell(math.degrees(j.max_tracking_error_rad), 8, 2)
+                + _cell(j.steps_at_limit, 8, 0)
             )
         lines.append(
             "plan/sim: peak |torque|; rate: peak planned torque rate; margin: worst "
@@ -162,6 +166,18 @@ class TorqueReport:
         )
         lines.extend(f"  - {r}" for r in self.reasons)
         return "\n".join(lines)
+
+
+def _cell(value: float, width: int, decimals: int) -> str:
+    """``value`` right-aligned in ``width`` characters, at least one of them a space.
+
+    Fixed decimals while they fit; otherwise 3 significant digits
+    (``1.23e+09``), so that columns never run together whatever the figures.
+    """
+    text = f"{value:.{decimals}f}"
+    if len(text) >= width:
+        text = f"{value:.3g}"
+    return f" {text:>{width - 1}}"
 
 
 def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
@@ -201,7 +217,14 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         at_limit = int(record.steps_at_limit[j])
         reasons = []
         worst = int(np.argmin(plan_margin))
-        if plan_margin[worst] < 0:
+        w_worst = abs(qd_plan[worst, j])
+        if plan_margin[worst] < 0 and w_worst >= servo.no_load_speed_rad_s:
+            reasons.append(
+                f"{name}: planned speed {w_worst:.2f} rad/s exceeds the {servo.name}'s no-load "
+                f"speed {servo.no_load_speed_rad_s:.2f} rad/s (no torque left) at t = "
+                f"{t[worst]:.3f} s"
+            )
+        elif plan_margin[worst] < 0:
             reasons.append(
                 f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
                 f"{abs(qd_plan[worst, j]):.2f} rad/s exceeds {margin:g} x envelope "
@@ -370,6 +393,7 @@ def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> To
     TorqueLimitExceeded
         When it fails; the message lists the reasons, ``.report`` has the rest.
     """
+    __tracebackhide__ = True  # pytest shows the caller's line, not this helper
     report = check_torque(source, rate_hz=rate_hz, config=config)
     if not report.ok:
         raise TorqueLimitExceeded(report)

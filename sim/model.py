@@ -25,13 +25,14 @@ the stall torque (``saturation``), standing in for the servo's current limit.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from trajgen.errors import KeyframeFileError
+from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
+from trajgen.validate import check_number, check_numbers
 
-JOINT_NAMES = ("pan", "tilt", "roll")
 GIMBAL_TABLE_KEYS = (
     "servo",
     "payload_kg",
@@ -96,28 +97,19 @@ class GimbalConfig:
             )
         resolved = tuple(s if isinstance(s, ServoModel) else servo_by_name(s) for s in servos)
         object.__setattr__(self, "servos", resolved)
-        offset = self.payload_offset_m
-        if not isinstance(offset, (tuple, list)) or len(offset) != 3:
-            raise ValueError(f"Expected `payload_offset_m` to have 3 entries, got {offset!r}.")
-        for value in offset:
-            _check_number("payload_offset_m", value)
-        object.__setattr__(self, "payload_offset_m", tuple(float(v) for v in offset))
-        _check_number("payload_kg", self.payload_kg, low=0.0)
-        _check_number("torque_margin", self.torque_margin, low=0.0, high=1.0, open_low=True)
-        _check_number("max_tracking_error_rad", self.max_tracking_error_rad, low=0.0, open_low=True)
-        _check_number("timestep_s", self.timestep_s, low=0.0, high=0.001, open_low=True)
+        for name, bounds in _FIELD_BOUNDS.items():
+            object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
+        offset = check_numbers("payload_offset_m", self.payload_offset_m, 3)
+        object.__setattr__(self, "payload_offset_m", offset)
 
 
-def _check_number(name, value, *, low=None, high=None, open_low=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"Expected `{name}` to be a number, got {value!r}.")
-    if not math.isfinite(value):
-        raise ValueError(f"Expected `{name}` to be finite, got {value!r}.")
-    if low is not None and (value < low or (open_low and value == low)):
-        op = ">" if open_low else ">="
-        raise ValueError(f"Expected `{name}` {op} {low}, got {value!r}.")
-    if high is not None and value > high:
-        raise ValueError(f"Expected `{name}` <= {high}, got {value!r}.")
+#: Ranges of GimbalConfig's number fields, shared by the class and the [gimbal] table.
+_FIELD_BOUNDS = {
+    "payload_kg": {"low": 0.0},
+    "torque_margin": {"low": 0.0, "high": 1.0, "low_open": True},
+    "max_tracking_error_rad": {"low": 0.0, "low_open": True},
+    "timestep_s": {"low": 0.0, "high": 0.001, "low_open": True},
+}
 
 
 def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
@@ -156,26 +148,14 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
     kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
     for key in ("payload_kg", "torque_margin", "max_tracking_error_rad"):
         if key in table:
-            value = table[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise _file_error(path, f"[gimbal] {key}: expected a number, got {value!r}")
-            kwargs[key] = float(value)
+            error = _field_error(path, key)
+            kwargs[key] = check_number(key, table[key], error=error, **_FIELD_BOUNDS[key])
     if "payload_offset_m" in table:
-        value = table["payload_offset_m"]
-        if (
-            not isinstance(value, list)
-            or len(value) != 3
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
-        ):
-            raise _file_error(path, f"[gimbal] payload_offset_m: expected 3 numbers, got {value!r}")
-        kwargs["payload_offset_m"] = tuple(float(v) for v in value)
-    try:
-        return GimbalConfig(**kwargs)
-    except (TypeError, ValueError) as e:
-        # GimbalConfig says "Expected `payload_kg` >= 0.0, got -1.0."; restate it
-        # in the file's terms: "[gimbal] payload_kg: expected >= 0.0, got -1.0".
-        key, _, rest = str(e).removeprefix("Expected `").partition("` ")
-        raise _file_error(path, f"[gimbal] {key}: expected {rest.rstrip('.')}") from e
+        error = _field_error(path, "payload_offset_m")
+        kwargs["payload_offset_m"] = check_numbers(
+            "payload_offset_m", table["payload_offset_m"], 3, error=error
+        )
+    return GimbalConfig(**kwargs)
 
 
 def _servos_from_table(value, path) -> tuple[ServoModel, ServoModel, ServoModel]:
@@ -207,9 +187,11 @@ def _servo_or_error(name, key, path) -> ServoModel:
 
 
 def _file_error(path, message: str):
-    from trajgen.keyframes import KeyframeFileError
-
     return KeyframeFileError(f"{Path(path)}: {message}")
+
+
+def _field_error(path, key: str):
+    return lambda problem: _file_error(path, f"[gimbal] {key}: {problem}")
 
 
 def gimbal_mjcf(config: GimbalConfig | None = None) -> str:

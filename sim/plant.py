@@ -25,6 +25,7 @@ from trajgen.sim.run import (
     raise_on_new_warnings,
     warning_counts,
 )
+from trajgen.validate import check_number
 
 #: Window (s) over which the velocity setpoint is the mean rate of the goals.
 VELOCITY_WINDOW_S = 0.025
@@ -121,10 +122,7 @@ class GimbalPlant:
         ValueError
             If ``joint`` is not 0, 1 or 2.
         """
-        if isinstance(joint, bool) or not isinstance(joint, (int, np.integer)):
-            raise TypeError(f"Expected `joint` to be an int, got {type(joint).__name__}.")
-        if not 0 <= joint < self.n_joints:
-            raise ValueError(f"Expected `joint` in 0..2, got {joint}.")
+        joint = check_number("joint", joint, integer=True, low=0, high=self.n_joints - 1)
         if enabled and self._goal is None:
             self._data.ctrl[3 * joint] = self._data.qpos[joint]
             self._data.ctrl[3 * joint + 1] = 0.0

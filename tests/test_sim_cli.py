@@ -83,13 +83,21 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
     assert err.startswith("trajgen: error: ") and len(err.splitlines()) == 1
 
 
-def test_ctrl_c_exits_130(monkeypatch):
-    def interrupted(*args, **kwargs):
+def test_ctrl_c_exits_130_and_still_writes_the_json(monkeypatch, tmp_path):
+    def interrupted(*args, progress, **kwargs):
+        progress(0.25)
         raise KeyboardInterrupt
 
     monkeypatch.setattr("trajgen.sim.check.check_torque", interrupted)
-    args = argparse.Namespace(file="x.toml", rate=None, json=None, plot=None, video=None)
+    out = tmp_path / "r.json"
+    args = argparse.Namespace(
+        file=str(keyframes.BUILTIN_EXAMPLE), rate=None, json=str(out), plot=None, video=None
+    )
     assert run_sim(args) == 130
+    done = json.loads(out.read_text())
+    assert done["interrupted"] is True and done["ok"] is None
+    assert done["stage"] == "simulating" and done["simulated_fraction"] == 0.25
+    assert done["rate_hz"] == 200.0 and done["duration_s"] == 8.0
 
 
 def test_gimbal_table_parses_every_field():
@@ -118,11 +126,17 @@ def test_gimbal_table_parses_every_field():
         ({"servo": {"yaw": "XM430-W350"}}, "[gimbal] servo.yaw: unknown joint (known: pan, "),
         ({"servo": {"tilt": 3}}, "[gimbal] servo.tilt: expected a model name, got 3"),
         ({"servo": 3}, "[gimbal] servo: expected a model name or a table per joint, got 3"),
-        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a number, got 'abc'"),
-        ({"payload_kg": -1}, "[gimbal] payload_kg: expected >= 0.0, got -1.0"),
-        ({"torque_margin": 2}, "[gimbal] torque_margin: expected <= 1.0, got 2.0"),
-        ({"torque_margin": float("nan")}, "[gimbal] torque_margin: expected to be finite, got nan"),
-        ({"payload_offset_m": [0, 0]}, "[gimbal] payload_offset_m: expected 3 numbers, got [0, 0]"),
+        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a finite number >= 0, got 'abc'"),
+        ({"payload_kg": -1}, "[gimbal] payload_kg: expected a finite number >= 0, got -1"),
+        ({"torque_margin": 2}, "[gimbal] torque_margin: expected a finite number in (0, 1], got 2"),
+        (
+            {"torque_margin": float("nan")},
+            "[gimbal] torque_margin: expected a finite number in (0, 1], got nan",
+        ),
+        (
+            {"payload_offset_m": [0, 0]},
+            "[gimbal] payload_offset_m: expected a list of 3 numbers, got [0, 0]",
+        ),
         ({"payload": 1}, "[gimbal] unknown key 'payload' (known: servo, payload_kg, "),
     ],
 )

@@ -81,15 +81,15 @@ def test_bad_calls_are_refused():
     plant = GimbalPlant()
     with pytest.raises(ValueError, match=r"`positions_rad` to be 3 finite numbers"):
         plant.set_goal([0.0, 0.0])
-    with pytest.raises(ValueError, match=r"`joint` in 0..2, got 3"):
+    with pytest.raises(ValueError, match=r"`joint` to be an integer in 0\.\.2, got 3"):
         plant.set_torque_enabled(3, True)
-    with pytest.raises(TypeError, match=r"`joint` to be an int, got float"):
+    with pytest.raises(TypeError, match=r"`joint` to be an integer in 0\.\.2, got 1.0"):
         plant.set_torque_enabled(1.0, True)
     with pytest.raises(ValueError, match=r"`dt_s` >= 0, got -0.1"):
         plant.advance(-0.1)
     with pytest.raises(SimError, match=r"no goal position was received"):
         plant.report(quintic_trajectory([0.1, 0, 0], 0.5))
-    with pytest.raises(ValueError, match=r"`timestep_s` <= 0.001, got 0.01"):
+    with pytest.raises(ValueError, match=r"`timestep_s` .* in \(0, 0.001\], got 0.01"):
         GimbalPlant(timestep_s=0.01)
 
 

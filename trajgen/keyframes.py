@@ -19,8 +19,8 @@ t = 1.5
 quat = [1.0, 0.0, 0.0, 0.0]   # (w, x, y, z), instead of pan / tilt / roll
 ```
 
-Other top-level tables (``[gimbal]`` for the simulator, ``[bus]`` for the
-drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
+Other top-level tables (``[gimbal]`` and ``[limits]`` for the simulator, ``[bus]``
+for the drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
 (``trajgen.cli.common.load_checked`` checks them all before any command works).
 Keyframes are counted from 1 in messages, as a person reading the file would.
 
@@ -66,6 +66,7 @@ TABLES = {
     "stream": "trajgen",
     "gimbal": "sim",
     "bus": "drivers",
+    "limits": "sim",
 }
 
 __all__ = [

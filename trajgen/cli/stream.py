@@ -20,6 +20,7 @@ from trajgen.cli.common import (
     baud_rate,
     open_bus,
     positive_float,
+    servo_ids,
 )
 
 STREAM_DESCRIPTION = """\
@@ -43,17 +44,6 @@ exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
 130 interrupted (servos hold their last goal)."""
 
 
-def _ids(text: str) -> tuple[int, ...]:
-    """argparse type: three comma-separated servo ids."""
-    try:
-        ids = tuple(int(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
-    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
-        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
-    return ids
-
-
 def register(subparsers) -> None:
     """Add the ``stream`` and ``scan`` subcommands to an argparse ``subparsers``."""
     p = subparsers.add_parser(
@@ -74,7 +64,7 @@ def add_stream_arguments(p) -> None:
         "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
     )
     p.add_argument(
-        "--ids", type=_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
+        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
     )
     p.add_argument(
         "--rate",
