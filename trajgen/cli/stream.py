@@ -103,7 +103,8 @@ def _plan(args):
     from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
-    kf = load_keyframe_file(args.file)
+    # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
+    kf = args.file if hasattr(args.file, "spline") else load_keyframe_file(args.file)
     config = bus_config_from_tables(kf.tables, kf.path)
     joints = config.joints
     if args.virtual:
@@ -147,6 +148,7 @@ def _bring_up(bus, kf, config, joints, rate):
 
 
 def _stream(args) -> int:
+    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
     from trajgen.drivers.errors import DriverError
     from trajgen.drivers.streamer import Streamer
 
@@ -179,6 +181,8 @@ def _stream(args) -> int:
                 joints,
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
+                # Lock-step: simulated time moves with the frames, so do not wait for them.
+                clock=WALL_CLOCK if virtual is None else SimulatedClock(),
             )
             streamer.run(trajectory)
         except DriverError as e:
@@ -215,7 +219,14 @@ def start_virtual(kf, config, joints, rate, first_q):
     from trajgen.sim.plant import GimbalPlant
 
     plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), initial_rad=first_q)
-    virtual = VirtualBus(plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate)
+    virtual = VirtualBus(
+        plant,
+        ids=joints.ids,
+        models=config.models,
+        lockstep_dt_s=1.0 / rate,
+        # The servos power up with the gains the file states ([gimbal.<joint>]).
+        registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
+    )
     return virtual.start(), plant
 
 
