@@ -136,8 +136,14 @@ def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
         (["--port", "/dev/x", "--virtual"], "--port and --virtual exclude each other"),
         ([], "no serial port: give --port, set [bus] port, or use --virtual"),
         (["--port", "/dev/x", "--plot", "p.png"], "--plot needs --virtual"),
-        (["--virtual", "--telemetry", "t.txt"], "--telemetry: expected a .csv or .npz path"),
-        (["--virtual", "--telemetry", "/no/dir/t.csv"], "--telemetry: no such directory"),
+        (
+            ["--virtual", "--telemetry", "t.txt"],
+            "--telemetry 't.txt': expected a .csv or .npz file",
+        ),
+        (
+            ["--virtual", "--telemetry", "/no/dir/t.csv"],
+            "--telemetry '/no/dir/t.csv': no such folder",
+        ),
         (["--port", "/nonexistent/tty"], "/nonexistent/tty: cannot open at 1000000 baud"),
     ],
 )

@@ -36,6 +36,7 @@ message are exactly tomllib's.
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -45,6 +46,7 @@ import numpy as np
 
 from . import quat as Q
 from .errors import KeyframeFileError
+from .gimbal import JOINT_NAMES
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .validate import check_choice, check_number
 
@@ -58,7 +60,8 @@ DEFAULT_RATE_HZ = 200.0
 SPLINE_KEYS = ("k", "boundary", "local", "reparam")
 STREAM_KEYS = ("rate_hz",)
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
-ANGLE_KEYS = ("pan", "tilt", "roll")
+#: Keyframe angle fields (degrees), one per gimbal joint.
+ANGLE_KEYS = JOINT_NAMES
 #: Top-level tables, and the package that checks each.
 TABLES = {
     "spline": "trajgen",
@@ -358,6 +361,10 @@ def _keyframes(columns: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise KeyframeFileError(
             f"{path}: keyframe {_first(neither) + 1}: no orientation: give 'quat' or "
             "pan/tilt/roll (degrees)"
+        )
+    if not math.isfinite(float(t[-1]) - float(t[0])):
+        raise KeyframeFileError(
+            f"{path}: keyframes 1 to {n}: field 't': the times span more than 1e308 s"
         )
     late = np.diff(t) <= 0
     if late.any():

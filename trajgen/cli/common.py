@@ -129,7 +129,7 @@ def check_module(option: str, module: str, package: str) -> None:
 
 @dataclass(frozen=True)
 class CheckedFile:
-    """A keyframe file with every table checked and its spline built.
+    """A keyframe file with every table checked; its spline is built on first use.
 
     Attributes
     ----------
@@ -138,17 +138,23 @@ class CheckedFile:
         From ``[gimbal]``.
     bus : trajgen.drivers.config.BusConfig
         From ``[bus]``.
-    spline : BlendingSpline
     """
 
     keyframes: KeyframeFile
     gimbal: object
     bus: object
-    spline: object
+
+    @property
+    def spline(self):
+        """The file's spline (built on first use; raises KeyframeFileError if refused)."""
+        n = len(self.keyframes.times)
+        if n > _LARGE_FILE_KEYFRAMES and not self.keyframes._spline:
+            print(f"trajgen: building the spline through {n:,} keyframes...", file=sys.stderr)
+        return self.keyframes.spline()
 
 
 def load_checked(path) -> CheckedFile:
-    """Load a keyframe file and check the whole of it, whatever the command.
+    """Load a keyframe file and check every table of it, whatever the command.
 
     ``plan`` does not use ``[gimbal]`` or ``[bus]``, but a mistake in them is
     refused by every command alike, so a file that plans also simulates and
@@ -165,12 +171,7 @@ def load_checked(path) -> CheckedFile:
     kf = load_keyframe_file(path)
     gimbal = gimbal_config_from_tables(kf.tables, kf.path)
     bus = bus_config_from_tables(kf.tables, kf.path)
-    if len(kf.times) > _LARGE_FILE_KEYFRAMES:
-        print(
-            f"trajgen: building the spline through {len(kf.times):,} keyframes...",
-            file=sys.stderr,
-        )
-    return CheckedFile(kf, gimbal, bus, kf.spline())
+    return CheckedFile(kf, gimbal, bus)
 
 
 def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLES) -> int:

@@ -39,14 +39,15 @@ def run_plan(args) -> int:
 
 
 def _plan(args) -> int:
-    check_output_path("--out", args.out, (".csv",))
+    check_output_path("--out", args.out)
     checked = load_checked(args.file)
-    kf, spline = checked.keyframes, checked.spline
+    kf = checked.keyframes
     rate = kf.stream_rate(args.rate)
     try:
         check_timing(kf, rate, args.max_samples)
     except PlanTooLarge as e:
         raise PlanTooLarge(f"{e}; --max-samples N raises the limit") from None
+    spline = checked.spline
     out = open(args.out, "w", newline="") if args.out else sys.stdout
     peak_w = peak_a = 0.0
     rows = 0

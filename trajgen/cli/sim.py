@@ -102,7 +102,7 @@ def check_sim_arguments(args) -> None:
     BadInput
         Naming the option.
     """
-    check_output_path("--json", args.json, (".json",))
+    check_output_path("--json", args.json)
     check_output_path("--plot", args.plot, PLOT_SUFFIXES)
     check_output_path("--video", args.video, (".mp4",))
     if args.plot:

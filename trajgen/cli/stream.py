@@ -9,15 +9,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    PLOT_SUFFIXES,
     add_file_argument,
     bad_input,
     baud_rate,
+    check_output_path,
+    check_timing,
+    load_checked,
     open_bus,
     positive_float,
 )
@@ -103,13 +106,14 @@ def run_stream(args) -> int:
 
 def _plan(args):
     """Everything that can fail on bad input, before any hardware is touched."""
-    from trajgen.drivers.config import bus_config_from_tables
     from trajgen.drivers.units import JointMap
-    from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
-    kf = load_keyframe_file(args.file)
-    config = bus_config_from_tables(kf.tables, kf.path)
+    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
+    check_output_path("--json", args.json)
+    check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+    checked = load_checked(args.file)
+    kf, config = checked.keyframes, checked.bus
     joints = config.joints
     if args.virtual:
         if args.port:
@@ -121,12 +125,9 @@ def _plan(args):
         raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
     if args.ids:
         joints = JointMap(args.ids, joints.directions, joints.zeros)
-    if args.telemetry and not args.telemetry.endswith((".csv", ".npz")):
-        raise ValueError(f"--telemetry: expected a .csv or .npz path, got {args.telemetry!r}")
-    if args.telemetry and not Path(args.telemetry).resolve().parent.is_dir():
-        raise ValueError(f"--telemetry: no such directory for {args.telemetry!r}")
-    rate = args.rate or kf.rate_hz or 200.0
-    trajectory = plan_joint_trajectory(kf.spline(), rate)
+    rate = kf.stream_rate(args.rate)
+    check_timing(kf, rate)
+    trajectory = plan_joint_trajectory(checked.spline, rate)
     return kf, config, joints, rate, trajectory
 
 
