@@ -104,6 +104,9 @@ class TorqueReport:
     record : SimRecord
         The simulated run.
     config : GimbalConfig
+    planned_torque_smooth_nm : ndarray, shape (N, 3), or None
+        The planned torque without Coulomb friction (N m), which steps by twice
+        the friction at every start and reversal whatever the plan.
     """
 
     ok: bool
@@ -117,6 +120,7 @@ class TorqueReport:
     planned_torque_nm: np.ndarray = field(repr=False)
     record: SimRecord = field(repr=False)
     config: GimbalConfig = field(repr=False)
+    planned_torque_smooth_nm: np.ndarray | None = field(default=None, repr=False)
 
     def to_json_dict(self) -> dict:
         """Plain-JSON summary: ``{"ok", "reasons", ..., "joints": {"pan": {...}, ...}}``."""
@@ -270,6 +274,7 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         planned_torque_nm=tau_plan,
         record=record,
         config=config,
+        planned_torque_smooth_nm=tau_smooth,
     )
 
 
