@@ -175,12 +175,14 @@ class TorqueReport:
 def _cell(value: float, width: int, decimals: int) -> str:
     """``value`` right-aligned in ``width`` characters, at least one of them a space.
 
-    Fixed decimals while they fit; otherwise 3 significant digits
-    (``1.23e+09``), so that columns never run together whatever the figures.
+    Fixed decimals while they fit; otherwise as few significant digits as fit
+    (``1.2e+09``), so that columns never run together whatever the figures.
     """
     text = f"{value:.{decimals}f}"
-    if len(text) >= width:
-        text = f"{value:.3g}"
+    for digits in (3, 2, 1):
+        if len(text) < width:
+            break
+        text = f"{value:.{digits}g}"
     return f" {text:>{width - 1}}"
 
 

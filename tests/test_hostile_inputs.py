@@ -10,8 +10,10 @@ Each row is ``(name, argv, file, status, message, before)``:
 - ``before``: what the same input did before issue 8 was fixed, measured on
   the earlier command line: ``"ok"`` (already a clear refusal), ``"crash"``
   (a traceback), ``"silent"`` (accepted, or refused only after planning,
-  simulating or streaming), ``"unclear"`` (exit 2 but a message that did not
-  name the option, or more than one line).
+  simulating or streaming, or a wrong result), ``"hang"`` (no answer in
+  90 s), ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more
+  than one line, or a message that did not name the option), ``"new"`` (an
+  option that did not exist).
 
 Every row runs in-process through :func:`trajgen.cli.main`; nothing here
 touches a serial port (``stream`` refuses before opening one).
@@ -642,7 +644,7 @@ CASES = [
         '[gimbal]\nservo = "xm430-w350"\n' + KEYS,
         2,
         r"no-port",
-        "unclear",
+        "wrong",
     ),
     # --- [bus], checked by every command --------------------------------------------
     (
@@ -789,7 +791,7 @@ CASES = [
         keys("t = 0;pan = 0", "t = 1e6;pan = 10"),
         2,
         r"1e\+06 s at 200 Hz is 2e\+08 samples, over the limit",
-        "crash",
+        "hang",
     ),
     (
         "sim: keyframes 1 ns apart",
@@ -989,7 +991,9 @@ def test_bad_input_is_refused_clearly(argv, file, status, message, tmp_path, cap
 def test_the_table_is_what_the_report_counts():
     names = [row[0] for row in CASES]
     assert len(names) == len(set(names))
-    assert all(row[5] in ("ok", "crash", "silent", "unclear", "new") for row in CASES)
+    assert all(
+        row[5] in ("ok", "crash", "hang", "silent", "wrong", "unclear", "new") for row in CASES
+    )
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
