@@ -45,7 +45,7 @@ def write_file(path: Path, n: int) -> None:
     with path.open("w") as f:
         f.write('[spline]\nk = 2\n\n[gimbal]\nservo = "XM430-W350"\n\n')
         for i in range(n):
-            f.write(f"[[keyframes]]\nt = {0.5 * i:g}\npan = {pan[i]:g}\ntilt = {tilt[i] / 2:g}\n")
+            f.write(f"[[keyframes]]\nt = {0.5 * i}\npan = {pan[i]:g}\ntilt = {tilt[i] / 2:g}\n")
             f.write(f"roll = {roll[i] / 6:.2f}\n\n")
 
 
@@ -54,6 +54,8 @@ def run(setup: str, path: Path) -> tuple[float, float]:
     out = subprocess.run(
         [sys.executable, "-c", code, str(path), "run"], capture_output=True, text=True, check=True
     )
+    if out.returncode:
+        raise RuntimeError(out.stderr.strip().splitlines()[-1])
     seconds, kib = out.stdout.split()
     return float(seconds), int(kib) / 1024
 

@@ -8,6 +8,7 @@ import importlib.util
 import math
 import os
 import sys
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -217,6 +218,33 @@ def speed_warning(peak_rad_s: float) -> str | None:
         f"peak |omega| {peak_rad_s:.3g} rad/s is beyond the no-load speed of every supported "
         f"servo (fastest: {name}, {top:.2f} rad/s); `trajgen sim` will fail this motion"
     )
+
+
+class Progress:
+    """A stderr progress line, shown only once the work has taken over a second.
+
+    Call it with the fraction done (0..1). ``fraction`` keeps the last one
+    (what was done when a run is interrupted).
+    """
+
+    #: Quiet for work shorter than this (s).
+    AFTER_S = 1.0
+
+    def __init__(self, label: str, stream=None):
+        self.label = label
+        self.stream = sys.stderr if stream is None else stream
+        self.start = time.monotonic()
+        self.shown = False
+        self.fraction = 0.0
+
+    def __call__(self, fraction: float) -> None:
+        self.fraction = fraction
+        if not self.shown and time.monotonic() - self.start < self.AFTER_S:
+            return
+        self.shown = True
+        end = "\n" if fraction >= 1.0 else ""
+        self.stream.write(f"\r{self.label} {100 * fraction:3.0f}%{end}")
+        self.stream.flush()
 
 
 def open_bus(port: str, baud: int):
