@@ -13,6 +13,8 @@ from trajgen.sim.check import (
 )
 from trajgen.sim.dynamics import inverse_dynamics
 from trajgen.sim.errors import SimError, SimulationError, TorqueLimitExceeded
+from trajgen.sim.fit import FitError, FitResult, SegmentFit, fit_timing
+from trajgen.sim.limits import JointLimits, check_limits
 from trajgen.sim.model import GimbalConfig, build_model, gimbal_config_from_tables, gimbal_mjcf
 from trajgen.sim.plant import GimbalPlant
 from trajgen.sim.run import SimRecord, simulate
@@ -20,9 +22,13 @@ from trajgen.sim.servos import SERVOS, ServoModel, servo_by_name
 
 __all__ = [
     "SERVOS",
+    "FitError",
+    "FitResult",
     "GimbalConfig",
     "GimbalPlant",
+    "JointLimits",
     "JointReport",
+    "SegmentFit",
     "ServoModel",
     "SimError",
     "SimRecord",
@@ -32,7 +38,9 @@ __all__ = [
     "assert_torque_ok",
     "build_model",
     "build_report",
+    "check_limits",
     "check_torque",
+    "fit_timing",
     "gimbal_config_from_tables",
     "gimbal_mjcf",
     "inverse_dynamics",

@@ -13,7 +13,7 @@ Each row is ``(name, argv, file, status, message, before)``:
   simulating or streaming, or a wrong result), ``"hang"`` (no answer in
   90 s), ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more
   than one line, or a message that did not name the option), ``"new"`` (an
-  option that did not exist).
+  option or table that did not exist then).
 
 Every row runs in-process through :func:`trajgen.cli.main`; nothing here
 touches a serial port (``stream`` refuses before opening one).
@@ -197,7 +197,7 @@ CASES = [
         ["plan", "{file}"],
         "[camera]\nfov = 60\n" + KEYS,
         2,
-        r"unknown table \[camera\] \(known: spline, keyframes, stream, gimbal, bus\)",
+        r"unknown table \[camera\] \(known: spline, keyframes, stream, gimbal, bus",
         "ok",
     ),
     # --- [spline] ----------------------------------------------------------------
@@ -734,6 +734,22 @@ CASES = [
         2,
         r"\[bus\] baud: expected one of 9600",
         "silent",
+    ),
+    (
+        "plan: limits unknown key",
+        ["plan", "{file}"],
+        "[limits]\nspeed = 1\n" + KEYS,
+        2,
+        r"\[limits\] unknown key 'speed'",
+        "new",
+    ),
+    (
+        "plan: limits speed negative",
+        ["plan", "{file}"],
+        "[limits]\nspeed_rad_s = -1\n" + KEYS,
+        2,
+        r"\[limits\] speed_rad_s: expected a number > 0",
+        "new",
     ),
     # --- sim ------------------------------------------------------------------------
     (

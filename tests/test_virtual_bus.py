@@ -317,3 +317,37 @@ def test_ftdi_latency_timer_warns_when_stuck_at_16(tmp_path, monkeypatch):
     monkeypatch.setattr(drivers_bus, "open", read_only, raising=False)
     with pytest.warns(RuntimeWarning, match="/dev/ttyUSB7: FTDI latency timer is 16 ms"):
         assert drivers_bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 16
+
+
+def test_lockstep_telemetry_holds_the_state_at_its_time_label(tmp_path):
+    """Each row's present values are the servo's state when that row's goal was sent.
+
+    Servos that reach a goal within one period: at the time of frame k they sit at
+    frame k - 1's goal (the goal they had during the period that ends at frame k).
+    """
+    import csv
+
+    from trajgen.drivers.streamer import Streamer
+    from trajgen.drivers.units import JointMap
+    from trajgen.stream import JointTrajectory
+
+    t = np.arange(41) / 100.0
+    q = np.stack([0.3 * np.sin(2 * np.pi * t), 0.2 * t, -0.1 * t], axis=1)
+    zeros = np.zeros_like(q)
+    trajectory = JointTrajectory(t, q, zeros, zeros, 100.0)
+    plant = FirstOrderPlant(time_constant_s=0.0, initial_rad=q[0])
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, ServoBus(virtual.port) as bus:
+        for servo_id in (1, 2, 3):
+            bus.add_servo(servo_id, XM430)
+            bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+        Streamer(bus, JointMap(), telemetry=tmp_path / "t.csv").run(trajectory)
+    with open(tmp_path / "t.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(t)  # no approach: the plant starts at the first frame
+    tick = 2 * math.pi / 4096
+    for joint in ("pan", "tilt", "roll"):
+        goal = np.array([float(r[f"goal_rad_{joint}"]) for r in rows])
+        present = np.array([float(r[f"position_rad_{joint}"]) for r in rows])
+        np.testing.assert_allclose(present[1:], goal[:-1], atol=tick / 2 + 1e-12)
+        if joint == "pan":  # up to 12 ticks per frame: the new goal is clearly elsewhere
+            assert np.max(np.abs(present[1:] - goal[1:])) > 5 * tick

@@ -10,6 +10,7 @@ from . import quat
 from .errors import KinematicsError, PlanTooLarge, TrajgenError
 from .gimbal import JOINT_NAMES, GimbalKinematics
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
+from .online import ChangeTooLate, OnlineSpline
 from .path import OrientationPath, Samples
 from .sampling import sample_times
 from .spline import BlendingSpline
@@ -21,6 +22,7 @@ __all__ = [
     "BUILTIN_EXAMPLE",
     "JOINT_NAMES",
     "BlendingSpline",
+    "ChangeTooLate",
     "GimbalKinematics",
     "JointFrame",
     "JointTrajectory",
@@ -28,6 +30,7 @@ __all__ = [
     "KeyframeFileError",
     "KinematicsError",
     "OrientationPath",
+    "OnlineSpline",
     "PlanTooLarge",
     "Samples",
     "TrajgenError",

@@ -19,8 +19,8 @@ t = 1.5
 quat = [1.0, 0.0, 0.0, 0.0]   # (w, x, y, z), instead of pan / tilt / roll
 ```
 
-Other top-level tables (``[gimbal]`` for the simulator, ``[bus]`` for the
-drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
+Other top-level tables (``[gimbal]`` and ``[limits]`` for the simulator, ``[bus]``
+for the drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
 (``trajgen.cli.common.load_checked`` checks them all before any command works).
 Keyframes are counted from 1 in messages, as a person reading the file would.
 
@@ -69,6 +69,7 @@ TABLES = {
     "stream": "trajgen",
     "gimbal": "sim",
     "bus": "drivers",
+    "limits": "sim",
 }
 
 __all__ = [
@@ -340,12 +341,39 @@ def _first(mask: np.ndarray) -> int:
     return int(np.argmax(mask))
 
 
-def _keyframes(columns: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
+def check_keyframes(entries, source, *, minimum: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Check keyframe tables as a keyframe file's ``[[keyframes]]`` are checked.
+
+    Parameters
+    ----------
+    entries : list of dict
+        Keyframes: ``t`` (s) and ``quat`` ([w, x, y, z]) or any of ``pan``,
+        ``tilt``, ``roll`` (degrees), e.g. parsed from JSON lines.
+    source : str or Path
+        What the message names before the keyframe, e.g. ``"stdin: line 7"``.
+    minimum : int, optional
+        Fewest keyframes accepted. Default 2.
+
+    Returns
+    -------
+    times : ndarray, shape (N,)
+    quats : ndarray, shape (N, 4)
+        Unit quaternions (w, x, y, z).
+
+    Raises
+    ------
+    KeyframeFileError
+        ``"{source}: keyframe i: field 'f': ..."`` for the first problem.
+    """
+    return _keyframes(_keyframe_columns(entries, source), source, minimum)
+
+
+def _keyframes(columns: dict, path: Path, minimum: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """Check the keyframe columns as a whole; times (N,) and unit quaternions (N, 4)."""
     t, quat = columns["t"], columns["quat"]
     n = len(t)
-    if n < 2:
-        raise KeyframeFileError(f"{path}: [[keyframes]]: at least 2 are needed, got {n}")
+    if n < minimum:
+        raise KeyframeFileError(f"{path}: [[keyframes]]: at least {minimum} are needed, got {n}")
     has_quat = ~np.isnan(quat[:, 0])
     has_angle = ~np.isnan(np.column_stack([columns[k] for k in ANGLE_KEYS])).all(axis=1)
     if np.isnan(t).any():

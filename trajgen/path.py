@@ -94,8 +94,9 @@ class OrientationPath:
                 raise ValueError(
                     f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s."
                 )
-            t = np.clip(t, t0, t1)
-        seg = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+            t = np.minimum(np.maximum(t, t0), t1)
+        seg = np.searchsorted(self.times, t, side="right") - 1
+        seg = np.minimum(np.maximum(seg, 0), len(self.times) - 2)
         return seg, t
 
     def evaluate(self, t, *, max_order: int = 2, frame: str = "space") -> Samples:
@@ -159,9 +160,36 @@ class OrientationPath:
         """
         order = _check_order("order", order)
         ta = _as_times(t)
-        s = self.evaluate(ta.reshape(-1), max_order=order, frame=frame)
+        s = self._recall(ta.reshape(-1), order, frame)
         out = (s.q, s.omega, s.alpha, s.jerk)[order]
-        return out.reshape(*ta.shape, out.shape[-1])
+        # A copy: the samples stay in the cache below for the next call.
+        return out.reshape(*ta.shape, out.shape[-1]).copy()
+
+    #: The last evaluation made by ``__call__``: ``(t, frame, max_order, samples)``.
+    _last: tuple | None = None
+
+    def _recall(self, t: np.ndarray, order: int, frame: str) -> Samples:
+        """Samples at times ``t`` (M,) up to ``order``, shared between calls at the same times.
+
+        A scipy-style caller asks ``s(t)``, ``s(t, 1)``, ``s(t, 2)``: three calls at
+        the same times. The first evaluates the orientation only; a call for a rate
+        at the times of the call before evaluates the rates up to order 2 (or
+        ``order`` if higher) at once and keeps them, so the third is read back. Only
+        the last evaluation is kept (paths are immutable, so it never goes stale).
+        """
+        last = self._last
+        same = (
+            last is not None
+            and last[1] == frame
+            and last[0].shape == t.shape
+            and np.array_equal(last[0], t)
+        )
+        if same and last[2] >= order:
+            return last[3]
+        max_order = max(order, 2) if same else order
+        samples = self.evaluate(t, max_order=max_order, frame=frame)
+        self._last = (t.copy(), frame, max_order, samples)
+        return samples
 
     def sample(self, rate_hz: float, *, max_order: int = 2, frame: str = "space") -> Samples:
         """:meth:`evaluate` at ``rate_hz`` from ``t_start`` to ``t_end`` inclusive (the last

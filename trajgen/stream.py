@@ -136,15 +136,24 @@ def stream_frames(
     a limit raises at the first offending frame, after the frames before it
     have been yielded.
 
+    An online source (an :class:`~trajgen.online.OnlineSpline`, or anything with
+    its ``snapshot``, ``commit``, ``closed`` and ``t_end``) may change while it
+    is streamed: each frame is committed to the source before it is yielded, and
+    a change made by another thread between two frames takes effect from the
+    next one (the frames evaluated ahead are dropped and evaluated again). Its
+    frames run from ``t_start`` until the source is closed and ``t_end`` is
+    reached, holding at rest meanwhile.
+
     Parameters
     ----------
     spline, rate_hz, kinematics, start
-        As for :func:`plan_joint_trajectory`.
+        As for :func:`plan_joint_trajectory`; ``spline`` may be an online source.
 
     Returns
     -------
     Iterator[JointFrame]
-        Frames ``0 .. M-1`` at ``t_start + i / rate_hz``, the last at ``t_end``.
+        Frames ``0 .. M-1`` at ``t_start + i / rate_hz``, the last at ``t_end``
+        (for an online source: the first at or after ``t_end`` once it is closed).
 
     Raises
     ------
@@ -155,6 +164,9 @@ def stream_frames(
     ValueError
         If ``rate_hz`` is not > 0 or ``start`` is not (3,).
     """
+    if all(hasattr(spline, name) for name in ("snapshot", "commit", "closed")):
+        kin, _, start = _prepare(spline, rate_hz, kinematics, start, online=True)
+        return _online_frames(spline, kin, float(rate_hz), start)
     return _frames(spline, *_prepare(spline, rate_hz, kinematics, start))
 
 
@@ -183,7 +195,37 @@ def _frames(spline, kin: GimbalKinematics, t: np.ndarray, start) -> Iterator[Joi
             yield JointFrame(first + j, float(tb[j]), q[j], qd[j], qdd[j])
 
 
-def _prepare(spline, rate_hz, kinematics, start):
+#: Frames evaluated ahead from an online source (dropped if it changes first).
+ONLINE_BLOCK_FRAMES = 16
+
+
+def _online_frames(source, kin: GimbalKinematics, rate_hz: float, start) -> Iterator[JointFrame]:
+    """Generator behind :func:`stream_frames` for an online source."""
+    t0, previous, i, block = source.t_start, start, 0, ONLINE_BLOCK_FRAMES
+    while True:
+        version, path = source.snapshot()
+        tb = t0 + np.arange(i, i + block) / rate_hz
+        samples = path.evaluate(tb, max_order=2)
+        try:
+            q = kin.inverse(samples.q, tb, start=previous)
+        except KinematicsError:
+            if block == 1:
+                raise
+            block = 1  # frame by frame up to the offending one, which raises
+            continue
+        qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+        for j in range(len(tb)):
+            if not source.commit(tb[j], version):
+                block = ONLINE_BLOCK_FRAMES
+                break  # changed since evaluated: evaluate again from frame i
+            previous = q[j]
+            yield JointFrame(i, float(tb[j]), q[j], qd[j], qdd[j])
+            i += 1
+            if source.closed and tb[j] >= source.t_end:
+                return
+
+
+def _prepare(spline, rate_hz, kinematics, start, *, online=False):
     """Check the planners' arguments; return the kinematics, the times (M,) and start."""
     if not all(hasattr(spline, name) for name in ("t_start", "t_end", "evaluate")):
         raise TypeError(
@@ -198,4 +240,6 @@ def _prepare(spline, rate_hz, kinematics, start):
         )
     if start is not None:
         start = as_angles(start, "start", single=True)
+    if online:
+        return kinematics, sample_times(0.0, 1.0, rate_hz), start  # checks the rate
     return kinematics, sample_times(spline.t_start, spline.t_end, rate_hz), start

@@ -13,12 +13,12 @@ import os
 import sys
 
 from trajgen import __version__
-from trajgen.cli import plan, scan, sim, stream
+from trajgen.cli import fit, follow, plan, scan, sim, stream, sweep, virtual_bus
 from trajgen.cli.common import EXIT_INTERRUPTED, EXIT_OK, bad_input
 from trajgen.errors import TrajgenError
 
 #: The subcommand modules, in the order ``--help`` lists them.
-COMMANDS = (plan, sim, stream, scan)
+COMMANDS = (plan, sim, fit, sweep, stream, follow, scan, virtual_bus)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -139,11 +139,14 @@ class CheckedFile:
         From ``[gimbal]``.
     bus : trajgen.drivers.config.BusConfig
         From ``[bus]``.
+    limits : trajgen.sim.limits.JointLimits
+        From ``[limits]``.
     """
 
     keyframes: KeyframeFile
     gimbal: object
     bus: object
+    limits: object
 
     @property
     def spline(self):
@@ -167,12 +170,14 @@ def load_checked(path) -> CheckedFile:
         For any table, keyframe or field; one line naming file and field.
     """
     from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.sim.limits import limits_from_tables
     from trajgen.sim.model import gimbal_config_from_tables
 
     kf = load_keyframe_file(path)
     gimbal = gimbal_config_from_tables(kf.tables, kf.path)
     bus = bus_config_from_tables(kf.tables, kf.path)
-    return CheckedFile(kf, gimbal, bus)
+    limits = limits_from_tables(kf.tables, kf.path)
+    return CheckedFile(kf, gimbal, bus, limits)
 
 
 def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLES) -> int:
@@ -245,6 +250,17 @@ class Progress:
         end = "\n" if fraction >= 1.0 else ""
         self.stream.write(f"\r{self.label} {100 * fraction:3.0f}%{end}")
         self.stream.flush()
+
+
+def servo_ids(text: str) -> tuple[int, ...]:
+    """argparse type: three comma-separated servo ids (pan, tilt, roll)."""
+    try:
+        ids = tuple(int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
+    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
+        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
+    return ids
 
 
 def open_bus(port: str, baud: int):

@@ -1,0 +1,525 @@
+"""Fit a motion's timing to the servos: the fastest keyframe times that pass the torque check.
+
+The keyframes (orientations, order, spline options) stay; only their times
+move, one duration per segment. Two nested loops:
+
+1. Plan: for every stream sample, the largest local speed-up ``s`` the plan
+   allows, scaling speed by ``s``, acceleration by ``s^2``, jerk by ``s^3``,
+   and torque as ``tau(s) = tau_static + s tau_viscous + s^2 tau_inertial``
+   against ``torque_margin x tau_stall (1 - s |qd| / w0)``. A segment's factor
+   is the smallest over its samples; its duration is divided by it. Repeated
+   until every segment's factor is in ``[1, 1 + tolerance]``: each segment is
+   as fast as its own binding limit allows (neighbours share local curves, so
+   their durations interact; the fixed point settles that).
+2. Simulation: :func:`trajgen.sim.check.check_torque` on the fitted plan. A
+   joint whose tracking error passes the limit in a segment gets a speed cap
+   there (tracking lag grows with speed); a segment where a joint reaches the
+   torque limit is slowed by 3 %. Then loop 1 again.
+
+The result is checked as written (times rounded to 1 us) and again 10 %
+faster, which must fail: the fit is tight.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from trajgen.sim.errors import SimError
+from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.validate import check_number
+
+#: Speed-up per sample is searched on this grid, then refined by bisection.
+_S_GRID = np.geomspace(1.0 / 16.0, 16.0, 97)
+#: Largest change of a segment's duration per plan iteration.
+_MAX_STEP = 4.0
+_TIME_DECIMALS = 6
+_FASTER = 1.1
+_PLAN_ITERATIONS = 200
+_SIM_ROUNDS = 12
+#: Tracking speed caps aim this far under the limit.
+_TRACKING_TARGET = 0.97
+_SIM_SLOW_STEP = 0.97
+
+#: Names of the limits a segment can bind on, indexed by the codes used below.
+BINDINGS = (
+    "torque envelope",
+    "speed limit",
+    "acceleration limit",
+    "jerk limit",
+    "tracking error",
+    "sim torque limit",
+    "no-load speed",
+    "shortest segment",
+    "neighbour ratio",
+)
+(_TORQUE, _SPEED, _ACCEL, _JERK, _TRACKING, _SIM_LIMIT, _NO_LOAD, _FLOOR, _RATIO) = range(
+    len(BINDINGS)
+)
+#: A segment is kept at least 1 / MAX_NEIGHBOUR_RATIO of each neighbour's duration:
+#: the spline's local curves reach across neighbours, and a long neighbour
+#: extrapolates a short segment's curvature into a large overshoot.
+MAX_NEIGHBOUR_RATIO = 4.0
+
+
+class FitError(SimError):
+    """No timing of these keyframes passes the check (the message says why)."""
+
+
+@dataclass(frozen=True)
+class SegmentFit:
+    """One segment's old and new duration and what limits it.
+
+    Attributes
+    ----------
+    index : int
+        Segment number from 1: it runs from keyframe ``index`` to ``index + 1``.
+    old_s, new_s : float
+        Durations (s) before and after the fit.
+    binding : str
+        The limit that stops it going faster, e.g. ``"torque envelope (tilt)"``.
+    """
+
+    index: int
+    old_s: float
+    new_s: float
+    binding: str
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What :func:`fit_timing` found.
+
+    Attributes
+    ----------
+    times : ndarray, shape (N,)
+        Fitted keyframe times (s), the first unchanged, rounded to 1 us.
+    old_times : ndarray, shape (N,)
+        The input's keyframe times (s).
+    segments : tuple of SegmentFit
+    report : TorqueReport
+        The torque check at the fitted times (passes).
+    faster_reasons : tuple of str
+        Why the same keyframes 10 % faster fail (the check's and the limits'
+        reasons); empty would mean the fit is not tight.
+    limits : JointLimits
+    document : dict
+        The input file's TOML document with the new keyframe times: write it
+        with :meth:`toml`.
+    iterations : int
+        Plan iterations over all rounds.
+    """
+
+    times: np.ndarray
+    old_times: np.ndarray
+    segments: tuple
+    report: object = field(repr=False)
+    faster_reasons: tuple
+    limits: JointLimits
+    document: dict = field(repr=False)
+    iterations: int
+
+    @property
+    def tight(self) -> bool:
+        """True when the same keyframes 10 % faster fail the check."""
+        return bool(self.faster_reasons)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.times[-1] - self.times[0])
+
+    @property
+    def old_duration_s(self) -> float:
+        return float(self.old_times[-1] - self.old_times[0])
+
+    def toml(self) -> str:
+        """The fitted keyframe file as TOML text (every other table of the input kept)."""
+        from trajgen.toml_writer import dumps
+
+        return dumps(self.document)
+
+    def format(self) -> str:
+        """A readable table: per segment old and new duration and the binding limit."""
+        lines = [
+            f"fit: {self.old_duration_s:.3f} s -> {self.duration_s:.3f} s "
+            f"({self.old_duration_s / self.duration_s:.2f}x as fast)",
+            f"{'segment':<9}{'keyframes':<11}{'old (s)':>9}{'new (s)':>9}  binding limit",
+        ]
+        for s in self.segments:
+            lines.append(
+                f"{s.index:<9}{f'{s.index} -> {s.index + 1}':<11}{s.old_s:9.3f}{s.new_s:9.3f}"
+                f"  {s.binding}"
+            )
+        if self.tight:
+            lines.append(f"tight: {_FASTER - 1:.0%} faster fails: {self.faster_reasons[0]}")
+        else:
+            lines.append(f"NOT tight: {_FASTER - 1:.0%} faster still passes")
+        return "\n".join(lines)
+
+
+def fit_timing(
+    source,
+    *,
+    config: GimbalConfig | None = None,
+    limits: JointLimits | None = None,
+    rate_hz: float | None = None,
+    tolerance: float = 0.005,
+    progress: Callable[[str], None] | None = None,
+) -> FitResult:
+    """The fastest per-segment timing of a keyframe file that passes the torque check.
+
+    Parameters
+    ----------
+    source : str, PathLike or trajgen.KeyframeFile
+        The keyframe file.
+    config : GimbalConfig, optional
+        Default: the file's ``[gimbal]`` table.
+    limits : JointLimits, optional
+        Default: the file's ``[limits]`` table (none if absent).
+    rate_hz : float, optional
+        Stream rate (Hz). Default: the file's ``[stream] rate_hz``, else 200.
+    tolerance : float
+        Each segment ends within this fraction of its binding limit's speed, in
+        (0, 0.05]. Default 0.005.
+    progress : callable, optional
+        Called with one line of text per plan iteration and simulation round.
+
+    Returns
+    -------
+    FitResult
+
+    Raises
+    ------
+    FitError
+        If no timing can pass: a pose the gimbal cannot hold against gravity,
+        a path near gimbal lock or outside a joint limit, or no convergence.
+    trajgen.keyframes.KeyframeFileError
+        For a bad file or ``[gimbal]`` / ``[limits]`` table.
+    TypeError, ValueError
+        For bad arguments.
+    """
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim.check import DEFAULT_RATE_HZ, check_torque
+    from trajgen.sim.limits import limits_from_tables
+    from trajgen.sim.model import build_model, gimbal_config_from_tables
+
+    if isinstance(source, (str, os.PathLike)):
+        source = load_keyframe_file(source)
+    if not (hasattr(source, "quats") and hasattr(source, "tables")):
+        raise TypeError(
+            f"Expected `source` to be a keyframe file path or KeyframeFile, got "
+            f"{type(source).__name__}."
+        )
+    tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
+    if config is None:
+        config = gimbal_config_from_tables(source.tables, source.path)
+    if limits is None:
+        limits = limits_from_tables(source.tables, source.path)
+    rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
+    say = progress or (lambda _: None)
+
+    fitter = _Fitter(source, config, limits, rate, build_model(config), tolerance, say)
+    fitter.check_static()
+    old_times = np.asarray(source.times, dtype=float)
+    durations = np.diff(old_times)
+    for round_ in range(1, _SIM_ROUNDS + 1):
+        durations, binding = fitter.fit_plan(durations)
+        times = _round_times(old_times[0], durations)
+        durations = np.diff(times)
+        say(f"round {round_}: simulating {times[-1] - times[0]:.3f} s")
+        report = check_torque(fitter.trajectory(times), config=config)
+        if report.ok:
+            break
+        if not fitter.learn_from_sim(report, times):
+            raise FitError("the simulation fails where the plan passes: " + report.reasons[0])
+    else:
+        raise FitError(
+            f"no passing timing after {_SIM_ROUNDS} simulation rounds: " + report.reasons[0]
+        )
+    faster = old_times[0] + (times - old_times[0]) / _FASTER
+    try:
+        faster_trajectory = fitter.trajectory(faster)
+    except FitError as e:
+        faster_reasons = (str(e),)
+    else:
+        faster_report = check_torque(faster_trajectory, config=config)
+        faster_reasons = faster_report.reasons + check_limits(faster_trajectory, limits)
+    segments = tuple(
+        SegmentFit(i + 1, float(old), float(new), binding[i])
+        for i, (old, new) in enumerate(zip(np.diff(old_times), np.diff(times), strict=True))
+    )
+    return FitResult(
+        times=times,
+        old_times=old_times,
+        segments=segments,
+        report=report,
+        faster_reasons=tuple(faster_reasons),
+        limits=limits,
+        document=_retimed_document(source.path, times),
+        iterations=fitter.iterations,
+    )
+
+
+def _round_times(t0: float, durations: np.ndarray) -> np.ndarray:
+    return np.round(t0 + np.concatenate([[0.0], np.cumsum(durations)]), _TIME_DECIMALS)
+
+
+def _retimed_document(path, times: np.ndarray) -> dict:
+    """The file's TOML document (``tomllib``) with keyframe ``i``'s ``t`` set to ``times[i]``."""
+    document = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    for entry, t in zip(document["keyframes"], times, strict=True):
+        entry["t"] = float(t)
+    return document
+
+
+class _Fitter:
+    """The plan loop's state: the keyframes, the model and the learned simulation caps."""
+
+    def __init__(self, source, config, limits, rate_hz, model, tolerance, say):
+        self.source = source
+        self.config = config
+        self.limits = limits
+        self.rate_hz = rate_hz
+        self.model = model
+        self.tolerance = tolerance
+        self.say = say
+        n_seg = len(source.times) - 1
+        #: Learned from simulation, per segment and joint: speed caps (rad/s) and
+        #: torque margin factors.
+        self.speed_cap = np.full((n_seg, 3), np.inf)
+        #: Per segment: a factor <= 1 on its speed-up, and the joint that reached
+        #: the torque limit in simulation there.
+        self.slow = np.ones(n_seg)
+        self.slow_joint = [""] * n_seg
+        self.min_duration_s = 2.0 / rate_hz
+        self.iterations = 0
+        servos = config.servos
+        self.stall = np.array([s.stall_torque_nm for s in servos])
+        self.no_load = np.array([s.no_load_speed_rad_s for s in servos])
+        self.damping = np.array(model.dof_damping)
+
+    def trajectory(self, times):
+        """The planned stream at keyframe ``times``; FitError if the gimbal cannot follow it."""
+        from trajgen.gimbal import KinematicsError
+        from trajgen.spline import BlendingSpline
+        from trajgen.stream import plan_joint_trajectory
+
+        spline = BlendingSpline(self.source.quats, times, **self.source.spline_options)
+        try:
+            return plan_joint_trajectory(spline, self.rate_hz)
+        except KinematicsError as e:
+            raise FitError(f"no timing can help: the path {e}") from e
+
+    def check_static(self) -> None:
+        """Refuse keyframes the gimbal cannot hold still against gravity."""
+        from trajgen import gimbal
+        from trajgen.sim.dynamics import inverse_dynamics
+
+        try:
+            q = gimbal.GimbalKinematics().inverse(self.source.quats, self.source.times)
+        except gimbal.KinematicsError as e:
+            raise FitError(f"no timing can help: at a keyframe, {e}") from e
+        zero = np.zeros_like(q)
+        hold = np.abs(inverse_dynamics(self.model, q, zero, zero, coulomb=False))
+        avail = self.config.torque_margin * self.stall
+        over = hold > avail
+        if over.any():
+            i, j = np.argwhere(over)[0]
+            raise FitError(
+                f"keyframe {i + 1}: the {JOINT_NAMES[j]} servo cannot hold this pose against "
+                f"gravity: it needs {hold[i, j]:.3f} N m, {self.config.torque_margin:g} x stall "
+                f"is {avail[j]:.3f} N m ({self.config.servos[j].name}, payload "
+                f"{self.config.payload_kg:g} kg)"
+            )
+
+    def sample_factors(self, trajectory, segment):
+        """Largest speed-up per sample and joint, and the code of the limit that sets it.
+
+        Returns
+        -------
+        factor : ndarray, shape (M, 3)
+        code : ndarray of int, shape (M, 3)
+        """
+        from trajgen.sim.dynamics import inverse_dynamics
+
+        q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
+        zero = np.zeros_like(q)
+        static = inverse_dynamics(self.model, q, zero, zero, coulomb=False)
+        smooth = inverse_dynamics(self.model, q, qd, qdd, coulomb=False)
+        coulomb = inverse_dynamics(self.model, q, qd, qdd) - smooth
+        viscous = self.damping * qd
+        inertial = smooth - static - viscous
+        speed = np.abs(qd)
+        budget = self.config.torque_margin * self.stall  # (3,)
+        over = np.abs(static) > budget
+        if over.any():
+            k, j = np.argwhere(over)[0]
+            raise FitError(
+                f"at t = {trajectory.t[k]:.3f} s the path passes a pose where the "
+                f"{JOINT_NAMES[j]} servo cannot hold against gravity: it needs "
+                f"{abs(static[k, j]):.3f} N m, the budget is {budget[j]:.3f} N m"
+            )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # Torque: the first grid speed-up where the envelope is left, refined.
+            def slack(s):
+                tau = static + coulomb + s * viscous + s * s * inertial
+                return budget * (1.0 - s * speed / self.no_load) - np.abs(tau)
+
+            torque = _largest_feasible(slack)
+            no_load = np.where(speed > 0, self.no_load / speed, np.inf)
+            bounds = self.limits.as_array()
+            speed_cap = np.minimum(bounds[0], self.speed_cap[segment])
+            speed_f = np.where(speed > 0, speed_cap / speed, np.inf)
+            accel = np.sqrt(bounds[1] / np.abs(qdd))
+            jerk = np.cbrt(bounds[2] / np.abs(joint_jerk(trajectory)))
+        tracking = np.isfinite(self.speed_cap[segment]) & (self.speed_cap[segment] < bounds[0])
+        speed_code = np.where(tracking, _TRACKING, _SPEED)
+        torque_code = np.full_like(speed_code, _TORQUE)
+        stack = np.stack([torque, speed_f, accel, jerk, no_load])
+        codes = np.stack(
+            [
+                torque_code,
+                speed_code,
+                np.full_like(speed_code, _ACCEL),
+                np.full_like(speed_code, _JERK),
+                np.full_like(speed_code, _NO_LOAD),
+            ]
+        )
+        k = np.argmin(stack, axis=0)
+        factor = np.take_along_axis(stack, k[None], 0)[0]
+        code = np.take_along_axis(codes, k[None], 0)[0]
+        return np.nan_to_num(factor, nan=np.inf), code
+
+    def fit_plan(self, durations: np.ndarray):
+        """Loop 1: durations where each segment's plan factor is in [1, 1 + tolerance]."""
+        t0 = float(self.source.times[0])
+        n_seg = len(durations)
+        best = None
+        previous = durations
+        for _ in range(_PLAN_ITERATIONS):
+            self.iterations += 1
+            times = t0 + np.concatenate([[0.0], np.cumsum(durations)])
+            try:
+                trajectory = self.trajectory(times)
+            except FitError:
+                # Timing shapes the path: a step that bends it into gimbal lock or a
+                # joint limit is halved (in log space) back toward the last good one.
+                if np.allclose(durations, previous, rtol=1e-3):
+                    raise
+                durations = np.sqrt(durations * previous)
+                continue
+            previous = durations
+            t = trajectory.t
+            segment = np.clip(np.searchsorted(times, t, side="right") - 1, 0, n_seg - 1)
+            factor, code = self.sample_factors(trajectory, segment)
+            seg_factor = np.full(n_seg, np.inf)
+            seg_binding = ["shortest segment"] * n_seg
+            flat = factor.min(axis=1)
+            joint = factor.argmin(axis=1)
+            for i in range(n_seg):
+                rows = np.flatnonzero(segment == i)
+                if len(rows) == 0:
+                    continue
+                r = rows[np.argmin(flat[rows])]
+                seg_factor[i] = flat[r] * self.slow[i]
+                seg_binding[i] = f"{BINDINGS[code[r, joint[r]]]} ({JOINT_NAMES[joint[r]]})"
+                if self.slow[i] < 1.0:
+                    seg_binding[i] = f"{BINDINGS[_SIM_LIMIT]} ({self.slow_joint[i]})"
+            floor = np.maximum(_neighbour_floor(durations), self.min_duration_s)
+            at_floor = (durations <= floor * (1 + 1e-9)) & (seg_factor >= 1.0)
+            done = ((seg_factor >= 1.0) & (seg_factor <= 1.0 + self.tolerance)) | at_floor
+            feasible = (seg_factor >= 1.0).all()
+            total = float(durations.sum())
+            if feasible and (best is None or total < best[0]):
+                best = (total, durations.copy(), seg_binding)
+            self.say(
+                f"  plan {self.iterations}: {total:.3f} s, segment speed-ups "
+                f"{np.min(seg_factor):.3f} .. {np.max(seg_factor):.3f}"
+            )
+            if done.all():
+                for i in np.flatnonzero(at_floor):
+                    if durations[i] <= self.min_duration_s * (1 + 1e-9):
+                        seg_binding[i] = BINDINGS[_FLOOR]
+                    else:
+                        seg_binding[i] = BINDINGS[_RATIO]
+                return durations, seg_binding
+            if not np.isfinite(flat).any() and np.isinf(seg_factor).all():
+                break
+            step = np.clip(seg_factor, 1.0 / _MAX_STEP, _MAX_STEP)
+            # Aim inside the band so rounding and neighbours do not push it out.
+            target = np.where(done, 1.0, step / (1.0 + 0.3 * self.tolerance))
+            durations = np.maximum(durations / target, self.min_duration_s)
+            # Only ever lengthens a segment, and only a short one beside a long one.
+            for _ in range(n_seg):
+                floor = _neighbour_floor(durations)
+                if (durations >= floor).all():
+                    break
+                durations = np.maximum(durations, floor)
+            if durations.sum() > 1e4 * max(float(np.diff(self.source.times).sum()), 1.0):
+                raise FitError("the motion needs ever longer durations: the limits cannot be met")
+        if best is not None:
+            return best[1], best[2]
+        raise FitError(f"the plan did not converge in {_PLAN_ITERATIONS} iterations")
+
+    def learn_from_sim(self, report, times) -> bool:
+        """Turn the simulation's failures into per-segment caps; False if nothing to learn."""
+        record = report.record
+        n_seg = len(times) - 1
+        seg = np.clip(np.searchsorted(times, record.t, side="right") - 1, 0, n_seg - 1)
+        limit = report.max_tracking_error_rad
+        error = np.abs(record.tracking_error_rad)
+        at_limit = np.asarray(record.at_limit, dtype=bool)
+        plan = report.trajectory
+        plan_seg = np.clip(np.searchsorted(times, plan.t, side="right") - 1, 0, n_seg - 1)
+        learned = False
+        for i in range(n_seg):
+            rows, plan_rows = seg == i, plan_seg == i
+            for j in range(3):
+                worst = error[rows, j].max(initial=0.0)
+                if worst > limit:
+                    peak = np.abs(plan.qd[plan_rows, j]).max(initial=0.0)
+                    cap = peak * _TRACKING_TARGET * limit / worst
+                    self.speed_cap[i, j] = min(self.speed_cap[i, j], cap)
+                    learned = True
+            hit = [j for j in range(3) if at_limit[rows, j].any()]
+            if hit:
+                self.slow[i] *= _SIM_SLOW_STEP
+                self.slow_joint[i] = JOINT_NAMES[hit[0]]
+                learned = True
+        self.say("  simulation: " + ("; ".join(report.reasons[:2]) if report.reasons else "passes"))
+        return learned
+
+
+def _neighbour_floor(durations: np.ndarray) -> np.ndarray:
+    """Per segment, its longest neighbour's duration / ``MAX_NEIGHBOUR_RATIO`` (s)."""
+    neighbours = np.zeros_like(durations)
+    neighbours[1:] = durations[:-1]
+    neighbours[:-1] = np.maximum(neighbours[:-1], durations[1:])
+    return neighbours / MAX_NEIGHBOUR_RATIO
+
+
+def _largest_feasible(slack) -> np.ndarray:
+    """Per element, the largest speed-up on ``_S_GRID`` before ``slack(s)`` first goes negative.
+
+    ``slack`` maps a scalar ``s`` to an array; the crossing is refined by 30
+    bisection steps. Elements never negative on the grid get ``inf``; elements
+    negative at the grid's first point get that point.
+    """
+    values = np.stack([slack(s) for s in _S_GRID])  # (G, ...)
+    bad = values < 0
+    first = np.where(bad.any(axis=0), np.argmax(bad, axis=0), len(_S_GRID))
+    lo = np.where(first > 0, _S_GRID[np.maximum(first - 1, 0)], _S_GRID[0])
+    hi = np.where(first < len(_S_GRID), _S_GRID[np.minimum(first, len(_S_GRID) - 1)], np.inf)
+    refine = (first > 0) & (first < len(_S_GRID))
+    for _ in range(30):
+        mid = np.where(refine, 0.5 * (lo + hi), lo)
+        ok = slack(mid) >= 0
+        lo = np.where(refine & ok, mid, lo)
+        hi = np.where(refine & ~ok, mid, hi)
+    return np.where(first == len(_S_GRID), np.inf, lo)

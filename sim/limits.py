@@ -1,0 +1,142 @@
+"""Extra joint limits a keyframe file may set: the ``[limits]`` table.
+
+```toml
+[limits]
+speed_rad_s = 3.0                                  # every joint
+acceleration_rad_s2 = {pan = 20.0, tilt = 10.0}    # per joint; roll unlimited
+jerk_rad_s3 = 500.0
+```
+
+Each key is optional; a missing key or joint means no limit beyond the torque
+check. Joint jerk is taken by central differences of the planned acceleration
+at the stream rate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from trajgen.sim.model import JOINT_NAMES
+from trajgen.validate import check_number
+
+#: ``[limits]`` keys and the quantity each bounds.
+LIMIT_KEYS = {
+    "speed_rad_s": "speed",
+    "acceleration_rad_s2": "acceleration",
+    "jerk_rad_s3": "jerk",
+}
+
+_INF3 = (math.inf, math.inf, math.inf)
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint bounds on |speed|, |acceleration| and |jerk| (inf = none).
+
+    Parameters
+    ----------
+    speed_rad_s, acceleration_rad_s2, jerk_rad_s3 : float or tuple of 3 float
+        Bounds in rad/s, rad/s^2, rad/s^3 (pan, tilt, roll); one number for every
+        joint. Each > 0. Default: no limit.
+
+    Raises
+    ------
+    TypeError, ValueError
+        If a bound is not a number > 0 or a tuple of 3 of them.
+    """
+
+    speed_rad_s: tuple = _INF3
+    acceleration_rad_s2: tuple = _INF3
+    jerk_rad_s3: tuple = _INF3
+
+    def __post_init__(self):
+        for name in LIMIT_KEYS:
+            value = getattr(self, name)
+            if not isinstance(value, (tuple, list)):
+                value = (value,) * 3
+            if len(value) != 3:
+                raise ValueError(f"Expected `{name}` to have 3 entries, got {value!r}.")
+            # inf is "no limit"; anything else a finite number > 0.
+            bounds = tuple(
+                math.inf if v == math.inf else check_number(name, v, low=0.0, low_open=True)
+                for v in value
+            )
+            object.__setattr__(self, name, bounds)
+
+    def as_array(self) -> np.ndarray:
+        """Bounds as shape (3, 3): rows speed, acceleration, jerk; columns pan, tilt, roll."""
+        return np.array([getattr(self, name) for name in LIMIT_KEYS])
+
+
+def limits_from_tables(tables: dict, path) -> JointLimits:
+    """Build :class:`JointLimits` from a keyframe file's ``[limits]`` table (absent: none).
+
+    Raises
+    ------
+    trajgen.keyframes.KeyframeFileError
+        One line naming the file, the table and the key.
+    """
+    from trajgen.keyframes import KeyframeFileError
+
+    def error(message):
+        return KeyframeFileError(f"{Path(path)}: [limits] {message}")
+
+    table = tables.get("limits", {})
+    if not isinstance(table, dict):
+        raise KeyframeFileError(f"{Path(path)}: [limits]: expected a table, got {table!r}")
+    kwargs = {}
+    for key, value in table.items():
+        if key not in LIMIT_KEYS:
+            raise error(f"unknown key '{key}' (known: {', '.join(LIMIT_KEYS)})")
+        if isinstance(value, dict):
+            unknown = sorted(set(value) - set(JOINT_NAMES))
+            if unknown:
+                raise error(f"{key}.{unknown[0]}: unknown joint (known: {', '.join(JOINT_NAMES)})")
+            value = tuple(value.get(j, math.inf) for j in JOINT_NAMES)
+        try:
+            kwargs[key] = getattr(JointLimits(**{key: value}), key)
+        except (TypeError, ValueError):
+            raise error(
+                f"{key}: expected a number > 0 or a table {{pan = ..., tilt = ..., roll = ...}}, "
+                f"got {value!r}"
+            ) from None
+    return JointLimits(**kwargs)
+
+
+def joint_jerk(trajectory) -> np.ndarray:
+    """Joint jerk (rad/s^3), shape (N, 3): central differences of ``trajectory.qdd``."""
+    return np.gradient(np.asarray(trajectory.qdd, dtype=float), trajectory.t, axis=0)
+
+
+def check_limits(trajectory, limits: JointLimits) -> tuple[str, ...]:
+    """Reasons the planned stream breaks ``limits`` (empty when it keeps them).
+
+    Parameters
+    ----------
+    trajectory : trajgen.stream.JointTrajectory
+    limits : JointLimits
+
+    Returns
+    -------
+    tuple of str
+        One line per joint and quantity over its bound, naming the peak and its time.
+    """
+    values = (np.abs(trajectory.qd), np.abs(trajectory.qdd), np.abs(joint_jerk(trajectory)))
+    bounds = limits.as_array()
+    units = ("rad/s", "rad/s^2", "rad/s^3")
+    reasons = []
+    for (quantity, value, unit), bound in zip(
+        zip(LIMIT_KEYS.values(), values, units, strict=True), bounds, strict=True
+    ):
+        for j, name in enumerate(JOINT_NAMES):
+            k = int(np.argmax(value[:, j]))
+            if value[k, j] > bound[j]:
+                reasons.append(
+                    f"{name}: {quantity} {value[k, j]:.3g} {unit} > limit {bound[j]:g} {unit} "
+                    f"at t = {trajectory.t[k]:.3f} s"
+                )
+    return tuple(reasons)

@@ -1,0 +1,422 @@
+"""Which payloads, servos and speeds does a motion work for? A sweep of the torque check.
+
+Every variant (payload mass and offset, servo per joint, time scale) is the
+same keyframe file run through :func:`trajgen.sim.check.build_report`, the
+judge of ``trajgen sim``. The runs go through ``mujoco.rollout`` (batched, one
+thread per ``MjData``), which records state and sensors only, so the model gets
+an ``<actuatorfrc>`` sensor per actuator for the torques. The controls are the
+ones :func:`trajgen.sim.run.simulate` sends (zero-order-hold position,
+velocity and inverse-dynamics feed-forward per stream frame), so a variant's
+figures equal ``check_torque``'s bit for bit (a test holds both to it).
+
+:func:`sweep_on_dask` runs the same chunks on a Dask cluster.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from trajgen.sim.errors import SimulationError
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig, gimbal_mjcf
+from trajgen.validate import check_number
+
+_FAILED_PARTS = {"x envelope": "envelope", "torque limit": "limit", "tracking error": "tracking"}
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One point of a sweep.
+
+    Attributes
+    ----------
+    payload_kg : float
+        Camera mass (kg).
+    payload_offset_m : tuple of 3 float
+        Camera centre of mass in the roll link frame (m).
+    servos : tuple of 3 str
+        Servo model per joint (pan, tilt, roll).
+    time_scale : float
+        Keyframe times are multiplied by this (0.5 = twice as fast).
+    """
+
+    payload_kg: float
+    payload_offset_m: tuple
+    servos: tuple
+    time_scale: float
+
+    def config(self, base: GimbalConfig) -> GimbalConfig:
+        """``base`` with this variant's payload and servos."""
+        return dataclasses.replace(
+            base,
+            payload_kg=self.payload_kg,
+            payload_offset_m=tuple(self.payload_offset_m),
+            servos=tuple(self.servos),
+        )
+
+    def label(self) -> str:
+        servos = (
+            "/".join(dict.fromkeys(self.servos))
+            if len(set(self.servos)) == 1
+            else ("/".join(self.servos))
+        )
+        offset = ",".join(f"{v:g}" for v in self.payload_offset_m)
+        return f"{self.payload_kg:g} kg @ ({offset}) m, {servos}, x{self.time_scale:g}"
+
+
+@dataclass(frozen=True)
+class VariantResult:
+    """The torque check's verdict on one variant.
+
+    Attributes
+    ----------
+    variant : Variant
+    ok : bool
+        The verdict of ``trajgen sim``'s check.
+    worst_margin_nm : float
+        Smallest ``margin x envelope - |planned torque|`` over joints and samples (N m).
+    worst_joint : str
+        The joint where it occurs.
+    failed : tuple of str
+        Failed parts: ``"envelope"``, ``"limit"``, ``"tracking"``.
+    duration_s : float
+    max_tracking_error_rad : float
+    steps_at_limit : int
+        Summed over joints.
+    """
+
+    variant: Variant
+    ok: bool
+    worst_margin_nm: float
+    worst_joint: str
+    failed: tuple
+    duration_s: float
+    max_tracking_error_rad: float
+    steps_at_limit: int
+
+
+def variants(
+    payload_kg: Sequence[float],
+    payload_offset_m: Sequence[Sequence[float]],
+    servos: Sequence[Sequence[str]],
+    time_scale: Sequence[float],
+) -> list[Variant]:
+    """Every combination, in the order payload, offset, servo set, time scale (last fastest).
+
+    Parameters
+    ----------
+    payload_kg : sequence of float
+    payload_offset_m : sequence of 3-sequences of float
+    servos : sequence of 3-sequences of str
+        Servo sets (pan, tilt, roll).
+    time_scale : sequence of float
+        Each > 0.
+
+    Raises
+    ------
+    ValueError
+        If a sequence is empty or a time scale is not > 0.
+    """
+    axes = {
+        "payload_kg": payload_kg,
+        "payload_offset_m": payload_offset_m,
+        "servos": servos,
+        "time_scale": time_scale,
+    }
+    for name, values in axes.items():
+        if len(values) == 0:
+            raise ValueError(f"Expected at least one value of `{name}`.")
+    for s in time_scale:
+        if not (isinstance(s, (int, float)) and math.isfinite(s) and s > 0):
+            raise ValueError(f"Expected every `time_scale` > 0, got {s!r}.")
+    return [
+        Variant(float(m), tuple(float(v) for v in o), tuple(str(s) for s in sv), float(k))
+        for m, o, sv, k in itertools.product(payload_kg, payload_offset_m, servos, time_scale)
+    ]
+
+
+def sensor_mjcf(config: GimbalConfig) -> str:
+    """The gimbal's MJCF (:func:`gimbal_mjcf`) plus one ``<actuatorfrc>`` sensor per joint.
+
+    Sensors change nothing in the dynamics; ``mujoco.rollout`` records them.
+    """
+    sensors = "".join(f'\n    <actuatorfrc name="{j}_torque" actuator="{j}"/>' for j in JOINT_NAMES)
+    mjcf = gimbal_mjcf(config)
+    return mjcf.replace("</mujoco>", f"  <sensor>{sensors}\n  </sensor>\n</mujoco>")
+
+
+def step_controls(trajectory, config: GimbalConfig, model) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`trajgen.sim.run.simulate` sends, one row per physics step.
+
+    Returns
+    -------
+    step_t : ndarray, shape (K,)
+        Step start times (s).
+    ctrl : ndarray, shape (K, 3 * nu)
+        Interleaved per actuator: position (rad), velocity (rad/s), feed-forward
+        torque (N m, inverse dynamics clipped to the stall torque).
+    """
+    from trajgen.sim.dynamics import inverse_dynamics
+
+    ts = np.asarray(trajectory.t, dtype=float)
+    q_plan = np.asarray(trajectory.q, dtype=float)
+    qd_plan = np.asarray(trajectory.qd, dtype=float)
+    stall = np.array([s.stall_torque_nm for s in config.servos])
+    ff = np.clip(inverse_dynamics(model, q_plan, qd_plan, trajectory.qdd), -stall, stall)
+    ctrl = np.empty((len(ts), model.nu))
+    ctrl[:, 0::3] = q_plan
+    ctrl[:, 1::3] = qd_plan
+    ctrl[:, 2::3] = ff
+    dt = config.timestep_s
+    period = 1.0 / float(trajectory.rate_hz)
+    n_steps = int(round((ts[-1] - ts[0] + period) / dt))
+    step_t = ts[0] + np.arange(n_steps) * dt
+    frame = np.searchsorted(ts, step_t + 1e-9, side="right") - 1
+    return step_t, ctrl[frame]
+
+
+def initial_state(model, trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """Full physics state and warm start of the gimbal at rest at the first frame."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = trajectory.q[0]
+    data.time = trajectory.t[0]
+    mujoco.mj_forward(model, data)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    state = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, state, spec)
+    return state, data.qacc_warmstart.copy()
+
+
+def rollout_batch(models, states, warmstarts, controls, *, threads: int = 2):
+    """``mujoco.rollout`` over a batch: returns ``(qpos, qvel, sensordata)`` after each step.
+
+    Parameters
+    ----------
+    models : list of MjModel
+        Same size signature.
+    states : ndarray, shape (B, nstate)
+    warmstarts : ndarray, shape (B, nv)
+    controls : ndarray, shape (B, K, nu)
+    threads : int
+        Worker threads (one ``MjData`` each).
+
+    Returns
+    -------
+    qpos, qvel : ndarray, shape (B, K, nq)
+    sensordata : ndarray, shape (B, K, nsensordata)
+    """
+    import mujoco
+    from mujoco import rollout
+
+    datas = [mujoco.MjData(models[0]) for _ in range(max(1, int(threads)))]
+    state, sensordata = rollout.rollout(
+        list(models), datas, states, controls, initial_warmstart=warmstarts
+    )
+    nq, nv = models[0].nq, models[0].nv
+    # Full physics state: time, qpos, qvel, act, ...
+    return state[..., 1 : 1 + nq], state[..., 1 + nq : 1 + nq + nv], sensordata
+
+
+def judge(trajectory, config, q0, qpos, qvel, torque, step_t, ctrl):
+    """The torque check's report of a rolled-out run (``q`` and ``qd`` at each step's start)."""
+    from trajgen.sim.check import build_report
+    from trajgen.sim.run import SimRecord, at_torque_limit, planned_path
+
+    q = np.vstack([q0[None], qpos[:-1]])
+    qd = np.vstack([np.zeros((1, qvel.shape[1])), qvel[:-1]])
+    if not (np.isfinite(q).all() and np.isfinite(torque).all()):
+        raise SimulationError("the simulation diverged (non-finite state)")
+    record = SimRecord(
+        t=step_t,
+        q=q,
+        qd=qd,
+        torque_nm=torque,
+        setpoint=ctrl[:, 0::3],
+        planned=planned_path(trajectory, step_t),
+        at_limit=at_torque_limit(config, qd, torque),
+        timestep_s=config.timestep_s,
+    )
+    return build_report(trajectory, config, record)
+
+
+def _summary(variant: Variant, report) -> VariantResult:
+    joints = list(report.joints.values())
+    worst = min(joints, key=lambda j: j.worst_planned_margin_nm)
+    failed = tuple(
+        name for key, name in _FAILED_PARTS.items() if any(key in r for r in report.reasons)
+    )
+    return VariantResult(
+        variant=variant,
+        ok=report.ok,
+        worst_margin_nm=worst.worst_planned_margin_nm,
+        worst_joint=worst.name,
+        failed=failed,
+        duration_s=report.duration_s,
+        max_tracking_error_rad=max(j.max_tracking_error_rad for j in joints),
+        steps_at_limit=sum(j.steps_at_limit for j in joints),
+    )
+
+
+def run_sweep(
+    source,
+    sweep: Sequence[Variant],
+    *,
+    config: GimbalConfig | None = None,
+    rate_hz: float | None = None,
+    threads: int = 2,
+    batch: int = 32,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[VariantResult]:
+    """Run the torque check on every variant on this machine (``mujoco.rollout``, threads).
+
+    Parameters
+    ----------
+    source : str, PathLike or KeyframeFile
+        The keyframe file.
+    sweep : sequence of Variant
+        See :func:`variants`.
+    config : GimbalConfig, optional
+        What variants leave alone (torque margin, tracking limit, time step).
+        Default: the file's ``[gimbal]`` table.
+    rate_hz : float, optional
+        Stream rate; default the file's, else 200 Hz.
+    threads : int
+        Rollout threads, >= 1.
+    batch : int
+        Variants per rollout call (memory: about ``batch x steps x 100`` bytes).
+    progress : callable, optional
+        Called with ``(done, total)`` after each batch.
+
+    Returns
+    -------
+    list of VariantResult
+        In the order of ``sweep``.
+
+    Raises
+    ------
+    KeyframeFileError, KinematicsError, ValueError, TypeError
+        For bad input (the path is checked once per time scale).
+    SimulationError
+        If a run diverges.
+    """
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim.check import DEFAULT_RATE_HZ
+
+    if isinstance(source, str) or hasattr(source, "__fspath__"):
+        source = load_keyframe_file(source)
+    if config is None:
+        from trajgen.sim.model import gimbal_config_from_tables
+
+        config = gimbal_config_from_tables(source.tables, source.path)
+    threads = check_number("threads", threads, integer=True, low=1)
+    rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
+    results: list[VariantResult | None] = [None] * len(sweep)
+    by_scale: dict[float, list[int]] = {}
+    for i, v in enumerate(sweep):
+        by_scale.setdefault(v.time_scale, []).append(i)
+    done = 0
+    for scale, indices in by_scale.items():
+        trajectory = scaled_trajectory(source, scale, rate)
+        for start in range(0, len(indices), batch):
+            chunk = indices[start : start + batch]
+            for i, report in zip(
+                chunk,
+                check_batch(trajectory, [sweep[i] for i in chunk], config, threads),
+                strict=True,
+            ):
+                results[i] = _summary(sweep[i], report)
+            done += len(chunk)
+            if progress is not None:
+                progress(done, len(sweep))
+    return results
+
+
+def scaled_trajectory(source, scale: float, rate_hz: float):
+    """The file's planned stream with keyframe times (from the first) multiplied by ``scale``."""
+    from trajgen.spline import BlendingSpline
+    from trajgen.stream import plan_joint_trajectory
+
+    times = source.times[0] + (source.times - source.times[0]) * scale
+    spline = BlendingSpline(source.quats, times, **source.spline_options)
+    return plan_joint_trajectory(spline, rate_hz)
+
+
+def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, threads: int):
+    """Full torque reports (:class:`TorqueReport`) of one trajectory under several variants.
+
+    The variants' runs go through one ``mujoco.rollout`` call on ``threads`` threads.
+    """
+    import mujoco
+
+    configs = [v.config(base) for v in batch]
+    models = [mujoco.MjModel.from_xml_string(sensor_mjcf(c)) for c in configs]
+    prepared = [step_controls(trajectory, c, m) for c, m in zip(configs, models, strict=True)]
+    starts = [initial_state(m, trajectory) for m in models]
+    controls = np.stack([ctrl for _, ctrl in prepared])
+    qpos, qvel, torque = rollout_batch(
+        models,
+        np.stack([s for s, _ in starts]),
+        np.stack([w for _, w in starts]),
+        controls,
+        threads=threads,
+    )
+    return [
+        judge(trajectory, c, trajectory.q[0], qpos[b], qvel[b], torque[b], step_t, ctrl)
+        for b, (c, (step_t, ctrl)) in enumerate(zip(configs, prepared, strict=True))
+    ]
+
+
+def sweep_on_dask(
+    source,
+    sweep: Sequence[Variant],
+    client,
+    *,
+    config: GimbalConfig | None = None,
+    rate_hz: float | None = None,
+    chunk: int = 8,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[VariantResult]:
+    """:func:`run_sweep` with chunks of ``chunk`` variants as tasks on a Dask cluster.
+
+    Each task runs :func:`run_sweep` on one thread of a worker; results come
+    back in the order of ``sweep`` and equal the single-machine run's.
+
+    Parameters
+    ----------
+    source : str, PathLike or KeyframeFile
+        Loaded here, sent to the workers as data (they need not see the file).
+    client : distributed.Client
+    chunk : int
+        Variants per task.
+    config, rate_hz, progress
+        As for :func:`run_sweep`.
+    """
+    from distributed import as_completed
+
+    from trajgen.keyframes import load_keyframe_file
+
+    if isinstance(source, str) or hasattr(source, "__fspath__"):
+        source = load_keyframe_file(source)
+    parts = [list(sweep[i : i + chunk]) for i in range(0, len(sweep), chunk)]
+    futures = [
+        client.submit(
+            run_sweep, source, part, config=config, rate_hz=rate_hz, threads=1, pure=False
+        )
+        for part in parts
+    ]
+    index = {f.key: k for k, f in enumerate(futures)}
+    out: list = [None] * len(parts)
+    done = 0
+    for future in as_completed(futures):
+        out[index[future.key]] = future.result()
+        done += len(out[index[future.key]])
+        if progress is not None:
+            progress(done, len(sweep))
+    return [r for part in out for r in part]

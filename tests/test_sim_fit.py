@@ -1,0 +1,204 @@
+"""`trajgen fit` and `trajgen.sim.fit_timing`: the fastest timing that passes, and tight."""
+
+import argparse
+import tomllib
+
+import numpy as np
+import pytest
+
+from trajgen.cli.fit import register
+from trajgen.keyframes import load_keyframe_file
+from trajgen.sim import FitError, JointLimits, check_limits, check_torque, fit_timing
+from trajgen.sim.check import resolve_source
+
+# Segment 1 is a large pan move, segment 2 a small tilt nudge, segment 3 a medium return.
+KEYS = """\
+[stream]
+rate_hz = 100
+
+[gimbal]
+servo = "XM430-W350"
+payload_kg = 0.15
+
+[bus]
+port = "/dev/ttyUSB0"
+ids = [1, 2, 3]
+
+[[keyframes]]
+t = 0.0
+pan = 0.0
+
+[[keyframes]]
+t = 2.0
+pan = 60.0
+
+[[keyframes]]
+t = 4.0
+pan = 60.0
+tilt = 8.0
+
+[[keyframes]]
+t = 6.0
+pan = 20.0
+tilt = 0.0
+"""
+
+
+def _write(tmp_path, text=KEYS, name="keys.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _retimed(tmp_path, document, times, name):
+    from trajgen.toml_writer import dumps
+
+    for entry, t in zip(document["keyframes"], times, strict=True):
+        entry["t"] = float(t)
+    return _write(tmp_path, dumps(document), name)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("fit")
+    path = _write(tmp_path)
+    result = fit_timing(path)
+    out = _write(tmp_path, result.toml(), "fitted.toml")
+    return path, result, out
+
+
+def test_gentle_motion_gets_faster_and_passes(fitted):
+    path, result, out = fitted
+    assert result.duration_s < 0.5 * result.old_duration_s
+    assert result.report.ok
+    # The file as written passes `trajgen sim`'s check and keeps every other table.
+    assert check_torque(out).ok
+    original, written = tomllib.loads(path.read_text()), tomllib.loads(out.read_text())
+    for table in ("stream", "gimbal", "bus"):
+        assert written[table] == original[table]
+    for a, b in zip(original["keyframes"], written["keyframes"], strict=True):
+        assert {k: v for k, v in a.items() if k != "t"} == {k: v for k, v in b.items() if k != "t"}
+    np.testing.assert_allclose(load_keyframe_file(out).times, result.times)
+
+
+def test_ten_percent_faster_fails(fitted, tmp_path):
+    _, result, out = fitted
+    assert result.tight
+    faster = result.times / 1.1
+    report = check_torque(_retimed(tmp_path, tomllib.loads(out.read_text()), faster, "f.toml"))
+    assert not report.ok
+
+
+def test_each_segment_is_bound_by_its_own_limit(fitted, tmp_path):
+    """Speeding up any one segment alone by 10 % fails: none was slowed for another.
+
+    The exception is stated: a segment kept at a quarter of its neighbour (the
+    spline's shape rule) is reported as bound by the neighbour ratio.
+    """
+    from trajgen.sim.fit import MAX_NEIGHBOUR_RATIO
+
+    _, result, out = fitted
+    document = tomllib.loads(out.read_text())
+    durations = np.diff(result.times)
+    for i, segment in enumerate(result.segments):
+        if segment.binding == "neighbour ratio":
+            longest = max(durations[max(i - 1, 0)], durations[min(i + 1, len(durations) - 1)])
+            assert durations[i] == pytest.approx(longest / MAX_NEIGHBOUR_RATIO, rel=1e-4)
+            continue
+        d = durations.copy()
+        d[i] /= 1.1
+        times = np.concatenate([[0.0], np.cumsum(d)])
+        report = check_torque(_retimed(tmp_path, document, times, f"seg{i}.toml"))
+        assert not report.ok, f"segment {i + 1} could go 10% faster alone"
+    # The small nudge is much quicker than the large pan move.
+    assert durations[1] < 0.6 * durations[0]
+    assert "fit:" in result.format() and "tight" in result.format()
+
+
+def test_limits_table_binds_and_is_kept(tmp_path):
+    path = _write(tmp_path, KEYS + "\n[limits]\nspeed_rad_s = {pan = 1.0}\n")
+    result = fit_timing(path)
+    trajectory, _ = resolve_source(_write(tmp_path, result.toml(), "out.toml"))
+    assert np.abs(trajectory.qd[:, 0]).max() <= 1.0
+    assert check_limits(trajectory, result.limits) == ()
+    assert result.segments[0].binding == "speed limit (pan)"
+    assert any("speed" in r for r in result.faster_reasons)
+    assert tomllib.loads(result.toml())["limits"] == {"speed_rad_s": {"pan": 1.0}}
+
+
+def test_check_limits_names_joint_and_time():
+    from conftest import quintic_trajectory
+
+    trajectory = quintic_trajectory([1.0, 0.0, 0.0], 1.0)
+    assert check_limits(trajectory, JointLimits()) == ()
+    reasons = check_limits(trajectory, JointLimits(speed_rad_s=1.0, jerk_rad_s3=(1e6, 1e6, 1e6)))
+    assert len(reasons) == 1
+    assert reasons[0].startswith("pan: speed 1.88 rad/s > limit 1 rad/s at t = 0.500 s")
+
+
+def test_pose_too_heavy_to_hold_is_refused(tmp_path):
+    path = _write(tmp_path, KEYS.replace("payload_kg = 0.15", "payload_kg = 20.0"))
+    with pytest.raises(FitError, match="keyframe 1: the tilt servo cannot hold this pose against"):
+        fit_timing(path)
+
+
+def test_path_through_gimbal_lock_is_refused(tmp_path):
+    path = _write(tmp_path, KEYS.replace("tilt = 8.0", "tilt = 89.0"))
+    with pytest.raises(FitError, match="no timing can help: .*gimbal lock"):
+        fit_timing(path)
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        ("[limits]\nspeed = 1.0\n", r"\[limits\] unknown key 'speed'"),
+        ("[limits]\njerk_rad_s3 = -1\n", r"\[limits\] jerk_rad_s3: expected a number > 0"),
+        ("[limits]\nspeed_rad_s = {yaw = 1}\n", r"\[limits\] speed_rad_s.yaw: unknown joint"),
+    ],
+)
+def test_bad_limits_table(tmp_path, extra, match):
+    with pytest.raises(ValueError, match=match):
+        fit_timing(_write(tmp_path, KEYS + extra))
+
+
+def test_bad_arguments(tmp_path):
+    with pytest.raises(TypeError, match="Expected `source`"):
+        fit_timing(3.0)
+    with pytest.raises(
+        ValueError, match=r"Expected `tolerance` to be a finite number in \(0, 0.05\]"
+    ):
+        fit_timing(_write(tmp_path), tolerance=0.5)
+    with pytest.raises(ValueError, match="Expected `speed_rad_s` to be a finite number > 0"):
+        JointLimits(speed_rad_s=0.0)
+
+
+def _fit_cli(argv):
+    parser = argparse.ArgumentParser(prog="trajgen")
+    register(parser.add_subparsers())
+    args = parser.parse_args(["fit", *map(str, argv)])
+    return args.func(args)
+
+
+def test_cli_writes_file_and_reports_segments(tmp_path, capsys):
+    out = tmp_path / "out.toml"
+    assert (
+        _fit_cli([_write(tmp_path, KEYS.replace("rate_hz = 100", "rate_hz = 50")), "--out", out])
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "segment  keyframes" in text and "binding limit" in text and "tight" in text
+    assert out.read_text().startswith("# Fitted by `trajgen fit`")
+    assert load_keyframe_file(out).tables["bus"]["ids"] == [1, 2, 3]
+
+
+def test_cli_refusal_and_bad_input(tmp_path, capsys):
+    heavy = _write(tmp_path, KEYS.replace("payload_kg = 0.15", "payload_kg = 20.0"))
+    assert _fit_cli([heavy, "--out", tmp_path / "o.toml"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("trajgen: fit refused: keyframe 1") and err.count("\n") == 1
+    bad = _write(tmp_path, KEYS + "[limits]\nspeed = 1\n", "bad.toml")
+    from trajgen.cli import main
+
+    assert main(["fit", str(bad), "--out", str(tmp_path / "o.toml")]) == 2
+    assert "[limits] unknown key 'speed'" in capsys.readouterr().err
+    assert not (tmp_path / "o.toml").exists()

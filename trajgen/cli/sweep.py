@@ -1,0 +1,213 @@
+"""The ``trajgen sweep`` command: the torque check over payloads, servos and speeds.
+
+This module imports quickly: MuJoCo, matplotlib and Dask load inside :func:`run_sweep`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import sys
+import time
+from dataclasses import asdict
+
+from trajgen.cli.common import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    add_file_argument,
+    bad_input,
+    positive_float,
+)
+from trajgen.gimbal import JOINT_NAMES as JOINTS
+
+_PROGRESS_AFTER_S = 1.0
+
+DESCRIPTION = """\
+Run `trajgen sim`'s torque check on every combination of payload mass, payload
+offset, servo model per joint and time scale, on mujoco.rollout threads (or on a
+Dask cluster with --dask), and print pass/fail with the worst planned margin
+(margin x envelope - |planned torque|, N m) per variant. Unset axes keep the file's
+[gimbal] values; the time scale multiplies the keyframe times (0.5 = twice as fast).
+
+examples:
+  trajgen sweep shot.toml --payload-kg 0.1,0.3,0.6 --time-scale 0.5,1
+  trajgen sweep shot.toml --servo pan=XM430-W350,XM540-W270 --offset-m 0.03,0,0 \\
+      --offset-m 0.06,0,0.02 --plot sweep.png
+
+exit status: 0 the sweep ran (the table says which variants pass), 1 a simulation
+failed, 2 bad input."""
+
+
+def _floats(text: str) -> list[float]:
+    """argparse type: comma-separated numbers, each > 0 (a bare 0 is allowed for payloads)."""
+    return [0.0 if v.strip() == "0" else positive_float(v) for v in text.split(",")]
+
+
+def _offset(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected x,y,z in m, got {text!r}") from None
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected 3 numbers x,y,z in m, got {text!r}")
+    return values
+
+
+def _servo(text: str) -> tuple[str, list[str]]:
+    joint, sep, models = text.partition("=")
+    if not sep or joint not in JOINTS or not models:
+        raise argparse.ArgumentTypeError(
+            f"expected JOINT=MODEL[,MODEL...] with JOINT one of {', '.join(JOINTS)}, got {text!r}"
+        )
+    return joint, models.split(",")
+
+
+def register(subparsers) -> None:
+    """Add the ``sweep`` subcommand to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "sweep",
+        help="torque check over payloads, servos and speeds",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_file_argument(p)
+    p.add_argument("--payload-kg", type=_floats, metavar="M,M,...", help="payload masses (kg)")
+    p.add_argument(
+        "--offset-m",
+        type=_offset,
+        action="append",
+        metavar="X,Y,Z",
+        help="payload centre of mass in the roll link frame (m); repeat for several",
+    )
+    p.add_argument(
+        "--servo",
+        type=_servo,
+        action="append",
+        metavar="JOINT=MODEL[,MODEL...]",
+        help="servo models to try on a joint; repeat per joint",
+    )
+    p.add_argument(
+        "--time-scale",
+        type=_floats,
+        default=[0.5, 0.75, 1.0, 1.5],
+        metavar="S,S,...",
+        help="keyframe time multipliers (default 0.5,0.75,1,1.5)",
+    )
+    p.add_argument("--rate", type=positive_float, metavar="HZ", help="stream rate (Hz)")
+    p.add_argument("--threads", type=int, default=2, help="rollout threads (default 2)")
+    p.add_argument(
+        "--dask",
+        metavar="ADDRESS",
+        help='run on the Dask scheduler at ADDRESS ("local": start a local cluster); '
+        "needs the dist extra",
+    )
+    p.add_argument("--plot", metavar="OUT.png", help="plot pass/fail and margin per variant")
+    p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    p.set_defaults(func=run_sweep)
+
+
+class _Progress:
+    def __init__(self):
+        self.start = time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        elapsed = time.monotonic() - self.start
+        if elapsed >= _PROGRESS_AFTER_S:
+            end = "\n" if done >= total else ""
+            sys.stderr.write(f"\rtrajgen sweep: {done}/{total} variants, {elapsed:.1f} s{end}")
+            sys.stderr.flush()
+
+
+def run_sweep(args) -> int:
+    """Run ``trajgen sweep``; returns the exit status."""
+    try:
+        return _run(args)
+    except KeyboardInterrupt:
+        print("trajgen: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def _run(args) -> int:
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim import sweep
+    from trajgen.sim.errors import SimError
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    try:
+        source = load_keyframe_file(args.file)
+        base = gimbal_config_from_tables(source.tables, source.path)
+        per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
+        for joint, models in args.servo or []:
+            per_joint[joint] = models
+        servo_sets = list(itertools.product(*(per_joint[j] for j in JOINTS)))
+        payloads = args.payload_kg or [base.payload_kg]
+        offsets = args.offset_m or [base.payload_offset_m]
+        variants = sweep.variants(payloads, offsets, servo_sets, args.time_scale)
+        for v in variants:  # unknown servo names fail here, before any work
+            v.config(base)
+        if args.threads < 1:
+            raise ValueError(f"--threads: expected >= 1, got {args.threads}")
+        if args.dask:
+            results = _on_dask(args.dask, sweep, source, variants, base, args.rate)
+        else:
+            results = sweep.run_sweep(
+                source,
+                variants,
+                config=base,
+                rate_hz=args.rate,
+                threads=args.threads,
+                progress=_Progress(),
+            )
+    except SimError as e:
+        print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    except (ValueError, TypeError, OSError, ModuleNotFoundError) as e:
+        return bad_input(e)
+    print(format_results(results))
+    try:
+        if args.plot:
+            from trajgen.sim.sweep_plot import plot_sweep
+
+            print(f"plot: {plot_sweep(results, args.plot)}")
+        if args.json:
+            with open(args.json, "w", encoding="utf-8") as f:
+                json.dump([asdict(r) for r in results], f, indent=1)
+            print(f"json: {args.json}")
+    except OSError as e:
+        return bad_input(e)
+    return EXIT_OK
+
+
+def _on_dask(address, sweep, source, variants, base, rate):
+    from distributed import Client, LocalCluster
+
+    if address == "local":
+        with LocalCluster(n_workers=2, threads_per_worker=1) as cluster, Client(cluster) as c:
+            return sweep.sweep_on_dask(
+                source, variants, c, config=base, rate_hz=rate, progress=_Progress()
+            )
+    with Client(address) as c:
+        return sweep.sweep_on_dask(
+            source, variants, c, config=base, rate_hz=rate, progress=_Progress()
+        )
+
+
+def format_results(results) -> str:
+    """A table, one row per variant: payload, offset, servos, time scale, verdict, margin."""
+    lines = [
+        f"{'payload':>8} {'offset (m)':<17} {'servos (pan/tilt/roll)':<34} {'scale':>6} "
+        f"{'time s':>7} {'check':<6} {'worst margin':>13}  failed",
+    ]
+    for r in results:
+        v = r.variant
+        offset = ",".join(f"{o:g}" for o in v.payload_offset_m)
+        lines.append(
+            f"{v.payload_kg:8.3g} {offset:<17} {'/'.join(v.servos):<34} {v.time_scale:6.3g} "
+            f"{r.duration_s:7.2f} {'ok' if r.ok else 'FAIL':<6} "
+            f"{r.worst_margin_nm:8.3f} N m ({r.worst_joint}){'':1} {', '.join(r.failed)}"
+        )
+    passed = sum(r.ok for r in results)
+    lines.append(f"{passed} of {len(results)} variants pass")
+    return "\n".join(lines)
