@@ -14,6 +14,7 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    load_checked,
     positive_float,
 )
 from trajgen.errors import TrajgenError
@@ -89,7 +90,8 @@ def _run(args) -> int:
     from trajgen.sim.fit import fit_timing
 
     try:
-        result = fit_timing(args.file, rate_hz=args.rate, progress=_Progress())
+        kf = load_checked(args.file).keyframes  # every table, [bus] included
+        result = fit_timing(kf, rate_hz=args.rate, progress=_Progress())
     except SimError as e:
         print(f"trajgen: fit refused: {e}", file=sys.stderr)
         return EXIT_FAILED

@@ -18,6 +18,7 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    load_checked,
     positive_float,
 )
 from trajgen.gimbal import JOINT_NAMES as JOINTS
@@ -130,14 +131,12 @@ def run_sweep(args) -> int:
 
 
 def _run(args) -> int:
-    from trajgen.keyframes import load_keyframe_file
     from trajgen.sim import sweep
     from trajgen.sim.errors import SimError
-    from trajgen.sim.model import gimbal_config_from_tables
 
     try:
-        source = load_keyframe_file(args.file)
-        base = gimbal_config_from_tables(source.tables, source.path)
+        checked = load_checked(args.file)  # every table of the file
+        source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
         for joint, models in args.servo or []:
             per_joint[joint] = models
