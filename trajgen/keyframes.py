@@ -106,7 +106,6 @@ class KeyframeFile:
     spline_options: dict
     rate_hz: float | None = None
     tables: dict = field(default_factory=dict)
-    _spline: list = field(default_factory=list, repr=False, compare=False)
 
     def spline(self) -> BlendingSpline:
         """The file's spline, built on first use and kept.
@@ -117,12 +116,14 @@ class KeyframeFile:
             If the spline refuses the keyframes (a reversal with
             ``local = "circle"``, a ``"closed"`` loop that does not close).
         """
-        if not self._spline:
+        built = self.__dict__.get("_built_spline")
+        if built is None:
             try:
-                self._spline.append(BlendingSpline(self.quats, self.times, **self.spline_options))
+                built = BlendingSpline(self.quats, self.times, **self.spline_options)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
-        return self._spline[0]
+            object.__setattr__(self, "_built_spline", built)  # a cache, not a field
+        return built
 
     def stream_rate(self, rate_hz: float | None = None) -> float:
         """``rate_hz`` if given, else the file's ``[stream] rate_hz``, else the default.

@@ -152,7 +152,7 @@ class CheckedFile:
     def spline(self):
         """The file's spline (built on first use; raises KeyframeFileError if refused)."""
         n = len(self.keyframes.times)
-        if n > _LARGE_FILE_KEYFRAMES and not self.keyframes._spline:
+        if n > _LARGE_FILE_KEYFRAMES:
             print(f"trajgen: building the spline through {n:,} keyframes...", file=sys.stderr)
         return self.keyframes.spline()
 
