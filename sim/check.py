@@ -5,15 +5,18 @@ Two parts, both per joint:
 (a) Plan: the torque the plan needs (``mj_inverse`` on the planned ``q, qd, qdd``)
     must stay within ``torque_margin * tau_max(qd)``, where
     ``tau_max(w) = tau_stall (1 - |w| / w0)`` at 12 V.
-(b) Simulation: the stream is played to the simulated servos (zero-order hold,
-    1 ms physics); no step may reach the servo's torque limit (the 12 V drive,
-    or the stall-torque clamp when braking), and the joints must
-    stay within ``max_tracking_error_rad`` of the planned path.
+(b) Simulation: the stream is played to the simulated servos (goal positions
+    in whole ticks, zero-order hold, 1 ms physics, the firmware's position loop
+    with the configured gains); no step may reach the servo's torque limit (the
+    12 V drive, or the stall-torque clamp when braking), and the joints must
+    stay within ``max_tracking_error_rad`` of the planned path. With default
+    gains (P 800) an X-series servo lags a moving goal by about speed x 45 ms
+    (``lag_time_s``), so the default 0.05 rad budget holds up to about
+    1.1 rad/s; raise the P gain (on the servos and in ``[gimbal.<joint>]``),
+    slow the motion, or widen the budget.
 
 The verdict ``ok`` needs all three. The simulated torque's own margin against
-``torque_margin x envelope`` is reported but does not decide the verdict: the
-setpoint steps of a zero-order hold add brief torque spikes a real servo's
-current loop absorbs.
+``torque_margin x envelope`` is reported but does not decide the verdict.
 """
 
 from __future__ import annotations
@@ -186,6 +189,66 @@ def _cell(value: float, width: int, decimals: int) -> str:
     return f" {text:>{width - 1}}"
 
 
+def _envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j) -> str:
+    """Why sample ``worst`` of joint ``j`` leaves ``margin`` x the envelope."""
+    w_worst = abs(qd_plan[worst, j])
+    if w_worst >= servo.no_load_speed_rad_s:
+        return (
+            f"{name}: planned speed {w_worst:.2f} rad/s exceeds the {servo.name}'s no-load "
+            f"speed {servo.no_load_speed_rad_s:.2f} rad/s (no torque left) at t = "
+            f"{t[worst]:.3f} s"
+        )
+    return (
+        f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
+        f"{w_worst:.2f} rad/s exceeds {margin:g} x envelope "
+        f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
+    )
+
+
+def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
+    """Part (a) alone: why the plan leaves ``torque_margin x`` the envelope (empty if not).
+
+    Parameters
+    ----------
+    trajectory : JointTrajectory
+    config : GimbalConfig
+
+    Returns
+    -------
+    tuple of str
+        One reason per joint that leaves it, as in :class:`TorqueReport`.
+    """
+    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.model import build_model
+
+    check_trajectory(trajectory)
+    tau = inverse_dynamics(build_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
+    t = np.asarray(trajectory.t, dtype=float)
+    qd = np.asarray(trajectory.qd, dtype=float)
+    reasons = []
+    for j, name in enumerate(JOINT_NAMES):
+        servo = config.servos[j]
+        plan_margin = config.torque_margin * servo.tau_max(qd[:, j]) - np.abs(tau[:, j])
+        worst = int(np.argmin(plan_margin))
+        if plan_margin[worst] < 0:
+            reasons.append(
+                _envelope_reason(name, servo, config.torque_margin, tau, qd, t, worst, j)
+            )
+    return tuple(reasons)
+
+
+def lag_time_s(config: GimbalConfig, joint: int) -> float:
+    """How far (s) joint ``joint``'s servo lags a goal moving at constant speed.
+
+    The firmware loop's torque ``kp e`` balances the motor's back-EMF and the
+    joint's viscous damping at speed ``w``: ``e = w (K^2 / R + damping) / kp``
+    (Coulomb friction adds a constant ``frictionloss / kp``). 45 ms for an
+    XM430-W350 at P 800.
+    """
+    kp, _, kd, _ = config.loop(joint).mujoco_controller(config.servos[joint])
+    return (kd + config.joints[joint].damping) / kp
+
+
 def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
     """Judge a plan and its simulated run (see the module docstring).
 
@@ -223,19 +286,8 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         at_limit = int(record.steps_at_limit[j])
         reasons = []
         worst = int(np.argmin(plan_margin))
-        w_worst = abs(qd_plan[worst, j])
-        if plan_margin[worst] < 0 and w_worst >= servo.no_load_speed_rad_s:
-            reasons.append(
-                f"{name}: planned speed {w_worst:.2f} rad/s exceeds the {servo.name}'s no-load "
-                f"speed {servo.no_load_speed_rad_s:.2f} rad/s (no torque left) at t = "
-                f"{t[worst]:.3f} s"
-            )
-        elif plan_margin[worst] < 0:
-            reasons.append(
-                f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
-                f"{abs(qd_plan[worst, j]):.2f} rad/s exceeds {margin:g} x envelope "
-                f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
-            )
+        if plan_margin[worst] < 0:
+            reasons.append(_envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j))
         if at_limit:
             first = record.t[np.argmax(record.at_limit[:, j])]
             reasons.append(
@@ -246,7 +298,9 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         if error[k] > config.max_tracking_error_rad:
             reasons.append(
                 f"{name}: tracking error {error[k]:.3f} rad > "
-                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s"
+                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s "
+                f"(P gain {config.joints[j].position_p_gain} lags "
+                f"{1e3 * lag_time_s(config, j):.0f} ms x speed)"
             )
         joints[name] = JointReport(
             name=name,

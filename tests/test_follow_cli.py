@@ -56,7 +56,17 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     thread = threading.Thread(target=writer, daemon=True)
     thread.start()
     out = tmp_path / "follow.json"
-    assert main(["follow", "--virtual", "--json", str(out)]) == 0
+    # The built-in example, with a tracking budget for the servo's lag (45 ms x
+    # speed with default gains) on the quick moves the lines ask for.
+    from trajgen import BUILTIN_EXAMPLE
+
+    keys = tmp_path / "keys.toml"
+    keys.write_text(
+        BUILTIN_EXAMPLE.read_text().replace(
+            "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
+        )
+    )
+    assert main(["follow", str(keys), "--virtual", "--json", str(out)]) == 0
     thread.join(timeout=5)
     result = json.loads(out.read_text())["follow"]
     assert result["accepted"] == 4 and result["skipped"] == 1

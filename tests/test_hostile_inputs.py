@@ -278,7 +278,7 @@ CASES = [
         ["plan", "{file}"],
         "[spline]\norder = 2\n" + KEYS,
         2,
-        r"\[spline\] unknown key 'order' \(known: k, boundary",
+        r"\[spline\] unknown key 'order' \(known: method, k, boundary",
         "ok",
     ),
     (

@@ -351,3 +351,38 @@ def test_lockstep_telemetry_holds_the_state_at_its_time_label(tmp_path):
         np.testing.assert_allclose(present[1:], goal[:-1], atol=tick / 2 + 1e-12)
         if joint == "pan":  # up to 12 ticks per frame: the new goal is clearly elsewhere
             assert np.max(np.abs(present[1:] - goal[1:])) > 5 * tick
+
+
+def test_simulated_clock_jumps_to_deadlines_never_back():
+    from trajgen.drivers.clock import SimulatedClock
+
+    clock = SimulatedClock(1.0)
+    start = time.monotonic()
+    clock.sleep_until(31.0)
+    assert clock.now() == 31.0
+    clock.sleep_until(5.0)
+    assert clock.now() == 31.0
+    assert time.monotonic() - start < 0.1
+
+
+def test_lockstep_stream_on_a_simulated_clock_does_not_wait_out_the_motion():
+    from trajgen.drivers.clock import SimulatedClock
+    from trajgen.drivers.streamer import Streamer
+    from trajgen.drivers.units import JointMap
+    from trajgen.stream import JointTrajectory
+
+    t = np.arange(301) / 100.0  # 3 s of motion
+    q = np.stack([0.2 * np.sin(t), 0.1 * t, 0 * t], axis=1)
+    trajectory = JointTrajectory(t, q, np.zeros_like(q), np.zeros_like(q), 100.0)
+    plant = FirstOrderPlant(initial_rad=q[0])
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, ServoBus(virtual.port) as bus:
+        for servo_id in (1, 2, 3):
+            bus.add_servo(servo_id, XM430)
+            bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+        start = time.monotonic()
+        stats = Streamer(bus, JointMap(), clock=SimulatedClock()).run(trajectory)
+        wall_s = time.monotonic() - start
+        np.testing.assert_array_equal(np.array(virtual.goal_log), JointMap().to_ticks(q))
+    assert stats.frames_sent == 301
+    assert plant.time_s == pytest.approx(3.02)  # a period per frame, and the start-up poll
+    assert wall_s < 1.5  # half the motion's time, on a busy machine

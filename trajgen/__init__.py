@@ -13,6 +13,7 @@ from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_ke
 from .online import ChangeTooLate, OnlineSpline
 from .path import OrientationPath, Samples
 from .sampling import sample_times
+from .smooth import SmoothSpline
 from .spline import BlendingSpline
 from .stream import JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
 
@@ -33,6 +34,7 @@ __all__ = [
     "OnlineSpline",
     "PlanTooLarge",
     "Samples",
+    "SmoothSpline",
     "TrajgenError",
     "load_keyframe_file",
     "plan_joint_trajectory",

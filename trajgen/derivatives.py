@@ -19,6 +19,7 @@ from math import comb
 import numpy as np
 
 from .jet import _COS, _SINC, SERIES_BELOW
+from .path import run_steps
 
 __all__ = [
     "chain",
@@ -28,7 +29,7 @@ __all__ = [
     "hamilton_vec",
     "product",
     "quotient",
-    "slerp",
+    "slerp_steps",
     "vdot",
 ]
 
@@ -147,17 +148,21 @@ def hamilton_vec(p: np.ndarray, q: np.ndarray) -> np.ndarray:
 
 
 def _series(coef: np.ndarray, x: np.ndarray, K: int) -> list:
-    """A power series in ``x`` and its first K derivatives with respect to ``x``."""
-    out = []
-    c = coef
-    for _ in range(K + 1):
-        acc = np.full_like(x, c[-1])
-        for cj in c[-2::-1]:
-            acc *= x
-            acc += cj
-        out.append(acc)
-        c = c[1:] * np.arange(1, len(c))
-    return out
+    """A power series in ``x`` and its first K derivatives with respect to ``x``.
+
+    One Horner pass for all K + 1 of them: row n of ``d`` holds the coefficients
+    of the n-th derivative (few samples take the series, so the number of array
+    operations is what counts).
+    """
+    d = np.zeros((K + 1, len(coef)))
+    d[0] = coef
+    for n in range(1, K + 1):
+        d[n, :-n] = d[n - 1, 1 : len(coef) - n + 1] * np.arange(1, len(coef) - n + 1)
+    acc = np.repeat(d[:, -1:], len(x), axis=1)
+    for j in range(len(coef) - 2, -1, -1):
+        acc *= x
+        acc += d[:, j : j + 1]
+    return list(acc)
 
 
 def _split(small: np.ndarray, fn_small, fn_large, args: list, K: int) -> list:
@@ -165,21 +170,24 @@ def _split(small: np.ndarray, fn_small, fn_large, args: list, K: int) -> list:
 
     ``args`` are lists of arrays (M,); the functions return lists of arrays (M,).
     """
+    return run_steps(_split_steps(small, fn_small, fn_large, args, K))
+
+
+def _split_steps(small, fn_small, fn_large, args, K):
+    """:func:`_split` as a generator of steps (one per branch)."""
     if small.all():
         return fn_small(*args, K)
     if not small.any():
         return fn_large(*args, K)
-    parts = []
-    for mask in (small, ~small):
-        idx = np.flatnonzero(mask)
-        parts.append((idx, [[x[idx] for x in arg] for arg in args]))
     out = None
-    for (idx, sub), fn in zip(parts, (fn_small, fn_large), strict=True):
-        values = fn(*sub, K)
+    for mask, fn in ((small, fn_small), (~small, fn_large)):
+        idx = np.flatnonzero(mask)
+        values = fn(*[[x[idx] for x in arg] for arg in args], K)
         if out is None:
             out = [np.empty(len(small)) for _ in values]
         for o, v in zip(out, values, strict=True):
             o[idx] = v
+        yield
     return out
 
 
@@ -208,6 +216,9 @@ def cos_sinc_sqrt(x: list) -> tuple[list, list]:
     """``cos sqrt(x)`` and ``sin sqrt(x) / sqrt(x)`` for ``x >= 0`` (a squared angle), with a
     series below ``SERIES_BELOW`` (as :func:`trajgen.jet.qexp`)."""
     K = len(x) - 1
+    if K == 0:  # values alone are accurate down to 0 without the series
+        a = np.sqrt(x[0])
+        return [np.cos(a)], [np.sin(a) / np.where(a > 0, a, 1.0) + (a == 0)]
     d = _split(x[0] < SERIES_BELOW, _cos_sinc_series, _cos_sinc_closed, [x[:1]], K)
     return chain(d[: K + 1], x), chain(d[K + 1 :], x)
 
@@ -215,16 +226,20 @@ def cos_sinc_sqrt(x: list) -> tuple[list, list]:
 def cos_sin(theta: list) -> tuple[list, list]:
     """``cos theta`` and ``sin theta``."""
     c, s = np.cos(theta[0]), np.sin(theta[0])
-    return chain([c, -s, -c, s], theta), chain([s, c, -s, -c], theta)
+    K = len(theta) - 1
+    ns = -s if K >= 1 else None  # only the orders asked for
+    nc = -c if K >= 2 else None
+    return chain([c, ns, nc, s][: K + 1], theta), chain([s, c, ns, nc][: K + 1], theta)
 
 
 def sin(theta: list) -> list:
     """``sin theta``."""
     s = np.sin(theta[0])
-    if len(theta) == 1:
+    K = len(theta) - 1
+    if K == 0:
         return [s]
     c = np.cos(theta[0])
-    return chain([s, c, -s, -c], theta)
+    return chain([s, c, -s if K >= 2 else None, -c if K >= 3 else None][: K + 1], theta)
 
 
 #: phi^2 as a power series in z = |p - q|^2 for points p, q of S^3 at angle phi:
@@ -232,10 +247,12 @@ def sin(theta: list) -> list:
 _PHI2 = np.array([0.0] + [2.0 / (n * n * comb(2 * n, n)) for n in range(1, 9)])
 
 
-def slerp(p: list, q: list, f: list) -> list:
+def slerp_steps(p: list, q: list, f: list):
     """The point dividing the S^3 arc from ``p`` to ``q`` in ratio ``f : 1 - f``.
 
-    ``p``, ``q`` are derivative lists of unit quaternions (4, M), ``f`` of scalars
+    A generator of steps (for a caller that spreads the work, see
+    :meth:`trajgen.path.OrientationPath.evaluation_steps`); its return value is
+    the result. ``p``, ``q`` are derivative lists of unit quaternions (4, M), ``f`` of scalars
     (M,). The classical form ``(sin((1 - f) phi) p + sin(f phi) q) / sin(phi)``,
     ``phi`` the angle between ``p`` and ``q``; it equals ``exp(f log(q p*)) p``
     (SPEC 3). The angle is taken from the chord ``z = |q - p|^2``, which is
@@ -245,7 +262,17 @@ def slerp(p: list, q: list, f: list) -> list:
     K = min(len(p), len(q), len(f)) - 1
     d = [b - a for a, b in zip(p, q, strict=True)]
     z = vdot(d, d)
-    w = _split(z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K)
+    yield
+    if K == 0:  # values alone are accurate down to 0 without the series
+        phi = 2.0 * np.arcsin(0.5 * np.sqrt(z[0]))
+        at_knot = phi == 0
+        inv = 1.0 / np.where(at_knot, 1.0, np.sin(phi))
+        wa = np.where(at_knot, 1.0 - f[0], np.sin((1.0 - f[0]) * phi) * inv)
+        wb = np.where(at_knot, f[0], np.sin(f[0] * phi) * inv)
+        return [wa[None] * p[0] + wb[None] * q[0]]
+    w = yield from _split_steps(
+        z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K
+    )
     return [x + y for x, y in zip(product(w[: K + 1], p), product(w[K + 1 :], q), strict=True)]
 
 
@@ -265,17 +292,16 @@ def _slerp_weights_series(z, f, K):
 
 def _slerp_weights_closed(z, f, K):
     x = z[0]
-    r = 1.0 / np.sqrt(x * (4.0 - x))
-    r3 = r * r * r
-    phi = chain(
-        [
-            2.0 * np.arcsin(0.5 * np.sqrt(x)),
-            r,
-            -(2.0 - x) * r3,
-            r3 + 3.0 * (2.0 - x) ** 2 * r3 * r * r,
-        ],
-        z,
-    )
+    d = [2.0 * np.arcsin(0.5 * np.sqrt(x))]  # phi(z) and its z-derivatives, as far as asked
+    if K >= 1:
+        r = 1.0 / np.sqrt(x * (4.0 - x))
+        d.append(r)
+    if K >= 2:
+        r3 = r * r * r
+        d.append(-(2.0 - x) * r3)
+    if K >= 3:
+        d.append(r3 + 3.0 * (2.0 - x) ** 2 * r3 * r * r)
+    phi = chain(d, z)
     sin_phi = sin(phi)
     out = []
     for g in (_complement(f), f):

@@ -3,7 +3,7 @@
 One sample at a time, the arithmetic of the numpy path: the local curves as
 scalar combinations of their basis quaternions
 (:meth:`trajgen.local_curves.LocalCurves.derivatives`) and the blend as the
-slerp of :func:`trajgen.derivatives.slerp`, with the same series branches.
+slerp of :func:`trajgen.derivatives.slerp_steps`, with the same series branches.
 A derivative list is a 4-tuple ``(x, x', x'', x''')`` of floats, which numba
 keeps in registers; all four orders are computed.
 """
@@ -181,7 +181,7 @@ def combine(a0, a1, a2, basis, c, i):
 
 @njit
 def slerp_weights(z, f):
-    """The slerp weights of p and q (see trajgen.derivatives.slerp)."""
+    """The slerp weights of p and q (see trajgen.derivatives.slerp_steps)."""
     g = (1.0 - f[0], -f[1], -f[2], -f[3])
     if z[0] < SERIES_BELOW:
         p0, p1, p2, p3 = series(_PHI2, z[0])

@@ -1,9 +1,11 @@
 """Keyframe files (TOML): orientations at times, spline options, and tables for other packages.
 
 ```toml
-[spline]            # optional: BlendingSpline keywords
-k = 2
-boundary = "rest"
+[spline]            # optional
+method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
+boundary = "rest"   # "rest", "natural" or "closed" (both methods)
+                    # k, local, reparam are the blending spline's keywords; a file
+                    # giving them without `method` gets method = "blending"
 
 [stream]            # optional
 rate_hz = 200
@@ -47,6 +49,7 @@ import numpy as np
 from . import quat as Q
 from .errors import KeyframeFileError
 from .gimbal import JOINT_NAMES
+from .smooth import SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .validate import check_choice, check_number
 
@@ -57,7 +60,13 @@ BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
 #: the file's ``[stream] rate_hz`` gives one.
 DEFAULT_RATE_HZ = 200.0
 
-SPLINE_KEYS = ("k", "boundary", "local", "reparam")
+SPLINE_KEYS = ("method", "k", "boundary", "local", "reparam")
+#: ``[spline] method`` -> spline class. The default is chosen by the torque race
+#: (README, "The torque race, part 2").
+METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
+DEFAULT_METHOD = "smooth"
+#: Keys only the blending spline takes; a file giving one without ``method`` gets it.
+BLENDING_ONLY = ("k", "local", "reparam")
 STREAM_KEYS = ("rate_hz",)
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 #: Keyframe angle fields (degrees), one per gimbal joint.
@@ -106,8 +115,10 @@ class KeyframeFile:
     spline_options: dict
     rate_hz: float | None = None
     tables: dict = field(default_factory=dict)
+    #: ``[spline] method``: "smooth" or "blending".
+    method: str = DEFAULT_METHOD
 
-    def spline(self) -> BlendingSpline:
+    def spline(self) -> SmoothSpline | BlendingSpline:
         """The file's spline, built on first use and kept.
 
         Raises
@@ -119,7 +130,7 @@ class KeyframeFile:
         built = self.__dict__.get("_built_spline")
         if built is None:
             try:
-                built = BlendingSpline(self.quats, self.times, **self.spline_options)
+                built = METHODS[self.method](self.quats, self.times, **self.spline_options)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
             object.__setattr__(self, "_built_spline", built)  # a cache, not a field
@@ -176,12 +187,13 @@ def load_keyframe_file(path) -> KeyframeFile:
         if name not in TABLES:
             raise KeyframeFileError(f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})")
     options = _spline_options(data.get("spline", {}), path)
+    method = options.pop("method", DEFAULT_METHOD)
     rate_hz = _stream_rate(data.get("stream", {}), path)
     if columns is None:
         columns = _keyframe_columns(data.get("keyframes"), path)
     times, quats = _keyframes(columns, path)
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables)
+    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method)
 
 
 def _toml(text: str, path: Path) -> dict:
@@ -282,16 +294,24 @@ def _check_keys(table: dict, name: str, known, path: Path) -> None:
 
 
 def _spline_options(table, path: Path) -> dict:
-    """The ``[spline]`` table, checked: keywords for ``BlendingSpline``."""
+    """The ``[spline]`` table, checked: ``method`` and the keywords for its class."""
     table = _table(table, "spline", path)
     _check_keys(table, "spline", SPLINE_KEYS, path)
     if "k" in table:
         check_number(
             "k", table["k"], integer=True, low=1, high=MAX_K, error=_error(path, "[spline] k")
         )
-    for key, allowed in (("boundary", BOUNDARIES), ("local", LOCALS), ("reparam", REPARAMS)):
+    choices = (("method", tuple(METHODS)), ("boundary", BOUNDARIES), ("local", LOCALS))
+    for key, allowed in (*choices, ("reparam", REPARAMS)):
         if key in table:
             check_choice(key, table[key], allowed, error=_error(path, f"[spline] {key}"))
+    blending_only = [k for k in BLENDING_ONLY if k in table]
+    if blending_only and table.get("method") == "smooth":
+        raise KeyframeFileError(
+            f"{path}: [spline] {blending_only[0]}: applies to method = 'blending' only"
+        )
+    if blending_only and "method" not in table:  # a file written for the blending spline
+        table = {"method": "blending", **table}
     return dict(table)
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from . import derivatives as D
 from . import jet as J
 from . import quat as Q
+from .path import run_steps
 
 POINT, CIRCLE, PARABOLA, GEODESIC = range(4)
 KIND_NAMES = ("point", "circle", "parabola", "geodesic")
@@ -404,6 +405,14 @@ class LocalCurves:
     def derivatives(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
         """Curves ``ids`` (M,) at times ``t`` (M,) and their time derivatives up to ``order`` <= 3.
 
+        See :meth:`derivative_steps`.
+        """
+        return run_steps(self.derivative_steps(ids, t, order))
+
+    def derivative_steps(self, ids: np.ndarray, t: np.ndarray, order: int):
+        """:meth:`derivatives` as a generator of steps (one per kind of curve, then the sum);
+        its return value is the result.
+
         Every curve is a combination ``C = a_0 K_0 + a_1 K_1 + a_2 K_2`` of three
         constant quaternions ``K`` (its ``basis``) with scalar coefficients
         ``a(t)``; only the coefficients depend on the kind.
@@ -428,6 +437,8 @@ class LocalCurves:
             m = np.flatnonzero(m)
             if len(m):
                 coef[:, :, m] = fn(ids[m], t[m], order)
+                yield
+        yield
         # np.take along axis 1 keeps the result component-first in memory (fancy indexing on
         # the last axis would not).
         basis = np.take(self.basis, ids, axis=1).reshape(3, 4, len(ids))

@@ -136,6 +136,30 @@ class OrientationPath:
         # A closed path keeps the caller's times (t_end stays t_end, not t_start).
         return Samples(t_in if self.periodic else ta, q, *derivs)
 
+    def evaluation_steps(self, t, *, max_order: int = 2):
+        """:meth:`evaluate` (space frame) as a generator of small steps.
+
+        For a caller that spreads the work of an evaluation over time, such as
+        the online stream (one step per frame): each ``next()`` does a part of the
+        work and the generator's return value (``StopIteration.value``, or the
+        value of ``yield from``) is the :class:`Samples`. The default is one step;
+        a path may split its work further.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`evaluate`, at the first ``next()``.
+        """
+        max_order = _check_order("max_order", max_order)
+        seg, ta = self._segment(_as_times(t).reshape(-1))
+        q, rates = yield from self._space_rate_steps(ta, seg, max_order)
+        return Samples(ta, q, *(rates + [None] * (3 - len(rates))))
+
+    def _space_rate_steps(self, t, seg, max_order):
+        """:meth:`_space_rates` as a generator of steps (here: one)."""
+        return self._space_rates(t, seg, max_order)
+        yield  # makes this a generator
+
     def _space_rates(self, t, seg, max_order) -> tuple[np.ndarray, list[np.ndarray]]:
         """Unit quaternions (M, 4) and the space-frame angular derivatives of orders
         1..max_order, each (M, 3), from the path's jet."""
@@ -203,6 +227,16 @@ class OrientationPath:
         """
         t = sample_times(self.t_start, self.t_end, rate_hz)
         return self.evaluate(t, max_order=max_order, frame=frame)
+
+
+def run_steps(steps):
+    """Run a generator of work steps (see :meth:`OrientationPath.evaluation_steps`) to its
+    end; its return value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
 
 
 def _as_times(t) -> np.ndarray:

@@ -18,7 +18,7 @@ from . import fast
 from . import jet as J
 from . import quat as Q
 from .local_curves import KIND_NAMES, NoCircleError, build_curves
-from .path import OrientationPath, check_times
+from .path import OrientationPath, check_times, run_steps
 from .validate import check_choice, check_number
 
 BOUNDARIES = ("rest", "natural", "closed")
@@ -38,6 +38,19 @@ MAX_K = 6
 
 #: A closed spline's last keyframe must be within this rotation angle (rad) of its first.
 CLOSED_TOLERANCE = 1e-6
+
+
+def check_closed(quats: np.ndarray) -> None:
+    """Refuse keyframes (N, 4) that cannot make a closed loop: N < 3, or a last
+    keyframe more than :data:`CLOSED_TOLERANCE` away from the first."""
+    if len(quats) < 3:
+        raise ValueError(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
+    gap = float(Q.distance(quats[0], quats[-1]))
+    if gap > CLOSED_TOLERANCE:
+        raise ValueError(
+            "boundary='closed' needs the last keyframe to repeat the first; they are "
+            f"{np.degrees(gap):.4g} deg apart."
+        )
 
 
 def blend_polynomial(m: int) -> np.ndarray:
@@ -122,14 +135,7 @@ class BlendingSpline(OrientationPath):
         self.local = check_choice("local", local, LOCALS)
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         if boundary == "closed":
-            if n < 3:
-                raise ValueError(f"A closed spline needs at least 3 keyframes, got {n}.")
-            gap = float(Q.distance(q[0], q[-1]))
-            if gap > CLOSED_TOLERANCE:
-                raise ValueError(
-                    "boundary='closed' needs the last keyframe to repeat the first; they are "
-                    f"{np.degrees(gap):.4g} deg apart."
-                )
+            check_closed(q)
         # SPEC 1: one sign per consecutive pair, the shortest geodesic: q_i flips when
         # q_i . q_{i-1} < 0 with q_{i-1} already flipped, i.e. by the product of the signs so far.
         flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0
@@ -213,21 +219,32 @@ class BlendingSpline(OrientationPath):
         # allocator's pool (large arrays are mapped and unmapped on every call).
         for a in range(0, len(t), CHUNK):
             b = min(a + CHUNK, len(t))
-            qb, rb = self._blend_derivatives(t[a:b], seg[a:b], max_order)
+            qb, rb = run_steps(self._blend_steps(t[a:b], seg[a:b], max_order))
             q[a:b] = qb.T
             for out, r in zip(rates, rb, strict=True):
                 out[a:b] = r.T
         return q, rates
 
-    def _blend_derivatives(self, t, seg, order):
+    def _space_rate_steps(self, t, seg, max_order):
+        if len(t) > CHUNK or fast.use_compiled(len(t)):
+            return self._space_rates(t, seg, max_order)
+        q, rates = yield from self._blend_steps(t, seg, max_order)
+        return q.T, [r.T for r in rates]
+
+    def _blend_steps(self, t, seg, order):
         """The path at times ``t`` (M,) in segments ``seg`` (M,): unit quaternions (4, M) and the
-        space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M)."""
+        space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M).
+
+        A generator that pauses between stages (see :meth:`_space_rate_steps`); its
+        return value is the result.
+        """
         M = len(t)
-        curves = self._curves.derivatives(
+        curves = yield from self._curves.derivative_steps(
             np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
         )
         c_left = [c[:, :M] for c in curves]
         c_right = [c[:, M:] for c in curves]
+        yield
         rate = self._inv_h[seg]
         u = (t - self.times[seg]) * rate
         coef = np.take(self._blend_T, seg, axis=1)
@@ -239,8 +256,10 @@ class BlendingSpline(OrientationPath):
             for j in range(len(coef) - 2, n - 1, -1):
                 acc = acc * u + coef[j] * fall[j]
             f.append(acc * rate**n if n else acc)
+        yield
         # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
-        Q = D.slerp(c_left, c_right, f)
+        Q = yield from D.slerp_steps(c_left, c_right, f)
+        yield
         q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
         if order == 0:
             return q, []

@@ -78,11 +78,8 @@ _SWITCH_INTERVAL_S = 1e-3
 # runs per hold of the lock (when the plant has fallen behind the wall clock).
 _SIM_WAKE_S = 0.005
 _MAX_STEPS_PER_HOLD = 10
-# The registers the plant fills (Realtime Tick .. Present Temperature).
-_PRESENT_NAMES = (
-    "Realtime Tick",
-    "Present Temperature",
-)
+# The first and last of the registers the plant fills (addresses 120..146).
+_PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
 _CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
@@ -273,6 +270,7 @@ class VirtualBus:
             servo.set("Goal Position", servo.present_ticks(int(ticks[self._joint[servo_id]])))
             self.plant.set_control(self._joint[servo_id], self._control(servo))
             self.plant.set_torque_enabled(self._joint[servo_id], servo.torque_on)
+        self._index_ids()
         self._goal_written = False
         self._polled = False
         self._last_packet_s = {i: time.monotonic() for i in ids}
@@ -409,6 +407,8 @@ class VirtualBus:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
         j = self._joint[servo_id]
         servo = self.servos[servo_id]
+        if "ID" in names:
+            self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
         if names & set(CONTROL_REGISTERS):
@@ -472,8 +472,8 @@ class VirtualBus:
 
     def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
         """Whether a read of ``address``.. touches the registers the plant fills."""
-        low = servo.items[_PRESENT_NAMES[0]][0]
-        high = sum(servo.items[_PRESENT_NAMES[1]])
+        low = servo.items[_PRESENT_FIRST][0]
+        high = sum(servo.items[_PRESENT_LAST])
         return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     # -- serving -----------------------------------------------------------
@@ -546,7 +546,13 @@ class VirtualBus:
         """The servos (by power-up id) whose ID register is ``servo_id``, or all on broadcast."""
         if servo_id == BROADCAST_ID:
             return list(self.ids)
-        return [i for i in self.ids if self.servos[i].servo_id == servo_id]
+        return self._by_id.get(servo_id, [])
+
+    def _index_ids(self) -> None:
+        """Re-read every ID register (after a write of ID or a factory reset)."""
+        self._by_id: dict[int, list[int]] = {}
+        for i in self.ids:
+            self._by_id.setdefault(self.servos[i].servo_id, []).append(i)
 
     def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
@@ -667,6 +673,7 @@ class VirtualBus:
         """A servo rebooted: the plant follows its registers (torque off, goal = present)."""
         servo = self.servos[servo_id]
         j = self._joint[servo_id]
+        self._index_ids()
         self.plant.set_torque_enabled(j, False)
         self.plant.set_control(j, self._control(servo))
         self._goal_rad[j] = self._goal_for_plant(servo)

@@ -13,12 +13,12 @@ import os
 import sys
 
 from trajgen import __version__
-from trajgen.cli import fit, follow, plan, scan, sim, stream, sweep, virtual_bus
+from trajgen.cli import excite, fit, follow, identify, plan, scan, sim, stream, sweep, virtual_bus
 from trajgen.cli.common import EXIT_INTERRUPTED, EXIT_OK, bad_input
 from trajgen.errors import TrajgenError
 
 #: The subcommand modules, in the order ``--help`` lists them.
-COMMANDS = (plan, sim, fit, sweep, stream, follow, scan, virtual_bus)
+COMMANDS = (plan, sim, fit, sweep, stream, follow, scan, virtual_bus, excite, identify)
 
 
 class _Parser(argparse.ArgumentParser):

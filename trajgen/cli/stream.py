@@ -101,14 +101,24 @@ def run_stream(args) -> int:
 
 def _plan(args):
     """Everything that can fail on bad input, before any hardware is touched."""
+    from trajgen.drivers.config import bus_config_from_tables
     from trajgen.drivers.units import JointMap
+    from trajgen.keyframes import DEFAULT_RATE_HZ
     from trajgen.stream import plan_joint_trajectory
 
     check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
     check_output_path("--json", args.json)
     check_output_path("--plot", args.plot, PLOT_SUFFIXES)
-    checked = load_checked(args.file)
-    kf, config = checked.keyframes, checked.bus
+    if hasattr(args.file, "spline"):
+        # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
+        kf = args.file
+        config = bus_config_from_tables(kf.tables, kf.path)
+        rate = args.rate or kf.rate_hz or DEFAULT_RATE_HZ
+    else:
+        checked = load_checked(args.file)
+        kf, config = checked.keyframes, checked.bus
+        rate = kf.stream_rate(args.rate)
+        check_timing(kf, rate)
     joints = config.joints
     if args.virtual:
         if args.port:
@@ -120,9 +130,7 @@ def _plan(args):
         raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
     if args.ids:
         joints = JointMap(args.ids, joints.directions, joints.zeros)
-    rate = kf.stream_rate(args.rate)
-    check_timing(kf, rate)
-    trajectory = plan_joint_trajectory(checked.spline, rate)
+    trajectory = plan_joint_trajectory(kf.spline(), rate)
     return kf, config, joints, rate, trajectory
 
 
@@ -148,6 +156,7 @@ def _bring_up(bus, kf, config, joints, rate):
 
 
 def _stream(args) -> int:
+    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
     from trajgen.drivers.errors import DriverError
     from trajgen.drivers.streamer import Streamer
 
@@ -180,6 +189,8 @@ def _stream(args) -> int:
                 joints,
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
+                # Lock-step: simulated time moves with the frames, so do not wait for them.
+                clock=WALL_CLOCK if virtual is None else SimulatedClock(),
             )
             streamer.run(trajectory)
         except DriverError as e:
@@ -216,7 +227,14 @@ def start_virtual(kf, config, joints, rate, first_q):
     from trajgen.sim.plant import GimbalPlant
 
     plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), initial_rad=first_q)
-    virtual = VirtualBus(plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate)
+    virtual = VirtualBus(
+        plant,
+        ids=joints.ids,
+        models=config.models,
+        lockstep_dt_s=1.0 / rate,
+        # The servos power up with the gains the file states ([gimbal.<joint>]).
+        registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
+    )
     return virtual.start(), plant
 
 

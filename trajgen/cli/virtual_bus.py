@@ -93,7 +93,13 @@ def run_virtual_bus(args) -> int:
     period_s = 1.0 / kf.stream_rate() if args.lockstep else None
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
-    virtual = VirtualBus(plant, ids=ids, models=models, lockstep_dt_s=period_s).start()
+    virtual = VirtualBus(
+        plant,
+        ids=ids,
+        models=models,
+        lockstep_dt_s=period_s,
+        registers=dict(zip(ids, plant.initial_registers(), strict=True)),  # the file's gains
+    ).start()
     try:
         print(virtual.port, flush=True)
         clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
