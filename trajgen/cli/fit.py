@@ -14,6 +14,7 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    check_output_path,
     load_checked,
     positive_float,
 )
@@ -90,6 +91,7 @@ def _run(args) -> int:
     from trajgen.sim.fit import fit_timing
 
     try:
+        check_output_path("--out", args.out)
         kf = load_checked(args.file).keyframes  # every table, [bus] included
         result = fit_timing(kf, rate_hz=args.rate, progress=_Progress())
     except SimError as e:

@@ -16,8 +16,10 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    PLOT_SUFFIXES,
     add_file_argument,
     bad_input,
+    check_output_path,
     load_checked,
     positive_float,
 )
@@ -135,6 +137,8 @@ def _run(args) -> int:
     from trajgen.sim.errors import SimError
 
     try:
+        check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+        check_output_path("--json", args.json)
         checked = load_checked(args.file)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
