@@ -825,6 +825,39 @@ CASES = [
         r"torque check: FAILED[\s\S]*pan: planned speed .* exceeds the XM430-W350's no-load speed",
         "ok",
     ),
+    # --- commands added since: fit, sweep -----------------------------------------------
+    (
+        "fit --out no folder",
+        ["fit", "--out", "{tmp}/no/f.toml"],
+        None,
+        2,
+        r"--out '.*/no/f.toml': no such folder",
+        "new",
+    ),
+    (
+        "fit: bus baud 123",
+        ["fit", "{file}", "--out", "{tmp}/f.toml"],
+        "[bus]\nbaud = 123\n" + KEYS,
+        2,
+        r"\[bus\] baud: expected one of",
+        "new",
+    ),
+    (
+        "sweep --plot .txt",
+        ["sweep", "--plot", "{tmp}/s.txt"],
+        None,
+        2,
+        r"--plot '.*s.txt': expected a \.png",
+        "new",
+    ),
+    (
+        "sweep --json a folder",
+        ["sweep", "--json", "{tmp}"],
+        None,
+        2,
+        r"--json '.*': is a directory",
+        "new",
+    ),
     # --- stream and scan: refused before any port is opened ---------------------------
     (
         "stream --baud 123",
