@@ -51,7 +51,7 @@ from .errors import KeyframeFileError
 from .gimbal import JOINT_NAMES
 from .smooth import SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
-from .validate import check_choice, check_number
+from .validate import check_choice, check_keys, check_number
 
 #: The built-in example: a gentle pan/tilt look-around.
 BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
@@ -285,18 +285,10 @@ def _table(value, name: str, path: Path) -> dict:
     return value
 
 
-def _check_keys(table: dict, name: str, known, path: Path) -> None:
-    for key in table:
-        if key not in known:
-            raise KeyframeFileError(
-                f"{path}: [{name}] unknown key '{key}' (known: {', '.join(known)})"
-            )
-
-
 def _spline_options(table, path: Path) -> dict:
     """The ``[spline]`` table, checked: ``method`` and the keywords for its class."""
     table = _table(table, "spline", path)
-    _check_keys(table, "spline", SPLINE_KEYS, path)
+    check_keys(table, SPLINE_KEYS, error=lambda p: KeyframeFileError(f"{path}: [spline] {p}"))
     if "k" in table:
         check_number(
             "k", table["k"], integer=True, low=1, high=MAX_K, error=_error(path, "[spline] k")
@@ -318,7 +310,7 @@ def _spline_options(table, path: Path) -> dict:
 def _stream_rate(table, path: Path) -> float | None:
     """The ``[stream]`` table, checked: its ``rate_hz`` or None."""
     table = _table(table, "stream", path)
-    _check_keys(table, "stream", STREAM_KEYS, path)
+    check_keys(table, STREAM_KEYS, error=lambda p: KeyframeFileError(f"{path}: [stream] {p}"))
     if "rate_hz" not in table:
         return None
     return check_number(
