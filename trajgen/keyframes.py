@@ -118,6 +118,12 @@ class KeyframeFile:
     #: ``[spline] method``: "smooth" or "blending".
     method: str = DEFAULT_METHOD
 
+    @property
+    def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
+        """The class ``[spline] method`` names, to build the file's spline at other
+        times: ``kf.spline_class(kf.quats, times, **kf.spline_options)``."""
+        return METHODS[self.method]
+
     def spline(self) -> SmoothSpline | BlendingSpline:
         """The file's spline, built on first use and kept.
 
@@ -130,7 +136,7 @@ class KeyframeFile:
         built = self.__dict__.get("_built_spline")
         if built is None:
             try:
-                built = METHODS[self.method](self.quats, self.times, **self.spline_options)
+                built = self.spline_class(self.quats, self.times, **self.spline_options)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
             object.__setattr__(self, "_built_spline", built)  # a cache, not a field

@@ -121,7 +121,7 @@ def excitation_file(args) -> ExcitationFile:
     from trajgen.stream import plan_joint_trajectory
 
     check_output_path("--telemetry", args.telemetry, (".csv",))
-    check_output_path("--json", args.json)
+    check_output_path("--json", args.json, (".json",))
     checked = load_checked(args.file)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal
     center = GimbalKinematics().inverse(kf.quats[:1])[0]

@@ -138,7 +138,7 @@ def _run(args) -> int:
 
     try:
         check_output_path("--plot", args.plot, PLOT_SUFFIXES)
-        check_output_path("--json", args.json)
+        check_output_path("--json", args.json, (".json",))
         checked = load_checked(args.file)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}

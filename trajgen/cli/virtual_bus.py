@@ -85,7 +85,8 @@ def run_virtual_bus(args) -> int:
     except TrajgenError as e:
         return bad_input(e)
     kf, config = checked.keyframes, checked.bus
-    plant = GimbalPlant(checked.gimbal)
+    # Served until stopped and never reported on: no step record kept.
+    plant = GimbalPlant(checked.gimbal, record=False)
     from trajgen.drivers.virtual.bus import VirtualBus
 
     ids = args.ids or config.joints.ids
@@ -112,11 +113,15 @@ def run_virtual_bus(args) -> int:
             if virtual.error is not None:
                 break
     finally:
+        wall_s = virtual.wall_time_s
         virtual.stop()
         for s, handler in previous.items():
             signal.signal(s, handler)
     if virtual.error is not None:
         print(f"trajgen: simulation failed: {virtual.error}", file=sys.stderr)
         return EXIT_FAILED
-    print(f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated", file=sys.stderr)
+    print(
+        f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated in {wall_s:.3f} s",
+        file=sys.stderr,
+    )
     return EXIT_OK
