@@ -119,7 +119,7 @@ def plot_report(report, path) -> Path:
             label="simulated, range within each period",
         )
         ax_t.plot(
-            tc, sim_mean, color="tab:orange", lw=0.8, zorder=3, label="simulated, mean per period"
+            tc, sim_mean, color="tab:orange", lw=0.6, alpha=0.8, label="simulated, mean per period"
         )
         if report.planned_torque_smooth_nm is not None:
             ax_t.plot(
@@ -130,7 +130,7 @@ def plot_report(report, path) -> Path:
                 lw=0.8,
                 label="planned without Coulomb friction",
             )
-        ax_t.plot(traj.t, tau, color="tab:blue", lw=1.2, label="planned")
+        ax_t.plot(traj.t, tau, color="tab:blue", lw=1.4, zorder=3, label="planned")
         steps = reversals(traj.qd[:, j])
         if len(steps):
             ax_t.plot(
@@ -138,6 +138,7 @@ def plot_report(report, path) -> Path:
                 tau[steps],
                 "v",
                 color="tab:red",
+                zorder=4,
                 ms=5,
                 ls="none",
                 label="friction step: the joint starts or reverses, so Coulomb friction "
@@ -177,12 +178,17 @@ def plot_report(report, path) -> Path:
             tc,
             np.clip(sim_use, USE_FLOOR_PCT, top),
             color="tab:orange",
-            lw=0.8,
-            zorder=3,
+            lw=0.6,
+            alpha=0.8,
             label="use: simulated (period mean)",
         )
         ax_u.plot(
-            traj.t, np.clip(use, USE_FLOOR_PCT, top), color="tab:blue", lw=1.2, label="use: planned"
+            traj.t,
+            np.clip(use, USE_FLOOR_PCT, top),
+            color="tab:blue",
+            lw=1.4,
+            zorder=3,
+            label="use: planned",
         )
         ax_u.axhline(100.0, color="r", lw=1)
         ax_u.text(traj.t[0], 100.0, " 100 %: the limit", color="r", va="bottom", fontsize=8)
