@@ -309,10 +309,9 @@ class _Fitter:
     def trajectory(self, times):
         """The planned stream at keyframe ``times``; FitError if the gimbal cannot follow it."""
         from trajgen.gimbal import KinematicsError
-        from trajgen.spline import BlendingSpline
         from trajgen.stream import plan_joint_trajectory
 
-        spline = BlendingSpline(self.source.quats, times, **self.source.spline_options)
+        spline = self.source.spline_class(self.source.quats, times, **self.source.spline_options)
         try:
             return plan_joint_trajectory(spline, self.rate_hz)
         except KinematicsError as e:

@@ -63,7 +63,8 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     thread.start()
     out = tmp_path / "follow.json"
     # The built-in example, with a tracking budget for the servo's lag (45 ms x
-    # speed with default gains) on the quick moves the lines ask for.
+    # speed with default gains) on the quick moves the lines ask for, and room in the
+    # Bus Watchdog for stalls of a busy machine (the stream runs in real time).
     from trajgen import BUILTIN_EXAMPLE
 
     keys = tmp_path / "keys.toml"
@@ -71,10 +72,13 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         BUILTIN_EXAMPLE.read_text().replace(
             "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
         )
+        + "\n[bus]\nwatchdog_s = 0.5\n"
     )
     assert main(["follow", str(keys), "--virtual", "--json", str(out)]) == 0
     thread.join(timeout=5)
-    result = json.loads(out.read_text())["follow"]
+    run = json.loads(out.read_text())
+    assert run["stream"]["fault"] == "" and "torque" in run
+    result = run["follow"]
     assert result["accepted"] == 4 and result["skipped"] == 1
     assert "line 3" in result["skipped_lines"][0]
     assert result["latency_s"]["n"] == 4 and result["latency_s"]["max"] < 0.5

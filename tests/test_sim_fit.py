@@ -13,6 +13,11 @@ from trajgen.sim.check import resolve_source
 
 # Segment 1 is a large pan move, segment 2 a small tilt nudge, segment 3 a medium return.
 KEYS = """\
+[spline]
+# Per-segment tightness needs a local spline: with the global SmoothSpline (the
+# default method) speeding one segment moves its neighbours too.
+method = "blending"
+
 [stream]
 rate_hz = 100
 

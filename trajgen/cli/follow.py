@@ -392,16 +392,8 @@ def follow(args, lines):
                 on_stop="torque_off" if args.torque_off else "hold",
                 goal_bounds_ticks=bounds,
             )
-            reader = threading.Thread(target=follower.read, args=(lines,), daemon=True)
-            # While a change is built on the reader thread, the streaming thread waits for
-            # the GIL up to the switch interval (5 ms by default): keep that a tenth of a period.
-            switch = sys.getswitchinterval()
-            sys.setswitchinterval(min(switch, 0.1 / rate))
-            try:
-                reader.start()
-                streamer.run(follower.frames(start=present), rate_hz=rate)
-            finally:
-                sys.setswitchinterval(switch)
+            threading.Thread(target=follower.read, args=(lines,), daemon=True).start()
+            streamer.run(follower.frames(start=present), rate_hz=rate)
             if follower.fault:
                 print(f"trajgen: stream stopped: {follower.fault}", file=sys.stderr)
                 status = EXIT_FAILED
