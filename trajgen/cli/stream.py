@@ -115,14 +115,6 @@ def register(subparsers) -> None:
         metavar="DEG",
         help="refuse to start when a joint is farther than this from the first frame (default 45)",
     )
-    p.add_argument(
-        "--max-delay",
-        type=positive_float,
-        default=MAX_DELAY_S,
-        metavar="S",
-        help="fail the stream when host stalls have put it this far behind its plan "
-        f"(default {MAX_DELAY_S:g} s; --virtual runs on simulated time and never stalls)",
-    )
     p.set_defaults(func=run_stream)
 
 
@@ -148,6 +140,14 @@ def add_stream_arguments(p) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
     p.add_argument(
         "--torque-off", action="store_true", help="release the servos when the stream stops"
+    )
+    p.add_argument(
+        "--max-delay",
+        type=positive_float,
+        default=MAX_DELAY_S,
+        metavar="S",
+        help="fail the stream when host stalls have put it this far behind its plan "
+        f"(default {MAX_DELAY_S:g} s; stream --virtual runs on simulated time: no stalls)",
     )
     p.add_argument(
         "--virtual",
