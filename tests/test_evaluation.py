@@ -77,12 +77,14 @@ def test_blocks_do_not_change_results(monkeypatch, rng):
 
 @pytest.mark.parametrize("f", [0.0, 0.3, 1.0])
 def test_slerp_weight_branches_agree_at_the_threshold(f):
+    from trajgen.path import run_steps
+
     # The series and the closed form of the slerp weights on both sides of SERIES_BELOW.
     z = np.array([0.5, 0.9, 1.0, 1.1, 2.0]) * D.SERIES_BELOW
     zl = [z, 0.3 * np.ones(5), -0.7 * np.ones(5), 0.2 * np.ones(5)]
     fl = [np.full(5, f), 0.8 * np.ones(5), -1.5 * np.ones(5), 4.0 * np.ones(5)]
-    series = D._slerp_weights_series(zl, fl, 3)
-    closed = D._slerp_weights_closed(zl, fl, 3)
+    series = run_steps(D._slerp_weights_series(zl, fl, 3))
+    closed = run_steps(D._slerp_weights_closed(zl, fl, 3))
     for a, b in zip(series, closed, strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
 

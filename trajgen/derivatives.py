@@ -14,6 +14,7 @@ evaluated only on its own samples.
 
 from __future__ import annotations
 
+from collections.abc import Generator
 from math import comb
 
 import numpy as np
@@ -175,14 +176,17 @@ def _split(small: np.ndarray, fn_small, fn_large, args: list, K: int) -> list:
 
 def _split_steps(small, fn_small, fn_large, args, K):
     """:func:`_split` as a generator of steps (one per branch)."""
-    if small.all():
-        return fn_small(*args, K)
-    if not small.any():
-        return fn_large(*args, K)
+    if small.all() or not small.any():
+        values = (fn_small if small.all() else fn_large)(*args, K)
+        if isinstance(values, Generator):
+            values = yield from values
+        return values
     out = None
     for mask, fn in ((small, fn_small), (~small, fn_large)):
         idx = np.flatnonzero(mask)
         values = fn(*[[x[idx] for x in arg] for arg in args], K)
+        if isinstance(values, Generator):  # a branch with steps of its own
+            values = yield from values
         if out is None:
             out = [np.empty(len(small)) for _ in values]
         for o, v in zip(out, values, strict=True):
@@ -281,16 +285,19 @@ def _complement(f: list) -> list:
 
 
 def _slerp_weights_series(z, f, K):
+    """The weights near zero angle, as series; a generator of steps (see slerp_steps)."""
     phi2 = chain(_series(_PHI2, z[0], K), z)
     sinc = chain(_series(_SINC, phi2[0], K), phi2)
     out = []
     for g in (_complement(f), f):
+        yield
         y = product(product(g, g), phi2)
         out += product(g, quotient(chain(_series(_SINC, y[0], K), y), sinc))
     return out
 
 
 def _slerp_weights_closed(z, f, K):
+    """The weights where the angle is away from 0; a generator of steps (see slerp_steps)."""
     x = z[0]
     d = [2.0 * np.arcsin(0.5 * np.sqrt(x))]  # phi(z) and its z-derivatives, as far as asked
     if K >= 1:
@@ -305,5 +312,6 @@ def _slerp_weights_closed(z, f, K):
     sin_phi = sin(phi)
     out = []
     for g in (_complement(f), f):
+        yield
         out += quotient(sin(product(g, phi)), sin_phi)
     return out

@@ -152,6 +152,7 @@ class OrientationPath:
         """
         max_order = _check_order("max_order", max_order)
         seg, ta = self._segment(_as_times(t).reshape(-1))
+        yield
         q, rates = yield from self._space_rate_steps(ta, seg, max_order)
         return Samples(ta, q, *(rates + [None] * (3 - len(rates))))
 

@@ -265,6 +265,7 @@ class BlendingSpline(OrientationPath):
             return q, []
         # omega = 2 vec(Q' Q*), alpha = 2 vec(Q'' Q*), jerk = 2 vec(Q''' Q* + Q'' Q'*)
         # (the derivatives of 2 vec(Q' Q*); vec(Q' Q'*) = 0).
+        yield
         q_conj = Q[0] * CONJ
         rates = [D.hamilton_vec(Q[n], q_conj) for n in range(1, order + 1)]
         if order >= 3:
