@@ -53,11 +53,14 @@ stream goes on. The path is C^k across every change (k from the file's
 [spline] table) and holds at rest when the keyframes run out. At the end of
 stdin the stream ends once the last keyframe is reached.
 
-Bring-up, safety and --virtual are those of `trajgen stream`; --virtual ends
-with the torque report of what was streamed.
+Bring-up, stop signals, safe stop and report are those of `trajgen stream`;
+bring-up checks the whole range the joint limits allow against the servos'
+installed limits. --virtual streams in real time (the lines do), unlike
+`trajgen stream --virtual`, and ends with the torque report of what was streamed.
 
 exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
-130 interrupted (servos hold their last goal)."""
+128 + the signal number when stopped by SIGINT, SIGTERM or SIGHUP (the servos
+hold their last goal, or are released with --torque-off)."""
 
 
 def register(subparsers) -> None:
