@@ -6,6 +6,7 @@ import os
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -158,3 +159,22 @@ def test_a_frame_the_gimbal_cannot_take_ends_the_stream_at_the_frame_before(foll
     frames = list(follower.frames())
     assert "gimbal lock" in follower.fault
     assert 0.3 < frames[-1].t < 0.8 and len(frames) == len(follower.trajectory())
+
+
+def test_follow_stops_safely_on_sigterm_while_waiting_for_lines():
+    import signal
+    import subprocess
+
+    example = Path(__file__).parents[1] / "examples" / "follow_target.toml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "trajgen", "follow", str(example), "--virtual"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(4.0)  # stdin stays open: the stream holds at rest, waiting for lines
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "trajgen: interrupted" in err and "hold their last goal" in err
