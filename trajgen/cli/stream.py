@@ -125,6 +125,14 @@ def add_stream_arguments(p) -> None:
         "--torque-off", action="store_true", help="release the servos when the stream stops"
     )
     p.add_argument(
+        "--max-delay",
+        type=positive_float,
+        default=MAX_DELAY_S,
+        metavar="S",
+        help="fail the stream when host stalls have put it this far behind its plan "
+        f"(default {MAX_DELAY_S:g} s; stream --virtual runs on simulated time: no stalls)",
+    )
+    p.add_argument(
         "--virtual",
         action="store_true",
         help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
@@ -144,15 +152,6 @@ def add_stream_arguments(p) -> None:
         default=45.0,
         metavar="DEG",
         help="refuse to start when a joint is farther than this from the first frame (default 45)",
-    )
-    p.add_argument(
-        "--max-delay",
-        type=positive_float,
-        default=MAX_DELAY_S,
-        metavar="S",
-        help="fail the stream when host stalls have put it this far behind its plan "
-        f"(default {MAX_DELAY_S:g} s; `trajgen stream --virtual` runs on simulated time "
-        "and never stalls)",
     )
 
 
