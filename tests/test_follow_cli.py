@@ -179,3 +179,17 @@ def test_follow_stops_safely_on_sigterm_while_waiting_for_lines():
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "trajgen: interrupted" in err and "hold their last goal" in err
+
+
+def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, monkeypatch, capsys):
+    import io
+
+    keys = tmp_path / "smooth.toml"
+    keys.write_text(
+        '[spline]\nmethod = "smooth"\n\n[bus]\nwatchdog_s = 0.5\n\n'
+        "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.5\npan = 5.0\n"
+    )
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # no lines: the file's plan, then rest
+    assert main(["follow", str(keys), "--virtual", "--max-delay", "60"]) == 0
+    err = capsys.readouterr().err
+    assert "follow plans with the blending spline" in err and "method = 'smooth'" in err

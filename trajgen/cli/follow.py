@@ -307,7 +307,8 @@ class Follower:
 
 def online_spline(kf) -> OnlineSpline:
     """The plan of a keyframe file as an OnlineSpline: at rest at its first keyframe,
-    extended by the others (the same path as the file's BlendingSpline).
+    extended by the others (the same path as the file's BlendingSpline; a file whose
+    ``[spline] method`` is "smooth" gets the blending spline's defaults).
 
     Raises
     ------
@@ -364,6 +365,12 @@ def follow(args, lines):
     def make_plan(args):
         p = stream_command.plan(args)
         made["follower"] = Follower(online_spline(p.kf), p.rate_hz)
+        if p.kf.method != "blending":
+            print(
+                f"trajgen: note: {p.kf.path}: follow plans with the blending spline (changes "
+                f"are spliced onto it), not the file's [spline] method = {p.kf.method!r}",
+                file=sys.stderr,
+            )
         return p
 
     def bring_up(bus, args, p):
