@@ -6,6 +6,7 @@ import os
 import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -159,3 +160,36 @@ def test_a_frame_the_gimbal_cannot_take_ends_the_stream_at_the_frame_before(foll
     frames = list(follower.frames())
     assert "gimbal lock" in follower.fault
     assert 0.3 < frames[-1].t < 0.8 and len(frames) == len(follower.trajectory())
+
+
+def test_follow_stops_safely_on_sigterm_while_waiting_for_lines():
+    import signal
+    import subprocess
+
+    example = Path(__file__).parents[1] / "examples" / "follow_target.toml"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "trajgen", "follow", str(example), "--virtual"],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    time.sleep(4.0)  # stdin stays open: the stream holds at rest, waiting for lines
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "trajgen: interrupted" in err and "hold their last goal" in err
+
+
+def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, monkeypatch, capsys):
+    import io
+
+    keys = tmp_path / "smooth.toml"
+    keys.write_text(
+        '[spline]\nmethod = "smooth"\n\n[bus]\nwatchdog_s = 0.5\n\n'
+        "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.5\npan = 5.0\n"
+    )
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # no lines: the file's plan, then rest
+    assert main(["follow", str(keys), "--virtual", "--max-delay", "60"]) == 0
+    err = capsys.readouterr().err
+    assert "follow plans with the blending spline" in err and "method = 'smooth'" in err

@@ -76,6 +76,14 @@ def apply_and_check(s, model, mode, quats, times, at, rng):
     left, right = one_sided_jets(before, after, splice, k)
     scale = 1.0 + np.abs(left).max(axis=1, keepdims=True)
     np.testing.assert_allclose(right / scale, left / scale, rtol=0, atol=1e-9)
+    # ... and where a splice hands over to the spline's blends (its first keyframe).
+    piece = after.pieces[-1]
+    if piece.splice is not None:
+        t1 = piece.spline.times[1:2]
+        left = piece.splice._jet(t1, None, k).c[..., 0]
+        right = piece.spline._jet(t1, np.array([min(1, len(piece.spline.times) - 2)]), k)
+        scale = 1.0 + np.abs(left).max(axis=1, keepdims=True)
+        np.testing.assert_allclose(right.c[..., 0] / scale, left / scale, rtol=0, atol=1e-9)
     # ... and through the public API: no jump in derivatives 0..k.
     for order in range(k + 1 if splice - 1e-6 > s.t_start else 0):
         size = 1.0 + np.linalg.norm(s(splice, order))

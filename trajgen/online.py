@@ -16,9 +16,9 @@ optionally with its first segment replaced by a splice:
 - *Extend* with two or more keyframes still ahead: the new piece starts at the
   second-to-last of them and is the rest spline through (the keyframe before it,
   the last two, the new ones). By the locality of the blend (a segment depends
-  on two keyframes either side) this is exactly the spline through all the
-  keyframes; it is C^k where it starts because both sides there equal the same
-  local curve to order k.
+  on two keyframes either side) this is, from there on, exactly what the spline
+  through all the keyframes gives; it is C^k where it starts because both sides
+  there equal the same local curve to order k.
 - *Retarget*, or an extend with one keyframe ahead: a splice at ``s = at``. With
   ``q_a = q(s)``, ``P_j`` the Taylor coefficients at ``s`` of
   ``log(q_old(t) q_a*)`` (orders 0..k+1) and ``R_j`` those at ``T_1`` of
@@ -31,7 +31,7 @@ optionally with its first segment replaced by a splice:
   splices drift), C^k at ``T_1``, and the rest spline's blends after it.
 - From rest (``at`` after the last keyframe, or an extend whose only keyframe
   ahead is closer than the minimum lead): a plain rest spline from the resting
-  orientation, which is C^infinity against a path at rest.
+  orientation; both sides have zero rates up to order k there, so it is C^k.
 
 Changes are safe to make from another thread while a stream evaluates the path:
 a change builds its new piece list aside and swaps it in whole; a streamer that

@@ -14,11 +14,12 @@ import math
 import sys
 import threading
 import time
+from types import SimpleNamespace
 
 import numpy as np
 
 from trajgen.cli import stream as stream_command
-from trajgen.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, bad_input, open_bus
+from trajgen.cli.common import EXIT_FAILED
 from trajgen.errors import KeyframeFileError, KinematicsError
 from trajgen.gimbal import GimbalKinematics
 from trajgen.keyframes import check_keyframes
@@ -52,11 +53,14 @@ stream goes on. The path is C^k across every change (k from the file's
 [spline] table) and holds at rest when the keyframes run out. At the end of
 stdin the stream ends once the last keyframe is reached.
 
-Bring-up, safety and --virtual are those of `trajgen stream`; --virtual ends
-with the torque report of what was streamed.
+Bring-up, stop signals, safe stop and report are those of `trajgen stream`;
+bring-up checks the whole range the joint limits allow against the servos'
+installed limits. --virtual streams in real time (the lines do), unlike
+`trajgen stream --virtual`, and ends with the torque report of what was streamed.
 
 exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
-130 interrupted (servos hold their last goal)."""
+128 + the signal number when stopped by SIGINT, SIGTERM or SIGHUP (the servos
+hold their last goal, or are released with --torque-off)."""
 
 
 def register(subparsers) -> None:
@@ -303,7 +307,8 @@ class Follower:
 
 def online_spline(kf) -> OnlineSpline:
     """The plan of a keyframe file as an OnlineSpline: at rest at its first keyframe,
-    extended by the others (the same path as the file's BlendingSpline).
+    extended by the others (the same path as the file's BlendingSpline; a file whose
+    ``[spline] method`` is "smooth" gets the blending spline's defaults).
 
     Raises
     ------
@@ -327,15 +332,13 @@ def online_spline(kf) -> OnlineSpline:
 
 def run_follow(args) -> int:
     """Run ``trajgen follow`` on the lines of stdin; returns the exit status."""
-    try:
-        return follow(args, sys.stdin)[0]
-    except KeyboardInterrupt:
-        print("trajgen: interrupted: the servos hold their last goal", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    return follow(args, sys.stdin)[0]
 
 
 def follow(args, lines):
-    """``trajgen follow`` with keyframe lines from ``lines``.
+    """``trajgen follow`` with keyframe lines from ``lines``: the stream command's
+    stages (plan, open, bring up, stream, report, under the stop signals) with the
+    file's plan streamed as an :class:`~trajgen.online.OnlineSpline` that the lines change.
 
     Parameters
     ----------
@@ -355,87 +358,57 @@ def follow(args, lines):
     report : TorqueReport or None
         With --virtual, the torque report of what was streamed.
     """
-    from trajgen.drivers.errors import DriverError
-    from trajgen.drivers.streamer import Streamer
+    from trajgen.drivers.clock import WALL_CLOCK
 
-    try:
-        kf, config, joints, rate, trajectory = stream_command._plan(args)
-        spline = online_spline(kf)
-    except (ValueError, TypeError, OSError) as e:  # KeyframeFileError, KinematicsError
-        return bad_input(e), None, None
-    follower = Follower(spline, rate)
-    lines = lines(follower) if callable(lines) else lines
+    made = {}
 
-    virtual = plant = None
-    if args.virtual:
-        try:
-            virtual, plant = stream_command.start_virtual(kf, config, joints, rate, trajectory.q[0])
-        except (ValueError, TypeError) as e:
-            return bad_input(e), None, None
-        port = virtual.port
-    else:
-        port = args.port or config.port
-
-    streamer = None
-    status = EXIT_OK
-    try:
-        try:
-            bus = open_bus(port, args.baud or config.baud)
-        except DriverError as e:
-            return bad_input(e), None, None
-        try:
-            present, bounds = _bring_up(bus, config, joints, follower.kinematics)
-            streamer = Streamer(
-                bus,
-                joints,
-                telemetry=args.telemetry,
-                on_stop="torque_off" if args.torque_off else "hold",
-                goal_bounds_ticks=bounds,
-                max_delay_s=args.max_delay,
+    def make_plan(args):
+        p = stream_command.plan(args)
+        made["follower"] = Follower(online_spline(p.kf), p.rate_hz)
+        if p.kf.method != "blending":
+            print(
+                f"trajgen: note: {p.kf.path}: follow plans with the blending spline (changes "
+                f"are spliced onto it), not the file's [spline] method = {p.kf.method!r}",
+                file=sys.stderr,
             )
-            threading.Thread(target=follower.read, args=(lines,), daemon=True).start()
-            streamer.run(follower.frames(start=present), rate_hz=rate)
-            if follower.fault:
-                print(f"trajgen: stream stopped: {follower.fault}", file=sys.stderr)
-                status = EXIT_FAILED
-        except DriverError as e:
-            print(f"trajgen: stream failed: {e}", file=sys.stderr)
-            status = EXIT_FAILED
-        finally:
-            bus.close()
-            if streamer is not None and streamer.stats is not None:
-                print(streamer.stats.format())
-                for message in streamer.stop_errors:
-                    print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
-    finally:
-        if virtual is not None:
-            virtual.stop()
-            if virtual.error is not None:
-                print(f"trajgen: virtual bus stopped: {virtual.error}", file=sys.stderr)
-    print(follower.format())
-    result = {
-        "stream": None if streamer is None else streamer.stats.to_json_dict(),
-        "follow": follower.summary(),
-    }
-    report = None
-    if plant is not None and status == EXIT_OK:
-        status, report = stream_command.torque_report(plant, follower.trajectory(), args, result)
-    return stream_command.write_json(args, result, status), follower, report
+        return p
 
-
-def _bring_up(bus, config, joints, kinematics):
-    """Check and configure the servos for any goal the joint limits allow; return the
-    present joint angles (rad), whose 2 pi branch the stream starts on, and the
-    lowest / highest goal per servo (ticks, shape (3, 2)) for the streamer's guard."""
-    from types import SimpleNamespace
-
-    from trajgen.drivers.bringup import bring_up
-
-    def envelope(present):
+    def bring_up(bus, args, p):
         # The stream starts where the servos are and may go anywhere the joint limits
         # allow: bring-up checks that range against the servos' installed limits.
-        corners = np.array(kinematics.limits_rad).T  # (2, 3): every goal between
-        return SimpleNamespace(t=np.array([0.0, np.nan, np.nan]), q=np.vstack([present, corners]))
+        corners = np.array(made["follower"].kinematics.limits_rad).T  # (2, 3)
 
-    setup = bring_up(bus, joints, config.models, envelope, watchdog_s=config.watchdog_s)
-    return joints.to_rad(setup.present_ticks), setup.goal_bounds_ticks
+        def envelope(present):
+            return SimpleNamespace(
+                t=np.array([0.0, np.nan, np.nan]), q=np.vstack([present, corners])
+            )
+
+        return stream_command.bring_up_servos(bus, args, p, plan_from=envelope)
+
+    def stream(bus, args, p, setup, outcome):
+        follower = made["follower"]
+        source = lines(follower) if callable(lines) else lines
+        threading.Thread(target=follower.read, args=(source,), daemon=True).start()
+        try:
+            stream_command.stream_plan(
+                bus,
+                args,
+                p,
+                setup,
+                outcome,
+                frames=follower.frames(start=p.joints.to_rad(setup.present_ticks)),
+                clock=WALL_CLOCK,  # the lines arrive in real time, with --virtual too
+            )
+        finally:
+            p.trajectory = follower.trajectory()  # what was streamed, for the report
+            print(follower.format())
+        if follower.fault:
+            outcome.stopped_by = f"a frame the gimbal cannot take: {follower.fault}"
+            outcome.status = EXIT_FAILED
+
+    def extra():
+        return {"follow": made["follower"].summary()} if "follower" in made else {}
+
+    outcome = stream_command.Outcome()
+    status = stream_command.run_stages(args, outcome, (make_plan, bring_up, stream), extra)
+    return status, made.get("follower"), outcome.torque_report

@@ -100,26 +100,12 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_stream_arguments(p)
-    p.add_argument(
-        "--set-limits",
-        type=_limits,
-        action="append",
-        metavar="JOINT=MIN:MAX",
-        help="write this joint's Min/Max Position Limit (joint degrees) during bring-up; "
-        "without it the installed limits are only read, and a plan leaving them is refused",
-    )
-    p.add_argument(
-        "--max-approach",
-        type=positive_float,
-        default=45.0,
-        metavar="DEG",
-        help="refuse to start when a joint is farther than this from the first frame (default 45)",
-    )
     p.set_defaults(func=run_stream)
 
 
 def add_stream_arguments(p) -> None:
-    """The file, bus, rate, output and --virtual options (shared with ``trajgen follow``)."""
+    """The file, bus, rate, output, --virtual and safety options (shared with
+    ``trajgen follow``)."""
     add_file_argument(p)
     p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
     p.add_argument(
@@ -155,6 +141,21 @@ def add_stream_arguments(p) -> None:
         help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
     )
     p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
+    p.add_argument(
+        "--set-limits",
+        type=_limits,
+        action="append",
+        metavar="JOINT=MIN:MAX",
+        help="write this joint's Min/Max Position Limit (joint degrees) during bring-up; "
+        "without it the installed limits are only read, and a plan leaving them is refused",
+    )
+    p.add_argument(
+        "--max-approach",
+        type=positive_float,
+        default=45.0,
+        metavar="DEG",
+        help="refuse to start when a joint is farther than this from the first frame (default 45)",
+    )
 
 
 # -- signals -----------------------------------------------------------------
@@ -242,6 +243,7 @@ class Outcome:
     bring_up: dict | None = None
     streamer: object = None
     stop_errors: list[str] = field(default_factory=list)
+    torque_report: object = None
 
 
 def _plan(args):
@@ -360,21 +362,27 @@ def start_virtual(kf, config, joints, rate, first_q):
     return virtual.start(), plant
 
 
-def bring_up_servos(bus, args, p: Plan):
+def bring_up_servos(bus, args, p: Plan, *, plan_from=None):
     """``drivers.bringup.bring_up``, planning from where the servos are.
 
     Planning with ``start`` = the present joint angles puts pan and roll on the
     2 pi branch nearest to where the servos are, so the move to the first
-    frame never unwinds a turn.
+    frame never unwinds a turn. ``plan_from(present)`` replaces that plan (what
+    bring-up checks against the servos), e.g. the range an online plan may use.
     """
     from trajgen.drivers.bringup import bring_up
     from trajgen.stream import plan_joint_trajectory
+
+    if plan_from is None:
+
+        def plan_from(present):
+            return plan_joint_trajectory(p.kf.spline(), p.rate_hz, start=present)
 
     setup = bring_up(
         bus,
         p.joints,
         p.config.models,
-        lambda present: plan_joint_trajectory(p.kf.spline(), p.rate_hz, start=present),
+        plan_from,
         watchdog_s=p.config.watchdog_s,
         joint_names=JOINTS,
         set_limits=p.set_limits,
@@ -384,10 +392,19 @@ def bring_up_servos(bus, args, p: Plan):
     return setup
 
 
-def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
-    """Stream the brought-up plan (the streamer's statistics go in ``outcome``)."""
+def stream_plan(bus, args, p: Plan, setup, outcome: Outcome, *, frames=None, clock=None) -> None:
+    """Stream the brought-up plan (the streamer's statistics go in ``outcome``).
+
+    ``frames`` (default ``p.trajectory``) is any iterable of joint frames at
+    ``p.rate_hz``; ``clock`` defaults to simulated time with --virtual (lock-step,
+    as fast as the simulation runs), else the wall clock.
+    """
     from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
     from trajgen.drivers.streamer import Streamer
+
+    if clock is None:
+        # Lock-step: simulated time moves with the frames, so do not wait for them.
+        clock = SimulatedClock() if args.virtual else WALL_CLOCK
 
     outcome.streamer = Streamer(
         bus,
@@ -398,11 +415,10 @@ def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
         max_approach_rad=math.radians(args.max_approach),
         goal_bounds_ticks=setup.goal_bounds_ticks,
         max_delay_s=args.max_delay,
-        # Lock-step: simulated time moves with the frames, so do not wait for them.
-        clock=SimulatedClock() if args.virtual else WALL_CLOCK,
+        clock=clock,
     )
     try:
-        outcome.streamer.run(p.trajectory)
+        outcome.streamer.run(p.trajectory if frames is None else frames, rate_hz=p.rate_hz)
     finally:
         outcome.stop_errors += outcome.streamer.stop_errors
 
@@ -427,13 +443,18 @@ def _bring_up_summary(setup) -> dict:
     }
 
 
-def _run(args, signals: _StopSignals, outcome: Outcome):
-    """Open, bring up, stream; returns (plan, plant) for the report, or an int on bad input."""
+def _run(args, signals: _StopSignals, outcome: Outcome, stages=None):
+    """Open, bring up, stream; returns (plan, plant) for the report, or an int on bad input.
+
+    ``stages`` is ``(plan, bring_up_servos, stream_plan)`` or replacements with
+    the same arguments (``trajgen follow`` streams an online plan).
+    """
     from trajgen.drivers.errors import BringUpError, DriverError, Interrupted
     from trajgen.drivers.streamer import safe_stop
 
+    make_plan, bring_up, stream = stages or (plan, bring_up_servos, stream_plan)
     try:
-        p = plan(args)
+        p = make_plan(args)
         port, virtual, plant = open_port(args, p)
     except (ValueError, TypeError, OSError) as e:
         return bad_input(e)
@@ -442,9 +463,9 @@ def _run(args, signals: _StopSignals, outcome: Outcome):
     try:
         with signals.armed():
             bus = open_bus(port, args.baud or p.config.baud)
-            setup = bring_up_servos(bus, args, p)
+            setup = bring_up(bus, args, p)
             outcome.bring_up = _bring_up_summary(setup)
-            stream_plan(bus, args, p, setup, outcome)
+            stream(bus, args, p, setup, outcome)
     except (DriverError, Interrupted) as e:
         if bus is None and not isinstance(e, Interrupted):
             return bad_input(e)  # the port did not open
@@ -468,8 +489,9 @@ def _run(args, signals: _StopSignals, outcome: Outcome):
     return p, plant
 
 
-def report(args, p: Plan, plant, outcome: Outcome) -> int:
-    """Print the statistics and what the servos were left doing; write ``--json``."""
+def report(args, p: Plan, plant, outcome: Outcome, extra: dict | None = None) -> int:
+    """Print the statistics and what the servos were left doing; write ``--json`` (with
+    ``extra`` entries added)."""
     stats = None if outcome.streamer is None else outcome.streamer.stats
     if stats is not None:
         print(stats.format())
@@ -499,9 +521,10 @@ def report(args, p: Plan, plant, outcome: Outcome) -> int:
         "stop_errors": outcome.stop_errors,
         "bring_up": outcome.bring_up,
         "stream": None if stats is None else stats.to_json_dict(),
+        **(extra or {}),
     }
     if plant is not None and outcome.status == EXIT_OK:
-        outcome.status, _ = torque_report(plant, p.trajectory, args, result)
+        outcome.status, outcome.torque_report = torque_report(plant, p.trajectory, args, result)
         result["status"] = outcome.status
     return write_json(args, result, outcome.status)
 
@@ -543,13 +566,18 @@ def write_json(args, result: dict, status: int) -> int:
 
 def run_stream(args) -> int:
     """Run ``trajgen stream``; returns the exit status."""
+    return run_stages(args, Outcome())
+
+
+def run_stages(args, outcome: Outcome, stages=None, extra=None) -> int:
+    """Plan, open, bring up, stream and report under the stop signals; returns the exit
+    status. ``stages`` as for ``_run``; ``extra()`` gives entries for the JSON report."""
     signals = _StopSignals()
-    outcome = Outcome()
     with signals.installed(), _warnings_to_stderr():
-        ran = _run(args, signals, outcome)
+        ran = _run(args, signals, outcome, stages)
         if isinstance(ran, int):
             return ran
-        status = report(args, *ran, outcome)
+        status = report(args, *ran, outcome, extra=None if extra is None else extra())
     if signals.received is not None and not outcome.stopped_by:
         # A signal after the stream ended: everything was done and reported.
         status = 128 + signals.received
