@@ -12,9 +12,10 @@ About every ``poll_s``: a group read of the Bus Watchdog.
 Stalls (the host paused: GC, a busy machine, SIGSTOP): a frame more than
 ``stall_s`` (default half a period) past its deadline is never sent early to
 catch up. The clock of the rest of the stream shifts by its lateness, so it
-goes out now and every later frame keeps its planned spacing: two goals are
-never closer than ``period - stall_s``, and the servos are never asked to
-move faster than the plan, only later. The Bus Watchdog is polled at once
+goes out now and every later frame keeps its planned spacing. Lateness below
+``stall_s`` is jitter: that frame goes out late, the next one on time. So two
+goals are never closer than ``period - stall_s``, no burst ever catches up, and
+after a stall the servos follow the plan later, never faster. The Bus Watchdog is polled at once
 (a stall longer than its period stopped the servos), stalls are counted, and
 the stream fails when the total shift passes ``max_delay_s``.
 
