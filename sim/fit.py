@@ -33,6 +33,7 @@ import numpy as np
 from trajgen.sim.errors import SimError
 from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.validate import check_number
 
 #: Speed-up per sample is searched on this grid, then refined by bisection.
 _S_GRID = np.geomspace(1.0 / 16.0, 16.0, 97)
@@ -215,10 +216,7 @@ def fit_timing(
             f"Expected `source` to be a keyframe file path or KeyframeFile, got "
             f"{type(source).__name__}."
         )
-    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)):
-        raise TypeError(f"Expected `tolerance` to be a number, got {tolerance!r}.")
-    if not 0 < tolerance <= 0.05:
-        raise ValueError(f"Expected `tolerance` in (0, 0.05], got {tolerance!r}.")
+    tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
     if config is None:
         config = gimbal_config_from_tables(source.tables, source.path)
     if limits is None:

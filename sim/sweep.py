@@ -24,6 +24,7 @@ import numpy as np
 
 from trajgen.sim.errors import SimulationError
 from trajgen.sim.model import GimbalConfig, gimbal_mjcf
+from trajgen.validate import check_number
 
 _FAILED_PARTS = {"x envelope": "envelope", "torque limit": "limit", "tracking error": "tracking"}
 
@@ -298,8 +299,7 @@ def run_sweep(
         from trajgen.sim.model import gimbal_config_from_tables
 
         config = gimbal_config_from_tables(source.tables, source.path)
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise ValueError(f"Expected `threads` >= 1, got {threads!r}.")
+    threads = check_number("threads", threads, integer=True, low=1)
     rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
     results: list[VariantResult | None] = [None] * len(sweep)
     by_scale: dict[float, list[int]] = {}

@@ -14,8 +14,11 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    check_output_path,
+    load_checked,
     positive_float,
 )
+from trajgen.errors import TrajgenError
 
 _PROGRESS_AFTER_S = 1.0
 
@@ -88,11 +91,13 @@ def _run(args) -> int:
     from trajgen.sim.fit import fit_timing
 
     try:
-        result = fit_timing(args.file, rate_hz=args.rate, progress=_Progress())
+        check_output_path("--out", args.out)
+        kf = load_checked(args.file).keyframes  # every table, [bus] included
+        result = fit_timing(kf, rate_hz=args.rate, progress=_Progress())
     except SimError as e:
         print(f"trajgen: fit refused: {e}", file=sys.stderr)
         return EXIT_FAILED
-    except (ValueError, TypeError, OSError) as e:
+    except TrajgenError as e:
         return bad_input(e)
     print(result.format())
     header = (
