@@ -5,6 +5,7 @@ status ERR values: 1 result fail, 2 instruction, 4 data range, 5 data length,
 6 data limit, 7 access.
 """
 
+import gc
 import time
 
 import pytest
@@ -75,6 +76,7 @@ def sdk(monkeypatch):
     what the servos answer, on a machine that may be busy; the one test about
     reply time runs with the SDK's own timeout."""
     monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 160)
+    gc.collect()  # late in a long session, a full collection can outlast a reply timeout
     made = []
 
     def make(*args, **kwargs):

@@ -29,7 +29,8 @@ hardware interface, your own scripts. Prints the port path as its first line,
 then serves until SIGINT (Ctrl-C) or SIGTERM.
 
 The servos start at rest at 0 rad (tick 2048) with torque off and their
-factory registers (the file's [bus] ids and models apply). Real time by
+factory registers, but for the position gains of the file's [gimbal.<joint>]
+tables (the file's [bus] ids and models apply). Real time by
 default: the simulation runs on the wall clock whether packets arrive or not.
 --lockstep advances it only with the traffic: one period of the file's
 [stream] rate (200 Hz by default) per packet that writes Goal Position, and
