@@ -4,13 +4,20 @@ Every interpolation method gets the same keyframes and timing and is run through
 the simulated XM430-W350 gimbal (``sim``: <dcmotor> at 12 V, armature 0.045
 kg m^2, 200 Hz zero-order-hold stream with inverse-dynamics feed-forward, 1 ms
 physics). Three motions (a pan sweep with reversals, a raster scan, a seeded
-random look-around), each at a gentle and an aggressive pace.
+random look-around), each at a gentle and an aggressive pace; and 20 seeded
+random look-arounds with uneven keyframe times.
+
+Each case also gets the lower bound on peak torque rate of any rest-to-rest path
+through the same keyframes at the same times (:func:`torque_rate_bound`, a
+linear programme per joint solved with scipy's HiGHS), and every method is
+reported as a ratio to it.
 
 Per method and case: peak planned torque (N m, over the three joints), peak
 planned torque rate (N m/s, without Coulomb friction; a torque jump at a knot
 shows as jump x rate), the largest torque jump across a keyframe (the paper's
 claim, measured directly), max simulated tracking error, path length / sum of
-keyframe distances, and the torque check's verdict. Every run starts from rest
+keyframe distances, speed at the start and the end, and the torque check's
+verdict. Every run starts from rest
 at the first frame, as a gimbal does; methods that start moving (scipy's
 RotationSpline) pay for it in tracking error.
 
@@ -24,20 +31,31 @@ Prints a markdown table to stdout and progress to stderr.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
+from math import factorial
 
 import numpy as np
 
 RATE_HZ = 200.0
 PACES_S = {"gentle": 1.5, "aggressive": 0.5}  # seconds per keyframe
 RANDOM_SEED = 7
+#: The random set: this many look-arounds, keyframe gaps uniform in UNEVEN_GAPS_S.
+RANDOM_CASES = 20
+RANDOM_SET_SEED = 2026
+UNEVEN_GAPS_S = (0.5, 2.5)
+UNEVEN = "uneven"
+#: The joint-space minimax-jerk plan (not an orientation spline): the bound as a plan.
+JOINT_MINIMAX = "joint-space minimax jerk (LP)"
+#: Time step (s) of the grid on which the torque-rate bound is solved.
+BOUND_STEP_S = 0.01
 
 
 def motions() -> dict[str, np.ndarray]:
-    """Keyframes per motion as (N, 3) ``(pan, tilt, roll)`` in degrees."""
+    """Keyframes per named motion as (N, 3) ``(pan, tilt, roll)`` in degrees."""
     sweep = [(0, 0, 0), (60, 0, 0), (-60, 0, 0), (60, 0, 0), (-60, 0, 0), (0, 0, 0)]
     raster = [
         (-40, -20, 0),
@@ -58,6 +76,33 @@ def motions() -> dict[str, np.ndarray]:
     }
 
 
+def random_motions() -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The random set: name -> (angles (N, 3) deg, times (N,) s), uneven gaps."""
+    rng = np.random.default_rng(RANDOM_SET_SEED)
+    out = {}
+    for i in range(RANDOM_CASES):
+        n = int(rng.integers(5, 11))
+        look = rng.uniform([-70, -30, -10], [70, 30, 10], size=(n, 3))
+        look[0] = look[-1] = 0.0
+        times = np.concatenate([[0.0], np.cumsum(rng.uniform(*UNEVEN_GAPS_S, n - 1))])
+        out[f"random {i + 1:02d}"] = (look, np.round(times, 3))
+    return out
+
+
+def keyframes(motion: str, pace: str) -> tuple[np.ndarray, np.ndarray]:
+    """Angles (N, 3) deg and times (N,) s of one case."""
+    if pace == UNEVEN:
+        return random_motions()[motion]
+    angles = motions()[motion]
+    return angles, np.arange(len(angles)) * PACES_S[pace]
+
+
+def cases() -> list[tuple[str, str]]:
+    """Every (motion, pace): the named motions at both paces, then the random set."""
+    named = [(m, p) for m in motions() for p in PACES_S]
+    return named + [(m, UNEVEN) for m in random_motions()]
+
+
 def methods(reparam: str = "rational") -> dict[str, tuple[str, dict]]:
     """Method label -> (class name, keywords); ``reparam`` goes to every BlendingSpline."""
     table = {
@@ -71,6 +116,10 @@ def methods(reparam: str = "rational") -> dict[str, tuple[str, dict]]:
         for local in ("circle", "parabola", "auto"):
             keywords = {"k": k, "local": local, "reparam": reparam}
             table[f"Blending k={k} {local}"] = ("BlendingSpline", keywords)
+    table["SmoothSpline"] = ("SmoothSpline", {})
+    table["SmoothSpline natural"] = ("SmoothSpline", {"boundary": "natural"})
+    table["SmoothSpline minimax knots (LP)"] = ("MinimaxKnotSpline", {})
+    table[JOINT_MINIMAX] = ("", {})
     return table
 
 
@@ -84,6 +133,8 @@ class Result:
     knot_jump_nm: float = float("nan")
     max_tracking_error_rad: float = float("nan")
     path_ratio: float = float("nan")
+    start_speed_rad_s: float = float("nan")
+    end_speed_rad_s: float = float("nan")
     ok: bool = False
     failed: str = ""  # which parts of the check failed: envelope, limit, tracking
     refused: str = ""
@@ -91,11 +142,87 @@ class Result:
 
 def build_path(class_name: str, keywords: dict, quats: np.ndarray, times: np.ndarray):
     """Construct one interpolation method over the keyframes."""
+    import trajgen
     from trajgen import compare
-    from trajgen.spline import BlendingSpline
 
-    cls = BlendingSpline if class_name == "BlendingSpline" else getattr(compare, class_name)
+    if class_name == "MinimaxKnotSpline":
+        cls = _minimax_spline_class()
+    else:
+        cls = getattr(trajgen, class_name, None) or getattr(compare, class_name)
     return cls(quats, times, **keywords)
+
+
+def _minimax_spline_class():
+    """:class:`MinimaxKnotSpline`, built on first use (the class needs trajgen imported)."""
+    from numpy.polynomial import polynomial as P
+
+    from trajgen.smooth import _H, _H_RIGHT, SmoothSpline
+
+    class MinimaxKnotSpline(SmoothSpline):
+        """Experiment: :class:`~trajgen.SmoothSpline` with the knot rates, accelerations and
+        jerks chosen by a linear programme that minimises each tangent-space axis' peak
+        jerk (of the flat curve, sampled 40 times per segment), instead of taking those
+        of the C4 quintic spline (which minimises the integral of squared jerk)."""
+
+        MEAN_WEIGHT = 3.0  # of 0.3, 1 and 3 tried, 3 gave the lowest peaks
+
+        def _knot_rates(self, D, h):
+            from scipy.optimize import linprog
+
+            n = len(D) + 1
+            u = np.linspace(0.0, 1.0, 40)
+            # Third u-derivative of each basis function at the samples: (4, 40).
+            left = np.array([P.polyval(u, P.polyder(c, 3)) for c in _H])
+            right = np.array([P.polyval(u, P.polyder(c, 3)) for c in _H_RIGHT])
+            # Unknowns: v, a at knots 1..n-2, then j at knots 0..n-1; then z.
+            nv = 2 * (n - 2) + n
+            col = {}
+            for i in range(1, n - 1):
+                col[(1, i)], col[(2, i)] = 2 * (i - 1), 2 * (i - 1) + 1
+            for i in range(n):
+                col[(3, i)] = 2 * (n - 2) + i
+            blocks, consts = [], []
+            for i in range(n - 1):
+                block = np.zeros((len(u), nv))
+                for m in (1, 2, 3):  # m = 0: L_0 = 0, R_0 = D_i (the constant term)
+                    scale = h[i] ** (m - 3)
+                    if (m, i) in col:
+                        block[:, col[(m, i)]] += scale * left[m]
+                    if (m, i + 1) in col:
+                        block[:, col[(m, i + 1)]] += scale * right[m]
+                blocks.append(block)
+                consts.append(h[i] ** -3 * right[0])  # times D_i
+            A = np.vstack(blocks)
+            out = np.zeros((3, n, 3))  # (v, a, j) x knot x axis
+            # Minimise z + MEAN_WEIGHT * mean |jerk| subject to |jerk| <= s <= z at the
+            # samples: the mean term picks one of the many minimax solutions (alone,
+            # the peak leaves every other segment free to wander).
+            S = len(A)
+            eye = np.eye(S)
+            A_ub = np.block(
+                [
+                    [A, np.zeros((S, 1)), -eye],
+                    [-A, np.zeros((S, 1)), -eye],
+                    [np.zeros((S, nv)), -np.ones((S, 1)), eye],
+                ]
+            )
+            cost = np.concatenate([np.zeros(nv), [1.0], np.full(S, self.MEAN_WEIGHT / S)])
+            for axis in range(3):
+                c = np.concatenate([k * D[i, axis] for i, k in enumerate(consts)])
+                res = linprog(
+                    cost,
+                    A_ub=A_ub,
+                    b_ub=np.concatenate([-c, c, np.zeros(S)]),
+                    bounds=[(None, None)] * nv + [(0, None)] * (S + 1),
+                    method="highs",
+                )
+                if res.status != 0:
+                    raise RuntimeError(f"minimax knot LP failed: {res.message}")
+                for (m, i), k in col.items():
+                    out[m - 1, i, axis] = res.x[k]
+            return out[0], out[1], out[2]
+
+    return MinimaxKnotSpline
 
 
 def path_ratio(path, quats: np.ndarray) -> float:
@@ -134,16 +261,247 @@ def knot_torque_jump(path) -> float:
     return float(np.abs(tau[len(knots) :] - tau[: len(knots)]).max())
 
 
+@dataclass(frozen=True)
+class Bound:
+    """Lower bound on the peak torque rate of any rest-to-rest path through one case's keys."""
+
+    motion: str
+    pace: str
+    rate_nm_s: float  # max over the joints
+    joint_rates_nm_s: tuple[float, float, float]
+    inertia_kg_m2: tuple[float, float, float]
+
+
+def joint_inertia(joint_angles: np.ndarray) -> np.ndarray:
+    """Smallest diagonal of the joint-space inertia matrix (armature included) over the
+    given poses (M, 3) rad, per joint (3,) kg m^2."""
+    import mujoco
+
+    from trajgen.sim.model import build_model
+
+    model = build_model()
+    data = mujoco.MjData(model)
+    full = np.zeros((model.nv, model.nv))
+    out = np.full(model.nv, np.inf)
+    for q in joint_angles:
+        data.qpos[:] = q
+        mujoco.mj_forward(model, data)
+        mujoco.mj_fullM(model, data, full)
+        out = np.minimum(out, np.diag(full))
+    return out
+
+
+def _third_divided_difference(x: np.ndarray, nodes: list[int]) -> dict[int, float]:
+    """``f[x_a, x_b, x_c, x_d]`` as coefficients of the node values ``f(x_k)``.
+
+    A repeated node (only at the ends) stands for zero derivative data there: the
+    path is at rest, ``f' = f'' = 0``.
+    """
+
+    def combine(p: dict, q: dict, scale: float) -> dict:
+        out = {k: -v * scale for k, v in p.items()}
+        for k, v in q.items():
+            out[k] = out.get(k, 0.0) + v * scale
+        return out
+
+    level = [{k: 1.0} for k in nodes]
+    ends = list(zip(nodes, nodes, strict=True))
+    for _ in range(3):
+        nxt, nxt_ends = [], []
+        for (p, (a, _)), (q, (_, d)) in zip(
+            zip(level[:-1], ends[:-1], strict=True),
+            zip(level[1:], ends[1:], strict=True),
+            strict=True,
+        ):
+            span = x[d] - x[a]
+            nxt.append({} if span == 0 else combine(p, q, 1.0 / span))
+            nxt_ends.append((a, d))
+        level, ends = nxt, nxt_ends
+    return level[0]
+
+
+def min_peak_jerk(theta: np.ndarray, times: np.ndarray, step: float = BOUND_STEP_S) -> float:
+    """Smallest peak |third derivative| (rad/s^3) of any function through ``theta`` (N,)
+    at ``times`` (N,) with zero first and second derivatives at both ends.
+
+    A relaxation, hence a true lower bound: for any such function every third
+    divided difference over four consecutive grid nodes (each end taken three
+    times, with its zero derivative data) equals ``f'''(xi) / 6`` somewhere between
+    them, so ``w = 6 f[...]`` obeys ``|w| <= max |f'''|``. The linear programme
+    minimises ``z`` subject to ``|w_l| <= z`` on a grid (every segment split into
+    equal steps of at most ``step`` s) and to the node values, which the ``w``
+    determine by forward substitution, passing through the keyframes and meeting
+    the end's derivative data. The unknowns are the ``w`` themselves, not the node
+    values: third differences of node values cancel to far below the solver's
+    tolerances. scipy's HiGHS (interior point) solves it.
+    """
+    from scipy.linalg import solve_banded
+    from scipy.optimize import linprog
+    from scipy.sparse import csr_matrix, hstack, identity, vstack
+
+    x, keys = _grid(times, step)
+    K = len(x)
+    hermite = [0, 0, *range(K), K - 1, K - 1]
+    windows = [_third_divided_difference(x, hermite[w : w + 4]) for w in range(K + 1)]
+    # Windows 0..K-2 each bring in one new node (1..K-1): B (theta - theta_0) = w, with
+    # B lower triangular of bandwidth 3; node k is g_k . w with B^T g_k = e_k.
+    upper = np.zeros((4, K - 1))  # B^T in solve_banded's upper form
+    for w in range(K - 1):
+        for k, v in windows[w].items():
+            if k >= 1:
+                upper[3 + (k - 1) - w, w] = 6 * v  # B[w, k-1] -> B^T[k-1, w]
+    needed = sorted({*keys[1:], K - 3, K - 2, K - 1} - {0})
+    unit = np.zeros((K - 1, len(needed)))
+    unit[np.array(needed) - 1, np.arange(len(needed))] = 1.0
+    G = dict(zip(needed, solve_banded((0, 3), upper, unit).T, strict=True))
+    rows, rhs = [], []
+    for i, k in enumerate(keys[1:], 1):
+        rows.append(np.append(G[k], [0.0, 0.0])), rhs.append(theta[i] - theta[0])
+    for w in (K - 1, K):  # the end windows: w_l = 6 f[...] of the nodes the w made
+        row = sum(6 * v * G[k] for k, v in windows[w].items() if k >= 1)
+        end = np.zeros(2)
+        end[w - (K - 1)] = -1.0
+        rows.append(np.append(row, end)), rhs.append(0.0)
+    n = K + 1
+    A_eq = hstack([csr_matrix(np.array(rows)), csr_matrix((len(rows), 1))])
+    eye = identity(n, format="csr")
+    minus_z = csr_matrix(-np.ones((n, 1)))
+    A_ub = vstack([hstack([eye, minus_z]), hstack([-eye, minus_z])])
+    cost = np.zeros(n + 1)
+    cost[n] = 1.0
+    res = linprog(
+        cost,
+        A_ub=A_ub,
+        b_ub=np.zeros(2 * n),
+        A_eq=A_eq,
+        b_eq=rhs,
+        bounds=[(None, None)] * n + [(0, None)],
+        method="highs-ipm",  # simplex is 5-15x slower on these dense rows
+    )
+    if res.status != 0:
+        raise RuntimeError(f"torque-rate bound LP failed: {res.message}")
+    return float(res.x[n])
+
+
+def torque_rate_bound(motion: str, pace: str) -> Bound:
+    """Lower bound on the peak torque rate (N m/s) of any rest-to-rest path through the
+    case's keyframes at its times, for the decoupled constant-inertia model
+    ``tau_j = I_j theta_j''`` (see :func:`min_peak_jerk`; what it ignores is in the README).
+
+    The joints' keyframe angles are the gimbal's inverse kinematics (the branch the
+    plans use); ``I_j`` is the smallest diagonal inertia over the keyframe poses.
+    """
+    from trajgen import quat
+    from trajgen.gimbal import GimbalKinematics
+
+    angles, times = keyframes(motion, pace)
+    theta = GimbalKinematics().inverse(quat.from_pan_tilt_roll(*np.radians(angles).T))
+    inertia = joint_inertia(theta)
+    rates = tuple(float(inertia[j] * min_peak_jerk(theta[:, j], times)) for j in range(3))
+    return Bound(motion, pace, max(rates), rates, tuple(float(i) for i in inertia))
+
+
+def _grid(times: np.ndarray, step: float) -> tuple[np.ndarray, list[int]]:
+    """Grid nodes (K,): every segment split into equal steps of at most ``step`` s;
+    and the node index of each keyframe."""
+    nodes, keys = [float(times[0])], [0]
+    for i in range(len(times) - 1):
+        m = max(1, int(np.ceil((times[i + 1] - times[i]) / step - 1e-9)))
+        nodes.extend(times[i] + (times[i + 1] - times[i]) * np.arange(1, m + 1) / m)
+        keys.append(len(nodes) - 1)
+    return np.array(nodes), keys
+
+
+def _ramps(t: np.ndarray, x: np.ndarray, power: int) -> np.ndarray:
+    """``((t - x_l)_+^p - (t - x_{l+1})_+^p) / p!``, shape (len(t), len(x) - 1): the
+    response at ``t`` of a unit jerk on grid interval l, integrated 3 - p times."""
+    d = np.maximum(t[:, None] - x[None, :], 0.0) ** power
+    return (d[:, :-1] - d[:, 1:]) / factorial(power)
+
+
+def joint_minimax_path(theta: np.ndarray, times: np.ndarray, t: np.ndarray, step: float):
+    """The rest-to-rest joint path through ``theta`` at ``times`` with the smallest peak
+    |jerk| among paths with piecewise-constant jerk on the grid: an achievable peak,
+    so an upper bound on the least one (:func:`min_peak_jerk` is the lower bound).
+
+    Returns its peak |jerk| (rad/s^3) and its angle, rate and acceleration at ``t``.
+    """
+    from scipy.optimize import linprog
+    from scipy.sparse import csr_matrix, hstack, identity, vstack
+
+    x, keys = _grid(times, step)
+    end = x[-1:]
+    rows = [_ramps(x[keys[1:]], x, 3), _ramps(end, x, 2), _ramps(end, x, 1)]
+    rhs = np.concatenate([theta[1:] - theta[0], [0.0, 0.0]])
+    n = len(x) - 1
+    A_eq = hstack([csr_matrix(np.vstack(rows)), csr_matrix((len(rhs), 1))])
+    eye = identity(n, format="csr")
+    minus_z = csr_matrix(-np.ones((n, 1)))
+    res = linprog(
+        np.append(np.zeros(n), 1.0),
+        A_ub=vstack([hstack([eye, minus_z]), hstack([-eye, minus_z])]),
+        b_ub=np.zeros(2 * n),
+        A_eq=A_eq,
+        b_eq=rhs,
+        bounds=[(None, None)] * n + [(0, None)],
+        method="highs-ipm",
+    )
+    if res.status != 0:
+        raise RuntimeError(f"joint minimax LP failed: {res.message}")
+    jerk = res.x[:n]
+    return (
+        float(np.abs(jerk).max()),
+        theta[0] + _ramps(t, x, 3) @ jerk,
+        _ramps(t, x, 2) @ jerk,
+        _ramps(t, x, 1) @ jerk,
+    )
+
+
+def run_joint_minimax(motion: str, pace: str) -> Result:
+    """The joint-space minimax-jerk path (:func:`joint_minimax_path`) through one case, run
+    through the same check as the splines: what the bound looks like as a plan."""
+    from trajgen import quat
+    from trajgen.gimbal import GimbalKinematics, forward
+    from trajgen.sampling import sample_times
+    from trajgen.sim.check import check_torque
+    from trajgen.stream import JointTrajectory
+
+    angles, times = keyframes(motion, pace)
+    quats = quat.from_pan_tilt_roll(*np.radians(angles).T)
+    theta = GimbalKinematics().inverse(quats)
+    t = sample_times(times[0], times[-1], RATE_HZ)
+    parts = [joint_minimax_path(theta[:, j], times, t, BOUND_STEP_S)[1:] for j in range(3)]
+    q, qd, qdd = (np.stack([p[i] for p in parts], axis=1) for i in range(3))
+    report = check_torque(JointTrajectory(t, q, qd, qdd, RATE_HZ))
+    joints = report.joints.values()
+    orientation = forward(q)
+    length = float(quat.distance(orientation[:-1], orientation[1:]).sum())
+    return Result(
+        motion,
+        pace,
+        JOINT_MINIMAX,
+        peak_torque_nm=max(j.peak_planned_torque_nm for j in joints),
+        peak_torque_rate_nm_s=max(j.peak_torque_rate_nm_s for j in joints),
+        max_tracking_error_rad=max(j.max_tracking_error_rad for j in joints),
+        path_ratio=length / float(quat.distance(quats[:-1], quats[1:]).sum()),
+        start_speed_rad_s=float(np.linalg.norm(qd[0])),
+        end_speed_rad_s=float(np.linalg.norm(qd[-1])),
+        ok=report.ok,
+        failed=", ".join(_failed_parts(report.reasons)),
+    )
+
+
 def run_case(motion: str, pace: str, method: str, reparam: str = "rational") -> Result:
     """Plan, simulate and measure one method on one case; planning refusals are recorded."""
+    if method == JOINT_MINIMAX:
+        return run_joint_minimax(motion, pace)
     from trajgen import quat
     from trajgen.sim.check import check_torque
     from trajgen.sim.errors import SimError
     from trajgen.stream import plan_joint_trajectory
 
-    angles = np.radians(motions()[motion])
-    quats = quat.from_pan_tilt_roll(*angles.T)
-    times = np.arange(len(quats)) * PACES_S[pace]
+    angles, times = keyframes(motion, pace)
+    quats = quat.from_pan_tilt_roll(*np.radians(angles).T)
     class_name, keywords = methods(reparam)[method]
     try:
         path = build_path(class_name, keywords, quats, times)
@@ -152,6 +510,7 @@ def run_case(motion: str, pace: str, method: str, reparam: str = "rational") -> 
     except (ValueError, SimError) as e:
         return Result(motion, pace, method, refused=f"{type(e).__name__}: {e}".splitlines()[0])
     joints = report.joints.values()
+    ends = np.linalg.norm(path.evaluate([path.t_start, path.t_end], max_order=1).omega, axis=1)
     return Result(
         motion,
         pace,
@@ -161,6 +520,8 @@ def run_case(motion: str, pace: str, method: str, reparam: str = "rational") -> 
         knot_jump_nm=knot_torque_jump(path),
         max_tracking_error_rad=max(j.max_tracking_error_rad for j in joints),
         path_ratio=path_ratio(path, quats),
+        start_speed_rad_s=float(ends[0]),
+        end_speed_rad_s=float(ends[1]),
         ok=report.ok,
         failed=", ".join(_failed_parts(report.reasons)),
     )
@@ -175,73 +536,272 @@ def _num(value: float, digits: int) -> str:
     return f"{value:.{digits}f}" if abs(value) < 1e4 else f"{value:.2e}"
 
 
-def markdown(results: list[Result]) -> str:
-    """One markdown table per case, methods as rows."""
+#: The default method for offline plans (keyframe files), as the README's race chose it.
+DEFAULT = "SmoothSpline"
+#: A start or end speed below this (rad/s) counts as starting / stopping at rest.
+AT_REST_RAD_S = 1e-6
+
+
+def at_rest(r: Result) -> bool:
+    """The method started and stopped still on this case (measured, not declared)."""
+    return not r.refused and max(r.start_speed_rad_s, r.end_speed_rad_s) < AT_REST_RAD_S
+
+
+def _by_case(results: list[Result]) -> dict[tuple[str, str], list[Result]]:
+    out: dict[tuple[str, str], list[Result]] = {}
+    for r in results:
+        out.setdefault((r.motion, r.pace), []).append(r)
+    return out
+
+
+def _case_title(motion: str, pace: str, times: np.ndarray) -> str:
+    if pace == UNEVEN:
+        return f"{motion} ({len(times)} keyframes, uneven gaps, {times[-1]:.2f} s)"
+    return f"{motion}, {pace} ({PACES_S[pace]:g} s per keyframe)"
+
+
+def markdown(results: list[Result], bounds: dict[tuple[str, str], Bound]) -> str:
+    """One table per named case, a summary of the random set, and the default's goals."""
     out = []
-    for motion in motions():
-        for pace, seconds in PACES_S.items():
-            out.append(f"\n### {motion}, {pace} ({seconds:g} s per keyframe)\n")
+    by_case = _by_case(results)
+    for motion, pace in cases():
+        if pace == UNEVEN:
+            continue
+        bound = bounds[(motion, pace)]
+        out.append(f"\n### {_case_title(motion, pace, keyframes(motion, pace)[1])}\n")
+        out.append(
+            f"Lower bound on the peak torque rate of any rest-to-rest path: "
+            f"**{bound.rate_nm_s:.3f} N m/s** (pan / tilt / roll "
+            + " / ".join(f"{x:.3f}" for x in bound.joint_rates_nm_s)
+            + ").\n"
+        )
+        out.append(
+            "| method | peak torque (N m) | peak torque rate (N m/s) | rate / bound "
+            "| torque jump at knots (N m) | max tracking error (deg) "
+            "| path / keyframe distance | start / end speed (rad/s) | check |"
+        )
+        out.append("|---|---:|---:|---:|---:|---:|---:|---:|---|")
+        for r in by_case[(motion, pace)]:
+            if r.refused:
+                out.append(f"| {r.method} | - | - | - | - | - | - | - | refused: {r.refused} |")
+                continue
             out.append(
-                "| method | peak torque (N m) | peak torque rate (N m/s) "
-                "| torque jump at knots (N m) "
-                "| max tracking error (deg) | path / keyframe distance | check |"
+                f"| {r.method} | {_num(r.peak_torque_nm, 3)} "
+                f"| {_num(r.peak_torque_rate_nm_s, 3)} "
+                f"| {_num(r.peak_torque_rate_nm_s / bound.rate_nm_s, 2)} "
+                f"| {_num(r.knot_jump_nm, 3)} "
+                f"| {np.degrees(r.max_tracking_error_rad):.2f} | {r.path_ratio:.3f} "
+                f"| {r.start_speed_rad_s:.2f} / {r.end_speed_rad_s:.2f} "
+                f"| {'ok' if r.ok else 'FAIL: ' + r.failed} |"
             )
-            out.append("|---|---:|---:|---:|---:|---:|---|")
-            for r in results:
-                if (r.motion, r.pace) != (motion, pace):
-                    continue
-                if r.refused:
-                    out.append(f"| {r.method} | - | - | - | - | - | refused: {r.refused} |")
-                    continue
-                out.append(
-                    f"| {r.method} | {_num(r.peak_torque_nm, 3)} "
-                    f"| {_num(r.peak_torque_rate_nm_s, 2)} | {_num(r.knot_jump_nm, 3)} "
-                    f"| {np.degrees(r.max_tracking_error_rad):.2f} | {r.path_ratio:.3f} "
-                    f"| {'ok' if r.ok else 'FAIL: ' + r.failed} |"
-                )
+    out.append(random_set_summary(results, bounds))
+    out.append(random_set_cases(results, bounds))
+    out.append(goals(results, bounds))
     return "\n".join(out)
 
 
-def plot(results: list[Result], path: str) -> None:
-    """Bars per method: peak torque, peak torque rate, tracking error; one column per case."""
+def random_set_summary(results: list[Result], bounds: dict[tuple[str, str], Bound]) -> str:
+    """Per method over the random set: ratio to the bound, wins, torque against the best."""
+    by_case = {c: rs for c, rs in _by_case(results).items() if c[1] == UNEVEN}
+    out = [
+        f"\n### {len(by_case)} random look-arounds, uneven keyframe gaps "
+        f"({UNEVEN_GAPS_S[0]:g}-{UNEVEN_GAPS_S[1]:g} s), seed {RANDOM_SET_SEED}\n",
+        "Bounds (N m/s): " + ", ".join(f"{bounds[c].rate_nm_s:.3f}" for c in by_case) + ".\n",
+        "Medians and worst cases over the set. *lowest rate*: cases where the method "
+        "had the lowest peak torque rate of the methods that started and stopped at "
+        "rest; *torque / best*: its peak torque over the lowest of those methods'.\n",
+        "| method | rate / bound, median (max) | lowest rate | torque / best, median (max) "
+        "| path / keyframe distance, median | max start / end speed (rad/s) "
+        "| max tracking error (deg) | checks failed | refused |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    names = list(dict.fromkeys(r.method for rs in by_case.values() for r in rs))
+    for name in names:
+        ratio, torque, path, speed, error, wins, failed, refused = [], [], [], [], [], 0, 0, 0
+        for case, rs in by_case.items():
+            r = next(x for x in rs if x.method == name)
+            if r.refused:
+                refused += 1
+                continue
+            rest = [x for x in rs if at_rest(x)]
+            ratio.append(r.peak_torque_rate_nm_s / bounds[case].rate_nm_s)
+            torque.append(r.peak_torque_nm / min(x.peak_torque_nm for x in rest))
+            path.append(r.path_ratio)
+            speed.append(max(r.start_speed_rad_s, r.end_speed_rad_s))
+            error.append(np.degrees(r.max_tracking_error_rad))
+            wins += at_rest(r) and r is min(rest, key=lambda x: x.peak_torque_rate_nm_s)
+            failed += not r.ok
+        if not ratio:
+            out.append(f"| {name} | - | - | - | - | - | - | - | {refused} |")
+            continue
+        out.append(
+            f"| {name} | {np.median(ratio):.2f} ({max(ratio):.2f}) | {wins} "
+            f"| {np.median(torque):.2f} ({max(torque):.2f}) | {np.median(path):.3f} "
+            f"| {max(speed):.2f} | {max(error):.2f} | {failed} | {refused} |"
+        )
+    return "\n".join(out)
+
+
+#: Methods whose rate / bound the random set's per-case table shows.
+PER_CASE = (
+    "ScipyRotationSpline",
+    "Blending k=2 auto",
+    "Blending k=3 auto",
+    "SmoothSpline",
+    "SmoothSpline minimax knots (LP)",
+    JOINT_MINIMAX,
+)
+
+
+def random_set_cases(results: list[Result], bounds: dict[tuple[str, str], Bound]) -> str:
+    """Per random case: the bound and a few methods' rate / bound (peak torque, N m)."""
+    by_key = {(r.motion, r.pace, r.method): r for r in results}
+    out = [
+        "\nPer case: peak torque rate / bound (peak torque, N m); - = refused.\n",
+        "| case | bound (N m/s) | " + " | ".join(PER_CASE) + " |",
+        "|---|---:|" + "---:|" * len(PER_CASE),
+    ]
+    for motion, pace in cases():
+        if pace != UNEVEN:
+            continue
+        bound = bounds[(motion, pace)].rate_nm_s
+        cells = []
+        for name in PER_CASE:
+            r = by_key[(motion, pace, name)]
+            cells.append(
+                "-"
+                if r.refused
+                else f"{r.peak_torque_rate_nm_s / bound:.2f} ({r.peak_torque_nm:.3f})"
+            )
+        out.append(f"| {motion} | {bound:.3f} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def goals(results: list[Result], bounds: dict[tuple[str, str], Bound]) -> str:
+    """Did the default meet the race's goals on every case? Counts, then one line per miss.
+
+    The default is compared with the other orientation splines that started and
+    stopped at rest; the joint-space minimax plan is the bound made a plan, and is
+    counted apart.
+    """
+    misses, counts, n = [], [0, 0, 0, 0], 0
+    for case, rs in _by_case(results).items():
+        n += 1
+        rest = [r for r in rs if at_rest(r) and r.method != JOINT_MINIMAX]
+        mine = next((r for r in rest if r.method == DEFAULT), None)
+        if mine is None:
+            misses.append(f"- {case[0]}, {case[1]}: {DEFAULT} did not run from rest to rest")
+            continue
+        best_rate = min(rest, key=lambda r: r.peak_torque_rate_nm_s)
+        best_torque = min(r.peak_torque_nm for r in rest)
+        ratio = mine.peak_torque_rate_nm_s / bounds[case].rate_nm_s
+        joint = next(r for r in rs if r.method == JOINT_MINIMAX)
+        met = [
+            best_rate is mine,
+            ratio <= 1.5,
+            mine.peak_torque_nm <= 1.1 * best_torque,
+            mine.peak_torque_rate_nm_s <= joint.peak_torque_rate_nm_s,
+        ]
+        counts = [c + m for c, m in zip(counts, met, strict=True)]
+        where = f"- {case[0]}, {case[1]}:"
+        if not met[0]:
+            misses.append(
+                f"{where} lowest rate is {best_rate.method}'s "
+                f"{best_rate.peak_torque_rate_nm_s:.3f} N m/s, not {mine.peak_torque_rate_nm_s:.3f}"
+            )
+        if not met[1]:
+            misses.append(f"{where} rate / bound {ratio:.2f} > 1.5")
+        if not met[2]:
+            misses.append(
+                f"{where} peak torque {mine.peak_torque_nm:.3f} N m > 1.1 x the best "
+                f"rest-to-rest spline's {best_torque:.3f}"
+            )
+    head = (
+        f"\n### Goals for the default ({DEFAULT}) on all {n} cases\n\n"
+        f"- lowest peak torque rate of the rest-to-rest orientation splines: {counts[0]} of {n}\n"
+        f"- within 1.5x of the bound: {counts[1]} of {n}\n"
+        f"- peak torque within 10% of the best rest-to-rest spline: {counts[2]} of {n}\n"
+        f"- peak torque rate at or below the joint-space minimax plan's: {counts[3]} of {n}\n"
+    )
+    return head + ("\nMisses:\n\n" + "\n".join(misses) if misses else "\nAll met.")
+
+
+def plot(results: list[Result], bounds: dict[tuple[str, str], Bound], path: str) -> None:
+    """Bars per method for the named cases (torque, rate with the bound, tracking error),
+    and the random set's ratios to the bound as box plots."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.ticker
 
-    cases = [(m, p) for m in motions() for p in PACES_S]
+    named = [(m, p) for m, p in cases() if p != UNEVEN]
     names = list(methods())
     metrics = [
         ("peak torque (N m)", lambda r: r.peak_torque_nm),
         ("peak torque rate (N m/s)", lambda r: r.peak_torque_rate_nm_s),
         ("max tracking error (deg)", lambda r: np.degrees(r.max_tracking_error_rad)),
     ]
-    fig, axes = plt.subplots(len(metrics), len(cases), figsize=(22, 11), sharey=True)
+    fig = plt.figure(figsize=(22, 16))
+    grid = fig.add_gridspec(len(metrics) + 1, len(named), height_ratios=[1, 1, 1, 0.9])
     by_key = {(r.motion, r.pace, r.method): r for r in results}
     y = np.arange(len(names))
-    for col, (motion, pace) in enumerate(cases):
+    for col, (motion, pace) in enumerate(named):
         for row, (label, value) in enumerate(metrics):
-            ax = axes[row, col]
+            ax = fig.add_subplot(grid[row, col])
             values = np.array([value(by_key[(motion, pace, n)]) for n in names])
-            colors = ["tab:red" if not by_key[(motion, pace, n)].ok else "tab:blue" for n in names]
+            colors = [
+                "tab:green"
+                if n == DEFAULT
+                else "tab:red"
+                if not by_key[(motion, pace, n)].ok
+                else "tab:blue"
+                for n in names
+            ]
             ax.barh(y, np.nan_to_num(values, nan=0.0), color=colors)
             ax.set_xscale("log")
             ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
             low = np.nanmin(values) if np.isfinite(values).any() else 1.0
-            for i in np.flatnonzero(np.isnan(values)):
-                ax.text(low, y[i], " refused", va="center", fontsize=7, color="gray")
+            if row == 1:
+                low = min(low, bounds[(motion, pace)].rate_nm_s)
+                ax.axvline(bounds[(motion, pace)].rate_nm_s, color="k", ls="--", lw=1)
+            ax.set_xlim(left=low / 2)  # bars on a log axis start at its left edge
+            for i, v in enumerate(values):
+                label = " refused" if np.isnan(v) else f" {v:.3g}"
+                ax.text(low / 2 if np.isnan(v) else v, y[i], label, va="center", fontsize=6)
             if row == 0:
                 ax.set_title(f"{motion}, {pace}", fontsize=10)
             if col == 0:
                 ax.set_ylabel(label)
-    axes[0, 0].set_yticks(y, names, fontsize=8)
-    for row in range(len(metrics)):
-        axes[row, 0].set_yticks(y, names, fontsize=8)
-        axes[row, 0].invert_yaxis()
-    fig.suptitle("torque race (red: fails the torque check; missing: method refused the keys)")
+                ax.set_yticks(y, names, fontsize=8)
+            else:
+                ax.set_yticks(y, [])
+            ax.invert_yaxis()
+    ax = fig.add_subplot(grid[len(metrics), :])
+    randoms = [c for c in cases() if c[1] == UNEVEN]
+    data, labels = [], []
+    for n in names:
+        ratios = [
+            by_key[(m, p, n)].peak_torque_rate_nm_s / bounds[(m, p)].rate_nm_s
+            for m, p in randoms
+            if not by_key[(m, p, n)].refused
+        ]
+        if ratios:
+            data.append(ratios)
+            labels.append(n)
+    ax.boxplot(data, tick_labels=labels, whis=(0, 100))
+    ax.axhline(1.0, color="k", ls="--", lw=1)
+    ax.axhline(1.5, color="tab:green", ls=":", lw=1)
+    ax.set_yscale("log")
+    ax.set_ylabel("peak torque rate / bound")
+    ax.set_title(f"{len(randoms)} random look-arounds, uneven gaps (whiskers: min-max)")
+    ax.tick_params(axis="x", labelrotation=30, labelsize=8)
+    fig.suptitle(
+        "torque race (green: the default; red: fails the torque check; missing: refused; "
+        "dashed: lower bound on the peak torque rate of any rest-to-rest path)"
+    )
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
@@ -256,24 +816,30 @@ def main(argv=None) -> int:
         help="BlendingSpline time-to-angle map on circles (default: the spline's, rational)",
     )
     args = parser.parse_args(argv)
-    cases = [(m, p, n, args.reparam) for m in motions() for p in PACES_S for n in methods()]
+    runs = [(m, p, n, args.reparam) for m, p in cases() for n in methods()]
     start = time.monotonic()
     results = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        for i, result in enumerate(pool.map(run_case, *zip(*cases, strict=True)), 1):
+        pending = pool.map(torque_rate_bound, *zip(*cases(), strict=True))
+        for i, result in enumerate(pool.map(run_case, *zip(*runs, strict=True)), 1):
             results.append(result)
             print(
-                f"\r[{i}/{len(cases)}] {time.monotonic() - start:5.1f} s  "
+                f"\r[{i}/{len(runs)}] {time.monotonic() - start:5.1f} s  "
                 f"{result.motion}, {result.pace}: {result.method:<24}",
                 end="",
                 file=sys.stderr,
                 flush=True,
             )
+        bounds = {(b.motion, b.pace): b for b in pending}
     print(file=sys.stderr)
-    print(f"BlendingSpline reparam = {args.reparam!r}; {RATE_HZ:g} Hz stream; XM430-W350 x 3")
-    print(markdown(results))
+    print(
+        f"BlendingSpline reparam = {args.reparam!r}; {RATE_HZ:g} Hz stream; XM430-W350 x 3; "
+        f"bound grid {BOUND_STEP_S * 1e3:g} ms; {time.monotonic() - start:.0f} s on 2 cores, "
+        "load (1, 5, 15 min) " + " ".join(f"{x:.2f}" for x in os.getloadavg())
+    )
+    print(markdown(results, bounds))
     if args.plot:
-        plot(results, args.plot)
+        plot(results, bounds, args.plot)
         print(f"\nplot: {args.plot}", file=sys.stderr)
     return 0
 

@@ -33,6 +33,7 @@ from trajgen.drivers.control_table import (
 from trajgen.drivers.errors import CommError, ServoError
 from trajgen.drivers.protocol import ALERT_BIT, StatusError
 from trajgen.drivers.units import to_signed, to_unsigned
+from trajgen.validate import check_number
 
 DEFAULT_BAUD = 1_000_000
 # The SDK's fixed assumption, used where the port has no latency timer to read.
@@ -161,10 +162,8 @@ class ServoBus:
         retries: int = 2,
         latency_ms: float | None = None,
     ) -> None:
-        if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
-            raise ValueError(f"Expected `baud` to be a positive int, got {baud!r}.")
-        if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
-            raise ValueError(f"Expected `retries` to be an int >= 0, got {retries!r}.")
+        baud = check_number("baud", baud, integer=True, low=1)
+        retries = check_number("retries", retries, integer=True, low=0)
         self.port_name = port
         self.baud = baud
         self.retries = retries

@@ -3,8 +3,9 @@
 Addresses and sizes come from the model files that ship with
 ``dynamixel-sdk`` (``dynamixel_easy_sdk.control_table.ControlTable``), which
 transcribe the ROBOTIS e-Manual control tables; they are read on first use.
-What those files lack is stated here (current unit, factory defaults used by
-the virtual bus, baud rates), with the e-Manual X-series pages as the source;
+What those files lack is stated here (current unit, baud rates, and the access,
+initial value and range of each register, which the virtual servo enforces),
+with the e-Manual X-series pages as the source;
 the ratings and Model Numbers come from ``trajgen.servo_ratings``, the table the
 simulator reads too.
 """

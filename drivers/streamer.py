@@ -1,7 +1,8 @@
 """Streaming a joint trajectory to the servos at a fixed rate.
 
-Each frame's deadline is absolute: ``start + (frame.t - first.t)`` on
-``time.monotonic``, so a late frame does not push the later ones (no drift).
+Each frame's deadline is absolute: ``start + (frame.t - first.t)`` on the
+stream's clock (``time.monotonic`` by default), so a late frame does not push
+the later ones (no drift).
 Per frame: one Sync Write of Goal Position. Every ``telemetry_every`` frames:
 one group read of present current, velocity and position (Fast Sync Read, or
 Sync Read where the servos do not answer it), whose ERR bytes reveal a
@@ -14,7 +15,6 @@ stays on disk.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from itertools import chain
@@ -24,11 +24,13 @@ from typing import Literal
 import numpy as np
 
 from trajgen.drivers.bus import ServoBus
-from trajgen.drivers.clock import sleep_until
+from trajgen.drivers.clock import WALL_CLOCK
 from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import CommError, DriverError, WatchdogTripped
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import JointMap
+from trajgen.gimbal import JOINT_NAMES
+from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 
@@ -181,6 +183,10 @@ class Streamer:
         frame (rad/s).
     fast_read : bool, optional
         Try Fast Sync Read first (falls back to Sync Read if it gets no answer).
+    clock : object with ``now()`` and ``sleep_until(deadline_s)``, optional
+        What the deadlines run on: the host's monotonic clock, or a
+        ``drivers.clock.SimulatedClock`` against a lock-step virtual bus (the
+        stream then runs as fast as the simulation allows).
 
     Attributes
     ----------
@@ -201,23 +207,20 @@ class Streamer:
         joints: JointMap,
         *,
         telemetry: str | Path | None = None,
-        joint_names: Iterable[str] = ("pan", "tilt", "roll"),
+        joint_names: Iterable[str] = JOINT_NAMES,
         telemetry_every: int = 1,
         poll_s: float = 0.05,
         on_stop: Literal["hold", "torque_off"] = "hold",
         approach_speed_rad_s: float = 0.5,
         fast_read: bool = True,
+        clock=WALL_CLOCK,
     ) -> None:
-        if isinstance(telemetry_every, bool) or not isinstance(telemetry_every, int):
-            raise TypeError(f"Expected `telemetry_every` to be an int, got {telemetry_every!r}.")
-        if telemetry_every < 1:
-            raise ValueError(f"Expected `telemetry_every` >= 1, got {telemetry_every}.")
-        if on_stop not in ("hold", "torque_off"):
-            raise ValueError(f"Expected `on_stop` 'hold' or 'torque_off', got {on_stop!r}.")
-        if not poll_s > 0:
-            raise ValueError(f"Expected `poll_s` > 0, got {poll_s}.")
-        if not approach_speed_rad_s > 0:
-            raise ValueError(f"Expected `approach_speed_rad_s` > 0, got {approach_speed_rad_s}.")
+        telemetry_every = check_number("telemetry_every", telemetry_every, integer=True, low=1)
+        check_choice("on_stop", on_stop, ("hold", "torque_off"))
+        poll_s = check_number("poll_s", poll_s, low=0.0, low_open=True)
+        approach_speed_rad_s = check_number(
+            "approach_speed_rad_s", approach_speed_rad_s, low=0.0, low_open=True
+        )
         self.bus = bus
         self.joints = joints
         self.telemetry_path = telemetry
@@ -227,6 +230,7 @@ class Streamer:
         self.on_stop = on_stop
         self.approach_speed_rad_s = approach_speed_rad_s
         self.fast_read = fast_read
+        self.clock = clock
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []
 
@@ -341,14 +345,14 @@ class Streamer:
         ids = self.joints.ids
         period = 1.0 / self.stats.rate_hz
         poll_every = max(1, round(self.poll_s * self.stats.rate_hz))
-        start = time.monotonic() + period
+        start = self.clock.now() + period
         t_first = None
         nan = np.full(len(ids), math.nan)
         for k, (t, q) in enumerate(frames):
             t_first = t if t_first is None else t_first
             deadline = start + (t - t_first)
-            sleep_until(deadline)
-            sent = time.monotonic()
+            self.clock.sleep_until(deadline)
+            sent = self.clock.now()
             ticks = self.joints.to_ticks(q)
             self.bus.sync_write(Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True)))
             self._frame_no += 1

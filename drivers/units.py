@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trajgen.validate import check_number
+
 TICKS_PER_REV = 4096
 ZERO_TICK = 2048
 RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
@@ -87,11 +89,10 @@ class JointMap:
     def __post_init__(self) -> None:
         for name in ("ids", "directions", "zeros"):
             value = getattr(self, name)
-            if not isinstance(value, Sequence) or not all(
-                isinstance(v, int) and not isinstance(v, bool) for v in value
-            ):
+            if not isinstance(value, Sequence):
                 raise TypeError(f"Expected `{name}` to be a sequence of int, got {value!r}.")
-            object.__setattr__(self, name, tuple(value))
+            ints = tuple(check_number(f"{name}[{i}]", v, integer=True) for i, v in enumerate(value))
+            object.__setattr__(self, name, ints)
         n = len(self.ids)
         if n == 0 or len(self.directions) != n or len(self.zeros) != n:
             raise ValueError(

@@ -13,9 +13,16 @@ from trajgen.sim.check import (
 )
 from trajgen.sim.dynamics import inverse_dynamics
 from trajgen.sim.errors import SimError, SimulationError, TorqueLimitExceeded
+from trajgen.sim.firmware import PositionLoop, UnsupportedServoSetting
 from trajgen.sim.fit import FitError, FitResult, SegmentFit, fit_timing
 from trajgen.sim.limits import JointLimits, check_limits
-from trajgen.sim.model import GimbalConfig, build_model, gimbal_config_from_tables, gimbal_mjcf
+from trajgen.sim.model import (
+    GimbalConfig,
+    JointParams,
+    build_model,
+    gimbal_config_from_tables,
+    gimbal_mjcf,
+)
 from trajgen.sim.plant import GimbalPlant
 from trajgen.sim.run import SimRecord, simulate
 from trajgen.sim.servos import SERVOS, ServoModel, servo_by_name
@@ -27,7 +34,9 @@ __all__ = [
     "GimbalConfig",
     "GimbalPlant",
     "JointLimits",
+    "JointParams",
     "JointReport",
+    "PositionLoop",
     "SegmentFit",
     "ServoModel",
     "SimError",
@@ -35,6 +44,7 @@ __all__ = [
     "SimulationError",
     "TorqueLimitExceeded",
     "TorqueReport",
+    "UnsupportedServoSetting",
     "assert_torque_ok",
     "build_model",
     "build_report",

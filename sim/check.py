@@ -5,15 +5,18 @@ Two parts, both per joint:
 (a) Plan: the torque the plan needs (``mj_inverse`` on the planned ``q, qd, qdd``)
     must stay within ``torque_margin * tau_max(qd)``, where
     ``tau_max(w) = tau_stall (1 - |w| / w0)`` at 12 V.
-(b) Simulation: the stream is played to the simulated servos (zero-order hold,
-    1 ms physics); no step may reach the servo's torque limit (the 12 V drive,
-    or the stall-torque clamp when braking), and the joints must
-    stay within ``max_tracking_error_rad`` of the planned path.
+(b) Simulation: the stream is played to the simulated servos (goal positions
+    in whole ticks, zero-order hold, 1 ms physics, the firmware's position loop
+    with the configured gains); no step may reach the servo's torque limit (the
+    12 V drive, or the stall-torque clamp when braking), and the joints must
+    stay within ``max_tracking_error_rad`` of the planned path. With default
+    gains (P 800) an X-series servo lags a moving goal by about speed x 45 ms
+    (``lag_time_s``), so the default 0.05 rad budget holds up to about
+    1.1 rad/s; raise the P gain (on the servos and in ``[gimbal.<joint>]``),
+    slow the motion, or widen the budget.
 
 The verdict ``ok`` needs all three. The simulated torque's own margin against
-``torque_margin x envelope`` is reported but does not decide the verdict: the
-setpoint steps of a zero-order hold add brief torque spikes a real servo's
-current loop absorbs.
+``torque_margin x envelope`` is reported but does not decide the verdict.
 """
 
 from __future__ import annotations
@@ -25,11 +28,10 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from trajgen.keyframes import DEFAULT_RATE_HZ
 from trajgen.sim.errors import TorqueLimitExceeded
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate
-
-DEFAULT_RATE_HZ = 200.0
 
 
 @dataclass(frozen=True)
@@ -151,10 +153,15 @@ class TorqueReport:
         ]
         for j in self.joints.values():
             lines.append(
-                f"{j.name:<6}{j.servo:<12}{j.peak_planned_torque_nm:8.3f}{j.peak_torque_nm:8.3f}"
-                f"{j.peak_torque_rate_nm_s:9.2f}{j.rms_torque_nm:8.3f}"
-                f"{j.worst_planned_margin_nm:9.3f}{j.peak_speed_rad_s:8.2f}"
-                f"{math.degrees(j.max_tracking_error_rad):8.2f}{j.steps_at_limit:8d}"
+                f"{j.name:<6}{j.servo:<12}"
+                + _cell(j.peak_planned_torque_nm, 8, 3)
+                + _cell(j.peak_torque_nm, 8, 3)
+                + _cell(j.peak_torque_rate_nm_s, 9, 2)
+                + _cell(j.rms_torque_nm, 8, 3)
+                + _cell(j.worst_planned_margin_nm, 9, 3)
+                + _cell(j.peak_speed_rad_s, 8, 2)
+                + _cell(math.degrees(j.max_tracking_error_rad), 8, 2)
+                + _cell(j.steps_at_limit, 8, 0)
             )
         lines.append(
             "plan/sim: peak |torque|; rate: peak planned torque rate; margin: worst "
@@ -162,6 +169,78 @@ class TorqueReport:
         )
         lines.extend(f"  - {r}" for r in self.reasons)
         return "\n".join(lines)
+
+
+def _cell(value: float, width: int, decimals: int) -> str:
+    """``value`` right-aligned in ``width`` characters, at least one of them a space.
+
+    Fixed decimals while they fit; otherwise 3 significant digits
+    (``1.23e+09``), so that columns never run together whatever the figures.
+    """
+    text = f"{value:.{decimals}f}"
+    if len(text) >= width:
+        text = f"{value:.3g}"
+    return f" {text:>{width - 1}}"
+
+
+def _envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j) -> str:
+    """Why sample ``worst`` of joint ``j`` leaves ``margin`` x the envelope."""
+    w_worst = abs(qd_plan[worst, j])
+    if w_worst >= servo.no_load_speed_rad_s:
+        return (
+            f"{name}: planned speed {w_worst:.2f} rad/s exceeds the {servo.name}'s no-load "
+            f"speed {servo.no_load_speed_rad_s:.2f} rad/s (no torque left) at t = "
+            f"{t[worst]:.3f} s"
+        )
+    return (
+        f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
+        f"{w_worst:.2f} rad/s exceeds {margin:g} x envelope "
+        f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
+    )
+
+
+def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
+    """Part (a) alone: why the plan leaves ``torque_margin x`` the envelope (empty if not).
+
+    Parameters
+    ----------
+    trajectory : JointTrajectory
+    config : GimbalConfig
+
+    Returns
+    -------
+    tuple of str
+        One reason per joint that leaves it, as in :class:`TorqueReport`.
+    """
+    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.model import build_model
+
+    check_trajectory(trajectory)
+    tau = inverse_dynamics(build_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
+    t = np.asarray(trajectory.t, dtype=float)
+    qd = np.asarray(trajectory.qd, dtype=float)
+    reasons = []
+    for j, name in enumerate(JOINT_NAMES):
+        servo = config.servos[j]
+        plan_margin = config.torque_margin * servo.tau_max(qd[:, j]) - np.abs(tau[:, j])
+        worst = int(np.argmin(plan_margin))
+        if plan_margin[worst] < 0:
+            reasons.append(
+                _envelope_reason(name, servo, config.torque_margin, tau, qd, t, worst, j)
+            )
+    return tuple(reasons)
+
+
+def lag_time_s(config: GimbalConfig, joint: int) -> float:
+    """How far (s) joint ``joint``'s servo lags a goal moving at constant speed.
+
+    The firmware loop's torque ``kp e`` balances the motor's back-EMF and the
+    joint's viscous damping at speed ``w``: ``e = w (K^2 / R + damping) / kp``
+    (Coulomb friction adds a constant ``frictionloss / kp``). 45 ms for an
+    XM430-W350 at P 800.
+    """
+    kp, _, kd, _ = config.loop(joint).mujoco_controller(config.servos[joint])
+    return (kd + config.joints[joint].damping) / kp
 
 
 def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
@@ -202,11 +281,7 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         reasons = []
         worst = int(np.argmin(plan_margin))
         if plan_margin[worst] < 0:
-            reasons.append(
-                f"{name}: planned torque {abs(tau_plan[worst, j]):.3f} N m at "
-                f"{abs(qd_plan[worst, j]):.2f} rad/s exceeds {margin:g} x envelope "
-                f"({margin * servo.tau_max(qd_plan[worst, j]):.3f} N m) at t = {t[worst]:.3f} s"
-            )
+            reasons.append(_envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j))
         if at_limit:
             first = record.t[np.argmax(record.at_limit[:, j])]
             reasons.append(
@@ -217,7 +292,9 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         if error[k] > config.max_tracking_error_rad:
             reasons.append(
                 f"{name}: tracking error {error[k]:.3f} rad > "
-                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s"
+                f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s "
+                f"(P gain {config.joints[j].position_p_gain} lags "
+                f"{1e3 * lag_time_s(config, j):.0f} ms x speed)"
             )
         joints[name] = JointReport(
             name=name,
@@ -370,6 +447,7 @@ def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> To
     TorqueLimitExceeded
         When it fails; the message lists the reasons, ``.report`` has the rest.
     """
+    __tracebackhide__ = True  # pytest shows the caller's line, not this helper
     report = check_torque(source, rate_hz=rate_hz, config=config)
     if not report.ok:
         raise TorqueLimitExceeded(report)

@@ -18,8 +18,13 @@ class TorqueLimitExceeded(SimError):
     ----------
     report : sim.check.TorqueReport
         The full report; ``report.reasons`` says which joint failed and why.
+
+    The message has one reason per line, for pytest's failure summary.
     """
 
     def __init__(self, report):
         self.report = report
-        super().__init__("torque check failed: " + "; ".join(report.reasons))
+        super().__init__(
+            f"torque check failed ({len(report.reasons)} reasons):\n"
+            + "\n".join(f"  - {r}" for r in report.reasons)
+        )

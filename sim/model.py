@@ -14,36 +14,103 @@ box of ``payload_kg``. Each joint's reflected rotor inertia (``armature``, about
 0.045 kg m^2 for an XM430) dwarfs the links (below 1e-3 kg m^2 about any axis).
 
 Each joint is driven by a ``<dcmotor>`` at 12 V (``nominal = "12 stall no_load"``,
-so the compiler derives the motor constant and resistance from the ratings) with
-a torque-space PD controller on position and velocity setpoints plus a torque
-feed-forward (``input="pos vel ff"``). The controller's drive voltage is clamped
-at 12 V, which makes the delivered torque obey the torque-speed envelope
-``tau <= tau_stall (1 - |w| / w0)`` exactly. Braking against the motion, where a
-voltage-limited motor could exceed its stall torque, the torque is clamped at
-the stall torque (``saturation``), standing in for the servo's current limit.
+so the compiler derives the motor constant and resistance from the ratings)
+whose on-board controller is the servo firmware's position loop on the goal
+position alone (``input="pos"``, gains from the Position P/I/D Gain registers,
+drive capped at the PWM Limit; see ``sim.firmware``). At full drive the
+delivered torque obeys the torque-speed envelope ``tau <= tau_stall (1 - |w| / w0)``
+exactly. Braking against the motion, where a voltage-limited motor could exceed
+its stall torque, the torque is clamped at the stall torque (``saturation``),
+standing in for the servo's current limit.
+
+Each joint's ``armature``, ``frictionloss``, ``damping`` and P gain default to
+its servo's (``sim.servos``) and can be set per joint (:class:`JointParams`,
+the keyframe file's ``[gimbal.pan]`` etc.), e.g. to values fitted by
+``trajgen identify``.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+from trajgen.errors import KeyframeFileError
+from trajgen.gimbal import JOINT_NAMES
+from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
+from trajgen.validate import check_number, check_numbers
 
-JOINT_NAMES = ("pan", "tilt", "roll")
 GIMBAL_TABLE_KEYS = (
     "servo",
     "payload_kg",
     "payload_offset_m",
     "torque_margin",
     "max_tracking_error_rad",
+    "p_divisor",
+    *JOINT_NAMES,
 )
+#: Keys of a ``[gimbal.<joint>]`` table.
+JOINT_TABLE_KEYS = ("armature", "frictionloss", "damping", "position_p_gain")
 
 _PAN_HEIGHT_M = 0.05  # pan horn above the base plate
 _TILT_HEIGHT_M = 0.07  # tilt (and roll) axis above the pan horn
 _BRACKET_KG = 0.025
 _CAMERA_SIZE_M = (0.06, 0.04, 0.04)
+
+
+@dataclass(frozen=True)
+class JointParams:
+    """One joint's physical parameters and position-loop gains.
+
+    Parameters
+    ----------
+    armature : float
+        Reflected rotor inertia (kg m^2), > 0.
+    frictionloss : float
+        Coulomb friction (N m), >= 0.
+    damping : float
+        Viscous friction (N m s/rad), >= 0, besides the motor's back-EMF.
+    position_p_gain, position_i_gain, position_d_gain : int
+        Position P / I / D Gain registers (register units, as on the servo), 0..16383.
+
+    Raises
+    ------
+    TypeError, ValueError
+        If a field has the wrong type or is out of range.
+    """
+
+    armature: float
+    frictionloss: float
+    damping: float
+    position_p_gain: int
+    position_i_gain: int = 0
+    position_d_gain: int = 0
+
+    def __post_init__(self):
+        for name, bounds in _JOINT_BOUNDS.items():
+            object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
+
+    @classmethod
+    def of(cls, servo: ServoModel, **overrides) -> JointParams:
+        """The servo's defaults (``sim.servos``) with ``overrides`` applied."""
+        params = cls(
+            armature=servo.armature,
+            frictionloss=servo.frictionloss,
+            damping=servo.damping,
+            position_p_gain=servo.position_p_gain,
+            position_i_gain=servo.position_i_gain,
+            position_d_gain=servo.position_d_gain,
+        )
+        return replace(params, **overrides)
+
+
+#: Ranges of JointParams' fields, shared by the class and the [gimbal.<joint>] tables.
+_JOINT_BOUNDS = {
+    "armature": {"low": 0.0, "low_open": True},
+    "frictionloss": {"low": 0.0},
+    "damping": {"low": 0.0},
+    **{f"position_{g}_gain": {"low": 0, "high": 16383, "integer": True} for g in ("p", "i", "d")},
+}
 
 
 @dataclass(frozen=True)
@@ -65,11 +132,17 @@ class GimbalConfig:
         (0, 1]. Default 0.8.
     max_tracking_error_rad : float
         Largest simulated deviation from the planned path (rad) that passes.
-        Default 0.05 (about 3 degrees): a stream that the servo follows within
-        its zero-order-hold lag (speed x one period, 0.01 rad at 2 rad/s and
-        200 Hz) passes; a servo falling behind at its voltage limit does not.
+        Default 0.05 (about 3 degrees). With default gains (P 800) an X-series
+        servo lags a moving goal by about speed x 45 ms, so this holds up to
+        about 1.1 rad/s (``sim.check.lag_time_s``).
     timestep_s : float
         Physics time step (s), in (0, 0.001]. Default 0.001.
+    joints : tuple of 3 JointParams or dict, optional
+        Per-joint parameters (pan, tilt, roll); a dict gives overrides of the
+        servo's defaults (``JointParams.of``). Default: each servo's defaults.
+    p_divisor : float
+        ``KP = P / p_divisor`` in the firmware loop: 128 per the e-Manual (BAM
+        measured 256 on an XL330; see ``sim.firmware``).
 
     Raises
     ------
@@ -85,6 +158,8 @@ class GimbalConfig:
     torque_margin: float = 0.8
     max_tracking_error_rad: float = 0.05
     timestep_s: float = 0.001
+    joints: tuple | None = None
+    p_divisor: float = P_DIVISOR
 
     def __post_init__(self):
         servos = self.servos
@@ -96,28 +171,45 @@ class GimbalConfig:
             )
         resolved = tuple(s if isinstance(s, ServoModel) else servo_by_name(s) for s in servos)
         object.__setattr__(self, "servos", resolved)
-        offset = self.payload_offset_m
-        if not isinstance(offset, (tuple, list)) or len(offset) != 3:
-            raise ValueError(f"Expected `payload_offset_m` to have 3 entries, got {offset!r}.")
-        for value in offset:
-            _check_number("payload_offset_m", value)
-        object.__setattr__(self, "payload_offset_m", tuple(float(v) for v in offset))
-        _check_number("payload_kg", self.payload_kg, low=0.0)
-        _check_number("torque_margin", self.torque_margin, low=0.0, high=1.0, open_low=True)
-        _check_number("max_tracking_error_rad", self.max_tracking_error_rad, low=0.0, open_low=True)
-        _check_number("timestep_s", self.timestep_s, low=0.0, high=0.001, open_low=True)
+        for name, bounds in _FIELD_BOUNDS.items():
+            object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
+        offset = check_numbers("payload_offset_m", self.payload_offset_m, 3)
+        object.__setattr__(self, "payload_offset_m", offset)
+        joints = ({},) * 3 if self.joints is None else self.joints
+        if not isinstance(joints, (tuple, list)) or len(joints) != 3:
+            raise ValueError(
+                f"Expected `joints` to hold 3 entries (pan, tilt, roll), got {joints!r}."
+            )
+        resolved = []
+        for servo, joint in zip(self.servos, joints, strict=True):
+            if isinstance(joint, dict):
+                joint = JointParams.of(servo, **joint)
+            elif not isinstance(joint, JointParams):
+                raise TypeError(
+                    f"Expected `joints` entries to be JointParams or dicts, got {joint!r}."
+                )
+            resolved.append(joint)
+        object.__setattr__(self, "joints", tuple(resolved))
+
+    def loop(self, joint: int) -> PositionLoop:
+        """Joint ``joint``'s position loop with its configured gains (full PWM)."""
+        params = self.joints[joint]
+        return PositionLoop(
+            params.position_p_gain,
+            params.position_i_gain,
+            params.position_d_gain,
+            p_divisor=self.p_divisor,
+        )
 
 
-def _check_number(name, value, *, low=None, high=None, open_low=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise TypeError(f"Expected `{name}` to be a number, got {value!r}.")
-    if not math.isfinite(value):
-        raise ValueError(f"Expected `{name}` to be finite, got {value!r}.")
-    if low is not None and (value < low or (open_low and value == low)):
-        op = ">" if open_low else ">="
-        raise ValueError(f"Expected `{name}` {op} {low}, got {value!r}.")
-    if high is not None and value > high:
-        raise ValueError(f"Expected `{name}` <= {high}, got {value!r}.")
+#: Ranges of GimbalConfig's number fields, shared by the class and the [gimbal] table.
+_FIELD_BOUNDS = {
+    "payload_kg": {"low": 0.0},
+    "torque_margin": {"low": 0.0, "high": 1.0, "low_open": True},
+    "max_tracking_error_rad": {"low": 0.0, "low_open": True},
+    "timestep_s": {"low": 0.0, "high": 0.001, "low_open": True},
+    "p_divisor": {"low": 0.0, "low_open": True},
+}
 
 
 def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
@@ -126,7 +218,10 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
     Keys (all optional): ``servo`` (a model name for every joint, or a table
     ``{pan = "...", tilt = "...", roll = "..."}`` where missing joints take the
     default XM430-W350), ``payload_kg``, ``payload_offset_m`` (3 numbers),
-    ``torque_margin``, ``max_tracking_error_rad``.
+    ``torque_margin``, ``max_tracking_error_rad``, ``p_divisor``, and per-joint
+    tables ``[gimbal.pan]``, ``[gimbal.tilt]``, ``[gimbal.roll]`` with
+    ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping`` (N m s/rad) and
+    ``position_p_gain`` (register units), overriding the servo's defaults.
 
     Parameters
     ----------
@@ -154,28 +249,37 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
         known = ", ".join(GIMBAL_TABLE_KEYS)
         raise _file_error(path, f"[gimbal] unknown key '{unknown[0]}' (known: {known})")
     kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
-    for key in ("payload_kg", "torque_margin", "max_tracking_error_rad"):
+    kwargs["joints"] = tuple(_joint_from_table(table.get(j, {}), j, path) for j in JOINT_NAMES)
+    for key in ("payload_kg", "torque_margin", "max_tracking_error_rad", "p_divisor"):
         if key in table:
-            value = table[key]
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise _file_error(path, f"[gimbal] {key}: expected a number, got {value!r}")
-            kwargs[key] = float(value)
+            error = _field_error(path, key)
+            kwargs[key] = check_number(key, table[key], error=error, **_FIELD_BOUNDS[key])
     if "payload_offset_m" in table:
-        value = table["payload_offset_m"]
-        if (
-            not isinstance(value, list)
-            or len(value) != 3
-            or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)
-        ):
-            raise _file_error(path, f"[gimbal] payload_offset_m: expected 3 numbers, got {value!r}")
-        kwargs["payload_offset_m"] = tuple(float(v) for v in value)
-    try:
-        return GimbalConfig(**kwargs)
-    except (TypeError, ValueError) as e:
-        # GimbalConfig says "Expected `payload_kg` >= 0.0, got -1.0."; restate it
-        # in the file's terms: "[gimbal] payload_kg: expected >= 0.0, got -1.0".
-        key, _, rest = str(e).removeprefix("Expected `").partition("` ")
-        raise _file_error(path, f"[gimbal] {key}: expected {rest.rstrip('.')}") from e
+        error = _field_error(path, "payload_offset_m")
+        kwargs["payload_offset_m"] = check_numbers(
+            "payload_offset_m", table["payload_offset_m"], 3, error=error
+        )
+    return GimbalConfig(**kwargs)
+
+
+def _joint_from_table(value, joint: str, path) -> dict:
+    """The overrides of a ``[gimbal.<joint>]`` table, checked."""
+    where = f"[gimbal.{joint}]"
+    if not isinstance(value, dict):
+        raise _file_error(path, f"{where}: expected a table, got {value!r}")
+    unknown = sorted(set(value) - set(JOINT_TABLE_KEYS))
+    if unknown:
+        known = ", ".join(JOINT_TABLE_KEYS)
+        raise _file_error(path, f"{where} unknown key '{unknown[0]}' (known: {known})")
+    return {
+        key: check_number(
+            key,
+            v,
+            error=lambda problem, key=key: _file_error(path, f"{where} {key}: {problem}"),
+            **_JOINT_BOUNDS[key],
+        )
+        for key, v in value.items()
+    }
 
 
 def _servos_from_table(value, path) -> tuple[ServoModel, ServoModel, ServoModel]:
@@ -207,9 +311,11 @@ def _servo_or_error(name, key, path) -> ServoModel:
 
 
 def _file_error(path, message: str):
-    from trajgen.keyframes import KeyframeFileError
-
     return KeyframeFileError(f"{Path(path)}: {message}")
+
+
+def _field_error(path, key: str):
+    return lambda problem: _file_error(path, f"[gimbal] {key}: {problem}")
 
 
 def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
@@ -217,7 +323,8 @@ def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
 
     Bodies ``pan_link``, ``tilt_link``, ``roll_link``; hinge joints and
     ``<dcmotor>`` actuators named ``pan``, ``tilt``, ``roll`` (actuator groups
-    0, 1, 2, so each can be switched off with ``opt.disableactuator``); site
+    0, 1, 2, so each can be switched off with ``opt.disableactuator``) and
+    their torque sensors (``<actuatorfrc>``, for ``mujoco.rollout``); site
     ``camera`` at the roll link's origin; every geom is contact-free.
     """
     config = GimbalConfig() if config is None else config
@@ -240,17 +347,19 @@ def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
     )
 
     def joint(name, axis, servo):
+        p = config.joints[JOINT_NAMES.index(name)]
         return (
-            f'<joint name="{name}" type="hinge" axis="{axis}" armature="{servo.armature!r}" '
-            f'damping="{servo.damping!r}" frictionloss="{servo.frictionloss!r}"/>'
+            f'<joint name="{name}" type="hinge" axis="{axis}" armature="{p.armature!r}" '
+            f'damping="{p.damping!r}" frictionloss="{p.frictionloss!r}"/>'
         )
 
     def motor(name, group, servo):
+        kp, ki, kd, vmax = config.loop(group).mujoco_controller(servo)
         return (
-            f'<dcmotor name="{name}" joint="{name}" group="{group}" input="pos vel ff" '
+            f'<dcmotor name="{name}" joint="{name}" group="{group}" input="pos" '
             f'nominal="{SUPPLY_VOLTAGE_V!r} {servo.stall_torque_nm!r} '
             f'{servo.no_load_speed_rad_s!r}" '
-            f'controller="{servo.kp!r} 0 {servo.kd!r} 0 0 {SUPPLY_VOLTAGE_V!r}" '
+            f'controller="{kp!r} {ki!r} {kd!r} 0 0 {vmax!r}" '
             f'saturation="{servo.stall_torque_nm!r} 0 0"/>'
         )
 
@@ -305,6 +414,11 @@ def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
     {motor("tilt", 1, tilt)}
     {motor("roll", 2, roll)}
   </actuator>
+  <sensor>
+    <actuatorfrc name="pan_torque" actuator="pan"/>
+    <actuatorfrc name="tilt_torque" actuator="tilt"/>
+    <actuatorfrc name="roll_torque" actuator="roll"/>
+  </sensor>
 </mujoco>
 """
 

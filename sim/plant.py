@@ -1,33 +1,37 @@
 """The simulated gimbal as a plant behind a (virtual) servo bus.
 
-A real servo receives goal positions only. :class:`GimbalPlant` takes the same,
-estimates a velocity setpoint from the goals of the last ``VELOCITY_WINDOW_S``
-(goals are whole ticks, 0.0015 rad: differencing two consecutive goals of a slow
-move gives 0 or 1 tick per frame, a velocity target that chatters),
-steps MuJoCo when told, and answers position, velocity and current as the
+A real servo receives goal positions and its own control-table registers.
+:class:`GimbalPlant` takes the same: goal positions (whole ticks, from the bus)
+and the registers that shape the firmware's position loop (``set_control``),
+and runs the same servo model as ``trajgen sim`` (``sim.model``: each joint's
+``<dcmotor>`` controller is the firmware loop, ``sim.firmware``). It steps
+MuJoCo when told and answers position, velocity, current and PWM as the
 servos' present-value registers would (in SI units, trajgen's joint frame).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections import deque
+from collections.abc import Mapping
 
 import numpy as np
 
-from trajgen.sim.errors import SimulationError
-from trajgen.sim.model import GimbalConfig, build_model
+from trajgen.sim.firmware import apply_loop, loop_from_registers
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig, build_model
 from trajgen.sim.run import (
     SimRecord,
     at_torque_limit,
     check_trajectory,
     planned_path,
     raise_on_new_warnings,
+    step_and_record,
     warning_counts,
 )
+from trajgen.sim.servos import SUPPLY_VOLTAGE_V
+from trajgen.validate import check_number
 
-#: Window (s) over which the velocity setpoint is the mean rate of the goals.
-VELOCITY_WINDOW_S = 0.025
+# Log columns: time, q (3), qd (3), torque (3), goal (3), drive cap in volts (3).
+_LOG_COLUMNS = 16
 
 
 class GimbalPlant:
@@ -35,7 +39,9 @@ class GimbalPlant:
 
     Like a Dynamixel after power-up, every joint starts at rest with torque
     off, at 0 rad or at ``initial_rad``. Enabling torque on a joint that has no
-    goal yet holds its present angle.
+    goal yet holds its present angle. Each joint's position loop starts with
+    the gains of ``config`` (the keyframe file's ``[gimbal.<joint>]`` or the
+    servo's defaults) and follows its registers from then on (``set_control``).
 
     Parameters
     ----------
@@ -66,30 +72,60 @@ class GimbalPlant:
         self._model = build_model(self.config)
         self._data = mujoco.MjData(self._model)
         self._model.opt.disableactuator = 0b111
+        self._loops = [self.config.loop(j) for j in range(3)]
+        self._registers = self.initial_registers()
         if initial_rad is not None:
             start = np.asarray(initial_rad, dtype=float)
             if start.shape != (3,) or not np.all(np.isfinite(start)):
                 raise ValueError(f"Expected `initial_rad` to be 3 finite numbers, got {start!r}.")
             self._data.qpos[:] = start
+        self._data.ctrl[:] = self._data.qpos
         mujoco.mj_forward(self._model, self._data)
         self._warnings = warning_counts(self._data)
         self._goal = None
-        self._goals: deque[tuple[float, np.ndarray]] = deque()
         self._goal_times: list[float] = []
         self._kt = np.array([s.torque_constant_nm_a for s in self.config.servos])
         self._log: list[np.ndarray] = []
-        self.control: list[dict] = [{} for _ in range(3)]
+        self._pending_s = 0.0
 
     @property
     def time_s(self) -> float:
         """Simulated time (s) since the plant was made."""
         return float(self._data.time)
 
+    def initial_registers(self) -> list[dict[str, int]]:
+        """Per joint, the gain registers of ``config``, to set on the virtual servos.
+
+        So a virtual servo powers up with the gains the keyframe file states
+        (``[gimbal.<joint>]``), as the real one was configured.
+        """
+        return [
+            {
+                "Position P Gain": p.position_p_gain,
+                "Position I Gain": p.position_i_gain,
+                "Position D Gain": p.position_d_gain,
+            }
+            for p in self.config.joints
+        ]
+
+    @property
+    def loops(self) -> tuple:
+        """Each joint's position loop (``sim.firmware.PositionLoop``), as last set."""
+        return tuple(self._loops)
+
+    @property
+    def config_now(self) -> GimbalConfig:
+        """``config`` with each joint's gains as its registers last set them."""
+        joints = tuple(
+            dataclasses.replace(
+                p, position_p_gain=l.p_gain, position_i_gain=l.i_gain, position_d_gain=l.d_gain
+            )
+            for p, l in zip(self.config.joints, self._loops, strict=True)
+        )
+        return dataclasses.replace(self.config, joints=joints)
+
     def set_goal(self, positions_rad) -> None:
         """Receive goal positions (rad), shape (3,), as a sync write of Goal Position.
-
-        The velocity setpoint is the mean rate of change of the goals received
-        in the last ``VELOCITY_WINDOW_S`` of simulated time (0 for the first goal).
 
         Raises
         ------
@@ -99,17 +135,63 @@ class GimbalPlant:
         goal = np.asarray(positions_rad, dtype=float)
         if goal.shape != (3,) or not np.all(np.isfinite(goal)):
             raise ValueError(f"Expected `positions_rad` to be 3 finite numbers, got {goal!r}.")
-        now = self.time_s
-        self._goals.append((now, goal))
-        while len(self._goals) > 2 and now - self._goals[1][0] >= VELOCITY_WINDOW_S:
-            self._goals.popleft()
-        then, old = self._goals[0]
-        velocity = (goal - old) / (now - then) if now > then else np.zeros(3)
-        self._goal_times.append(now)
+        self._goal_times.append(self.time_s)
         self._goal = goal
-        self._data.ctrl[0::3] = goal
-        self._data.ctrl[1::3] = velocity
-        self._data.ctrl[2::3] = 0.0
+        self._data.ctrl[:] = goal
+
+    def set_control(self, joint: int, registers: Mapping[str, int]) -> None:
+        """Set one servo's position loop from its control-table registers.
+
+        Parameters
+        ----------
+        joint : int
+            0, 1 or 2.
+        registers : mapping of str to int
+            Register values in register units keyed by the SDK's control-table
+            names (``sim.firmware.CONTROL_REGISTERS``); missing ones keep their
+            last value (initially the gains of ``config``, full PWM, no
+            profile, Position Mode).
+
+        Raises
+        ------
+        TypeError, ValueError
+            If ``joint`` is not 0, 1 or 2, or a gain is out of range.
+        sim.firmware.UnsupportedServoSetting
+            For a non-zero Profile Velocity / Acceleration or an Operating Mode
+            other than 3 or 4 (not simulated).
+        """
+        joint = self._check_joint(joint)
+        merged = {**self._registers[joint], **registers}
+        loop = loop_from_registers(
+            merged, p_divisor=self.config.p_divisor, joint=JOINT_NAMES[joint]
+        )
+        self._registers[joint] = merged
+        integrator_changed = (loop.i_gain > 0) != (self._loops[joint].i_gain > 0)
+        self._loops[joint] = loop
+        if integrator_changed:
+            self._rebuild()
+        else:
+            apply_loop(self._model, joint, loop, self.config.servos[joint])
+
+    def _rebuild(self) -> None:
+        """Compile the model again (an integrator appeared or went), keeping the state."""
+        import mujoco
+
+        model = build_model(self.config_now)
+        data = mujoco.MjData(model)
+        model.opt.disableactuator = self._model.opt.disableactuator
+        data.time = self._data.time
+        data.qpos[:] = self._data.qpos
+        data.qvel[:] = self._data.qvel
+        data.ctrl[:] = self._data.ctrl
+        for j, loop in enumerate(self._loops):
+            apply_loop(model, j, loop, self.config.servos[j])
+        mujoco.mj_forward(model, data)
+        self._model, self._data = model, data
+        self._warnings = warning_counts(data)
+
+    def _check_joint(self, joint) -> int:
+        return check_number("joint", joint, integer=True, low=0, high=self.n_joints - 1)
 
     def set_torque_enabled(self, joint: int, enabled: bool) -> None:
         """Switch one servo's torque on or off (Torque Enable).
@@ -121,34 +203,15 @@ class GimbalPlant:
         ValueError
             If ``joint`` is not 0, 1 or 2.
         """
-        if isinstance(joint, bool) or not isinstance(joint, (int, np.integer)):
-            raise TypeError(f"Expected `joint` to be an int, got {type(joint).__name__}.")
-        if not 0 <= joint < self.n_joints:
-            raise ValueError(f"Expected `joint` in 0..2, got {joint}.")
+        joint = self._check_joint(joint)
         if enabled and self._goal is None:
-            self._data.ctrl[3 * joint] = self._data.qpos[joint]
-            self._data.ctrl[3 * joint + 1] = 0.0
+            self._data.ctrl[joint] = self._data.qpos[joint]
         bit = 1 << int(joint)
         mask = self._model.opt.disableactuator
         self._model.opt.disableactuator = (mask & ~bit) if enabled else (mask | bit)
 
-    def set_control(self, joint: int, registers) -> None:
-        """Receive a servo's position-loop registers (``drivers.virtual.plant.Plant``).
-
-        Interim: stored only; the MuJoCo servo model does not follow them yet.
-        """
-        self.control[joint] = dict(registers)
-
-    def present_pwm(self) -> np.ndarray:
-        """Drive output as a fraction of the supply, shape (3,).
-
-        Interim stand-in: actuator torque over stall torque, clipped to [-1, 1].
-        """
-        stall = np.array([s.stall_torque_nm for s in self.config.servos])
-        return np.clip(self._data.actuator_force / stall, -1.0, 1.0)
-
     def advance(self, dt_s: float) -> None:
-        """Run the physics for ``dt_s`` seconds (rounded to whole time steps).
+        """Run the physics for ``dt_s`` seconds, in whole time steps (the rest carries over).
 
         Raises
         ------
@@ -157,26 +220,22 @@ class GimbalPlant:
         SimulationError
             If a MuJoCo warning counter rises or a contact appears.
         """
-        import mujoco
-
         if not np.isfinite(dt_s) or dt_s < 0:
             raise ValueError(f"Expected `dt_s` >= 0, got {dt_s!r}.")
-        model, data = self._model, self._data
+        # Whole steps only; the remainder carries over to the next call.
+        self._pending_s += dt_s
+        n = int(self._pending_s / self.config.timestep_s + 1e-9)
+        self._pending_s -= n * self.config.timestep_s
+        if n == 0:
+            return
         t_from = self.time_s
-        for _ in range(int(round(dt_s / self.config.timestep_s))):
-            row = np.empty(13)
-            row[0] = data.time
-            row[1:4] = data.qpos
-            row[4:7] = data.qvel
-            row[10:13] = data.ctrl[0::3]
-            mujoco.mj_step(model, data)
-            row[7:10] = data.actuator_force
-            self._log.append(row)
-            if data.ncon:
-                raise SimulationError(
-                    f"{data.ncon} contact(s) inside the gimbal at t = {row[0]:.4f} s"
-                )
-        raise_on_new_warnings(self._warnings, data, t_from, self.time_s)
+        rows = np.empty((n, _LOG_COLUMNS))
+        rows[:, 0] = t_from + np.arange(n) * self.config.timestep_s
+        rows[:, 10:13] = self._data.ctrl
+        rows[:, 13:16] = self._model.actuator_gainprm[:, 7]
+        step_and_record(self._model, self._data, rows[:, 1:4], rows[:, 4:7], rows[:, 7:10])
+        self._log.append(rows)
+        raise_on_new_warnings(self._warnings, self._data, t_from, self.time_s)
 
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Present position (rad), velocity (rad/s) and current (A), each shape (3,).
@@ -186,6 +245,25 @@ class GimbalPlant:
         """
         current = self._data.actuator_force / self._kt
         return self._data.qpos.copy(), self._data.qvel.copy(), current
+
+    def present_pwm(self) -> np.ndarray:
+        """Drive output as a fraction of the supply, shape (3,), in [-1, 1].
+
+        The voltage the firmware loop applies to each motor now (0 with torque
+        off) over 12 V, as Present PWM / 885.
+        """
+        model, data = self._model, self._data
+        prm = model.actuator_gainprm
+        r, k, kp, ki, kd, vmax = prm[:, 0], prm[:, 1], prm[:, 4], prm[:, 5], prm[:, 6], prm[:, 7]
+        integral = np.zeros(3)
+        for j in range(3):
+            if model.actuator_actadr[j] >= 0:
+                integral[j] = data.act[model.actuator_actadr[j] + model.actuator_actnum[j] - 1]
+        w = data.qvel
+        tau = kp * (data.ctrl - data.qpos) - kd * w + ki * integral
+        volts = np.clip(r / k * tau + k * w, -vmax, vmax)
+        enabled = (model.opt.disableactuator >> np.arange(3)) & 1 == 0
+        return np.where(enabled, volts / SUPPLY_VOLTAGE_V, 0.0)
 
     def report(self, trajectory):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.
@@ -220,7 +298,7 @@ class GimbalPlant:
         # The stream's frames are the last goals received (bring-up and the
         # approach come before them).
         first = self._goal_times[-min(len(trajectory), len(self._goal_times))]
-        log = np.array(self._log).reshape(-1, 13)
+        log = np.concatenate(self._log) if self._log else np.empty((0, _LOG_COLUMNS))
         log = log[log[:, 0] >= first - 1e-12]
         if len(log) == 0:
             raise SimError("no physics step ran after the first goal: nothing to report")
@@ -232,7 +310,7 @@ class GimbalPlant:
             torque_nm=log[:, 7:10],
             setpoint=log[:, 10:13],
             planned=planned_path(trajectory, t),
-            at_limit=at_torque_limit(self.config, log[:, 4:7], log[:, 7:10]),
+            at_limit=at_torque_limit(self.config, log[:, 4:7], log[:, 7:10], log[:, 13:16]),
             timestep_s=self.config.timestep_s,
         )
-        return build_report(trajectory, self.config, record)
+        return build_report(trajectory, self.config_now, record)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen.sim.errors import SimulationError
+from trajgen.sim.firmware import PULSES_PER_RAD
 from trajgen.sim.model import GimbalConfig, build_model
 from trajgen.sim.servos import SUPPLY_VOLTAGE_V
 
@@ -64,19 +65,21 @@ class SimRecord:
         return self.at_limit.sum(axis=0)
 
 
-def at_torque_limit(config: GimbalConfig, qd, torque_nm) -> np.ndarray:
+def at_torque_limit(config: GimbalConfig, qd, torque_nm, vmax=SUPPLY_VOLTAGE_V) -> np.ndarray:
     """Whether each servo gives all the torque it has.
 
     A ``<dcmotor>`` with constant ``K = V / w0`` and resistance ``R = K V / tau_stall``
     needs ``v = R tau / K + K w`` volts to give ``tau`` at speed ``w``; it is at
-    its limit when that is the 12 V supply or when ``|tau|`` is at the stall
-    torque clamp.
+    its limit when that is the drive's cap (12 V at PWM Limit 885) or when
+    ``|tau|`` is at the stall torque clamp.
 
     Parameters
     ----------
     config : GimbalConfig
     qd, torque_nm : ndarray, shape (K, 3)
         Joint speed (rad/s) and actuator torque (N m).
+    vmax : float or array_like, broadcastable to (K, 3)
+        The drive's voltage cap (V).
 
     Returns
     -------
@@ -88,7 +91,7 @@ def at_torque_limit(config: GimbalConfig, qd, torque_nm) -> np.ndarray:
     r = k * SUPPLY_VOLTAGE_V / stall
     volts = r / k * torque_nm + k * qd
     clamped = np.abs(torque_nm) >= stall * (1.0 - _LIMIT_RTOL)
-    return clamped | (np.abs(volts) >= SUPPLY_VOLTAGE_V * (1.0 - _LIMIT_RTOL))
+    return clamped | (np.abs(volts) >= np.asarray(vmax) * (1.0 - _LIMIT_RTOL))
 
 
 def planned_path(trajectory, t) -> np.ndarray:
@@ -118,8 +121,61 @@ def planned_path(trajectory, t) -> np.ndarray:
 
 
 def warning_counts(data) -> np.ndarray:
-    """MuJoCo's warning counters ``data.warning[i].number`` as an int array."""
-    return np.array([w.number for w in data.warning])
+    """MuJoCo's warning counters ``data.warning[i].number`` as an int array (a copy)."""
+    return data.warning.number.copy()
+
+
+def goal_ticks_rad(q_rad) -> np.ndarray:
+    """Angles (rad) rounded to whole encoder ticks (4096 per turn), as Goal Position is."""
+    return np.round(np.asarray(q_rad, dtype=float) * PULSES_PER_RAD) / PULSES_PER_RAD
+
+
+def step_frames(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Physics steps of a stream: each step's start time and the frame it holds.
+
+    Frame ``i`` is held from ``t[i]`` to ``t[i + 1]``, the last one for one
+    stream period.
+
+    Returns
+    -------
+    step_t : ndarray, shape (K,)
+        Step start times (s).
+    frame : ndarray of int, shape (K,)
+        Index of the frame held during each step.
+    """
+    ts = np.asarray(trajectory.t, dtype=float)
+    period = 1.0 / float(trajectory.rate_hz)
+    n_steps = int(round((ts[-1] - ts[0] + period) / timestep_s))
+    step_t = ts[0] + np.arange(n_steps) * timestep_s
+    return step_t, np.searchsorted(ts, step_t + 1e-9, side="right") - 1
+
+
+def step_and_record(model, data, q, qd, torque) -> None:
+    """Step ``len(q)`` times, recording each step's start state and its torque.
+
+    Parameters
+    ----------
+    model, data : mujoco.MjModel, mujoco.MjData
+    q, qd, torque : ndarray, shape (K, nv)
+        Filled in place: joint angles (rad) and velocities (rad/s) at the start
+        of each step, actuator torque (N m) applied during it.
+
+    Raises
+    ------
+    SimulationError
+        If a contact appears inside the gimbal.
+    """
+    import mujoco
+
+    for k in range(len(q)):
+        q[k] = data.qpos
+        qd[k] = data.qvel
+        mujoco.mj_step(model, data)
+        torque[k] = data.actuator_force
+        if data.ncon:
+            raise SimulationError(
+                f"{data.ncon} contact(s) inside the gimbal at t = {data.time:.4f} s"
+            )
 
 
 def raise_on_new_warnings(before: np.ndarray, data, t_from: float, t_to: float) -> None:
@@ -128,9 +184,11 @@ def raise_on_new_warnings(before: np.ndarray, data, t_from: float, t_to: float) 
     ``t_from`` and ``t_to`` (s) bound the steps since the counts were taken,
     for the message.
     """
+    after = data.warning.number
+    if not (after > before).any():
+        return
     import mujoco
 
-    after = warning_counts(data)
     risen = np.flatnonzero(after > before)
     if len(risen):
         names = ", ".join(mujoco.mjtWarning(int(i)).name for i in risen)
@@ -167,15 +225,16 @@ def simulate(
     trajectory,
     config: GimbalConfig | None = None,
     *,
-    feedforward: bool = True,
     progress: Callable[[float], None] | None = None,
 ) -> SimRecord:
     """Stream a planned joint trajectory to the simulated servos.
 
-    The gimbal starts at rest at the first frame's angles. Frame ``i``'s position
-    and velocity (and, with ``feedforward``, its inverse-dynamics torque) are
-    held from ``t[i]`` to ``t[i + 1]``; the last frame is held for one stream
-    period. Physics runs at ``config.timestep_s``.
+    The gimbal starts at rest at the first frame's angles. Each frame's angles,
+    rounded to whole ticks as Goal Position is, are the servos' goal from
+    ``t[i]`` to ``t[i + 1]`` (the last frame's for one stream period); the
+    servos' own position loop (``sim.firmware``, gains from ``config``) does
+    the rest, exactly as behind the virtual bus (``sim.plant.GimbalPlant``).
+    Physics runs at ``config.timestep_s``.
 
     Parameters
     ----------
@@ -183,11 +242,6 @@ def simulate(
         The planned stream.
     config : GimbalConfig, optional
         Default :class:`GimbalConfig`.
-    feedforward : bool
-        Send each frame's planned torque (``sim.dynamics.inverse_dynamics``,
-        clipped to the stall torque) as torque feed-forward, as a host that
-        knows the plan can; without it the servo sees position and velocity
-        setpoints only.
     progress : callable, optional
         Called with the fraction done (0..1) every 5 % of the run.
 
@@ -204,58 +258,33 @@ def simulate(
     """
     import mujoco
 
-    from trajgen.sim.dynamics import inverse_dynamics
-
     check_trajectory(trajectory)
     config = GimbalConfig() if config is None else config
     model = build_model(config)
     data = mujoco.MjData(model)
-    ts = np.asarray(trajectory.t, dtype=float)
     q_plan = np.asarray(trajectory.q, dtype=float)
-    qd_plan = np.asarray(trajectory.qd, dtype=float)
-    ff = np.zeros_like(q_plan)
-    if feedforward:
-        # No servo can give more than its stall torque; clip what the plan asks.
-        stall = np.array([s.stall_torque_nm for s in config.servos])
-        ff = np.clip(inverse_dynamics(model, q_plan, qd_plan, trajectory.qdd), -stall, stall)
-    ctrl = np.empty((len(ts), 3 * model.nactuator))
-    ctrl[:, 0::3] = q_plan
-    ctrl[:, 1::3] = qd_plan
-    ctrl[:, 2::3] = ff
-
+    goals = goal_ticks_rad(q_plan)
     dt = config.timestep_s
-    period = 1.0 / float(trajectory.rate_hz)
-    n_steps = int(round((ts[-1] - ts[0] + period) / dt))
-    step_t = ts[0] + np.arange(n_steps) * dt
-    frame = np.searchsorted(ts, step_t + 1e-9, side="right") - 1
+    step_t, frame = step_frames(trajectory, dt)
+    n_steps = len(step_t)
+    # First step of each frame's hold, and one past the last step.
+    bounds = np.append(np.flatnonzero(np.diff(frame, prepend=-1)), n_steps)
 
     data.qpos[:] = q_plan[0]
-    data.time = ts[0]
+    data.time = step_t[0]
     mujoco.mj_forward(model, data)
     warnings = warning_counts(data)
     q = np.empty((n_steps, 3))
     qd = np.empty((n_steps, 3))
     torque = np.empty((n_steps, 3))
-    current = frame_start = -1
     next_report = _PROGRESS_STEP
-    for k in range(n_steps):
-        if frame[k] != current:
-            if k:
-                raise_on_new_warnings(warnings, data, step_t[frame_start], step_t[k])
-            current, frame_start = frame[k], k
-            data.ctrl[:] = ctrl[current]
-            if progress is not None and k >= next_report * n_steps:
-                progress(k / n_steps)
-                next_report += _PROGRESS_STEP
-        q[k] = data.qpos
-        qd[k] = data.qvel
-        mujoco.mj_step(model, data)
-        torque[k] = data.actuator_force
-        if data.ncon:
-            raise SimulationError(
-                f"{data.ncon} contact(s) inside the gimbal at t = {step_t[k]:.4f} s"
-            )
-    raise_on_new_warnings(warnings, data, step_t[frame_start], step_t[-1] + dt)
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        data.ctrl[:] = goals[frame[a]]
+        step_and_record(model, data, q[a:b], qd[a:b], torque[a:b])
+        raise_on_new_warnings(warnings, data, step_t[a], step_t[a] + (b - a) * dt)
+        if progress is not None and b >= next_report * n_steps:
+            progress(b / n_steps)
+            next_report = b / n_steps + _PROGRESS_STEP
     if progress is not None:
         progress(1.0)
     return SimRecord(
@@ -263,7 +292,7 @@ def simulate(
         q=q,
         qd=qd,
         torque_nm=torque,
-        setpoint=q_plan[frame],
+        setpoint=goals[frame],
         planned=planned_path(trajectory, step_t),
         at_limit=at_torque_limit(config, qd, torque),
         timestep_s=dt,

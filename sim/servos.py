@@ -13,15 +13,14 @@ too. The rest is not published and is stated per field:
   own back-EMF is not part of it: ``<dcmotor>`` models that from the ratings.
 - ``frictionloss``: Coulomb friction (N m). Menagerie's OP3 uses 0.03 for the
   XM430-W350; the others scale it with stall torque (estimate).
-- ``kp``, ``kd``: torque-space position and velocity gains of the simulated
-  servo's controller. kp 21.1 N m/rad for the XM430-W350 is Menagerie's OP3
-  value; the others scale it with stall torque; ``kd = 2 sqrt(kp armature)``
-  damps the servo's own rotor critically (estimate).
+- ``position_p_gain``, ``position_i_gain``, ``position_d_gain``: the
+  firmware's factory defaults of registers 84, 82, 80 (e-Manual control
+  tables; datasheet values). ``sim.firmware`` turns them into the servo's
+  position loop.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -33,7 +32,6 @@ SUPPLY_VOLTAGE_V = 12.0
 
 _OP3_ARMATURE = 0.045
 _OP3_FRICTIONLOSS = 0.03
-_OP3_KP = 21.1
 _XM430_GEAR = 353.5
 _XM430_STALL = 4.1
 
@@ -64,10 +62,8 @@ class ServoModel:
         Viscous friction (N m s/rad).
     frictionloss : float
         Coulomb friction (N m).
-    kp : float
-        Position gain of the simulated controller (N m/rad).
-    kd : float
-        Velocity gain of the simulated controller (N m s/rad).
+    position_p_gain, position_i_gain, position_d_gain : int
+        Factory defaults of the Position P / I / D Gain registers.
     """
 
     name: str
@@ -80,8 +76,9 @@ class ServoModel:
     armature: float
     damping: float
     frictionloss: float
-    kp: float
-    kd: float
+    position_p_gain: int = 800
+    position_i_gain: int = 0
+    position_d_gain: int = 0
 
     @property
     def torque_constant_nm_a(self) -> float:
@@ -111,11 +108,10 @@ class ServoModel:
         return self.stall_torque_nm * (1.0 - np.abs(speed_rad_s) / self.no_load_speed_rad_s)
 
 
-def _servo(name: str, armature: float | None = None) -> ServoModel:
+def _servo(name: str, armature: float | None = None, pid=(800, 0, 0)) -> ServoModel:
     r = RATINGS[name]
     if armature is None:
         armature = _OP3_ARMATURE * (r.gear_ratio / _XM430_GEAR) ** 2
-    kp = _OP3_KP * r.stall_torque_nm / _XM430_STALL
     return ServoModel(
         name=r.name,
         stall_torque_nm=r.stall_torque_nm,
@@ -127,13 +123,14 @@ def _servo(name: str, armature: float | None = None) -> ServoModel:
         armature=armature,
         damping=0.01,
         frictionloss=_OP3_FRICTIONLOSS * r.stall_torque_nm / _XM430_STALL,
-        kp=kp,
-        kd=2.0 * math.sqrt(kp * armature),
+        position_p_gain=pid[0],
+        position_i_gain=pid[1],
+        position_d_gain=pid[2],
     )
 
 
 XM430_W350 = _servo("XM430-W350", 0.045)
-XL430_W250 = _servo("XL430-W250")
+XL430_W250 = _servo("XL430-W250", pid=(640, 0, 4000))
 XH430_W350 = _servo("XH430-W350", 0.045)
 XM540_W270 = _servo("XM540-W270")
 

@@ -4,10 +4,10 @@ Every variant (payload mass and offset, servo per joint, time scale) is the
 same keyframe file run through :func:`trajgen.sim.check.build_report`, the
 judge of ``trajgen sim``. The runs go through ``mujoco.rollout`` (batched, one
 thread per ``MjData``), which records state and sensors only, so the model gets
-an ``<actuatorfrc>`` sensor per actuator for the torques. The controls are the
-ones :func:`trajgen.sim.run.simulate` sends (zero-order-hold position,
-velocity and inverse-dynamics feed-forward per stream frame), so a variant's
-figures equal ``check_torque``'s bit for bit (a test holds both to it).
+an ``<actuatorfrc>`` sensor per actuator for the torques (``sim.model`` has
+them). The controls are the ones :func:`trajgen.sim.run.simulate` sends (each
+frame's goal positions in whole ticks, held for one stream period), so a
+variant's figures equal ``check_torque``'s bit for bit (a test holds both to it).
 
 :func:`sweep_on_dask` runs the same chunks on a Dask cluster.
 """
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen.sim.errors import SimulationError
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig, gimbal_mjcf
+from trajgen.sim.model import GimbalConfig, gimbal_mjcf
 
 _FAILED_PARTS = {"x envelope": "envelope", "torque limit": "limit", "tracking error": "tracking"}
 
@@ -140,13 +140,11 @@ def variants(
 
 
 def sensor_mjcf(config: GimbalConfig) -> str:
-    """The gimbal's MJCF (:func:`gimbal_mjcf`) plus one ``<actuatorfrc>`` sensor per joint.
+    """The gimbal's MJCF (:func:`gimbal_mjcf`), which has an ``<actuatorfrc>`` sensor per joint.
 
     Sensors change nothing in the dynamics; ``mujoco.rollout`` records them.
     """
-    sensors = "".join(f'\n    <actuatorfrc name="{j}_torque" actuator="{j}"/>' for j in JOINT_NAMES)
-    mjcf = gimbal_mjcf(config)
-    return mjcf.replace("</mujoco>", f"  <sensor>{sensors}\n  </sensor>\n</mujoco>")
+    return gimbal_mjcf(config)
 
 
 def step_controls(trajectory, config: GimbalConfig, model) -> tuple[np.ndarray, np.ndarray]:
@@ -156,27 +154,13 @@ def step_controls(trajectory, config: GimbalConfig, model) -> tuple[np.ndarray, 
     -------
     step_t : ndarray, shape (K,)
         Step start times (s).
-    ctrl : ndarray, shape (K, 3 * nu)
-        Interleaved per actuator: position (rad), velocity (rad/s), feed-forward
-        torque (N m, inverse dynamics clipped to the stall torque).
+    ctrl : ndarray, shape (K, nu)
+        Goal position per actuator (rad, whole ticks).
     """
-    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.run import goal_ticks_rad, step_frames
 
-    ts = np.asarray(trajectory.t, dtype=float)
-    q_plan = np.asarray(trajectory.q, dtype=float)
-    qd_plan = np.asarray(trajectory.qd, dtype=float)
-    stall = np.array([s.stall_torque_nm for s in config.servos])
-    ff = np.clip(inverse_dynamics(model, q_plan, qd_plan, trajectory.qdd), -stall, stall)
-    ctrl = np.empty((len(ts), model.nu))
-    ctrl[:, 0::3] = q_plan
-    ctrl[:, 1::3] = qd_plan
-    ctrl[:, 2::3] = ff
-    dt = config.timestep_s
-    period = 1.0 / float(trajectory.rate_hz)
-    n_steps = int(round((ts[-1] - ts[0] + period) / dt))
-    step_t = ts[0] + np.arange(n_steps) * dt
-    frame = np.searchsorted(ts, step_t + 1e-9, side="right") - 1
-    return step_t, ctrl[frame]
+    step_t, frame = step_frames(trajectory, config.timestep_s)
+    return step_t, goal_ticks_rad(trajectory.q)[frame]
 
 
 def initial_state(model, trajectory) -> tuple[np.ndarray, np.ndarray]:
@@ -237,7 +221,7 @@ def judge(trajectory, config, q0, qpos, qvel, torque, step_t, ctrl):
         q=q,
         qd=qd,
         torque_nm=torque,
-        setpoint=ctrl[:, 0::3],
+        setpoint=ctrl,
         planned=planned_path(trajectory, step_t),
         at_limit=at_torque_limit(config, qd, torque),
         timestep_s=config.timestep_s,

@@ -235,7 +235,7 @@ def test_joint_map_rejects_bad_input():
         JointMap(directions=(1, 2, 1))
     with pytest.raises(ValueError, match="one non-zero length, got 2, 3, 3"):
         JointMap(ids=(1, 2))
-    with pytest.raises(TypeError, match="Expected `ids` to be a sequence of int"):
+    with pytest.raises(TypeError, match=r"Expected `ids\[0\]` to be an integer, got 1.0"):
         JointMap(ids=(1.0, 2, 3))
     with pytest.raises(ValueError, match=r"Expected `q_rad` of shape \(..., 3\), got \(2,\)"):
         JointMap().to_ticks(np.zeros(2))

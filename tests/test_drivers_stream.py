@@ -269,9 +269,11 @@ def test_watchdog_units_and_argument_errors(rig):
     with pytest.raises(ValueError, match=r"Expected `watchdog_s` in 0.02..2.54 s, got 3"):
         watchdog_units(3)
     r = rig()
-    with pytest.raises(ValueError, match="Expected `telemetry_every` >= 1, got 0"):
+    with pytest.raises(ValueError, match="Expected `telemetry_every` to be an integer >= 1, got 0"):
         Streamer(r.bus, JointMap(), telemetry_every=0)
-    with pytest.raises(ValueError, match="Expected `on_stop` 'hold' or 'torque_off', got 'x'"):
+    with pytest.raises(
+        ValueError, match=r"`on_stop` to be one of \('hold', 'torque_off'\), got 'x'"
+    ):
         Streamer(r.bus, JointMap(), on_stop="x")
 
 

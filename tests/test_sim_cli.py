@@ -7,7 +7,7 @@ import re
 import pytest
 
 from trajgen.cli.sim import register, run_sim
-from trajgen.sim.model import GimbalConfig, gimbal_config_from_tables
+from trajgen.sim.model import GimbalConfig, JointParams, gimbal_config_from_tables
 
 keyframes = pytest.importorskip("trajgen.keyframes")
 
@@ -30,7 +30,10 @@ def _sim(argv):
 
 
 def test_gentle_file_passes_with_json_and_plot(tmp_path, capsys):
-    path = _write_keyframes(tmp_path / "gentle.toml", extra="[stream]\nrate_hz = 100\n")
+    # Pan peaks at 1.1 rad/s: with P 800 it lags 3 deg, over the default budget;
+    # the gimbal's pan servo runs P 1600 (set on the servo and in the file).
+    extra = "[stream]\nrate_hz = 100\n[gimbal.pan]\nposition_p_gain = 1600\n"
+    path = _write_keyframes(tmp_path / "gentle.toml", extra=extra)
     status = _sim([path, "--json", tmp_path / "r.json", "--plot", tmp_path / "r.png"])
     out = capsys.readouterr().out
     assert status == 0
@@ -51,10 +54,12 @@ def test_ten_times_faster_fails_with_status_1(tmp_path, capsys):
 
 def test_gimbal_table_changes_the_verdict(tmp_path, capsys):
     # At 0.3x the time the XM430-W350 (4.8 rad/s no load) keeps up; an XM540-W270
-    # on pan has more torque but only 3.1 rad/s and fails.
-    xm430 = _write_keyframes(tmp_path / "xm430.toml", time_scale=0.3)
+    # on pan has more torque but only 3.1 rad/s and fails. (The tracking budget
+    # is wide open: the envelope decides.)
+    budget = "[gimbal]\nmax_tracking_error_rad = 0.5\n"
+    xm430 = _write_keyframes(tmp_path / "xm430.toml", time_scale=0.3, extra=budget)
     xm540 = _write_keyframes(
-        tmp_path / "xm540.toml", time_scale=0.3, extra='[gimbal]\nservo = {pan = "XM540-W270"}\n'
+        tmp_path / "xm540.toml", time_scale=0.3, extra=budget + 'servo = {pan = "XM540-W270"}\n'
     )
     assert _sim([xm430]) == 0
     assert _sim([xm540]) == 1
@@ -83,13 +88,21 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
     assert err.startswith("trajgen: error: ") and len(err.splitlines()) == 1
 
 
-def test_ctrl_c_exits_130(monkeypatch):
-    def interrupted(*args, **kwargs):
+def test_ctrl_c_exits_130_and_still_writes_the_json(monkeypatch, tmp_path):
+    def interrupted(*args, progress, **kwargs):
+        progress(0.25)
         raise KeyboardInterrupt
 
     monkeypatch.setattr("trajgen.sim.check.check_torque", interrupted)
-    args = argparse.Namespace(file="x.toml", rate=None, json=None, plot=None, video=None)
+    out = tmp_path / "r.json"
+    args = argparse.Namespace(
+        file=str(keyframes.BUILTIN_EXAMPLE), rate=None, json=str(out), plot=None, video=None
+    )
     assert run_sim(args) == 130
+    done = json.loads(out.read_text())
+    assert done["interrupted"] is True and done["ok"] is None
+    assert done["stage"] == "simulating" and done["simulated_fraction"] == 0.25
+    assert done["rate_hz"] == 200.0 and done["duration_s"] == 8.0
 
 
 def test_gimbal_table_parses_every_field():
@@ -100,9 +113,17 @@ def test_gimbal_table_parses_every_field():
             "payload_offset_m": [0.02, 0.0, 0.01],
             "torque_margin": 0.7,
             "max_tracking_error_rad": 0.02,
+            "p_divisor": 256,
+            "tilt": {"armature": 0.05, "frictionloss": 0.02, "damping": 0.1},
+            "roll": {"position_p_gain": 1200},
         }
     }
     config = gimbal_config_from_tables(tables, "f.toml")
+    assert config.p_divisor == 256.0
+    assert config.joints[0] == JointParams.of(config.servos[0])
+    assert config.joints[1] == JointParams(0.05, 0.02, 0.1, 800)
+    assert config.joints[2] == JointParams.of(config.servos[2], position_p_gain=1200)
+    assert config.joints[2].position_d_gain == 4000  # the XL430-W250's default
     assert [s.name for s in config.servos] == ["XM540-W270", "XM430-W350", "XL430-W250"]
     assert config.payload_kg == 0.3
     assert config.payload_offset_m == (0.02, 0.0, 0.01)
@@ -118,12 +139,34 @@ def test_gimbal_table_parses_every_field():
         ({"servo": {"yaw": "XM430-W350"}}, "[gimbal] servo.yaw: unknown joint (known: pan, "),
         ({"servo": {"tilt": 3}}, "[gimbal] servo.tilt: expected a model name, got 3"),
         ({"servo": 3}, "[gimbal] servo: expected a model name or a table per joint, got 3"),
-        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a number, got 'abc'"),
-        ({"payload_kg": -1}, "[gimbal] payload_kg: expected >= 0.0, got -1.0"),
-        ({"torque_margin": 2}, "[gimbal] torque_margin: expected <= 1.0, got 2.0"),
-        ({"torque_margin": float("nan")}, "[gimbal] torque_margin: expected to be finite, got nan"),
-        ({"payload_offset_m": [0, 0]}, "[gimbal] payload_offset_m: expected 3 numbers, got [0, 0]"),
+        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a finite number >= 0, got 'abc'"),
+        ({"payload_kg": -1}, "[gimbal] payload_kg: expected a finite number >= 0, got -1"),
+        ({"torque_margin": 2}, "[gimbal] torque_margin: expected a finite number in (0, 1], got 2"),
+        (
+            {"torque_margin": float("nan")},
+            "[gimbal] torque_margin: expected a finite number in (0, 1], got nan",
+        ),
+        (
+            {"payload_offset_m": [0, 0]},
+            "[gimbal] payload_offset_m: expected a list of 3 numbers, got [0, 0]",
+        ),
         ({"payload": 1}, "[gimbal] unknown key 'payload' (known: servo, payload_kg, "),
+        ({"pan": 3}, "[gimbal.pan]: expected a table, got 3"),
+        ({"tilt": {"stiffness": 3}}, "[gimbal.tilt] unknown key 'stiffness' (known: armature, "),
+        ({"roll": {"armature": 0}}, "[gimbal.roll] armature: expected a finite number > 0, got 0"),
+        (
+            {"roll": {"damping": "x"}},
+            "[gimbal.roll] damping: expected a finite number >= 0, got 'x'",
+        ),
+        (
+            {"pan": {"position_p_gain": 80.5}},
+            "[gimbal.pan] position_p_gain: expected an integer in 0..16383, got 80.5",
+        ),
+        (
+            {"pan": {"position_p_gain": 20000}},
+            "[gimbal.pan] position_p_gain: expected an integer in 0..16383, got 20000",
+        ),
+        ({"p_divisor": 0}, "[gimbal] p_divisor: expected a finite number > 0, got 0"),
     ],
 )
 def test_gimbal_table_errors_name_file_table_and_field(gimbal, message):

@@ -19,6 +19,9 @@ rate_hz = 100
 [gimbal]
 servo = "XM430-W350"
 payload_kg = 0.15
+# The envelope and the limits bind here, not tracking: with default gains (P 800)
+# an X-series servo lags 45 ms x speed, which would cap pan near 1.1 rad/s.
+max_tracking_error_rad = 0.3
 
 [bus]
 port = "/dev/ttyUSB0"

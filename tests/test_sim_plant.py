@@ -27,7 +27,7 @@ def test_starts_limp_at_zero():
 
 
 def test_streamed_goals_are_followed_and_reported():
-    trajectory = quintic_trajectory([0.8, 0.3, -0.4], 1.5)
+    trajectory = quintic_trajectory([0.7, 0.3, -0.4], 1.5)
     plant = GimbalPlant()
     for joint in range(3):
         plant.set_torque_enabled(joint, True)
@@ -38,8 +38,8 @@ def test_streamed_goals_are_followed_and_reported():
     assert np.abs(velocity).max() < 0.05
     report = plant.report(trajectory)
     assert report.ok
-    # Goals only, no feed-forward: the lag is larger than with it, still small.
-    assert 1e-4 < report.joints["pan"].max_tracking_error_rad < 0.05
+    # Goals only: the servo lags 45 ms x speed (0.875 rad/s at the peak).
+    assert 0.035 < report.joints["pan"].max_tracking_error_rad < 0.05
 
 
 def test_current_is_torque_over_the_torque_constant():
@@ -81,31 +81,13 @@ def test_bad_calls_are_refused():
     plant = GimbalPlant()
     with pytest.raises(ValueError, match=r"`positions_rad` to be 3 finite numbers"):
         plant.set_goal([0.0, 0.0])
-    with pytest.raises(ValueError, match=r"`joint` in 0..2, got 3"):
+    with pytest.raises(ValueError, match=r"`joint` to be an integer in 0\.\.2, got 3"):
         plant.set_torque_enabled(3, True)
-    with pytest.raises(TypeError, match=r"`joint` to be an int, got float"):
+    with pytest.raises(TypeError, match=r"`joint` to be an integer in 0\.\.2, got 1.0"):
         plant.set_torque_enabled(1.0, True)
     with pytest.raises(ValueError, match=r"`dt_s` >= 0, got -0.1"):
         plant.advance(-0.1)
     with pytest.raises(SimError, match=r"no goal position was received"):
         plant.report(quintic_trajectory([0.1, 0, 0], 0.5))
-    with pytest.raises(ValueError, match=r"`timestep_s` <= 0.001, got 0.01"):
+    with pytest.raises(ValueError, match=r"`timestep_s` .* in \(0, 0.001\], got 0.01"):
         GimbalPlant(timestep_s=0.01)
-
-
-def test_velocity_setpoint_is_smooth_for_tick_quantised_goals():
-    # A slow ramp (0.05 rad/s) streamed at 200 Hz in whole ticks moves 0 or 1 tick a
-    # frame: differencing two frames would give 0 or 0.31 rad/s; the window gives ~0.05.
-    from trajgen.sim.plant import VELOCITY_WINDOW_S, GimbalPlant
-
-    plant = GimbalPlant()
-    tick = 2 * np.pi / 4096
-    targets = []
-    for i in range(200):
-        goal = np.round(0.05 * i / 200 / tick) * tick
-        plant.set_goal(np.array([goal, 0.0, 0.0]))
-        targets.append(plant._data.ctrl[1])
-        plant.advance(1 / 200)
-    settled = np.array(targets[int(VELOCITY_WINDOW_S * 200) + 1 :])
-    assert np.abs(settled - 0.05).max() < 0.07
-    assert np.abs(settled - 0.05).max() > 0  # still quantised, not a constant

@@ -6,8 +6,8 @@ from conftest import quintic_trajectory
 
 from trajgen.sim.dynamics import inverse_dynamics
 from trajgen.sim.errors import SimulationError
-from trajgen.sim.model import build_model, gimbal_mjcf
-from trajgen.sim.run import planned_path, simulate
+from trajgen.sim.model import GimbalConfig, build_model, gimbal_mjcf
+from trajgen.sim.run import goal_ticks_rad, planned_path, simulate
 from trajgen.stream import JointTrajectory
 
 
@@ -18,7 +18,9 @@ def test_setpoints_are_held_for_one_stream_period():
     assert len(record.t) == steps_per_frame * len(trajectory.t)
     for i in (0, 17, len(trajectory.t) - 1):
         block = record.setpoint[i * steps_per_frame : (i + 1) * steps_per_frame]
-        np.testing.assert_array_equal(block, np.repeat(trajectory.q[i][None], 5, axis=0))
+        goal = goal_ticks_rad(trajectory.q[i])  # whole ticks, as Goal Position is
+        np.testing.assert_array_equal(block, np.repeat(goal[None], 5, axis=0))
+    assert np.abs(record.setpoint[::5] - trajectory.q).max() <= np.pi / 4096 + 1e-15
     np.testing.assert_allclose(np.diff(record.t), 0.001, atol=1e-12)
 
 
@@ -29,26 +31,49 @@ def test_run_starts_at_rest_at_the_first_frame():
     np.testing.assert_array_equal(record.qd[0], 0.0)
 
 
-def test_simulated_torque_agrees_with_inverse_dynamics_when_tracking_is_good():
-    # A 1 kHz stream (one setpoint per physics step) on all three joints.
-    trajectory = quintic_trajectory([1.0, 0.4, -0.6], 1.5, rate_hz=1000.0)
+def test_simulated_torque_is_what_moves_the_joints():
+    # Inverse dynamics of the simulated motion itself (q, qd at each step and the
+    # semi-implicit Euler acceleration (qd[k+1] - qd[k]) / dt) gives back the
+    # actuator torque of each step: the record is consistent physics.
+    trajectory = quintic_trajectory([1.0, 0.4, -0.6], 1.5, rate_hz=200.0)
     record = simulate(trajectory)
-    assert np.abs(record.tracking_error_rad).max() < 1e-3
-    n = len(trajectory.t)
-    expected = inverse_dynamics(build_model(), trajectory.q, trajectory.qd, trajectory.qdd)
-    difference = record.torque_nm[:n] - expected
-    peak = np.abs(expected).max(axis=0)
-    assert np.all(np.sqrt(np.mean(difference**2, axis=0)) < 0.01 * peak)
-    assert np.all(np.abs(difference).max(axis=0) < 0.05 * peak)
+    qdd = np.diff(record.qd, axis=0) / record.timestep_s
+    moving = np.all(np.abs(record.qd[:-1]) > 0.05, axis=1)  # away from friction's stick
+    expected = inverse_dynamics(
+        build_model(), record.q[:-1][moving], record.qd[:-1][moving], qdd[moving]
+    )
+    # (to 1e-4 N m: Euler integrates joint damping implicitly, inverse dynamics not)
+    np.testing.assert_allclose(record.torque_nm[:-1][moving], expected, atol=1e-4)
+    assert moving.sum() > 500
 
 
-def test_zero_order_hold_lag_is_about_half_a_period_of_motion():
-    trajectory = quintic_trajectory([1.0, 0.0, 0.0], 2.0, rate_hz=100.0)
-    record = simulate(trajectory, feedforward=False)
-    peak_speed = 1.875 * 1.0 / 2.0
-    error = np.abs(record.tracking_error_rad[:, 0]).max()
-    # The servo follows a staircase: never more than a period's motion behind.
-    assert 0.1 * peak_speed / 100.0 < error < peak_speed / 100.0
+def test_stiff_gains_track_closely():
+    # The largest P gain the register takes (16383: 386 N m/rad, 2 ms lag).
+    trajectory = quintic_trajectory([1.0, 0.4, -0.6], 1.5, rate_hz=1000.0)
+    stiff = GimbalConfig(joints=({"position_p_gain": 16383},) * 3)
+    assert np.abs(simulate(trajectory, stiff).tracking_error_rad).max() < 4e-3
+
+
+def test_default_gains_lag_a_ramp_by_speed_times_45_ms():
+    # Pan at a constant 0.5 rad/s, streamed at 1 kHz. The firmware drives
+    # V = 12 V x (800 / 128) e_pulses / 885 = 55.25 V/rad x e; the motor gives
+    # (K / R)(V - K w) with K / R = 4.1 / 12 and K^2 / R = 4.1 / 4.817 = 0.8511,
+    # so kp = 18.876 N m/rad. At steady speed w the error balances back-EMF,
+    # gear damping (0.01) and Coulomb friction (0.03):
+    # e = (0.8511 + 0.01) w / 18.876 + 0.03 / 18.876 = 0.02440 rad at 0.5 rad/s,
+    # plus half a tick-free 1 ms hold (w x 0.5 ms) against the continuous plan.
+    rate, w = 1000.0, 0.5
+    t = np.arange(0.0, 2.0, 1.0 / rate)
+    q = np.zeros((len(t), 3))
+    q[:, 0] = w * t
+    qd = np.zeros_like(q)
+    qd[:, 0] = w
+    record = simulate(JointTrajectory(t, q, qd, np.zeros_like(q), rate))
+    steady = record.t > 1.0
+    expected = (0.8511 + 0.01) * w / 18.876 + 0.03 / 18.876 + w * 0.5e-3
+    lag = -record.tracking_error_rad[steady, 0]
+    assert lag.mean() == pytest.approx(expected, rel=0.01)
+    assert lag.mean() / w == pytest.approx(0.0488, abs=5e-4)  # about 45 ms, plus friction
 
 
 def test_planned_path_is_exact_at_samples_and_between_them_for_a_cubic():
@@ -70,7 +95,7 @@ def test_a_mujoco_warning_fails_the_run(tmp_path, monkeypatch):
     with pytest.raises(
         SimulationError, match=r"MuJoCo warning between t = 0\.0250 and 0\.0300 s: mjWARN_BADCTRL"
     ):
-        simulate(bad, feedforward=False)
+        simulate(bad)
 
 
 def test_contacts_inside_the_gimbal_are_refused():

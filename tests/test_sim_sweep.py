@@ -25,6 +25,9 @@ KEYS = """\
 [stream]
 rate_hz = 100
 
+[gimbal]  # torque decides here: pan at 2 rad/s lags 45 ms x speed (0.09 rad)
+max_tracking_error_rad = 0.2
+
 [[keyframes]]
 t = 0.0
 pan = 0.0

@@ -319,3 +319,25 @@ def test_evaluation_errors():
         s(np.nan)
     with pytest.raises(ValueError, match="`rate_hz` to be a finite number > 0, got 0"):
         s.sample(0)
+
+
+def test_closed_sampling_runs_from_the_first_to_the_last_keyframe_time():
+    quats = ptr([0, 0, 0], [40, 10, 0], [-20, 20, 5], [0, 0, 0])
+    spline = BlendingSpline(quats, [0.0, 1.0, 2.5, 4.0], boundary="closed")
+    s = spline.sample(100)
+    assert s.t[0] == 0.0 and s.t[-1] == 4.0 and (np.diff(s.t) > 0).all()
+    assert Q.distance(s.q[-1], s.q[0]) < 1e-12  # the loop closes at t_end
+    assert spline.evaluate(5.0).t[0] == 5.0  # a time beyond the loop is kept as given
+
+
+def test_a_scipy_rotation_is_accepted_and_converted_at_the_boundary():
+    Rotation = pytest.importorskip("scipy.spatial.transform").Rotation
+    keys = Rotation.from_euler("ZYX", [[0, 0, 0], [35, -10, 0], [60, 15, 5]], degrees=True)
+    spline = BlendingSpline(keys, [0.0, 1.5, 3.0])
+    wxyz = np.roll(keys.as_quat(), 1, axis=1)  # scipy is scalar last
+    np.testing.assert_allclose(spline([0.0, 1.5, 3.0]), wxyz, atol=1e-12)
+    back = Rotation.from_quat(np.roll(spline(1.5), -1))
+    assert (back * keys[1].inv()).magnitude() < 1e-12
+    # A single Rotation is one keyframe: too few.
+    with pytest.raises(ValueError, match="at least 2 keyframes, got 1"):
+        BlendingSpline(keys[0], [0.0])

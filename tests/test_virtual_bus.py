@@ -267,7 +267,7 @@ def test_bad_arguments():
         Fault("overload")
     with pytest.raises(ValueError, match="Expected `kind` in"):
         Fault("explode")
-    with pytest.raises(ValueError, match="Expected `baud` to be a positive int, got 0"):
+    with pytest.raises(ValueError, match="Expected `baud` to be an integer >= 1, got 0"):
         ServoBus("/dev/null", baud=0)
     with pytest.raises(CommError, match="/nonexistent/tty: cannot open at 1000000 baud"):
         ServoBus("/nonexistent/tty", latency_ms=1.0).open()
@@ -317,3 +317,72 @@ def test_ftdi_latency_timer_warns_when_stuck_at_16(tmp_path, monkeypatch):
     monkeypatch.setattr(drivers_bus, "open", read_only, raising=False)
     with pytest.warns(RuntimeWarning, match="/dev/ttyUSB7: FTDI latency timer is 16 ms"):
         assert drivers_bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 16
+
+
+def test_lockstep_telemetry_holds_the_state_at_its_time_label(tmp_path):
+    """Each row's present values are the servo's state when that row's goal was sent.
+
+    Servos that reach a goal within one period: at the time of frame k they sit at
+    frame k - 1's goal (the goal they had during the period that ends at frame k).
+    """
+    import csv
+
+    from trajgen.drivers.streamer import Streamer
+    from trajgen.drivers.units import JointMap
+    from trajgen.stream import JointTrajectory
+
+    t = np.arange(41) / 100.0
+    q = np.stack([0.3 * np.sin(2 * np.pi * t), 0.2 * t, -0.1 * t], axis=1)
+    zeros = np.zeros_like(q)
+    trajectory = JointTrajectory(t, q, zeros, zeros, 100.0)
+    plant = FirstOrderPlant(time_constant_s=0.0, initial_rad=q[0])
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, ServoBus(virtual.port) as bus:
+        for servo_id in (1, 2, 3):
+            bus.add_servo(servo_id, XM430)
+            bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+        Streamer(bus, JointMap(), telemetry=tmp_path / "t.csv").run(trajectory)
+    with open(tmp_path / "t.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(t)  # no approach: the plant starts at the first frame
+    tick = 2 * math.pi / 4096
+    for joint in ("pan", "tilt", "roll"):
+        goal = np.array([float(r[f"goal_rad_{joint}"]) for r in rows])
+        present = np.array([float(r[f"position_rad_{joint}"]) for r in rows])
+        np.testing.assert_allclose(present[1:], goal[:-1], atol=tick / 2 + 1e-12)
+        if joint == "pan":  # up to 12 ticks per frame: the new goal is clearly elsewhere
+            assert np.max(np.abs(present[1:] - goal[1:])) > 5 * tick
+
+
+def test_simulated_clock_jumps_to_deadlines_never_back():
+    from trajgen.drivers.clock import SimulatedClock
+
+    clock = SimulatedClock(1.0)
+    start = time.monotonic()
+    clock.sleep_until(31.0)
+    assert clock.now() == 31.0
+    clock.sleep_until(5.0)
+    assert clock.now() == 31.0
+    assert time.monotonic() - start < 0.1
+
+
+def test_lockstep_stream_on_a_simulated_clock_does_not_wait_out_the_motion():
+    from trajgen.drivers.clock import SimulatedClock
+    from trajgen.drivers.streamer import Streamer
+    from trajgen.drivers.units import JointMap
+    from trajgen.stream import JointTrajectory
+
+    t = np.arange(301) / 100.0  # 3 s of motion
+    q = np.stack([0.2 * np.sin(t), 0.1 * t, 0 * t], axis=1)
+    trajectory = JointTrajectory(t, q, np.zeros_like(q), np.zeros_like(q), 100.0)
+    plant = FirstOrderPlant(initial_rad=q[0])
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, ServoBus(virtual.port) as bus:
+        for servo_id in (1, 2, 3):
+            bus.add_servo(servo_id, XM430)
+            bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+        start = time.monotonic()
+        stats = Streamer(bus, JointMap(), clock=SimulatedClock()).run(trajectory)
+        wall_s = time.monotonic() - start
+        np.testing.assert_array_equal(np.array(virtual.goal_log), JointMap().to_ticks(q))
+    assert stats.frames_sent == 301
+    assert plant.time_s == pytest.approx(3.02)  # a period per frame, and the start-up poll
+    assert wall_s < 1.5  # half the motion's time, on a busy machine

@@ -10,8 +10,10 @@ from . import quat
 from .errors import KinematicsError, PlanTooLarge, TrajgenError
 from .gimbal import JOINT_NAMES, GimbalKinematics
 from .keyframes import BUILTIN_EXAMPLE, KeyframeFile, KeyframeFileError, load_keyframe_file
+from .online import ChangeTooLate, OnlineSpline
 from .path import OrientationPath, Samples
 from .sampling import sample_times
+from .smooth import SmoothSpline
 from .spline import BlendingSpline
 from .stream import JointFrame, JointTrajectory, plan_joint_trajectory, stream_frames
 
@@ -21,6 +23,7 @@ __all__ = [
     "BUILTIN_EXAMPLE",
     "JOINT_NAMES",
     "BlendingSpline",
+    "ChangeTooLate",
     "GimbalKinematics",
     "JointFrame",
     "JointTrajectory",
@@ -28,8 +31,10 @@ __all__ = [
     "KeyframeFileError",
     "KinematicsError",
     "OrientationPath",
+    "OnlineSpline",
     "PlanTooLarge",
     "Samples",
+    "SmoothSpline",
     "TrajgenError",
     "load_keyframe_file",
     "plan_joint_trajectory",

@@ -1,17 +1,24 @@
 """Optional compiled evaluation of the blending spline (numba): the same arithmetic as numpy.
 
-The numpy path (:mod:`trajgen.jet`, :mod:`trajgen.local_curves`) is the reference;
-:mod:`trajgen.fast_kernel` restates it per sample for numba. It is used by
-:class:`~trajgen.spline.BlendingSpline` when numba is installed (the ``fast``
-extra) unless ``TRAJGEN_NUMBA=0``; numba is imported, and the kernel compiled
-(cached on disk), at the first evaluation, not at ``import trajgen``. Tests check
-that both paths agree.
+The numpy path (:meth:`trajgen.spline.BlendingSpline._blend_derivatives`) is the
+reference; :mod:`trajgen.fast_kernel` restates it per sample for numba. Tests
+check that both agree.
+
+Loading numba and its cached kernel costs a second or more of start-up, which
+only large evaluations win back, so by default (``TRAJGEN_NUMBA`` unset or
+``auto``) the kernel is loaded for the first evaluation of at least
+``LOAD_SAMPLES`` samples, and once loaded it serves every evaluation; batches
+under ``PARALLEL_SAMPLES`` run on one thread (thread start-up and a busy
+machine's scheduling would cost more than they save). ``TRAJGEN_NUMBA=1``
+uses it for every evaluation, ``TRAJGEN_NUMBA=0`` never. ``import trajgen``
+never imports numba.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import os
+import sys
 
 import numpy as np
 
@@ -23,7 +30,21 @@ def _numba_installed() -> bool:
         return False
 
 
-ENABLED = os.environ.get("TRAJGEN_NUMBA", "1") != "0" and _numba_installed()
+#: "auto", "always" or "never", from the environment variable TRAJGEN_NUMBA.
+MODE = {"0": "never", "1": "always"}.get(os.environ.get("TRAJGEN_NUMBA", "auto"), "auto")
+ENABLED = MODE != "never" and _numba_installed()
+
+#: Samples in one evaluation that pay for loading numba (measured: see bench/numba_load.py).
+LOAD_SAMPLES = 2_000_000
+#: Samples from which the compiled kernel runs on all of numba's threads.
+PARALLEL_SAMPLES = 20_000
+
+
+def use_compiled(samples: int) -> bool:
+    """Whether an evaluation of ``samples`` samples runs compiled."""
+    if not ENABLED:
+        return False
+    return MODE == "always" or samples >= LOAD_SAMPLES or "trajgen.fast_kernel" in sys.modules
 
 
 def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -31,10 +52,23 @@ def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.nda
 
     Returns ``q`` (M, 4) and the space-frame ``omega, alpha, jerk`` stacked (3, M, 3).
     """
-    from .fast_kernel import evaluate as kernel
+    from . import fast_kernel
 
     out_q = np.empty((len(t), 4))
     out_w = np.empty((3, len(t), 3))
-    table = spline._curves.row_table
-    kernel(t, seg, spline.times, spline._left, spline._right, spline._blend, table, out_q, out_w)
+    kernel = (
+        fast_kernel.evaluate_parallel if len(t) >= PARALLEL_SAMPLES else fast_kernel.evaluate_serial
+    )
+    kernel(
+        t,
+        seg,
+        spline.times,
+        spline._inv_h,
+        spline._left,
+        spline._right,
+        spline._blend,
+        spline._curves.kernel_table,
+        out_q,
+        out_w,
+    )
     return out_q, out_w

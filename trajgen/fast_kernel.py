@@ -1,8 +1,11 @@
 """The numba kernel behind :mod:`trajgen.fast` (imported only when it is used).
 
-Jets are tuples of four Taylor coefficients (order 3), which numba keeps on the
-stack; each function mirrors its numpy counterpart in :mod:`trajgen.jet` and
-:mod:`trajgen.local_curves`, and the samples run in parallel.
+One sample at a time, the arithmetic of the numpy path: the local curves as
+scalar combinations of their basis quaternions
+(:meth:`trajgen.local_curves.LocalCurves.derivatives`) and the blend as the
+slerp of :func:`trajgen.derivatives.slerp_steps`, with the same series branches.
+A derivative list is a 4-tuple ``(x, x', x'', x''')`` of floats, which numba
+keeps in registers; all four orders are computed.
 """
 
 from __future__ import annotations
@@ -11,10 +14,245 @@ import math
 
 import numba
 
-from .jet import _ATANC, _COS, _SINC, SERIES_BELOW
-from .local_curves import CIRCLE, G_POLY, G_POWER, PARABOLA, POINT
+from .derivatives import _PHI2
+from .jet import _COS, _SINC, SERIES_BELOW
+from .local_curves import CIRCLE, G_POLY, G_RATIONAL, PARABOLA, POINT
 
-njit = numba.njit(cache=True, fastmath=True, error_model="numpy")
+njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+
+
+@njit
+def prod(a, b):
+    """Leibniz rule."""
+    return (
+        a[0] * b[0],
+        a[0] * b[1] + a[1] * b[0],
+        a[0] * b[2] + 2.0 * a[1] * b[1] + a[2] * b[0],
+        a[0] * b[3] + 3.0 * (a[1] * b[2] + a[2] * b[1]) + a[3] * b[0],
+    )
+
+
+@njit
+def quot(a, b):
+    """Derivatives of a / b."""
+    inv = 1.0 / b[0]
+    q0 = a[0] * inv
+    q1 = (a[1] - b[1] * q0) * inv
+    q2 = (a[2] - 2.0 * b[1] * q1 - b[2] * q0) * inv
+    q3 = (a[3] - 3.0 * b[1] * q2 - 3.0 * b[2] * q1 - b[3] * q0) * inv
+    return (q0, q1, q2, q3)
+
+
+@njit
+def chain(d0, d1, d2, d3, x):
+    """Faa di Bruno: phi(x(t)) from phi's derivatives d0..d3 at x[0]."""
+    return (
+        d0,
+        d1 * x[1],
+        d1 * x[2] + d2 * x[1] * x[1],
+        d1 * x[3] + 3.0 * d2 * x[1] * x[2] + d3 * x[1] * x[1] * x[1],
+    )
+
+
+@njit
+def series(coef, x):
+    """A power series in x and its first three x-derivatives."""
+    p0 = p1 = p2 = p3 = 0.0
+    for j in range(len(coef) - 1, -1, -1):
+        p3 = p3 * x + 3.0 * p2
+        p2 = p2 * x + 2.0 * p1
+        p1 = p1 * x + p0
+        p0 = p0 * x + coef[j]
+    return p0, p1, p2, p3
+
+
+@njit
+def cos_sin(th):
+    c, s = math.cos(th[0]), math.sin(th[0])
+    return chain(c, -s, -c, s, th), chain(s, c, -s, -c, th)
+
+
+@njit
+def cos_sinc_sqrt(x):
+    """cos sqrt(x) and sin sqrt(x) / sqrt(x) (x a squared angle)."""
+    if x[0] < SERIES_BELOW:
+        c0, c1, c2, c3 = series(_COS, x[0])
+        s0, s1, s2, s3 = series(_SINC, x[0])
+    else:
+        a = math.sqrt(x[0])
+        c0, s0 = math.cos(a), math.sin(a) / a
+        inv2x = 0.5 / x[0]
+        s1 = (c0 - s0) * inv2x
+        c1 = -0.5 * s0
+        s2 = (c1 - 3.0 * s1) * inv2x
+        c2 = -0.5 * s1
+        s3 = (c2 - 5.0 * s2) * inv2x
+        c3 = -0.5 * s2
+    return chain(c0, c1, c2, c3, x), chain(s0, s1, s2, s3, x)
+
+
+@njit
+def curve(c, t, tab):
+    """Curve ``c`` at time ``t``: its four components, each a derivative list."""
+    kind, tw, inv_window, a3, g_kind, g_coef, gram, rise, power, axis_len, basis = tab
+    k = kind[c]
+    zero = (0.0, 0.0, 0.0, 0.0)
+    a0, a1, a2 = (1.0, 0.0, 0.0, 0.0), zero, zero
+    if k == PARABOLA:
+        tau = t - tw[c, 1]
+        aa, ab, bb = gram[0, c], gram[1, c], gram[2, c]
+        x = (
+            tau * tau * (aa + tau * (2.0 * ab + tau * bb)),
+            tau * (2.0 * aa + tau * (6.0 * ab + 4.0 * bb * tau)),
+            2.0 * aa + tau * (12.0 * ab + 12.0 * bb * tau),
+            12.0 * ab + 24.0 * bb * tau,
+        )
+        a0, sinc = cos_sinc_sqrt(x)
+        a1 = prod(sinc, (tau, 1.0, 0.0, 0.0))
+        a2 = prod(sinc, (tau * tau, 2.0 * tau, 2.0, 0.0))
+    elif k != POINT:
+        rate = inv_window[c]
+        s = (t - tw[c, 0]) * rate
+        if k == CIRCLE:
+            gk = g_kind[c]
+            if gk == G_RATIONAL:
+                b = g_coef[c, 0]
+                inv = 1.0 / (1.0 + b * s)
+                g1 = (1.0 + b) * inv * inv
+                g2 = -2.0 * b * g1 * inv
+                g = ((1.0 + b) * s * inv, g1, g2, -3.0 * b * g2 * inv)
+            elif gk == G_POLY:
+                c0, c1, c2, c3 = g_coef[c, 0], g_coef[c, 1], g_coef[c, 2], g_coef[c, 3]
+                g = (
+                    c0 + s * (c1 + s * (c2 + s * c3)),
+                    c1 + s * (2.0 * c2 + 3.0 * c3 * s),
+                    2.0 * c2 + 6.0 * c3 * s,
+                    6.0 * c3,
+                )
+            else:  # G_POWER; at s = 0 the derivatives are taken at 1e-12 (see _g_power)
+                al = g_coef[c, 0]
+                xs = max(s, 1e-12)
+                g = (
+                    0.0 if s < 1e-12 else xs**al,
+                    al * xs ** (al - 1.0),
+                    al * (al - 1.0) * xs ** (al - 2.0),
+                    al * (al - 1.0) * (al - 2.0) * xs ** (al - 3.0),
+                )
+            sc = a3[c]
+            th = (sc * g[0], sc * rate * g[1], sc * rate**2 * g[2], sc * rate**3 * g[3])
+            a1, a2 = cos_sin(th)
+        else:  # GEODESIC
+            s_i = (tw[c, 1] - tw[c, 0]) * rate
+            up = rise[c] > 0
+            x = (s - s_i) / (1.0 - s_i) if up else (s_i - s) / s_i
+            dx = rate / (1.0 - s_i) if up else -rate / s_i
+            p = power[c]
+            h = [0.0, 0.0, 0.0, 0.0]
+            if x > 0.0:
+                falling, dxn = 1.0, 1.0
+                for j in range(4):
+                    h[j] = falling * x ** (p - j) * dxn if falling != 0.0 else 0.0
+                    falling, dxn = falling * (p - j), dxn * dx
+            if not up:
+                h[0] = 1.0 - h[0]
+                for j in range(1, 4):
+                    h[j] = -h[j]
+            L = axis_len[c]
+            a0, a1 = cos_sin((L * h[0], L * h[1], L * h[2], L * h[3]))
+    return (
+        combine(a0, a1, a2, basis, c, 0),
+        combine(a0, a1, a2, basis, c, 1),
+        combine(a0, a1, a2, basis, c, 2),
+        combine(a0, a1, a2, basis, c, 3),
+    )
+
+
+@njit
+def combine(a0, a1, a2, basis, c, i):
+    """Component i of a0 K_0 + a1 K_1 + a2 K_2, K the basis of curve c."""
+    k0, k1, k2 = basis[i, c], basis[4 + i, c], basis[8 + i, c]
+    return (
+        a0[0] * k0 + a1[0] * k1 + a2[0] * k2,
+        a0[1] * k0 + a1[1] * k1 + a2[1] * k2,
+        a0[2] * k0 + a1[2] * k1 + a2[2] * k2,
+        a0[3] * k0 + a1[3] * k1 + a2[3] * k2,
+    )
+
+
+@njit
+def slerp_weights(z, f):
+    """The slerp weights of p and q (see trajgen.derivatives.slerp_steps)."""
+    g = (1.0 - f[0], -f[1], -f[2], -f[3])
+    if z[0] < SERIES_BELOW:
+        p0, p1, p2, p3 = series(_PHI2, z[0])
+        phi2 = chain(p0, p1, p2, p3, z)
+        s0, s1, s2, s3 = series(_SINC, phi2[0])
+        sinc = chain(s0, s1, s2, s3, phi2)
+        y = prod(prod(g, g), phi2)
+        s0, s1, s2, s3 = series(_SINC, y[0])
+        wa = prod(g, quot(chain(s0, s1, s2, s3, y), sinc))
+        y = prod(prod(f, f), phi2)
+        s0, s1, s2, s3 = series(_SINC, y[0])
+        wb = prod(f, quot(chain(s0, s1, s2, s3, y), sinc))
+    else:
+        x = z[0]
+        r = 1.0 / math.sqrt(x * (4.0 - x))
+        r3 = r * r * r
+        phi = chain(
+            2.0 * math.asin(0.5 * math.sqrt(x)),
+            r,
+            -(2.0 - x) * r3,
+            r3 + 3.0 * (2.0 - x) ** 2 * r3 * r * r,
+            z,
+        )
+        sin_phi = cos_sin(phi)[1]
+        wa = quot(cos_sin(prod(g, phi))[1], sin_phi)
+        wb = quot(cos_sin(prod(f, phi))[1], sin_phi)
+    return wa, wb
+
+
+@njit
+def sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
+    """Sample m: unit quaternion into out_q[m], omega, alpha, jerk into out_w[:, m]."""
+    i = seg[m]
+    tm = t[m]
+    cl = curve(left[i], tm, tab)
+    cr = curve(right[i], tm, tab)
+    # The blend polynomial and its derivatives at u, times (du/dt)^n.
+    rate = inv_h[i]
+    u = (tm - times[i]) * rate
+    f0 = f1 = f2 = f3 = 0.0
+    for j in range(blend.shape[1] - 1, -1, -1):
+        f3 = f3 * u + 3.0 * f2
+        f2 = f2 * u + 2.0 * f1
+        f1 = f1 * u + f0
+        f0 = f0 * u + blend[i, j]
+    f = (f0, f1 * rate, f2 * rate * rate, f3 * rate * rate * rate)
+    z = (0.0, 0.0, 0.0, 0.0)
+    for c in range(4):
+        a, b = cl[c], cr[c]
+        d = (b[0] - a[0], b[1] - a[1], b[2] - a[2], b[3] - a[3])
+        z = add(z, prod(d, d))
+    wa, wb = slerp_weights(z, f)
+    Q = (
+        add(prod(wa, cl[0]), prod(wb, cr[0])),
+        add(prod(wa, cl[1]), prod(wb, cr[1])),
+        add(prod(wa, cl[2]), prod(wb, cr[2])),
+        add(prod(wa, cl[3]), prod(wb, cr[3])),
+    )
+    norm = math.sqrt(Q[0][0] ** 2 + Q[1][0] ** 2 + Q[2][0] ** 2 + Q[3][0] ** 2)
+    for c in range(4):
+        out_q[m, c] = Q[c][0] / norm
+    # omega = 2 vec(Q' Q*), alpha = 2 vec(Q" Q*), jerk = 2 vec(Q"' Q* + Q" Q'*).
+    for n in range(1, 4):
+        x, y, w = vec_mul_conj(Q, n, 0)
+        out_w[n - 1, m, 0] = 2.0 * x
+        out_w[n - 1, m, 1] = 2.0 * y
+        out_w[n - 1, m, 2] = 2.0 * w
+    x, y, w = vec_mul_conj(Q, 2, 1)
+    out_w[2, m, 0] += 2.0 * x
+    out_w[2, m, 1] += 2.0 * y
+    out_w[2, m, 2] += 2.0 * w
 
 
 @njit
@@ -23,208 +261,24 @@ def add(a, b):
 
 
 @njit
-def sub(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3])
-
-
-@njit
-def scl(a, s):
-    return (a[0] * s, a[1] * s, a[2] * s, a[3] * s)
-
-
-@njit
-def addc(a, c):
-    return (a[0] + c, a[1], a[2], a[3])
-
-
-@njit
-def mul(a, b):
+def vec_mul_conj(Q, a, b):
+    """vec(Q^(a) Q^(b)*): the vector part of a Hamilton product with a conjugate."""
+    pw, px, py, pz = Q[0][a], Q[1][a], Q[2][a], Q[3][a]
+    qw, qx, qy, qz = Q[0][b], -Q[1][b], -Q[2][b], -Q[3][b]
     return (
-        a[0] * b[0],
-        a[0] * b[1] + a[1] * b[0],
-        a[0] * b[2] + a[1] * b[1] + a[2] * b[0],
-        a[0] * b[3] + a[1] * b[2] + a[2] * b[1] + a[3] * b[0],
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
     )
 
 
 @njit
-def compose(a, d0, d1, d2, d3):
-    return (
-        d0,
-        d1 * a[1],
-        d1 * a[2] + 0.5 * d2 * a[1] ** 2,
-        d1 * a[3] + d2 * a[1] * a[2] + d3 / 6.0 * a[1] ** 3,
-    )
+def evaluate_serial(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
+    for m in range(len(t)):
+        sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
 
 
-@njit
-def sin_cos(a):
-    s, c = math.sin(a[0]), math.cos(a[0])
-    return compose(a, s, c, -s, -c), compose(a, c, -s, -c, s)
-
-
-@njit
-def jsqrt(a):
-    r = math.sqrt(a[0])
-    return compose(a, r, 0.5 / r, -0.25 / (r * a[0]), 0.375 / (r * a[0] ** 2))
-
-
-@njit
-def recip(a):
-    x = 1.0 / a[0]
-    return compose(a, x, -(x**2), 2.0 * x**3, -6.0 * x**4)
-
-
-@njit
-def power(a, p):
-    # p (p-1) ... (p-j+1) x^(p-j); for an integer p the factor is 0 once j > p.
-    x = a[0]
-    f1, f2, f3 = p, p * (p - 1), p * (p - 1) * (p - 2)
-    d1 = f1 * x ** (p - 1) if f1 != 0.0 else 0.0
-    d2 = f2 * x ** (p - 2) if f2 != 0.0 else 0.0
-    d3 = f3 * x ** (p - 3) if f3 != 0.0 else 0.0
-    return compose(a, x**p, d1, d2, d3)
-
-
-@njit
-def deriv(a):
-    return (a[1], 2.0 * a[2], 3.0 * a[3], 0.0)
-
-
-@njit
-def atan2(y, x):
-    rate = mul(sub(mul(x, deriv(y)), mul(y, deriv(x))), recip(add(mul(x, x), mul(y, y))))
-    return (math.atan2(y[0], x[0]), rate[0], rate[1] / 2.0, rate[2] / 3.0)
-
-
-@njit
-def polyval(coef, x):
-    out = (coef[len(coef) - 1], 0.0, 0.0, 0.0)
-    for j in range(len(coef) - 2, -1, -1):
-        out = addc(mul(out, x), coef[j])
-    return out
-
-
-@njit
-def qmul(p, q):
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        sub(sub(sub(mul(pw, qw), mul(px, qx)), mul(py, qy)), mul(pz, qz)),
-        sub(add(add(mul(pw, qx), mul(px, qw)), mul(py, qz)), mul(pz, qy)),
-        add(add(sub(mul(pw, qy), mul(px, qz)), mul(py, qw)), mul(pz, qx)),
-        add(sub(add(mul(pw, qz), mul(px, qy)), mul(py, qx)), mul(pz, qw)),
-    )
-
-
-@njit
-def qconj(q):
-    return (q[0], scl(q[1], -1.0), scl(q[2], -1.0), scl(q[3], -1.0))
-
-
-@njit
-def const(x):
-    return (x, 0.0, 0.0, 0.0)
-
-
-@njit
-def qconst(q4):
-    return (const(q4[0]), const(q4[1]), const(q4[2]), const(q4[3]))
-
-
-@njit
-def qexp(v0, v1, v2):
-    x = add(add(mul(v0, v0), mul(v1, v1)), mul(v2, v2))
-    if x[0] < SERIES_BELOW:
-        cos_a, sinc = polyval(_COS, x), polyval(_SINC, x)
-    else:
-        a = jsqrt(x)
-        s, cos_a = sin_cos(a)
-        sinc = mul(s, recip(a))
-    return (cos_a, mul(sinc, v0), mul(sinc, v1), mul(sinc, v2))
-
-
-@njit
-def qlog(q):
-    w, x, y, z = q
-    s2 = add(add(mul(x, x), mul(y, y)), mul(z, z))
-    if s2[0] < SERIES_BELOW * w[0] ** 2 and w[0] > 0:
-        rw = recip(w)
-        scale = mul(polyval(_ATANC, mul(s2, mul(rw, rw))), rw)
-    else:
-        s = jsqrt(s2)
-        scale = mul(atan2(s, w), recip(s))
-    return mul(scale, x), mul(scale, y), mul(scale, z)
-
-
-@njit
-def curve(c, t, tab):
-    kind, tw, q, centre, radius, e1, e2, a3, g_kind, g_coef, A, B, rise, pw = tab
-    tj = (t, 1.0, 0.0, 0.0)
-    k = kind[c]
-    if k == POINT:
-        return qconst(q[c])
-    if k == PARABOLA:
-        tau = addc(tj, -tw[c, 1])
-        tau2 = mul(tau, tau)
-        v0 = add(scl(tau, A[c, 0]), scl(tau2, B[c, 0]))
-        v1 = add(scl(tau, A[c, 1]), scl(tau2, B[c, 1]))
-        v2 = add(scl(tau, A[c, 2]), scl(tau2, B[c, 2]))
-        return qmul(qexp(v0, v1, v2), qconst(q[c]))
-    s = scl(addc(tj, -tw[c, 0]), 1.0 / (tw[c, 2] - tw[c, 0]))
-    if k == CIRCLE:
-        gk = g_kind[c]
-        if gk == G_POLY:
-            g = polyval(g_coef[c], s)
-        elif gk == G_POWER:
-            at_zero = s[0] < 1e-12
-            g = power((max(s[0], 1e-12), s[1], s[2], s[3]), g_coef[c, 0])
-            if at_zero:
-                g = (0.0, g[1], g[2], g[3])
-        else:
-            b = g_coef[c, 0]
-            g = mul(scl(s, 1.0 + b), recip(addc(scl(s, b), 1.0)))
-        sn, cs = sin_cos(scl(g, a3[c]))
-        r = radius[c]
-        return (
-            add(scl(cs, r * e1[c, 0]), addc(scl(sn, r * e2[c, 0]), centre[c, 0])),
-            add(scl(cs, r * e1[c, 1]), addc(scl(sn, r * e2[c, 1]), centre[c, 1])),
-            add(scl(cs, r * e1[c, 2]), addc(scl(sn, r * e2[c, 2]), centre[c, 2])),
-            add(scl(cs, r * e1[c, 3]), addc(scl(sn, r * e2[c, 3]), centre[c, 3])),
-        )
-    # GEODESIC
-    s_i = (tw[c, 1] - tw[c, 0]) / (tw[c, 2] - tw[c, 0])
-    if rise[c] > 0:
-        x = scl(addc(s, -s_i), 1.0 / (1.0 - s_i))
-    else:
-        x = scl(addc(scl(s, -1.0), s_i), 1.0 / s_i)
-    if x[0] > 0:
-        xp = power(x, pw[c])
-    else:
-        xp = const(0.0)
-    h = xp if rise[c] > 0 else addc(scl(xp, -1.0), 1.0)
-    return qmul(qexp(scl(h, A[c, 0]), scl(h, A[c, 1]), scl(h, A[c, 2])), qconst(q[c]))
-
-
-def _kernel(t, seg, times, left, right, blend, tab, out_q, out_w):
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def evaluate_parallel(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
     for m in numba.prange(len(t)):
-        i = seg[m]
-        cl = curve(left[i], t[m], tab)
-        cr = curve(right[i], t[m], tab)
-        u = ((t[m] - times[i]) / (times[i + 1] - times[i]), 1.0 / (times[i + 1] - times[i]))
-        f = polyval(blend[i], (u[0], u[1], 0.0, 0.0))
-        v0, v1, v2 = qlog(qmul(cr, qconj(cl)))
-        Q = qmul(qexp(mul(f, v0), mul(f, v1), mul(f, v2)), cl)
-        norm = math.sqrt(Q[0][0] ** 2 + Q[1][0] ** 2 + Q[2][0] ** 2 + Q[3][0] ** 2)
-        for j in range(4):
-            out_q[m, j] = Q[j][0] / norm
-        # omega = 2 vec(Q' Q*), space frame; its Taylor coefficients n = 0..2.
-        Qd = (deriv(Q[0]), deriv(Q[1]), deriv(Q[2]), deriv(Q[3]))
-        W = qmul(Qd, qconj(Q))
-        for j in range(3):
-            out_w[0, m, j] = 2.0 * W[j + 1][0]
-            out_w[1, m, j] = 2.0 * W[j + 1][1]
-            out_w[2, m, j] = 4.0 * W[j + 1][2]
-
-
-evaluate = numba.njit(cache=True, parallel=True, fastmath=True, error_model="numpy")(_kernel)
+        sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)

@@ -113,10 +113,14 @@ class Jet:
 
 
 def compose(a: Jet, d: list[np.ndarray]) -> Jet:
-    """``phi(a)`` from ``d[j] = phi^(j)(a.value)``, j = 0..K (Faa di Bruno, K <= 3)."""
+    """``phi(a)`` from ``d[j] = phi^(j)(a.value)``, j = 0..K (Faa di Bruno, K <= 4).
+
+    Order 4 serves :class:`trajgen.online.OnlineSpline`, which splices a C^3 path
+    onto the old one's jet to one order more than the continuity it keeps.
+    """
     K = a.order
-    if K > 3:
-        raise ValueError(f"Jets are implemented up to order 3, got {K}.")
+    if K > 4:
+        raise ValueError(f"Jets are implemented up to order 4, got {K}.")
     x = a.c
     c = np.empty(x.shape)
     c[0] = d[0]
@@ -126,25 +130,33 @@ def compose(a: Jet, d: list[np.ndarray]) -> Jet:
         c[2] = d[1] * x[2] + 0.5 * d[2] * x[1] ** 2
     if K >= 3:
         c[3] = d[1] * x[3] + d[2] * x[1] * x[2] + d[3] / 6.0 * x[1] ** 3
+    if K >= 4:
+        c[4] = (
+            d[1] * x[4]
+            + d[2] * (x[1] * x[3] + 0.5 * x[2] ** 2)
+            + 0.5 * d[3] * x[1] ** 2 * x[2]
+            + d[4] / 24.0 * x[1] ** 4
+        )
     return Jet(c)
 
 
 def sin_cos(a: Jet) -> tuple[Jet, Jet]:
     """``(sin a, cos a)``."""
     s, c = np.sin(a.value), np.cos(a.value)
-    return compose(a, [s, c, -s, -c]), compose(a, [c, -s, -c, s])
+    return compose(a, [s, c, -s, -c, s]), compose(a, [c, -s, -c, s, c])
 
 
 def sqrt(a: Jet) -> Jet:
     """``sqrt(a)`` for ``a.value > 0``."""
     r = np.sqrt(a.value)
-    return compose(a, [r, 0.5 / r, -0.25 / (r * a.value), 0.375 / (r * a.value**2)])
+    x = a.value
+    return compose(a, [r, 0.5 / r, -0.25 / (r * x), 0.375 / (r * x**2), -0.9375 / (r * x**3)])
 
 
 def reciprocal(a: Jet) -> Jet:
     """``1 / a`` for ``a.value != 0``."""
     x = 1.0 / a.value
-    return compose(a, [x, -(x**2), 2.0 * x**3, -6.0 * x**4])
+    return compose(a, [x, -(x**2), 2.0 * x**3, -6.0 * x**4, 24.0 * x**5])
 
 
 def power(a: Jet, p: np.ndarray) -> Jet:

@@ -1,9 +1,11 @@
 """Keyframe files (TOML): orientations at times, spline options, and tables for other packages.
 
 ```toml
-[spline]            # optional: BlendingSpline keywords
-k = 2
-boundary = "rest"
+[spline]            # optional
+method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
+boundary = "rest"   # "rest", "natural" or "closed" (both methods)
+                    # k, local, reparam are the blending spline's keywords; a file
+                    # giving them without `method` gets method = "blending"
 
 [stream]            # optional
 rate_hz = 200
@@ -45,6 +47,7 @@ import numpy as np
 
 from . import quat as Q
 from .errors import KeyframeFileError
+from .smooth import SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .validate import check_choice, check_number
 
@@ -55,7 +58,13 @@ BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
 #: the file's ``[stream] rate_hz`` gives one.
 DEFAULT_RATE_HZ = 200.0
 
-SPLINE_KEYS = ("k", "boundary", "local", "reparam")
+SPLINE_KEYS = ("method", "k", "boundary", "local", "reparam")
+#: ``[spline] method`` -> spline class. The default is chosen by the torque race
+#: (README, "The torque race, part 2").
+METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
+DEFAULT_METHOD = "smooth"
+#: Keys only the blending spline takes; a file giving one without ``method`` gets it.
+BLENDING_ONLY = ("k", "local", "reparam")
 STREAM_KEYS = ("rate_hz",)
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 ANGLE_KEYS = ("pan", "tilt", "roll")
@@ -104,8 +113,10 @@ class KeyframeFile:
     rate_hz: float | None = None
     tables: dict = field(default_factory=dict)
     _spline: list = field(default_factory=list, repr=False, compare=False)
+    #: ``[spline] method``: "smooth" or "blending".
+    method: str = DEFAULT_METHOD
 
-    def spline(self) -> BlendingSpline:
+    def spline(self) -> SmoothSpline | BlendingSpline:
         """The file's spline, built on first use and kept.
 
         Raises
@@ -116,7 +127,8 @@ class KeyframeFile:
         """
         if not self._spline:
             try:
-                self._spline.append(BlendingSpline(self.quats, self.times, **self.spline_options))
+                spline = METHODS[self.method](self.quats, self.times, **self.spline_options)
+                self._spline.append(spline)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
         return self._spline[0]
@@ -172,12 +184,13 @@ def load_keyframe_file(path) -> KeyframeFile:
         if name not in TABLES:
             raise KeyframeFileError(f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})")
     options = _spline_options(data.get("spline", {}), path)
+    method = options.pop("method", DEFAULT_METHOD)
     rate_hz = _stream_rate(data.get("stream", {}), path)
     if columns is None:
         columns = _keyframe_columns(data.get("keyframes"), path)
     times, quats = _keyframes(columns, path)
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables)
+    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method)
 
 
 def _toml(text: str, path: Path) -> dict:
@@ -278,16 +291,24 @@ def _check_keys(table: dict, name: str, known, path: Path) -> None:
 
 
 def _spline_options(table, path: Path) -> dict:
-    """The ``[spline]`` table, checked: keywords for ``BlendingSpline``."""
+    """The ``[spline]`` table, checked: ``method`` and the keywords for its class."""
     table = _table(table, "spline", path)
     _check_keys(table, "spline", SPLINE_KEYS, path)
     if "k" in table:
         check_number(
             "k", table["k"], integer=True, low=1, high=MAX_K, error=_error(path, "[spline] k")
         )
-    for key, allowed in (("boundary", BOUNDARIES), ("local", LOCALS), ("reparam", REPARAMS)):
+    choices = (("method", tuple(METHODS)), ("boundary", BOUNDARIES), ("local", LOCALS))
+    for key, allowed in (*choices, ("reparam", REPARAMS)):
         if key in table:
             check_choice(key, table[key], allowed, error=_error(path, f"[spline] {key}"))
+    blending_only = [k for k in BLENDING_ONLY if k in table]
+    if blending_only and table.get("method") == "smooth":
+        raise KeyframeFileError(
+            f"{path}: [spline] {blending_only[0]}: applies to method = 'blending' only"
+        )
+    if blending_only and "method" not in table:  # a file written for the blending spline
+        table = {"method": "blending", **table}
     return dict(table)
 
 
@@ -338,12 +359,39 @@ def _first(mask: np.ndarray) -> int:
     return int(np.argmax(mask))
 
 
-def _keyframes(columns: dict, path: Path) -> tuple[np.ndarray, np.ndarray]:
+def check_keyframes(entries, source, *, minimum: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Check keyframe tables as a keyframe file's ``[[keyframes]]`` are checked.
+
+    Parameters
+    ----------
+    entries : list of dict
+        Keyframes: ``t`` (s) and ``quat`` ([w, x, y, z]) or any of ``pan``,
+        ``tilt``, ``roll`` (degrees), e.g. parsed from JSON lines.
+    source : str or Path
+        What the message names before the keyframe, e.g. ``"stdin: line 7"``.
+    minimum : int, optional
+        Fewest keyframes accepted. Default 2.
+
+    Returns
+    -------
+    times : ndarray, shape (N,)
+    quats : ndarray, shape (N, 4)
+        Unit quaternions (w, x, y, z).
+
+    Raises
+    ------
+    KeyframeFileError
+        ``"{source}: keyframe i: field 'f': ..."`` for the first problem.
+    """
+    return _keyframes(_keyframe_columns(entries, source), source, minimum)
+
+
+def _keyframes(columns: dict, path: Path, minimum: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """Check the keyframe columns as a whole; times (N,) and unit quaternions (N, 4)."""
     t, quat = columns["t"], columns["quat"]
     n = len(t)
-    if n < 2:
-        raise KeyframeFileError(f"{path}: [[keyframes]]: at least 2 are needed, got {n}")
+    if n < minimum:
+        raise KeyframeFileError(f"{path}: [[keyframes]]: at least {minimum} are needed, got {n}")
     has_quat = ~np.isnan(quat[:, 0])
     has_angle = ~np.isnan(np.column_stack([columns[k] for k in ANGLE_KEYS])).all(axis=1)
     if np.isnan(t).any():

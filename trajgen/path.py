@@ -94,8 +94,9 @@ class OrientationPath:
                 raise ValueError(
                     f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s."
                 )
-            t = np.clip(t, t0, t1)
-        seg = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 2)
+            t = np.minimum(np.maximum(t, t0), t1)
+        seg = np.searchsorted(self.times, t, side="right") - 1
+        seg = np.minimum(np.maximum(seg, 0), len(self.times) - 2)
         return seg, t
 
     def evaluate(self, t, *, max_order: int = 2, frame: str = "space") -> Samples:
@@ -113,7 +114,8 @@ class OrientationPath:
         Returns
         -------
         Samples
-            ``q`` (M, 4), ``omega``, ``alpha``, ``jerk`` (M, 3) or None.
+            ``t`` (M,) the times asked for; ``q`` (M, 4), ``omega``, ``alpha``,
+            ``jerk`` (M, 3) or None.
 
         Raises
         ------
@@ -122,7 +124,8 @@ class OrientationPath:
         """
         max_order = _check_order("max_order", max_order)
         check_choice("frame", frame, FRAMES)
-        seg, ta = self._segment(_as_times(t).reshape(-1))
+        t_in = _as_times(t).reshape(-1)
+        seg, ta = self._segment(t_in)
         q, rates = self._space_rates(ta, seg, max_order)
         if frame == "body":
             # w_b = R^T w_s, a_b = R^T a_s, j_b = R^T (j_s - w_s x a_s).
@@ -130,7 +133,32 @@ class OrientationPath:
                 rates[2] = rates[2] - np.cross(rates[0], rates[1])
             rates = [Q.rotate(Q.conj(q), r) for r in rates]
         derivs = rates + [None] * (3 - len(rates))
-        return Samples(ta, q, *derivs)
+        # A closed path keeps the caller's times (t_end stays t_end, not t_start).
+        return Samples(t_in if self.periodic else ta, q, *derivs)
+
+    def evaluation_steps(self, t, *, max_order: int = 2):
+        """:meth:`evaluate` (space frame) as a generator of small steps.
+
+        For a caller that spreads the work of an evaluation over time, such as
+        the online stream (one step per frame): each ``next()`` does a part of the
+        work and the generator's return value (``StopIteration.value``, or the
+        value of ``yield from``) is the :class:`Samples`. The default is one step;
+        a path may split its work further.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`evaluate`, at the first ``next()``.
+        """
+        max_order = _check_order("max_order", max_order)
+        seg, ta = self._segment(_as_times(t).reshape(-1))
+        q, rates = yield from self._space_rate_steps(ta, seg, max_order)
+        return Samples(ta, q, *(rates + [None] * (3 - len(rates))))
+
+    def _space_rate_steps(self, t, seg, max_order):
+        """:meth:`_space_rates` as a generator of steps (here: one)."""
+        return self._space_rates(t, seg, max_order)
+        yield  # makes this a generator
 
     def _space_rates(self, t, seg, max_order) -> tuple[np.ndarray, list[np.ndarray]]:
         """Unit quaternions (M, 4) and the space-frame angular derivatives of orders
@@ -156,15 +184,52 @@ class OrientationPath:
         """
         order = _check_order("order", order)
         ta = _as_times(t)
-        s = self.evaluate(ta.reshape(-1), max_order=order, frame=frame)
+        s = self._recall(ta.reshape(-1), order, frame)
         out = (s.q, s.omega, s.alpha, s.jerk)[order]
-        return out.reshape(*ta.shape, out.shape[-1])
+        # A copy: the samples stay in the cache below for the next call.
+        return out.reshape(*ta.shape, out.shape[-1]).copy()
+
+    #: The last evaluation made by ``__call__``: ``(t, frame, max_order, samples)``.
+    _last: tuple | None = None
+
+    def _recall(self, t: np.ndarray, order: int, frame: str) -> Samples:
+        """Samples at times ``t`` (M,) up to ``order``, shared between calls at the same times.
+
+        A scipy-style caller asks ``s(t)``, ``s(t, 1)``, ``s(t, 2)``: three calls at
+        the same times. The first evaluates the orientation only; a call for a rate
+        at the times of the call before evaluates the rates up to order 2 (or
+        ``order`` if higher) at once and keeps them, so the third is read back. Only
+        the last evaluation is kept (paths are immutable, so it never goes stale).
+        """
+        last = self._last
+        same = (
+            last is not None
+            and last[1] == frame
+            and last[0].shape == t.shape
+            and np.array_equal(last[0], t)
+        )
+        if same and last[2] >= order:
+            return last[3]
+        max_order = max(order, 2) if same else order
+        samples = self.evaluate(t, max_order=max_order, frame=frame)
+        self._last = (t.copy(), frame, max_order, samples)
+        return samples
 
     def sample(self, rate_hz: float, *, max_order: int = 2, frame: str = "space") -> Samples:
         """:meth:`evaluate` at ``rate_hz`` from ``t_start`` to ``t_end`` inclusive (the last
         sample at ``t_end`` even when the duration is not a whole number of periods)."""
         t = sample_times(self.t_start, self.t_end, rate_hz)
         return self.evaluate(t, max_order=max_order, frame=frame)
+
+
+def run_steps(steps):
+    """Run a generator of work steps (see :meth:`OrientationPath.evaluation_steps`) to its
+    end; its return value."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value
 
 
 def _as_times(t) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -79,16 +80,36 @@ def sample_times(
     PlanTooLarge
         If there would be more than ``max_samples`` samples.
     """
+    return np.concatenate(
+        list(sample_time_blocks(t_start, t_end, rate_hz, max_samples=max_samples, block=None))
+    )
+
+
+def sample_time_blocks(
+    t_start: float,
+    t_end: float,
+    rate_hz: float,
+    *,
+    block: int | None = 100_000,
+    max_samples: int = MAX_SAMPLES,
+) -> Iterator[np.ndarray]:
+    """:func:`sample_times` in consecutive pieces of at most ``block`` samples (None: one piece).
+
+    For writing plans longer than memory allows, one piece at a time. Raises as
+    :func:`sample_times`, before the first piece.
+    """
     rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
     if not t_end > t_start:
         raise ValueError(f"Expected t_end > t_start, got {t_start} .. {t_end}.")
     check_sample_count(t_start, t_end, rate_hz, max_samples)
     period = 1.0 / rate_hz
     # Whole periods that fit, with a tolerance so 2.0 s at 100 Hz gives 201 samples.
-    n = math.floor((t_end - t_start) / period + 1e-9)
-    t = t_start + np.arange(n + 1) * period
-    if t_end - t[-1] > 1e-9 * period:
-        t = np.append(t, t_end)
-    else:
-        t[-1] = t_end
-    return t
+    last = math.floor((t_end - t_start) / period + 1e-9)
+    # The last sample is t_end: an extra one when t_end is not on the grid.
+    total = last + 1 + int(t_end - (t_start + last * period) > 1e-9 * period)
+    step = total if block is None else block
+    for first in range(0, total, step):
+        t = t_start + np.arange(first, min(first + step, total)) * period
+        if first + len(t) == total:
+            t[-1] = t_end
+        yield t

@@ -13,17 +13,22 @@ from math import comb
 
 import numpy as np
 
+from . import derivatives as D
 from . import fast
 from . import jet as J
 from . import quat as Q
-from .local_curves import KIND_NAMES, POINT, CurveRow, LocalCurves, NoCircleError, build_curve
-from .path import OrientationPath, check_times
+from .local_curves import KIND_NAMES, NoCircleError, build_curves
+from .path import OrientationPath, check_times, run_steps
 from .validate import check_choice, check_number
 
 BOUNDARIES = ("rest", "natural", "closed")
 LOCALS = ("auto", "circle", "parabola")
 REPARAMS = ("paper", "rational")
 
+#: Samples evaluated per block by the numpy path.
+CHUNK = 4096
+#: Sign pattern of the quaternion conjugate, components first (4, 1).
+CONJ = np.array([[1.0], [-1.0], [-1.0], [-1.0]])
 #: The highest continuity order accepted. Peak rates climb with k (built-in
 #: example at 1 kHz: peak angular acceleration 1.36 rad/s^2 at k = 2, 2.71 at
 #: k = 6), no servo loop gains from more than C^6, and the blend polynomial's
@@ -33,6 +38,19 @@ MAX_K = 6
 
 #: A closed spline's last keyframe must be within this rotation angle (rad) of its first.
 CLOSED_TOLERANCE = 1e-6
+
+
+def check_closed(quats: np.ndarray) -> None:
+    """Refuse keyframes (N, 4) that cannot make a closed loop: N < 3, or a last
+    keyframe more than :data:`CLOSED_TOLERANCE` away from the first."""
+    if len(quats) < 3:
+        raise ValueError(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
+    gap = float(Q.distance(quats[0], quats[-1]))
+    if gap > CLOSED_TOLERANCE:
+        raise ValueError(
+            "boundary='closed' needs the last keyframe to repeat the first; they are "
+            f"{np.degrees(gap):.4g} deg apart."
+        )
 
 
 def blend_polynomial(m: int) -> np.ndarray:
@@ -117,18 +135,11 @@ class BlendingSpline(OrientationPath):
         self.local = check_choice("local", local, LOCALS)
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         if boundary == "closed":
-            if n < 3:
-                raise ValueError(f"A closed spline needs at least 3 keyframes, got {n}.")
-            gap = float(Q.distance(q[0], q[-1]))
-            if gap > CLOSED_TOLERANCE:
-                raise ValueError(
-                    "boundary='closed' needs the last keyframe to repeat the first; they are "
-                    f"{np.degrees(gap):.4g} deg apart."
-                )
-        # SPEC 1: one sign per consecutive pair, the shortest geodesic.
-        for i in range(1, n):
-            if q[i] @ q[i - 1] < 0:
-                q[i] = -q[i]
+            check_closed(q)
+        # SPEC 1: one sign per consecutive pair, the shortest geodesic: q_i flips when
+        # q_i . q_{i-1} < 0 with q_{i-1} already flipped, i.e. by the product of the signs so far.
+        flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0
+        q[1:] *= np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)[:, None]
         self.quats = q
         self.periodic = boundary == "closed"
         self._build_curves()
@@ -136,31 +147,28 @@ class BlendingSpline(OrientationPath):
     def _build_curves(self) -> None:
         q, t, n, k = self.quats, self.times, len(self.quats), self.k
 
-        def curve(qs, ts):
-            try:
-                return build_curve(qs, ts, k=k, local=self.local, reparam=self.reparam)
-            except NoCircleError:
-                raise ValueError(
-                    f"The keyframes at t = {ts[0]:g} s and t = {ts[2]:g} s coincide around the "
-                    f"one at t = {ts[1]:g} s (a reversal): no circle passes through them; "
-                    "use local='auto' or 'parabola'."
-                ) from None
+        def windows(qe, te):
+            """Triples (qe[i], qe[i+1], qe[i+2]) (C, 3, 4) and their times (C, 3)."""
+            if len(qe) < 3:
+                return np.empty((0, 3, 4)), np.empty((0, 3))
+            view = np.lib.stride_tricks.sliding_window_view
+            return view(qe, 3, axis=0).transpose(0, 2, 1), view(te, 3)
 
-        rows: list[CurveRow] = []
         if self.boundary == "closed":
             # Extend by one keyframe each side, wrapped; sigma = +-1 matches the seam's sign.
             sigma = 1.0 if q[-1] @ q[0] > 0 else -1.0
             period = t[-1] - t[0]
             qe = np.vstack([sigma * q[-2], q, sigma * q[1]])
             te = np.concatenate([[t[-2] - period], t, [t[-1] + t[1] - t[0]]])
-            rows = [curve(qe[i : i + 3], te[i : i + 3]) for i in range(n)]
+            triples, times = windows(qe, te)
             left, right, order = np.arange(n - 1), np.arange(1, n), np.full(n - 1, k)
         else:
-            rows = [curve(q[i - 1 : i + 2], t[i - 1 : i + 2]) for i in range(1, n - 1)]
-            # Curve ids: 0..n-3 interior curves C_1..C_{n-2}; then the two held ends.
-            first, last = len(rows), len(rows) + 1
-            rows.append(CurveRow(POINT, (t[0], t[0], t[0]), q[0]))
-            rows.append(CurveRow(POINT, (t[-1], t[-1], t[-1]), q[-1]))
+            # Curve ids: 0..n-3 interior curves C_1..C_{n-2}; then the two held ends, as
+            # triples of one repeated keyframe.
+            triples, times = windows(q, t)
+            triples = np.concatenate([triples, np.repeat(q[[0, -1], None], 3, axis=1)])
+            times = np.concatenate([times, np.repeat(t[[0, -1], None], 3, axis=1)])
+            first, last = n - 2, n - 1
             left = np.concatenate([[first], np.arange(n - 2)])  # C_i on segment i
             right = np.concatenate([np.arange(n - 2), [last]])  # C_{i+1} on segment i
             order = np.full(n - 1, k)
@@ -170,24 +178,104 @@ class BlendingSpline(OrientationPath):
                 order[0] = 1
             else:  # natural: the end curve alone
                 left[0], right[-1] = right[0], left[-1]
-        self._curves = LocalCurves(rows)
+        try:
+            self._curves = build_curves(
+                triples, np.array(times), k=k, local=self.local, reparam=self.reparam
+            )
+        except NoCircleError as e:
+            ts = times[e.index]
+            raise ValueError(
+                f"The keyframes at t = {ts[0]:g} s and t = {ts[2]:g} s coincide around the "
+                f"one at t = {ts[1]:g} s (a reversal): no circle passes through them; "
+                "use local='auto' or 'parabola'."
+            ) from None
         self._left, self._right = left, right
         #: Local curve kind ("circle", "parabola", "geodesic", "point") of each interior
         #: keyframe (of every keyframe when closed), for inspection.
-        self.local_kinds = [KIND_NAMES[r.kind] for r in rows[: n if self.periodic else n - 2]]
+        kinds = self._curves.kind[: n if self.periodic else n - 2]
+        self.local_kinds = np.array(KIND_NAMES)[kinds].tolist()
         # Blend polynomials f_m for each segment, padded to a common degree.
         deg = 2 * int(order.max())
         self._blend = np.zeros((n - 1, deg))
         for m in np.unique(order):
             self._blend[order == m, : 2 * m] = blend_polynomial(int(m))
 
+        self._blend_T = self._blend.T.copy()
+        self._inv_h = 1.0 / np.diff(self.times)
+        # _falling[n][j] = j (j-1) ... (j-n+1): the factor of u^(j-n) in the n-th derivative.
+        j = np.arange(deg, dtype=float)
+        falling = [np.ones(deg)]
+        for m in range(1, 4):
+            falling.append(falling[-1] * (j - m + 1))
+        self._falling = [x[:, None] for x in falling]
+
     def _space_rates(self, t, seg, max_order):
-        if not fast.ENABLED:
-            return super()._space_rates(t, seg, max_order)
-        q, rates = fast.evaluate(self, t, seg)
-        return q, list(rates[:max_order])
+        if fast.use_compiled(len(t)):
+            q, rates = fast.evaluate(self, t, seg)
+            return q, list(rates[:max_order])
+        q = np.empty((len(t), 4))
+        rates = [np.empty((len(t), 3)) for _ in range(max_order)]
+        # Blocks small enough for their temporaries to stay in cache and in the
+        # allocator's pool (large arrays are mapped and unmapped on every call).
+        for a in range(0, len(t), CHUNK):
+            b = min(a + CHUNK, len(t))
+            qb, rb = run_steps(self._blend_steps(t[a:b], seg[a:b], max_order))
+            q[a:b] = qb.T
+            for out, r in zip(rates, rb, strict=True):
+                out[a:b] = r.T
+        return q, rates
+
+    def _space_rate_steps(self, t, seg, max_order):
+        if len(t) > CHUNK or fast.use_compiled(len(t)):
+            return self._space_rates(t, seg, max_order)
+        q, rates = yield from self._blend_steps(t, seg, max_order)
+        return q.T, [r.T for r in rates]
+
+    def _blend_steps(self, t, seg, order):
+        """The path at times ``t`` (M,) in segments ``seg`` (M,): unit quaternions (4, M) and the
+        space-frame angular velocity, acceleration, jerk up to ``order``, each (3, M).
+
+        A generator that pauses between stages (see :meth:`_space_rate_steps`); its
+        return value is the result.
+        """
+        M = len(t)
+        curves = yield from self._curves.derivative_steps(
+            np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order
+        )
+        c_left = [c[:, :M] for c in curves]
+        c_right = [c[:, M:] for c in curves]
+        yield
+        rate = self._inv_h[seg]
+        u = (t - self.times[seg]) * rate
+        coef = np.take(self._blend_T, seg, axis=1)
+        f = []
+        for n in range(order + 1):
+            # f^(n)(t) = p^(n)(u) / h^n, Horner on the n-th derivative's coefficients.
+            fall = self._falling[n]
+            acc = coef[-1] * fall[-1]
+            for j in range(len(coef) - 2, n - 1, -1):
+                acc = acc * u + coef[j] * fall[j]
+            f.append(acc * rate**n if n else acc)
+        yield
+        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
+        Q = yield from D.slerp_steps(c_left, c_right, f)
+        yield
+        q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
+        if order == 0:
+            return q, []
+        # omega = 2 vec(Q' Q*), alpha = 2 vec(Q'' Q*), jerk = 2 vec(Q''' Q* + Q'' Q'*)
+        # (the derivatives of 2 vec(Q' Q*); vec(Q' Q'*) = 0).
+        q_conj = Q[0] * CONJ
+        rates = [D.hamilton_vec(Q[n], q_conj) for n in range(1, order + 1)]
+        if order >= 3:
+            rates[2] += D.hamilton_vec(Q[2], Q[1] * CONJ)
+        for r in rates:
+            r *= 2.0
+        return q, rates
 
     def _jet(self, t: np.ndarray, seg: np.ndarray, order: int) -> J.Jet:
+        """The path as a quaternion jet (order + 1, 4, M), any order: the reference that
+        :meth:`_blend_derivatives` restates in closed form (tests check that they agree)."""
         M = len(t)
         curves = self._curves.evaluate(
             np.concatenate([self._left[seg], self._right[seg]]), np.concatenate([t, t]), order

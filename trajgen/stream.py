@@ -136,15 +136,24 @@ def stream_frames(
     a limit raises at the first offending frame, after the frames before it
     have been yielded.
 
+    An online source (an :class:`~trajgen.online.OnlineSpline`, or anything with
+    its ``snapshot``, ``commit``, ``closed`` and ``t_end``) may change while it
+    is streamed: each frame is committed to the source before it is yielded, and
+    a change made by another thread between two frames takes effect from the
+    next one (the frames evaluated ahead are dropped and evaluated again). Its
+    frames run from ``t_start`` until the source is closed and ``t_end`` is
+    reached, holding at rest meanwhile.
+
     Parameters
     ----------
     spline, rate_hz, kinematics, start
-        As for :func:`plan_joint_trajectory`.
+        As for :func:`plan_joint_trajectory`; ``spline`` may be an online source.
 
     Returns
     -------
     Iterator[JointFrame]
-        Frames ``0 .. M-1`` at ``t_start + i / rate_hz``, the last at ``t_end``.
+        Frames ``0 .. M-1`` at ``t_start + i / rate_hz``, the last at ``t_end``
+        (for an online source: the first at or after ``t_end`` once it is closed).
 
     Raises
     ------
@@ -155,35 +164,135 @@ def stream_frames(
     ValueError
         If ``rate_hz`` is not > 0 or ``start`` is not (3,).
     """
+    if all(hasattr(spline, name) for name in ("snapshot", "commit", "closed")):
+        kin, _, start = _prepare(spline, rate_hz, kinematics, start, online=True)
+        return _online_frames(spline, kin, float(rate_hz), start)
     return _frames(spline, *_prepare(spline, rate_hz, kinematics, start))
 
 
-#: Frames the online stream evaluates per spline call: a fixed cost (~2 ms for the
-#: blending spline) shared by a block, at most one block of look-ahead latency.
+#: Frames per block of the online stream: the path, the inverse kinematics and the joint
+#: rates are computed a block at a time, one block ahead, in steps spread over the
+#: frames of the block before (at most one block of look-ahead).
 BLOCK_FRAMES = 32
 
 
 def _frames(spline, kin: GimbalKinematics, t: np.ndarray, start) -> Iterator[JointFrame]:
-    """Generator behind :func:`stream_frames`; each block starts from the last frame."""
-    previous = start
-    for first in range(0, len(t), BLOCK_FRAMES):
-        tb = t[first : first + BLOCK_FRAMES]
+    """Generator behind :func:`stream_frames`.
+
+    Each ``next()`` hands out a frame of the current block and then does one step
+    of the next block's work (a part of the path's evaluation, see
+    :meth:`~trajgen.path.OrientationPath.evaluation_steps`, then its inverse
+    kinematics, then its joint rates), so the cost per frame is even: no frame
+    pays for a whole block. Only the first block is computed at once.
+    """
+    blocks = [t[a : a + BLOCK_FRAMES] for a in range(0, len(t), BLOCK_FRAMES)]
+    last = [start]  # the frame before the block being worked (pan and roll unwrap from it)
+    frames = _Steps(_block_steps(spline, kin, blocks[0], last)).finish()
+    first = 0
+    for b, tb in enumerate(blocks):
+        work = (
+            _Steps(_block_steps(spline, kin, blocks[b + 1], last)) if b + 1 < len(blocks) else None
+        )
+        for frame in frames(first):
+            yield frame
+            if work is not None:
+                work.step()
+        first += len(tb)
+        if work is not None:
+            frames = work.finish()
+
+
+class _Steps:
+    """A generator of work steps and, once it has ended, its return value."""
+
+    def __init__(self, steps):
+        self._steps, self.done, self.result = steps, False, None
+
+    def step(self) -> None:
+        """Do one step (nothing once done)."""
+        if not self.done:
+            try:
+                next(self._steps)
+            except StopIteration as end:
+                self.done, self.result = True, end.value
+
+    def finish(self):
+        """Do the remaining steps; the result."""
+        while not self.done:
+            self.step()
+        return self.result
+
+
+def _block_steps(spline, kin, tb, last):
+    """The work for the frames at times ``tb``, in steps: the evaluation (in the path's
+    own steps), inverse kinematics, joint rates. Returns ``frames(first)``, which yields
+    the block's frames numbered from ``first``.
+
+    ``last[0]`` holds the frame before the block (``start`` for the first); it is
+    read at the inverse-kinematics step and set to the block's last frame.
+    """
+    steps = getattr(spline, "evaluation_steps", None)
+    if steps is None:  # any object with the spline protocol's evaluate()
         samples = spline.evaluate(tb, max_order=2)
-        try:
-            q = kin.inverse(samples.q, tb, start=previous)
-        except KinematicsError:
-            # Yield the block's good frames one by one; the offending one raises.
+    else:
+        samples = yield from steps(tb, max_order=2)
+    yield
+    previous = last[0]
+    try:
+        q = kin.inverse(samples.q, tb, start=previous)
+    except KinematicsError:
+
+        def one_by_one(first):
+            # The good frames one by one; the offending one raises when it is reached.
+            q = previous
             for j in range(len(tb)):
-                previous = kin.inverse(samples.q[j : j + 1], tb[j : j + 1], start=previous)[0]
-                qd, qdd = joint_rates(previous, samples.omega[j], samples.alpha[j])
-                yield JointFrame(first + j, float(tb[j]), previous, qd, qdd)
-        qd, qdd = joint_rates(q, samples.omega, samples.alpha)
-        previous = q[-1]
+                q = kin.inverse(samples.q[j : j + 1], tb[j : j + 1], start=q)[0]
+                qd, qdd = joint_rates(q, samples.omega[j], samples.alpha[j])
+                yield JointFrame(first + j, float(tb[j]), q, qd, qdd)
+
+        return one_by_one
+    last[0] = q[-1]
+    yield
+    qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+
+    def frames(first):
         for j in range(len(tb)):
             yield JointFrame(first + j, float(tb[j]), q[j], qd[j], qdd[j])
 
+    return frames
 
-def _prepare(spline, rate_hz, kinematics, start):
+
+#: Frames evaluated ahead from an online source (dropped if it changes first).
+ONLINE_BLOCK_FRAMES = 16
+
+
+def _online_frames(source, kin: GimbalKinematics, rate_hz: float, start) -> Iterator[JointFrame]:
+    """Generator behind :func:`stream_frames` for an online source."""
+    t0, previous, i, block = source.t_start, start, 0, ONLINE_BLOCK_FRAMES
+    while True:
+        version, path = source.snapshot()
+        tb = t0 + np.arange(i, i + block) / rate_hz
+        samples = path.evaluate(tb, max_order=2)
+        try:
+            q = kin.inverse(samples.q, tb, start=previous)
+        except KinematicsError:
+            if block == 1:
+                raise
+            block = 1  # frame by frame up to the offending one, which raises
+            continue
+        qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+        for j in range(len(tb)):
+            if not source.commit(tb[j], version):
+                block = ONLINE_BLOCK_FRAMES
+                break  # changed since evaluated: evaluate again from frame i
+            previous = q[j]
+            yield JointFrame(i, float(tb[j]), q[j], qd[j], qdd[j])
+            i += 1
+            if source.closed and tb[j] >= source.t_end:
+                return
+
+
+def _prepare(spline, rate_hz, kinematics, start, *, online=False):
     """Check the planners' arguments; return the kinematics, the times (M,) and start."""
     if not all(hasattr(spline, name) for name in ("t_start", "t_end", "evaluate")):
         raise TypeError(
@@ -198,4 +307,6 @@ def _prepare(spline, rate_hz, kinematics, start):
         )
     if start is not None:
         start = as_angles(start, "start", single=True)
+    if online:
+        return kinematics, sample_times(0.0, 1.0, rate_hz), start  # checks the rate
     return kinematics, sample_times(spline.t_start, spline.t_end, rate_hz), start

@@ -15,11 +15,12 @@ the e-Manual; per-servo control tables and register rules in
 Servo motion comes from a ``Plant``: one lock guards it, and every plant call
 is made holding it. Two clocks:
 
-- real time (``lockstep_dt_s=None``, the default): a simulation thread
-  advances the plant in steps of ``sim_step_s`` on the wall clock, whether
-  packets arrive or not, so simulated time tracks wall time and a reply after
-  a pause costs no catch-up; packets are answered from the state the plant has
-  reached;
+- real time (``lockstep_dt_s=None``, the default): simulated time is the wall
+  clock since ``start``, in whole steps of ``sim_step_s``. A simulation thread
+  keeps the plant there whether packets arrive or not (it wakes every 5 ms),
+  and each packet first brings the plant to its arrival time, so a reply
+  shows the state at that time and never waits for more than a few steps of
+  simulation, even after a long pause;
 - lock-step (``lockstep_dt_s`` given): simulated time advances only with the
   host's traffic, by exactly ``lockstep_dt_s`` per period, so a run does not
   depend on the host's timing and goes as fast as the plant computes. A period
@@ -73,13 +74,12 @@ from trajgen.drivers.virtual.servo import FACTORY_RESET_KEEPS, VirtualServo
 _OVERLOAD_BIT = 0x20
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).
 _SWITCH_INTERVAL_S = 1e-3
-# Most simulation steps run per hold of the lock when the plant has fallen behind.
-_MAX_STEPS_PER_HOLD = 5
-# The registers the plant fills (Realtime Tick .. Present Temperature).
-_PRESENT_NAMES = (
-    "Realtime Tick",
-    "Present Temperature",
-)
+# Real time: how often the simulation thread wakes (s), and the most steps it
+# runs per hold of the lock (when the plant has fallen behind the wall clock).
+_SIM_WAKE_S = 0.005
+_MAX_STEPS_PER_HOLD = 10
+# The first and last of the registers the plant fills (addresses 120..146).
+_PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
 _CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
@@ -270,6 +270,7 @@ class VirtualBus:
             servo.set("Goal Position", servo.present_ticks(int(ticks[self._joint[servo_id]])))
             self.plant.set_control(self._joint[servo_id], self._control(servo))
             self.plant.set_torque_enabled(self._joint[servo_id], servo.torque_on)
+        self._index_ids()
         self._goal_written = False
         self._polled = False
         self._last_packet_s = {i: time.monotonic() for i in ids}
@@ -284,6 +285,7 @@ class VirtualBus:
         self._late_count = 0
         self._switch_interval_s = sys.getswitchinterval()
         self._started_s = time.monotonic()
+        self._steps_done = 0
 
     # -- life cycle --------------------------------------------------------
 
@@ -302,6 +304,7 @@ class VirtualBus:
         self.port = os.ttyname(self._slave)
         self._stop.clear()
         self._started_s = time.monotonic()
+        self._steps_done = 0
         self._last_packet_s = dict.fromkeys(self.ids, self._started_s)
         targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
         self._threads = [
@@ -361,28 +364,33 @@ class VirtualBus:
         self.plant.advance(dt_s)
         self.sim_time_s += dt_s
 
+    def _catch_up(self, now_s: float, max_steps: int | None = None) -> None:
+        """Real time: advance the plant by whole steps to ``now_s`` (lock held)."""
+        due = int((now_s - self._started_s) / self.sim_step_s)
+        steps = due - self._steps_done
+        if max_steps is not None:
+            steps = min(steps, max_steps)
+        if steps > 0:
+            self._advance(steps * self.sim_step_s)
+            self._steps_done += steps
+
     def _simulate(self) -> None:
-        """Real time: step the plant on the wall clock, whatever the traffic."""
-        step = self.sim_step_s
-        done = 0
+        """Real time: keep the plant on the wall clock, whatever the traffic.
+
+        Wakes every ``_SIM_WAKE_S``; a packet brings the plant to its arrival
+        time itself, so a reply waits for at most that much simulation.
+        """
         while not self._stop.is_set():
-            due = int((time.monotonic() - self._started_s) / step)
-            if due > done:
-                steps = min(due - done, _MAX_STEPS_PER_HOLD)
-                try:
-                    with self.lock:
-                        self._advance(steps * step)
-                        self._check_watchdogs(time.monotonic())
-                except Exception as e:  # the plant failed: the port goes away
-                    self._fail(e)
-                    return
-                done += steps
-                if done < due:
-                    time.sleep(0)  # behind: let the serving thread in, then catch up
-                    continue
-            wait = self._started_s + (done + 1) * step - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)
+            try:
+                with self.lock:
+                    now = time.monotonic()
+                    self._catch_up(now, _MAX_STEPS_PER_HOLD)
+                    self._check_watchdogs(now)
+                    behind = int((now - self._started_s) / self.sim_step_s) > self._steps_done
+            except Exception as e:  # the plant failed: the port goes away
+                self._fail(e)
+                return
+            time.sleep(0 if behind else _SIM_WAKE_S)
 
     @staticmethod
     def _control(servo: VirtualServo) -> dict[str, int]:
@@ -399,6 +407,8 @@ class VirtualBus:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
         j = self._joint[servo_id]
         servo = self.servos[servo_id]
+        if "ID" in names:
+            self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
         if names & set(CONTROL_REGISTERS):
@@ -462,8 +472,8 @@ class VirtualBus:
 
     def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
         """Whether a read of ``address``.. touches the registers the plant fills."""
-        low = servo.items[_PRESENT_NAMES[0]][0]
-        high = sum(servo.items[_PRESENT_NAMES[1]])
+        low = servo.items[_PRESENT_FIRST][0]
+        high = sum(servo.items[_PRESENT_LAST])
         return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     # -- serving -----------------------------------------------------------
@@ -536,7 +546,13 @@ class VirtualBus:
         """The servos (by power-up id) whose ID register is ``servo_id``, or all on broadcast."""
         if servo_id == BROADCAST_ID:
             return list(self.ids)
-        return [i for i in self.ids if self.servos[i].servo_id == servo_id]
+        return self._by_id.get(servo_id, [])
+
+    def _index_ids(self) -> None:
+        """Re-read every ID register (after a write of ID or a factory reset)."""
+        self._by_id: dict[int, list[int]] = {}
+        for i in self.ids:
+            self._by_id.setdefault(self.servos[i].servo_id, []).append(i)
 
     def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
@@ -544,7 +560,9 @@ class VirtualBus:
             packet = decode(raw)
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
-        if self.lockstep_dt_s is not None:
+        if self.lockstep_dt_s is None:
+            self._catch_up(arrival_s)  # at most _SIM_WAKE_S behind: the thread keeps up
+        else:
             self._check_watchdogs(arrival_s)
         for servo_id in self._addressed(packet.servo_id):
             self._last_packet_s[servo_id] = arrival_s
@@ -655,6 +673,7 @@ class VirtualBus:
         """A servo rebooted: the plant follows its registers (torque off, goal = present)."""
         servo = self.servos[servo_id]
         j = self._joint[servo_id]
+        self._index_ids()
         self.plant.set_torque_enabled(j, False)
         self.plant.set_control(j, self._control(servo))
         self._goal_rad[j] = self._goal_for_plant(servo)

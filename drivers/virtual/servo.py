@@ -61,10 +61,6 @@ _MODE_RESETS = (
 FACTORY_RESET_KEEPS = {0xFF: (), 0x01: ("ID",), 0x02: ("ID", "Baud Rate")}
 
 
-def _name(register: Register | str) -> str:
-    return register.value if isinstance(register, Register) else register
-
-
 class VirtualServo:
     """The control table and register rules of one servo.
 
@@ -119,52 +115,46 @@ class VirtualServo:
         for name, (address, _) in self.items.items():
             if name.startswith("Indirect Data "):
                 self._indirect[address] = "Indirect Address " + name.rsplit(" ", 1)[1]
+        # name or Register -> (address, size, signed, lowest, highest value it holds)
+        self._layout: dict[Register | str, tuple[int, int, bool, int, int]] = {}
+        for name, (address, size) in self.items.items():
+            signed = self.rules[name].signed
+            bits = 8 * size
+            span = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+            self._layout[name] = (address, size, signed, *span)
+        if "Present Load" in self.items:  # XL430: Present Current's address, another unit
+            self._layout["Present Current"] = self._layout["Present Load"]
+        for register in Register:
+            if register.value in self._layout:
+                self._layout[register] = self._layout[register.value]
         self.firmware = firmware
         self.turn_offset_ticks = 0
         self.pending: tuple[int, bytes] | None = None
-        self._installed = {_name(k): int(v) for k, v in (registers or {}).items()}
-        unknown = set(self._installed) - set(self.items)
+        installed = {
+            k.value if isinstance(k, Register) else k: int(v) for k, v in (registers or {}).items()
+        }
+        unknown = set(installed) - set(self.items)
         if unknown:
             raise KeyError(f"{model.name} has no register {sorted(unknown)[0]!r}")
-        self._installed.setdefault("ID", servo_id)
-        self._load(self.items, self._installed)
+        installed.setdefault("ID", servo_id)
+        self._load(self.items, installed)
 
     # -- registers ----------------------------------------------------------
 
-    def _item(self, register: Register | str) -> tuple[int, int]:
-        name = _name(register)
-        if name == "Present Current" and name not in self.items:
-            name = "Present Load"  # XL430: the same address, another unit
-        return self.items[name]
-
-    def _signed(self, name: str) -> bool:
-        rule = self.rules.get(name)
-        return rule is not None and rule.signed
-
     def get(self, register: Register | str) -> int:
         """A register's value (signed where signed)."""
-        name = _name(register)
-        address, size = self._item(register)
+        address, size, signed, _, high = self._layout[register]
         value = int.from_bytes(self.memory[address : address + size], "little")
-        if self._signed(name) and value >= 1 << (8 * size - 1):
-            value -= 1 << (8 * size)
-        return value
+        return value - (1 << (8 * size)) if signed and value > high else value
 
     def set(self, register: Register | str, value: int) -> None:
         """Store a value, bypassing the write rules (the servo itself).
 
         The value is clamped to what the register can hold.
         """
-        name = _name(register)
-        address, size = self._item(register)
-        bits = 8 * size
-        low, high = (
-            (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
-            if self._signed(name)
-            else (0, (1 << bits) - 1)
-        )
+        address, size, _, low, high = self._layout[register]
         value = min(max(int(value), low), high)
-        self.memory[address : address + size] = (value & ((1 << bits) - 1)).to_bytes(size, "little")
+        self.memory[address : address + size] = (value % (1 << (8 * size))).to_bytes(size, "little")
 
     def _load(self, names: Iterable[str], installed: Mapping[str, int]) -> None:
         """Set ``names`` to their installed or initial values."""
@@ -228,12 +218,10 @@ class VirtualServo:
         return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
 
     def _new_value(self, name: str, bytes_: dict[int, int]) -> int:
-        address, size = self.items[name]
+        address, size, signed, _, high = self._layout[name]
         raw = bytes(bytes_.get(a, self.memory[a]) for a in range(address, address + size))
         value = int.from_bytes(raw, "little")
-        if self._signed(name) and value >= 1 << (8 * size - 1):
-            value -= 1 << (8 * size)
-        return value
+        return value - (1 << (8 * size)) if signed and value > high else value
 
     def check_write(self, address: int, data: bytes) -> tuple[int, dict[int, int], set[str]]:
         """What a WRITE of ``data`` at ``address`` would do.
@@ -331,10 +319,7 @@ class VirtualServo:
         Goal Position becomes the present position (the servo holds still when
         torque comes back on).
         """
-        ram = [n for n, (a, _) in self.items.items() if a >= EEPROM_END]
-        self._load(
-            ram, {n: v for n, v in self._installed.items() if self.items[n][0] >= EEPROM_END}
-        )
+        self._load([n for n, (a, _) in self.items.items() if a >= EEPROM_END], {})
         self.pending = None
         self.wrap_turns(plant_ticks)
         self.set("Goal Position", self.present_ticks(plant_ticks))
@@ -342,6 +327,5 @@ class VirtualServo:
     def factory_reset(self, option: int, plant_ticks: int) -> None:
         """FACTORY_RESET with ``option`` (a key of ``FACTORY_RESET_KEEPS``), then reboot."""
         kept = {n: self.get(n) for n in FACTORY_RESET_KEEPS[option]}
-        self._installed = {}
         self._load(self.items, kept)
         self.reboot(plant_ticks)

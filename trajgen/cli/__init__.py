@@ -9,15 +9,16 @@ dynamixel-sdk, matplotlib) only when it runs.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from trajgen import __version__
-from trajgen.cli import fit, plan, scan, sim, stream, sweep
-from trajgen.cli.common import EXIT_INTERRUPTED, bad_input
-from trajgen.keyframes import KeyframeFileError
+from trajgen.cli import excite, fit, follow, identify, plan, scan, sim, stream, sweep, virtual_bus
+from trajgen.cli.common import EXIT_INTERRUPTED, EXIT_OK, bad_input
+from trajgen.errors import TrajgenError
 
 #: The subcommand modules, in the order ``--help`` lists them.
-COMMANDS = (plan, sim, stream, scan, fit, sweep)
+COMMANDS = (plan, sim, fit, sweep, stream, follow, scan, virtual_bus, excite, identify)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,15 +40,27 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point; returns the exit status."""
+    """Entry point; returns the exit status.
+
+    Bad input of any subcommand is a :class:`trajgen.TrajgenError` (keyframe
+    file, option, plan size) and ends with exit status 2 and one line; any
+    other exception is a bug and shows its traceback. A closed stdout (``trajgen
+    plan | head -1``) ends quietly.
+    """
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except KeyframeFileError as e:
+    except TrajgenError as e:
         return bad_input(e)
     except KeyboardInterrupt:
         print("trajgen: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        # The reader has gone (``| head``): stop writing, and keep Python from
+        # complaining when it flushes stdout at exit.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_OK
 
 
 if __name__ == "__main__":

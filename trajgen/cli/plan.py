@@ -1,4 +1,8 @@
-"""The ``trajgen plan`` command: sample a keyframe file's spline to CSV."""
+"""The ``trajgen plan`` command: sample a keyframe file's spline to CSV.
+
+The CSV is written in blocks of :data:`BLOCK` samples, so a plan of any length
+(``--max-samples``) needs the memory of one block.
+"""
 
 from __future__ import annotations
 
@@ -7,33 +11,68 @@ import sys
 
 import numpy as np
 
-from trajgen.cli.common import EXIT_OK, add_file_argument, positive_float
-from trajgen.keyframes import load_keyframe_file
+from trajgen.cli.common import (
+    EXIT_OK,
+    add_file_argument,
+    add_rate_argument,
+    bad_input,
+    check_output_path,
+    check_timing,
+    load_checked,
+    speed_warning,
+)
+from trajgen.errors import PlanTooLarge, TrajgenError
+from trajgen.sampling import MAX_SAMPLES, sample_time_blocks
 
 CSV_HEADER = ["t_s", "qw", "qx", "qy", "qz", "wx", "wy", "wz", "ax", "ay", "az"]
 
+#: Samples evaluated and written at a time.
+BLOCK = 100_000
+
 
 def run_plan(args) -> int:
-    kf = load_keyframe_file(args.file)
-    rate = args.rate or kf.rate_hz or 100.0
-    samples = kf.spline().sample(rate, max_order=2)
-    rows = np.column_stack([samples.t, samples.q, samples.omega, samples.alpha])
+    """Run ``trajgen plan``; returns the exit status."""
+    try:
+        return _plan(args)
+    except TrajgenError as e:
+        return bad_input(e)
+
+
+def _plan(args) -> int:
+    check_output_path("--out", args.out, (".csv",))
+    checked = load_checked(args.file)
+    kf, spline = checked.keyframes, checked.spline
+    rate = kf.stream_rate(args.rate)
+    try:
+        check_timing(kf, rate, args.max_samples)
+    except PlanTooLarge as e:
+        raise PlanTooLarge(f"{e}; --max-samples N raises the limit") from None
     out = open(args.out, "w", newline="") if args.out else sys.stdout
+    peak_w = peak_a = 0.0
+    rows = 0
     try:
         writer = csv.writer(out)
         writer.writerow(CSV_HEADER)
-        writer.writerows(rows.round(12).tolist())
+        for t in sample_time_blocks(
+            spline.t_start, spline.t_end, rate, block=BLOCK, max_samples=args.max_samples
+        ):
+            s = spline.evaluate(t, max_order=2)
+            rows += len(t)
+            writer.writerows(np.column_stack([s.t, s.q, s.omega, s.alpha]).round(12).tolist())
+            peak_w = max(peak_w, float(np.linalg.norm(s.omega, axis=1).max()))
+            peak_a = max(peak_a, float(np.linalg.norm(s.alpha, axis=1).max()))
     finally:
         if args.out:
             out.close()
-    peak_w = np.linalg.norm(samples.omega, axis=1).max()
-    peak_a = np.linalg.norm(samples.alpha, axis=1).max()
     print(
-        f"planned {kf.path.name}: {len(samples.t)} samples at {rate:g} Hz over "
-        f"{samples.t[-1] - samples.t[0]:.3f} s; peak |omega| {peak_w:.3f} rad/s, "
-        f"peak |alpha| {peak_a:.3f} rad/s^2" + (f"; wrote {args.out}" if args.out else ""),
+        f"planned {kf.path.name}: {rows} samples at {rate:g} Hz over "
+        f"{spline.t_end - spline.t_start:.3f} s; peak |omega| {peak_w:.4g} rad/s, "
+        f"peak |alpha| {peak_a:.4g} rad/s^2" + (f"; wrote {args.out}" if args.out else ""),
         file=sys.stderr,
     )
+    warning = speed_warning(peak_w)
+    if warning:
+        print(f"trajgen: warning: {warning}", file=sys.stderr)
     return EXIT_OK
 
 
@@ -45,15 +84,32 @@ def register(subparsers) -> None:
         description=(
             "Sample the spline of a keyframe file at a fixed rate, from the first keyframe "
             "time to the last inclusive. One CSV row per sample: time (s), quaternion "
-            "(w, x, y, z), space-frame angular velocity (rad/s) and acceleration (rad/s^2)."
+            "(w, x, y, z), space-frame angular velocity (rad/s) and acceleration (rad/s^2). "
+            "The whole file is checked, [gimbal] and [bus] included."
         ),
     )
     add_file_argument(plan)
-    plan.add_argument(
-        "--rate",
-        type=positive_float,
-        metavar="HZ",
-        help="sample rate (default: the file's [stream] rate_hz, else 100)",
-    )
+    add_rate_argument(plan, "sample rate")
     plan.add_argument("--out", metavar="FILE.csv", help="write the CSV here (default: stdout)")
+    plan.add_argument(
+        "--max-samples",
+        type=_count,
+        default=MAX_SAMPLES,
+        metavar="N",
+        help=f"refuse plans of more than N rows (default {MAX_SAMPLES:,}); the CSV is "
+        f"written {BLOCK:,} rows at a time, so a larger N costs disk, not memory",
+    )
     plan.set_defaults(func=run_plan)
+
+
+def _count(text: str) -> int:
+    """argparse type: a positive integer (``1e8`` accepted)."""
+    import argparse
+
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of rows, got {text!r}") from None
+    if not (np.isfinite(value) and value >= 2 and value == int(value)):
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 2, got {text!r}")
+    return int(value)

@@ -15,10 +15,16 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    PLOT_SUFFIXES,
     add_file_argument,
+    add_rate_argument,
     bad_input,
-    positive_float,
+    check_module,
+    check_output_path,
+    check_timing,
+    load_checked,
 )
+from trajgen.errors import TrajgenError
 
 _PROGRESS_AFTER_S = 1.0
 
@@ -47,17 +53,16 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
+    add_rate_argument(p)
     p.add_argument(
-        "--rate",
-        type=positive_float,
-        metavar="HZ",
-        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
+        "--json",
+        metavar="OUT.json",
+        help="also write the report as JSON to OUT.json (on Ctrl-C: what was done so far)",
     )
-    p.add_argument("--json", metavar="OUT", help="also write the report as JSON to OUT")
     p.add_argument(
         "--plot",
         metavar="OUT.png",
-        help="plot joint angles, velocities and torque against the envelope to OUT.png",
+        help="plot joint angles, velocities, torque and envelope use to OUT.png (.pdf, .svg)",
     )
     p.add_argument(
         "--video",
@@ -68,14 +73,19 @@ def register(subparsers) -> None:
 
 
 class _Progress:
-    """A stderr progress line, shown only once a run has taken over a second."""
+    """A stderr progress line, shown only once a run has taken over a second.
+
+    ``fraction`` keeps the last fraction reported (for ``--json`` on Ctrl-C).
+    """
 
     def __init__(self, stream=None):
         self.stream = sys.stderr if stream is None else stream
         self.start = time.monotonic()
         self.shown = False
+        self.fraction = 0.0
 
     def __call__(self, fraction: float) -> None:
+        self.fraction = fraction
         if not self.shown and time.monotonic() - self.start < _PROGRESS_AFTER_S:
             return
         self.shown = True
@@ -84,41 +94,73 @@ class _Progress:
         self.stream.flush()
 
 
+def check_sim_arguments(args) -> None:
+    """Refuse unusable output options before anything is planned or simulated.
+
+    Raises
+    ------
+    BadInput
+        Naming the option.
+    """
+    check_output_path("--json", args.json, (".json",))
+    check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+    check_output_path("--video", args.video, (".mp4",))
+    if args.plot:
+        check_module("--plot", "matplotlib", "matplotlib")
+    if args.video:
+        check_module("--video", "imageio_ffmpeg", "imageio-ffmpeg")
+
+
 def run_sim(args) -> int:
-    """Run ``trajgen sim``; returns the exit status (0 ok, 1 check failed, 2 bad input)."""
+    """Run ``trajgen sim``; returns the exit status (0 ok, 1 check failed, 2 bad input,
+    130 interrupted)."""
+    progress = _Progress()
+    done = {"stage": "checking the file", "file": str(args.file)}
     try:
-        return _run(args)
+        check_sim_arguments(args)
+        return _run(args, progress, done)
+    except TrajgenError as e:
+        return bad_input(e)
     except KeyboardInterrupt:
         print("", file=sys.stderr)
+        if args.json:
+            done["simulated_fraction"] = round(progress.fraction, 4)
+            _write_json(args.json, {"ok": None, "interrupted": True, **done})
         return EXIT_INTERRUPTED
 
 
-def _run(args) -> int:
+def _write_json(path: str, data: dict) -> None:
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(data, f, indent=2)
+    print(f"json: {path}")
+
+
+def _run(args, progress: _Progress, done: dict) -> int:
     from trajgen.sim.check import check_torque
     from trajgen.sim.errors import SimError
 
+    checked = load_checked(args.file)
+    kf = checked.keyframes
+    rate = kf.stream_rate(args.rate)
+    check_timing(kf, rate)
+    # The simulation's own samples: one per physics step.
+    check_timing(kf, 1.0 / checked.gimbal.timestep_s)
+    done.update(stage="simulating", rate_hz=rate, duration_s=float(kf.times[-1] - kf.times[0]))
     try:
-        report = check_torque(args.file, rate_hz=args.rate, progress=_Progress())
+        report = check_torque(kf, rate_hz=rate, config=checked.gimbal, progress=progress)
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
         return EXIT_FAILED
-    except (ValueError, TypeError, OSError) as e:
-        # KeyframeFileError and KinematicsError are ValueErrors.
-        return bad_input(e)
+    done.update(stage="writing outputs", report=report.to_json_dict())
     print(report.format())
-    try:
-        if args.json:
-            with open(args.json, "w", encoding="utf-8") as f:
-                json.dump(report.to_json_dict(), f, indent=2)
-            print(f"json: {args.json}")
-        if args.plot:
-            from trajgen.sim.plot import plot_report
+    if args.json:
+        _write_json(args.json, report.to_json_dict())
+    if args.plot:
+        from trajgen.sim.plot import plot_report
 
-            print(f"plot: {plot_report(report, args.plot)}")
-        if args.video:
-            from trajgen.sim.video import render_video
+        print(f"plot: {plot_report(report, args.plot)}")
+    if args.video:
+        from trajgen.sim.video import render_video
 
-            print(f"video: {render_video(report.record, args.video, report.config)}")
-    except (OSError, ValueError, ModuleNotFoundError) as e:
-        return bad_input(e)
+        print(f"video: {render_video(report.record, args.video, report.config)}")
     return EXIT_OK if report.ok else EXIT_FAILED

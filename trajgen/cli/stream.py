@@ -20,6 +20,7 @@ from trajgen.cli.common import (
     baud_rate,
     open_bus,
     positive_float,
+    servo_ids,
 )
 
 STREAM_DESCRIPTION = """\
@@ -43,17 +44,6 @@ exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
 130 interrupted (servos hold their last goal)."""
 
 
-def _ids(text: str) -> tuple[int, ...]:
-    """argparse type: three comma-separated servo ids."""
-    try:
-        ids = tuple(int(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
-    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
-        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
-    return ids
-
-
 def register(subparsers) -> None:
     """Add the ``stream`` and ``scan`` subcommands to an argparse ``subparsers``."""
     p = subparsers.add_parser(
@@ -62,13 +52,19 @@ def register(subparsers) -> None:
         description=STREAM_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    add_stream_arguments(p)
+    p.set_defaults(func=run_stream)
+
+
+def add_stream_arguments(p) -> None:
+    """The file, bus, rate, output and --virtual options (shared with ``trajgen follow``)."""
     add_file_argument(p)
     p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
     p.add_argument(
         "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
     )
     p.add_argument(
-        "--ids", type=_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
+        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
     )
     p.add_argument(
         "--rate",
@@ -89,7 +85,6 @@ def register(subparsers) -> None:
         help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
     )
     p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
-    p.set_defaults(func=run_stream)
 
 
 def run_stream(args) -> int:
@@ -108,7 +103,8 @@ def _plan(args):
     from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
-    kf = load_keyframe_file(args.file)
+    # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
+    kf = args.file if hasattr(args.file, "spline") else load_keyframe_file(args.file)
     config = bus_config_from_tables(kf.tables, kf.path)
     joints = config.joints
     if args.virtual:
@@ -152,6 +148,7 @@ def _bring_up(bus, kf, config, joints, rate):
 
 
 def _stream(args) -> int:
+    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
     from trajgen.drivers.errors import DriverError
     from trajgen.drivers.streamer import Streamer
 
@@ -162,20 +159,10 @@ def _stream(args) -> int:
 
     virtual = plant = None
     if args.virtual:
-        from trajgen.drivers.virtual.bus import VirtualBus
-        from trajgen.sim.model import gimbal_config_from_tables
-        from trajgen.sim.plant import GimbalPlant
-
         try:
-            # Power up at the first frame, as a gimbal parked there would be.
-            plant = GimbalPlant(
-                gimbal_config_from_tables(kf.tables, kf.path), initial_rad=trajectory.q[0]
-            )
+            virtual, plant = start_virtual(kf, config, joints, rate, trajectory.q[0])
         except (ValueError, TypeError) as e:
             return bad_input(e)
-        virtual = VirtualBus(
-            plant, ids=joints.ids, models=config.models, lockstep_dt_s=1.0 / rate
-        ).start()
         port = virtual.port
     else:
         port = args.port or config.port
@@ -194,6 +181,8 @@ def _stream(args) -> int:
                 joints,
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
+                # Lock-step: simulated time moves with the frames, so do not wait for them.
+                clock=WALL_CLOCK if virtual is None else SimulatedClock(),
             )
             streamer.run(trajectory)
         except DriverError as e:
@@ -217,24 +206,55 @@ def _stream(args) -> int:
 
     result = {"stream": None if streamer is None else streamer.stats.to_json_dict()}
     if plant is not None and status == EXIT_OK:
-        from trajgen.sim.errors import SimError
+        status, _ = torque_report(plant, trajectory, args, result)
+    return write_json(args, result, status)
+
+
+def start_virtual(kf, config, joints, rate, first_q):
+    """The simulated gimbal of the file's [gimbal] table, powered up at ``first_q``
+    (rad, as a gimbal parked at the first frame would be), behind a virtual bus in
+    lock-step with the stream; returns ``(virtual_bus, plant)``."""
+    from trajgen.drivers.virtual.bus import VirtualBus
+    from trajgen.sim.model import gimbal_config_from_tables
+    from trajgen.sim.plant import GimbalPlant
+
+    plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), initial_rad=first_q)
+    virtual = VirtualBus(
+        plant,
+        ids=joints.ids,
+        models=config.models,
+        lockstep_dt_s=1.0 / rate,
+        # The servos power up with the gains the file states ([gimbal.<joint>]).
+        registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
+    )
+    return virtual.start(), plant
+
+
+def torque_report(plant, trajectory, args, result: dict):
+    """Print (and plot with --plot) the torque report of ``trajectory`` as streamed to
+    ``plant``; add it to ``result``; return the exit status and the report (or None)."""
+    from trajgen.sim.errors import SimError
+
+    try:
+        report = plant.report(trajectory)
+    except SimError as e:
+        print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+        return EXIT_FAILED, None
+    print(report.format())
+    result["torque"] = report.to_json_dict()
+    status = EXIT_OK if report.ok else EXIT_FAILED
+    if args.plot:
+        from trajgen.sim.plot import plot_report
 
         try:
-            report = plant.report(trajectory)
-        except SimError as e:
-            print(f"trajgen: simulation failed: {e}", file=sys.stderr)
-            return EXIT_FAILED
-        print(report.format())
-        result["torque"] = report.to_json_dict()
-        if not report.ok:
-            status = EXIT_FAILED
-        if args.plot:
-            from trajgen.sim.plot import plot_report
+            print(f"plot: {plot_report(report, args.plot)}")
+        except (OSError, ValueError) as e:
+            return bad_input(e), report
+    return status, report
 
-            try:
-                print(f"plot: {plot_report(report, args.plot)}")
-            except (OSError, ValueError) as e:
-                return bad_input(e)
+
+def write_json(args, result: dict, status: int) -> int:
+    """Write ``result`` to --json if given; return ``status`` (or bad input)."""
     if args.json:
         try:
             with open(args.json, "w", encoding="utf-8") as f:

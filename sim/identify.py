@@ -1,0 +1,539 @@
+"""Fit the simulated gimbal to telemetry logged on the real one (or a simulated one).
+
+For each joint: ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping``
+(N m s/rad) and the Position P Gain (register units, which also tests the P
+divisor: a servo whose firmware divides by 256 fits half its register value),
+plus one transport delay (s) between a goal's time label and the present
+values read in the same frame.
+
+The model is the one ``trajgen sim`` runs (``sim.model``, the firmware loop of
+``sim.firmware``). Each log's goals are replayed, held for one stream period,
+from the first logged state; the residual is the logged present position
+(rad) and velocity (weighted by ``VELOCITY_WEIGHT_S``) minus the simulated
+ones at each frame's time plus the delay. The fit is ``mujoco.sysid``'s
+box-constrained Gauss-Newton (``mujoco.minimize.least_squares``) over batched
+``mujoco.rollout`` rollouts; the confidence intervals are
+``mujoco.sysid.calculate_intervals`` (95 %, from the Jacobian at the optimum
+and the residual variance).
+
+``mujoco.sysid`` needs the ``mujoco[sysid]`` extra (``pip install
+'trajgen[sysid]'``); it is imported only here.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from trajgen.sim.errors import SimError
+from trajgen.sim.firmware import PositionLoop
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig, JointParams, build_model
+
+#: Weight (s) of a velocity residual (rad/s) against a position residual (rad).
+VELOCITY_WEIGHT_S = 0.05
+#: Weight (rad/A) of a current residual (A) against a position residual (rad).
+CURRENT_WEIGHT_RAD_A = 0.3
+#: A parameter whose 95 % interval exceeds this fraction of its value is
+#: reported as not excited enough.
+POORLY_EXCITED = 0.3
+
+PARAMETERS = ("armature", "frictionloss", "damping", "position_p_gain")
+_UNITS = {
+    "armature": "kg m^2",
+    "frictionloss": "N m",
+    "damping": "N m s/rad",
+    "position_p_gain": "register",
+}
+_BOUNDS = {
+    "armature": (1e-4, 1.0),
+    "frictionloss": (0.0, 1.0),
+    "damping": (0.0, 2.0),
+    "position_p_gain": (10.0, 16383.0),
+}
+
+
+class IdentifyError(ValueError):
+    """A telemetry log that cannot be used, or a missing ``mujoco[sysid]``."""
+
+
+@dataclass(frozen=True)
+class TelemetryLog:
+    """One stream's telemetry, as the fit uses it.
+
+    Attributes
+    ----------
+    path : Path
+    t : ndarray, shape (N,)
+        Each frame's goal time (s) from the first frame: frame number / rate.
+    goal, position, velocity, current : ndarray, shape (N, 3)
+        Goal angle (rad), present position (rad), velocity (rad/s) and
+        current (A); NaN where the read failed.
+    rate_hz : float
+        Stream rate (Hz).
+    """
+
+    path: Path
+    t: np.ndarray
+    goal: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    current: np.ndarray
+    rate_hz: float
+
+
+def load_telemetry(path) -> TelemetryLog:
+    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv or .npz).
+
+    Raises
+    ------
+    IdentifyError
+        If the file lacks the columns, has fewer than 10 rows, or no constant rate.
+    OSError
+        If it cannot be read.
+    """
+    path = Path(path)
+    if path.suffix == ".npz":
+        with np.load(path) as f:
+            columns = {k: np.asarray(f[k]) for k in f.files}
+    else:
+        with open(path, newline="", encoding="utf-8") as f:
+            rows = list(csv.DictReader(f))
+        columns = {k: np.array([r[k] for r in rows]) for k in (rows[0] if rows else {})}
+    names = ["frame", "t_s"] + [
+        f"{p}_{j}" for p in ("goal_rad", "position_rad", "velocity_rad_s") for j in JOINT_NAMES
+    ]
+    missing = [n for n in names if n not in columns]
+    if missing:
+        raise IdentifyError(f"{path}: not a telemetry log (no column {missing[0]!r})")
+    if len(columns["frame"]) < 10:
+        raise IdentifyError(f"{path}: {len(columns['frame'])} rows; a fit needs at least 10")
+
+    def numbers(name):
+        return np.array([float(v) if v != "" else math.nan for v in columns[name]])
+
+    frame = numbers("frame")
+    steps = np.diff(numbers("t_s"))
+    steps = steps[steps > 0]
+    if not len(steps):
+        raise IdentifyError(f"{path}: t_s never increases: no stream rate")
+    rate = 1.0 / float(np.median(steps))
+    if not np.all(np.diff(frame) > 0):
+        raise IdentifyError(f"{path}: frame numbers do not increase")
+
+    def joints(prefix):
+        return np.column_stack([numbers(f"{prefix}_{j}") for j in JOINT_NAMES])
+
+    return TelemetryLog(
+        path=path,
+        t=(frame - frame[0]) / rate,
+        goal=joints("goal_rad"),
+        position=joints("position_rad"),
+        velocity=joints("velocity_rad_s"),
+        current=joints("current_a")
+        if "current_a_pan" in columns
+        else np.full((len(frame), 3), np.nan),
+        rate_hz=rate,
+    )
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """One joint's fitted parameters.
+
+    Attributes
+    ----------
+    params : JointParams
+        The fit (P gain rounded to a register value).
+    values, intervals : dict of str to float
+        Each parameter's fitted value and 95 % half-width (inf: not determined).
+    residual_rad : float
+        RMS position residual (rad).
+    poorly_excited : tuple of str
+        Parameters whose interval exceeds ``POORLY_EXCITED`` x their value.
+    """
+
+    params: JointParams
+    values: dict
+    intervals: dict
+    residual_rad: float
+    poorly_excited: tuple
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The whole fit.
+
+    Attributes
+    ----------
+    joints : dict of str to JointFit
+        By joint name.
+    delay_s, delay_interval_s : float
+        Transport delay (s) and its 95 % half-width.
+    config : GimbalConfig
+        The input config with the fitted joints.
+    rows : int
+        Frames used.
+    iterations : int
+        Gauss-Newton iterations.
+    """
+
+    joints: dict
+    delay_s: float
+    delay_interval_s: float
+    config: GimbalConfig
+    rows: int
+    iterations: int
+
+    def _delay_text(self) -> str:
+        if self.delay_interval_s == 0.0:
+            return f"transport delay {1e3 * self.delay_s:.2f} ms (held)"
+        return (
+            f"transport delay {1e3 * self.delay_s:.2f} ms +- {1e3 * self.delay_interval_s:.2f} ms"
+        )
+
+    def format(self) -> str:
+        """A table of fit, interval and residual per joint, then what is poorly excited."""
+        lines = [
+            f"{'joint':<6}{'parameter':<17}{'fit':>12}{'+- 95 %':>12}  {'unit':<10}"
+            f"{'residual deg':>13}"
+        ]
+        for name, joint in self.joints.items():
+            for k, p in enumerate(PARAMETERS):
+                residual = f"{math.degrees(joint.residual_rad):13.3f}" if k == 0 else ""
+                lines.append(
+                    f"{name if k == 0 else '':<6}{p:<17}{joint.values[p]:12.5g}"
+                    f"{joint.intervals[p]:12.2g}  {_UNITS[p]:<10}{residual}"
+                )
+        lines.append(f"{self._delay_text()}; {self.rows} frames, {self.iterations} iterations")
+        for name, joint in self.joints.items():
+            for p in joint.poorly_excited:
+                lines.append(
+                    f"  - {name} {p}: not excited enough (interval "
+                    f"{_relative(joint.intervals[p], joint.values[p])} of the value): "
+                    "use a longer or larger excitation (trajgen excite)"
+                )
+        return "\n".join(lines)
+
+    def toml(self, source: str = "") -> str:
+        """``[gimbal.<joint>]`` tables with the intervals in comments."""
+        lines = [f"# Fitted by trajgen identify{' from ' + source if source else ''}."]
+        lines.append(f"# {self._delay_text()}; intervals are 95 %.")
+        for name, joint in self.joints.items():
+            lines += [
+                "",
+                f"[gimbal.{name}]  # residual {math.degrees(joint.residual_rad):.3f} deg RMS",
+            ]
+            for p in PARAMETERS:
+                value = getattr(joint.params, p)
+                text = f"{value}" if p == "position_p_gain" else f"{value:.6g}"
+                note = "; not excited enough" if p in joint.poorly_excited else ""
+                lines.append(f"{p} = {text:<12}# +- {joint.intervals[p]:.2g} {_UNITS[p]}{note}")
+        return "\n".join(lines) + "\n"
+
+
+def _relative(interval, value):
+    if not math.isfinite(interval) or value == 0:
+        return "unbounded"
+    return f"{100 * interval / abs(value):.0f} %"
+
+
+class _Replay:
+    """Batched rollouts of the gimbal replaying logged goals.
+
+    Parameter vector (12,) or (13,): per joint armature, frictionloss,
+    damping, P gain; then the delay (s), else ``delay_s``.
+    """
+
+    def __init__(self, config: GimbalConfig, logs, *, use_current: bool):
+        import mujoco
+
+        self.delay_s = 0.0
+        self.model = build_model(config)
+        self.dt = config.timestep_s
+        self.kp_per_unit = np.array(
+            [
+                PositionLoop(p_gain=1, p_divisor=config.p_divisor).mujoco_controller(s)[0]
+                for s in config.servos
+            ]
+        )
+        self.kt = np.array([s.torque_constant_nm_a for s in config.servos])
+        self.models = []
+        self.datas = [mujoco.MjData(self.model) for _ in range(2)]
+        self.cases = []
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        for log in logs:
+            steps = max(1, round(1.0 / (log.rate_hz * self.dt)))
+            frame_step = np.round(log.t / self.dt).astype(int)
+            total = frame_step[-1] + 3 * steps
+            # Goal of the last frame written at or before each step (zero-order hold).
+            which = np.searchsorted(frame_step, np.arange(total), side="right") - 1
+            data = mujoco.MjData(self.model)
+            data.qpos[:] = log.position[0]
+            data.qvel[:] = np.nan_to_num(log.velocity[0])
+            state = np.empty(mujoco.mj_stateSize(self.model, spec))
+            mujoco.mj_getState(self.model, data, state, spec)
+            ok = np.all(np.isfinite(log.position) & np.isfinite(log.velocity), axis=1)
+            current = use_current and np.all(np.isfinite(log.current[ok]))
+            self.cases.append((log, log.goal[which], state, ok, current))
+
+    def _model_for(self, k, x):
+        import mujoco
+
+        while len(self.models) <= k:
+            self.models.append(copy.copy(self.model))
+        m = self.models[k]
+        p = x[:12].reshape(3, 4)
+        m.dof_armature[:] = p[:, 0]
+        m.dof_frictionloss[:] = p[:, 1]
+        m.dof_damping[:] = p[:, 2]
+        m.actuator_gainprm[:, 4] = p[:, 3] * self.kp_per_unit
+        mujoco.mj_setConst(m, self.datas[0])  # constraint scaling depends on armature
+        return m
+
+    def predict(self, x):
+        """Simulated position, velocity and current at each logged frame, for columns of x.
+
+        Parameters
+        ----------
+        x : ndarray, shape (12 or 13, k)
+
+        Returns
+        -------
+        list over logs of (pos, vel, cur), each shape (k, N, 3)
+        """
+        from mujoco import rollout
+
+        k = x.shape[1]
+        models = [self._model_for(i, x[:, i]) for i in range(k)]
+        out = []
+        for log, ctrl, state, _, _ in self.cases:
+            states, torque = rollout.rollout(models, self.datas, state[None], ctrl[None])
+            start = np.broadcast_to(state[1:7], (k, 1, 6))
+            qv = np.concatenate([start, states[:, :, 1:7]], axis=1)  # at t = i dt
+            grid = np.arange(qv.shape[1]) * self.dt
+            torque_grid = grid[1:]  # a step's torque, as read at its end
+            pos = np.empty((k, len(log.t), 3))
+            vel, cur = np.empty_like(pos), np.empty_like(pos)
+            for i in range(k):
+                when = log.t + (x[12, i] if len(x) > 12 else self.delay_s)
+                for j in range(3):
+                    pos[i, :, j] = np.interp(when, grid, qv[i, :, j])
+                    vel[i, :, j] = np.interp(when, grid, qv[i, :, 3 + j])
+                    cur[i, :, j] = np.interp(when, torque_grid, torque[i, :, j]) / self.kt[j]
+            out.append((pos, vel, cur))
+        return out
+
+    def jacobian(self, x, r):
+        """Finite-difference Jacobian (M, n) at ``x`` (n, 1) with residual ``r`` (M, 1).
+
+        The joints hardly couple (the reflected rotor inertia dwarfs the links),
+        so one rollout perturbs the same parameter of all three joints and each
+        joint's residual rows (every third row) are credited to its own
+        parameter: 4 or 5 rollouts instead of 12 or 13. The optimum is
+        unchanged (the residual is exact); only the step directions are
+        approximate.
+        """
+        x = x[:, 0]
+        n = len(x)
+        steps = 1e-5 * np.maximum(np.abs(x), 1e-3)
+        columns = np.repeat(x[:, None], n - 8, axis=1)
+        for kind in range(4):
+            columns[kind:12:4, kind] += steps[kind:12:4]
+        if n > 12:
+            columns[12, 4] += steps[12]
+        dr = self.residuals(columns) - r
+        jac = np.zeros((len(r), n))
+        joint = np.arange(len(r)) % 3
+        for kind in range(4):
+            for j in range(3):
+                rows = joint == j
+                jac[rows, 4 * j + kind] = dr[rows, kind] / steps[4 * j + kind]
+        if n > 12:
+            jac[:, 12] = dr[:, 4] / steps[12]
+        return jac
+
+    def residuals(self, x):
+        """Weighted residuals, shape (M, k), for ``x`` of shape (12 or 13, k)."""
+        parts = []
+        for (pos, vel, cur), (log, _, _, ok, current) in zip(
+            self.predict(x), self.cases, strict=True
+        ):
+            pieces = [
+                pos[:, ok] - log.position[ok],
+                (vel[:, ok] - log.velocity[ok]) * VELOCITY_WEIGHT_S,
+            ]
+            if current:
+                pieces.append((cur[:, ok] - log.current[ok]) * CURRENT_WEIGHT_RAD_A)
+            parts += [p.reshape(len(p), -1).T for p in pieces]
+        return np.concatenate(parts)
+
+
+def _sysid():
+    try:
+        from mujoco import sysid
+    except ImportError:  # pragma: no cover (mujoco is a core dependency)
+        sysid = None
+    if sysid is None or not hasattr(sysid, "optimize"):
+        raise IdentifyError(
+            "trajgen identify needs mujoco.sysid: install the extra with "
+            "pip install 'trajgen[sysid]' (or pip install 'mujoco[sysid]')"
+        )
+    return sysid
+
+
+def _fit(sysid, replay, start, max_iter, period=None):
+    """One ``mujoco.sysid`` fit from ``start`` (12 joint values, then maybe the delay).
+
+    Returns the fitted vector, its 95 % half-widths and the iteration count.
+    """
+    params = sysid.ParameterDict()
+    for j, name in enumerate(JOINT_NAMES):
+        for i, p in enumerate(PARAMETERS):
+            low, high = _BOUNDS[p]
+            # Start off the bounds (a zero friction or damping would sit on one).
+            value = float(np.clip(start[4 * j + i], low + 1e-3 * (high - low), high))
+            params.add(sysid.Parameter(f"{name}.{p}", value, low, high))
+    if len(start) > 12:
+        value = float(np.clip(start[12], 0.02 * period, 1.98 * period))
+        params.add(sysid.Parameter("delay_s", value, 0.0, 2.0 * period))
+
+    def residual_fn(x, _params):
+        x = np.asarray(x, dtype=float)
+        r = replay.residuals(x if x.ndim == 2 else x[:, None])
+        return [r if x.ndim == 2 else r[:, 0]], None, None
+
+    scale = np.maximum(np.abs(params.as_vector()), 1e-3)
+    trace = io.StringIO()  # the optimizer's per-iteration printout
+    fitted, result = sysid.optimize(
+        params,
+        residual_fn,
+        optimizer="mujoco",
+        verbose=False,
+        max_iters=max_iter,
+        x_scale=scale,
+        output=trace,
+        jacobian=replay.jacobian,
+    )
+    x = fitted.as_vector()
+    r = replay.residuals(x[:, None])[:, 0]
+    if not np.all(np.isfinite(r)):
+        raise SimError("the fit diverged (the simulated gimbal went unstable)")
+    # Intervals from a full forward-difference Jacobian at the optimum, in scaled
+    # coordinates (the raw columns span 1e-2 to 1e3 and would look singular).
+    jac_scaled = (replay.residuals(x[:, None] + np.diag(1e-5 * scale)) - r[:, None]) / 1e-5
+    _, scaled_intervals = sysid.calculate_intervals([r], jac_scaled)
+    return x, scaled_intervals * scale, len(result.extras.get("objective", ()))
+
+
+def identify(
+    config: GimbalConfig,
+    logs,
+    *,
+    use_current: bool = True,
+    delay_s: float = 0.0,
+    fit_delay: bool = False,
+    max_iter: int = 30,
+) -> Fit:
+    """Fit each joint's armature, frictionloss, damping and P gain (and a delay).
+
+    Parameters
+    ----------
+    config : GimbalConfig
+        The gimbal (servos, payload); its joints are the starting point.
+    logs : sequence of TelemetryLog
+        One or more logs (``load_telemetry``), all at the same servos.
+    delay_s : float
+        Time (s) from a frame's goal to its present values: 0 when the log's
+        present values are what the servo had as the goal arrived (the
+        virtual bus in lock-step); on hardware the read follows the write by
+        about a millisecond.
+    fit_delay : bool
+        Fit the delay too, starting from ``delay_s`` after a first fit with it held.
+    delay_s : float
+        Time (s) from a frame's goal to its present values: 0 when the log's
+        present values are what the servo had as the goal arrived (the
+        virtual bus in lock-step); on hardware the read follows the write by
+        about a millisecond.
+    fit_delay : bool
+        Fit the delay too, starting from ``delay_s`` after a first fit with it held.
+    use_current : bool
+        Also fit the logged current, as torque over the torque constant (stall
+        torque / stall current). Position data alone fix the parameters only
+        up to a common scale, which the known back-EMF pins weakly; current
+        pins it, if the servo reports it truly.
+    max_iter : int
+        Gauss-Newton iterations at most.
+
+    Returns
+    -------
+    Fit
+
+    Raises
+    ------
+    IdentifyError
+        If ``mujoco[sysid]`` is missing or no log is given.
+    SimError
+        If the fit diverges.
+    """
+    sysid = _sysid()
+    if not logs:
+        raise IdentifyError("no telemetry log to fit")
+    replay = _Replay(config, logs, use_current=use_current)
+    start = [getattr(config.joints[j], p) for j in range(3) for p in PARAMETERS]
+    # The delay trades against the lag (P gain, damping): fit the joints with
+    # the delay held first, then (if asked) everything from there.
+    replay.delay_s = delay_s
+    x, intervals, iterations = _fit(sysid, replay, start, max_iter)
+    delay, delay_interval = delay_s, 0.0
+    if fit_delay:
+        period = 1.0 / min(log.rate_hz for log in logs)
+        x, intervals, more = _fit(sysid, replay, np.append(x, delay_s), max_iter, period)
+        iterations += more
+        delay, delay_interval = float(x[12]), float(intervals[12])
+        replay.delay_s = delay
+
+    ok_rows = [case[3] for case in replay.cases]
+    predicted = replay.predict(x[:12, None])
+    joints = {}
+    for j, name in enumerate(JOINT_NAMES):
+        values = {p: float(x[4 * j + i]) for i, p in enumerate(PARAMETERS)}
+        ivals = {p: float(intervals[4 * j + i]) for i, p in enumerate(PARAMETERS)}
+        errors = np.concatenate(
+            [
+                pred[0][0, ok, j] - log.position[ok, j]
+                for pred, log, ok in zip(predicted, logs, ok_rows, strict=True)
+            ]
+        )
+        poorly = tuple(
+            p
+            for p in PARAMETERS
+            if not math.isfinite(ivals[p]) or ivals[p] > POORLY_EXCITED * abs(values[p])
+        )
+        joints[name] = JointFit(
+            params=JointParams.of(
+                config.servos[j],
+                armature=values["armature"],
+                frictionloss=values["frictionloss"],
+                damping=values["damping"],
+                position_p_gain=int(round(values["position_p_gain"])),
+            ),
+            values=values,
+            intervals=ivals,
+            residual_rad=float(np.sqrt(np.mean(errors**2))),
+            poorly_excited=poorly,
+        )
+    return Fit(
+        joints=joints,
+        delay_s=delay,
+        delay_interval_s=delay_interval,
+        config=dataclasses.replace(config, joints=tuple(joints[n].params for n in JOINT_NAMES)),
+        rows=sum(int(ok.sum()) for ok in ok_rows),
+        iterations=iterations,
+    )

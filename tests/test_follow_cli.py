@@ -1,0 +1,150 @@
+"""``trajgen follow``: keyframe lines on a pipe change the stream to the virtual bus."""
+
+import json
+import math
+import os
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from trajgen import quat as Q
+from trajgen.cli import follow, main
+from trajgen.gimbal import forward
+from trajgen.keyframes import BUILTIN_EXAMPLE, load_keyframe_file
+
+RATE_HZ = 200.0
+TICK_RAD = 2 * math.pi / 4096
+
+
+def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
+    read_end, write_end = os.pipe()
+    monkeypatch.setattr(sys, "stdin", os.fdopen(read_end, "r"))
+    seen = {}
+    start_virtual = follow.stream_command.start_virtual
+
+    def spy_virtual(*args):
+        seen["virtual"], plant = start_virtual(*args)
+        return seen["virtual"], plant
+
+    class SpyFollower(follow.Follower):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            seen["follower"] = self
+
+    monkeypatch.setattr(follow.stream_command, "start_virtual", spy_virtual)
+    monkeypatch.setattr(follow, "Follower", SpyFollower)
+    lines = [
+        '{"in": 0.8, "pan": 20, "tilt": 5}',
+        '{"in": 0.6, "pan": 10, "tilt": -5, "roll": 3}',
+        '{"in": 0.1, "pan": 3}',  # too close: skipped
+        '{"in": 0.9, "quat": [0.99, 0, 0.05, -0.1]}',
+        '{"in": 0.7, "pan": -5, "mode": "extend"}',
+    ]
+
+    def writer():
+        with os.fdopen(write_end, "w") as pipe:
+            while "follower" not in seen or seen["follower"].spline.committed < 0.5:
+                time.sleep(0.01)  # the stream is running: lines arrive mid-motion
+            for line in lines:
+                pipe.write(line + "\n")
+                pipe.flush()
+                time.sleep(0.35)
+
+    thread = threading.Thread(target=writer, daemon=True)
+    thread.start()
+    out = tmp_path / "follow.json"
+    # The built-in example, with a tracking budget for the servo's lag (45 ms x
+    # speed with default gains) on the quick moves the lines ask for.
+    from trajgen import BUILTIN_EXAMPLE
+
+    keys = tmp_path / "keys.toml"
+    keys.write_text(
+        BUILTIN_EXAMPLE.read_text().replace(
+            "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
+        )
+    )
+    assert main(["follow", str(keys), "--virtual", "--json", str(out)]) == 0
+    thread.join(timeout=5)
+    result = json.loads(out.read_text())["follow"]
+    assert result["accepted"] == 4 and result["skipped"] == 1
+    assert "line 3" in result["skipped_lines"][0]
+    assert result["latency_s"]["n"] == 4 and result["latency_s"]["max"] < 0.5
+
+    f = seen["follower"]
+    traj = f.trajectory()
+    # Goals on the bus: the frames as streamed, with no step the planned speed does not allow.
+    goals = np.array(seen["virtual"].goal_log[-len(traj) :], dtype=float)
+    goal_rad = (goals - 2048) * TICK_RAD
+    np.testing.assert_allclose(goal_rad, traj.q, atol=TICK_RAD)
+    dt = 1.0 / RATE_HZ
+    speed = np.maximum(np.abs(traj.qd[1:]), np.abs(traj.qd[:-1]))
+    allowed = speed * dt + 0.5 * np.abs(traj.qdd).max(axis=0) * dt**2 + TICK_RAD
+    assert (np.abs(np.diff(goal_rad, axis=0)) <= allowed).all()
+    # Every keyframe still planned when it came is passed at its time.
+    for i, kf in enumerate(f.keyframes):
+        later = f.keyframes[i + 1 :]
+        if any(k["mode"] == "retarget" and k["at"] < kf["t"] for k in later):
+            continue
+        j = int(np.argmin(np.abs(traj.t - kf["t"])))
+        assert abs(traj.t[j] - kf["t"]) < 1e-9
+        assert Q.distance(forward(traj.q[j]), np.array(kf["quat"])) < 1e-6
+    # It ends at rest on the last keyframe.
+    np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)
+    assert Q.distance(forward(traj.q[-1]), np.array(f.keyframes[-1]["quat"])) < 1e-6
+
+
+@pytest.fixture
+def follower():
+    kf = load_keyframe_file(BUILTIN_EXAMPLE)
+    return follow.Follower(follow.online_spline(kf), RATE_HZ)
+
+
+@pytest.mark.parametrize(
+    "line, message",
+    [
+        ("not json", "line 1: invalid JSON"),
+        ("[1, 2]", "line 1: expected a JSON object"),
+        ('{"in": 1, "yaw": 2}', "line 1: unknown field 'yaw'"),
+        ('{"pan": 2}', "line 1: give exactly one of 't'"),
+        ('{"in": 1, "pan": "x"}', "field 'pan': expected a finite number"),
+        ('{"in": 1}', "no orientation"),
+        ('{"in": 1, "pan": 1, "quat": [1, 0, 0, 0]}', "either 'quat' or pan/tilt/roll"),
+        ('{"in": 1, "pan": 1, "mode": "jump"}', "field 'mode'"),
+        ('{"in": 0.2, "pan": 1}', "must be at least 0.25 s ahead"),
+        ('{"in": 1, "tilt": 85}', "within 10.0 deg of gimbal lock"),
+        ('{"t": 5.0, "pan": 1, "mode": "extend"}', "must come after the last keyframe kept"),
+    ],
+)
+def test_bad_lines_are_refused_and_the_plan_kept(follower, line, message):
+    with pytest.raises(ValueError, match=message):
+        follower.feed(line, 1)
+    assert follower.spline.version == 1  # the file's plan only
+
+
+def test_read_reports_bad_lines_and_goes_on(follower, capsys):
+    follower.read(['{"in": 1, "yaw": 2}\n', "\n", '{"in": 1, "pan": 30}\n'], echo=sys.stdout)
+    assert "stdin: line 1: unknown field 'yaw'" in capsys.readouterr().out
+    assert len(follower.keyframes) == 1 and follower.keyframes[0]["line"] == 3
+    assert follower.spline.closed
+
+
+def test_follow_bad_input_exit_2(tmp_path, capsys):
+    assert main(["follow", "--virtual", "--port", "/dev/null"]) == 2
+    assert "--port and --virtual exclude each other" in capsys.readouterr().err
+    natural = tmp_path / "natural.toml"
+    text = BUILTIN_EXAMPLE.read_text().replace('boundary = "rest"', 'boundary = "natural"')
+    natural.write_text(text)
+    assert main(["follow", str(natural), "--virtual"]) == 2
+    assert "[spline] boundary: follow needs 'rest'" in capsys.readouterr().err
+
+
+def test_a_frame_the_gimbal_cannot_take_ends_the_stream_at_the_frame_before(follower):
+    # A change made around the follower's checks, into gimbal lock.
+    follower.spline.retarget(Q.from_pan_tilt_roll(0.0, np.radians(85), 0.0)[None], [0.8], at=0.3)
+    follower.spline.close()
+    frames = list(follower.frames())
+    assert "gimbal lock" in follower.fault
+    assert 0.3 < frames[-1].t < 0.8 and len(frames) == len(follower.trajectory())

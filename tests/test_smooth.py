@@ -1,0 +1,373 @@
+"""SmoothSpline against SPEC.md section 8: exactness, C3, rest ends, the knot solve."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from trajgen import quat as Q
+from trajgen.smooth import (
+    SmoothSpline,
+    knot_system,
+    solve_block_cyclic,
+    solve_block_tridiagonal,
+)
+
+
+def ptr(*rows_deg):
+    """Quaternions from (pan, tilt, roll) rows in degrees."""
+    a = np.radians(np.array(rows_deg, dtype=float))
+    return Q.from_pan_tilt_roll(a[:, 0], a[:, 1], a[:, 2])
+
+
+def random_keys(rng, n=7):
+    q = Q.as_quats(rng.normal(size=(n, 4)))
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.3, 2.5, n - 1))])
+    return q, t
+
+
+def one_sided(s, order):
+    """Derivative ``order`` at each interior knot from the segment before and after."""
+    knots = s.times[1:-1]
+    seg = np.arange(len(knots))
+    before = s._space_rates(knots, seg, order)
+    after = s._space_rates(knots, seg + 1, order)
+    if order == 0:
+        return before[0], after[0]
+    return before[1][order - 1], after[1][order - 1]
+
+
+# --- an independent reference: the flat C4 quintic spline, fitted numerically ----------
+
+
+def quintic(h, p0, v0, a0, p1, v1, a1):
+    """Power coefficients (6,) of the quintic with the given end data on [0, h]."""
+    rows = []
+    for x in (0.0, h):
+        rows.append([x**k for k in range(6)])
+        rows.append([k * x ** (k - 1) if k >= 1 else 0.0 for k in range(6)])
+        rows.append([k * (k - 1) * x ** (k - 2) if k >= 2 else 0.0 for k in range(6)])
+    return np.linalg.solve(np.array(rows), [p0, v0, a0, p1, v1, a1])
+
+
+def dense_knot_rates(D, h):
+    """Interior (v, a) of the flat C4 quintic spline with rest ends, by a dense solve.
+
+    The residual (jerk and snap jumps at the interior knots) is affine in the
+    unknowns: its matrix is found column by column from numerically fitted quintics.
+    """
+    n = len(D) + 1
+
+    def residual(z):
+        v = np.concatenate([[0.0], z[0::2], [0.0]])
+        a = np.concatenate([[0.0], z[1::2], [0.0]])
+        c = [quintic(h[i], 0.0, v[i], a[i], D[i], v[i + 1], a[i + 1]) for i in range(n - 1)]
+        out = []
+        for i in range(1, n - 1):
+            cl, cr, hl = c[i - 1], c[i], h[i - 1]
+            jerk_l = 6 * cl[3] + 24 * cl[4] * hl + 60 * cl[5] * hl**2
+            snap_l = 24 * cl[4] + 120 * cl[5] * hl
+            out += [jerk_l - 6 * cr[3], snap_l - 24 * cr[4]]
+        return np.array(out)
+
+    m = 2 * (n - 2)
+    r0 = residual(np.zeros(m))
+    A = np.column_stack([residual(e) - r0 for e in np.eye(m)])
+    z = np.linalg.solve(A, -r0)
+    return z[0::2], z[1::2]
+
+
+def test_knot_solve_matches_dense_reference_on_uneven_times(rng):
+    n = 9
+    D = rng.normal(scale=0.5, size=(n - 1, 3))
+    h = rng.uniform(0.1, 3.0, n - 1)
+    x = solve_block_tridiagonal(*knot_system(D, h))
+    for axis in range(3):
+        v, a = dense_knot_rates(D[:, axis], h)
+        np.testing.assert_allclose(x[:, 0, axis], v, rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(x[:, 1, axis], a, rtol=1e-9, atol=1e-10)
+
+
+def test_block_thomas_matches_numpy_solve_on_the_assembled_matrix(rng):
+    n = 12
+    diag, upper, rhs = knot_system(rng.normal(size=(n - 1, 3)), rng.uniform(0.2, 2.0, n - 1))
+    m = len(diag)
+    A = np.zeros((2 * m, 2 * m))
+    for k in range(m):
+        A[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] = diag[k]
+        if k < m - 1:
+            A[2 * k : 2 * k + 2, 2 * k + 2 : 2 * k + 4] = upper[k]
+            A[2 * k + 2 : 2 * k + 4, 2 * k : 2 * k + 2] = upper[k].T
+    assert np.linalg.eigvalsh(A).min() > 0  # symmetric positive definite
+    expected = np.linalg.solve(A, rhs.reshape(2 * m, 3)).reshape(m, 2, 3)
+    np.testing.assert_allclose(solve_block_tridiagonal(diag, upper, rhs), expected, rtol=1e-10)
+
+
+def test_cyclic_solve_matches_numpy_solve_on_the_assembled_matrix(rng):
+    for n in (3, 4, 9):  # n = 3: the loop's two knots couple twice
+        diag, upper, rhs = knot_system(
+            rng.normal(size=(n - 1, 3)), rng.uniform(0.2, 2.0, n - 1), "closed"
+        )
+        m = len(diag)
+        A = np.zeros((2 * m, 2 * m))
+        for k in range(m):
+            A[2 * k : 2 * k + 2, 2 * k : 2 * k + 2] += diag[k]
+            nxt = (k + 1) % m
+            A[2 * k : 2 * k + 2, 2 * nxt : 2 * nxt + 2] += upper[k]
+            A[2 * nxt : 2 * nxt + 2, 2 * k : 2 * k + 2] += upper[k].T
+        assert np.linalg.eigvalsh(A).min() > 0
+        expected = np.linalg.solve(A, rhs.reshape(2 * m, 3)).reshape(m, 2, 3)
+        np.testing.assert_allclose(solve_block_cyclic(diag, upper, rhs), expected, rtol=1e-9)
+
+
+def closed_keys(rng, n=6):
+    q, t = random_keys(rng, n)
+    q[-1] = -q[0]  # the same orientation, the other sign
+    return q, t
+
+
+def test_closed_loop_is_c3_round_the_seam_and_wraps(rng):
+    q, t = closed_keys(rng)
+    s = SmoothSpline(q, t, boundary="closed")
+    assert Q.distance(s(t), q).max() < 1e-13
+    end = s._space_rates(t[-1:], np.array([len(t) - 2]), 3)
+    start = s._space_rates(t[:1], np.array([0]), 3)
+    assert Q.distance(end[0], start[0]).max() < 1e-13
+    for a, b in zip(end[1], start[1], strict=True):
+        np.testing.assert_allclose(a, b, atol=1e-11 * (1 + np.abs(a).max()))
+    period = t[-1] - t[0]
+    tt = np.linspace(t[0], t[-1], 50)
+    assert Q.distance(s(tt + 2 * period), s(tt)).max() < 1e-12
+    np.testing.assert_allclose(s(tt - period, 3), s(tt, 3), atol=1e-9)
+
+
+def test_single_axis_is_the_flat_quintic_spline(rng):
+    """All keyframes about one axis: the rotation angle is twice the flat quintic spline."""
+    n = 7
+    angles = np.concatenate([[0.0], np.cumsum(rng.uniform(-1.2, 1.2, n - 1))])
+    axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.3, 2.5, n - 1))])
+    s = SmoothSpline(Q.from_axis_angle(axis, angles), t)
+    D, h = np.diff(angles) / 2, np.diff(t)
+    v, a = dense_knot_rates(D, h)
+    v, a = np.concatenate([[0], v, [0]]), np.concatenate([[0], a, [0]])
+    tt = np.linspace(t[0], t[-1], 2001)
+    seg = np.clip(np.searchsorted(t, tt, side="right") - 1, 0, n - 2)
+    p, dp = np.empty_like(tt), np.empty_like(tt)
+    P = np.polynomial.polynomial
+    for i in range(n - 1):
+        c = quintic(h[i], 0.0, v[i], a[i], D[i], v[i + 1], a[i + 1])
+        x = tt[seg == i] - t[i]
+        p[seg == i] = angles[i] / 2 + P.polyval(x, c)
+        dp[seg == i] = P.polyval(x, P.polyder(c))
+    assert Q.distance(s(tt), Q.from_axis_angle(axis, 2 * p)).max() < 1e-11
+    np.testing.assert_allclose(s(tt, 1), 2 * dp[:, None] * axis, atol=1e-10)
+
+
+def test_exact_at_keyframes_unit_norm_and_rest_ends(rng):
+    q, t = random_keys(rng)
+    s = SmoothSpline(q, t)
+    assert Q.distance(s(t), q).max() < 1e-13
+    S = s.evaluate(np.linspace(t[0], t[-1], 5001), max_order=3)
+    np.testing.assert_allclose(np.linalg.norm(S.q, axis=1), 1.0, atol=1e-15)
+    for x in (S.omega, S.alpha):
+        assert np.abs(x[[0, -1]]).max() < 1e-12 * (1 + np.abs(x).max())
+    assert np.abs(S.jerk[[0, -1]]).max() > 1e-3  # rest means v = a = 0, not jerk
+
+
+@pytest.mark.parametrize("boundary", ["rest", "natural", "closed"])
+def test_c3_at_every_knot(rng, boundary):
+    q, t = closed_keys(rng, 8) if boundary == "closed" else random_keys(rng, 8)
+    s = SmoothSpline(q, t, boundary=boundary)
+    for order in range(4):
+        before, after = one_sided(s, order)
+        scale = 1 + np.abs(before).max()
+        assert np.abs(before - after).max() < 1e-11 * scale, order
+        assert np.abs(before).max() > 0
+
+
+def test_natural_ends_have_zero_flat_jerk(rng):
+    q, t = random_keys(rng)
+    s = SmoothSpline(q, t, boundary="natural")
+    v, _, j = s.knot_rates
+    assert np.abs(j[[0, -1]]).max() < 1e-10 * np.abs(j).max()
+    assert np.abs(v[[0, -1]]).min() > 1e-3  # it starts moving
+    assert Q.distance(s(t), q).max() < 1e-13
+
+
+def test_derivatives_match_finite_differences(rng):
+    q, t = random_keys(rng)
+    s = SmoothSpline(q, t)
+    tt = np.linspace(t[0] + 1e-3, t[-1] - 1e-3, 301)
+    e = 1e-6
+    dq = (s(tt + e) - s(tt - e)) / (2 * e)
+    omega_fd = 2 * Q.mul(dq, Q.conj(s(tt)))[:, 1:]
+    for frame in ("space", "body"):
+        if frame == "body":
+            omega_fd = Q.rotate(Q.conj(s(tt)), omega_fd)
+        np.testing.assert_allclose(s(tt, 1, frame=frame), omega_fd, atol=1e-8)
+        for order in (2, 3):
+            fd = (s(tt + e, order - 1, frame=frame) - s(tt - e, order - 1, frame=frame)) / (2 * e)
+            scale = np.abs(fd).max()
+            np.testing.assert_allclose(s(tt, order, frame=frame), fd, atol=1e-7 * scale)
+
+
+def test_sign_of_keyframes_does_not_matter(rng):
+    q, t = random_keys(rng)
+    flipped = q * np.where(rng.uniform(size=len(q)) < 0.5, -1.0, 1.0)[:, None]
+    a, b = SmoothSpline(q, t), SmoothSpline(flipped, t)
+    tt = np.linspace(t[0], t[-1], 777)
+    assert Q.distance(a(tt), b(tt)).max() < 1e-14
+    for order in (1, 2, 3):
+        np.testing.assert_allclose(a(tt, order), b(tt, order), atol=1e-12)
+
+
+def path_ratio(s, q):
+    tt = np.linspace(s.t_start, s.t_end, 20001)
+    speed = np.linalg.norm(s(tt, 1), axis=1)
+    return np.trapezoid(speed, tt) / Q.distance(q[:-1], q[1:]).sum()
+
+
+def test_reversals_and_half_turns_do_not_loop():
+    sweep = ptr([0, 0, 0], [30, 0, 0], [0, 0, 0], [30, 0, 0], [0, 0, 0])
+    s = SmoothSpline(sweep, [0, 1, 2, 3, 4.0])
+    assert path_ratio(s, sweep) < 1.3
+    # pan stays within the keyframes' range give or take a little overshoot
+    pan = 2 * np.arctan2(s(np.linspace(0, 4, 401))[:, 3], s(np.linspace(0, 4, 401))[:, 0])
+    assert np.degrees(pan).min() > -5 and np.degrees(pan).max() < 35
+    half = ptr([0, 0, 0], [180, 0, 0], [360, 0, 0], [180, 0, 0])
+    s = SmoothSpline(half, [0, 1, 2, 3.0])
+    assert Q.distance(s([0, 1, 2, 3.0]), half).max() < 1e-12
+    assert path_ratio(s, half) < 1.3
+    assert np.isfinite(s.evaluate(np.linspace(0, 3, 301), max_order=3).jerk).all()
+
+
+def test_two_keyframes_and_scalar_times():
+    q = ptr([0, 0, 0], [40, 10, 0])
+    s = SmoothSpline(q, [0.0, 2.0])
+    assert Q.distance(s([0.0, 2.0]), q).max() < 1e-14
+    assert s(1.0).shape == (4,)
+    assert s(1.0, 3).shape == (3,)
+    assert s(np.ones((2, 3)), 2).shape == (2, 3, 3)
+    assert path_ratio(s, q) == pytest.approx(1.0, abs=1e-6)  # the geodesic
+
+
+def test_unsorted_and_sparse_times_give_the_same_values(rng):
+    q, t = random_keys(rng)
+    s = SmoothSpline(q, t)
+    tt = rng.uniform(t[0], t[-1], 500)
+    dense = s.evaluate(np.sort(tt), max_order=3)
+    shuffled = s.evaluate(tt, max_order=3)
+    order = np.argsort(tt)
+    for a, b in zip(dense[1:], shuffled[1:], strict=True):
+        np.testing.assert_allclose(a, b[order], atol=1e-13)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    n=st.integers(2, 9),
+    spread=st.floats(0.05, 1.5),
+    boundary=st.sampled_from(["rest", "natural", "closed"]),
+)
+def test_property_random_keyframes(seed, n, spread, boundary):
+    rng = np.random.default_rng(seed)
+    steps = Q.exp(rng.normal(scale=spread, size=(n, 3)))
+    q = steps.copy()
+    for i in range(1, n):
+        q[i] = Q.mul(steps[i], q[i - 1])
+    if boundary == "closed":
+        n = max(n, 3)
+        q = np.vstack([q[: n - 1], q[:1]])
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
+    s = SmoothSpline(q, t, boundary=boundary)
+    S = s.evaluate(np.linspace(t[0], t[-1], 301), max_order=3)
+    assert all(np.isfinite(x).all() for x in S[1:])
+    assert Q.distance(s(t), q).max() < 1e-12
+    np.testing.assert_allclose(np.linalg.norm(S.q, axis=-1), 1.0, atol=1e-14)
+    if boundary == "rest":
+        assert np.abs(S.omega[[0, -1]]).max() < 1e-10 * (1 + np.abs(S.omega).max())
+    for order in range(1, 4 if n > 2 else 1):
+        before, after = one_sided(s, order)
+        assert np.abs(before - after).max() <= 1e-9 * (1 + np.abs(before).max())
+
+
+@pytest.mark.parametrize(
+    "kwargs,exc,match",
+    [
+        (dict(quats=np.ones(4)), ValueError, r"`quats` to have shape \(N, 4\), got \(4,\)"),
+        (dict(quats=[[1, 0, 0, 0]]), ValueError, "at least 2 keyframes, got 1"),
+        (dict(times=[0.0, 1.0, 1.0]), ValueError, r"strictly increasing, got times\[1\] = 1.0"),
+        (dict(times=[0.0, 1.0]), ValueError, r"`times` to have shape \(3,\)"),
+        (dict(boundary="free"), ValueError, "`boundary` to be one of .* got 'free'"),
+        (dict(boundary="closed"), ValueError, "last keyframe to repeat the first; they are 20 deg"),
+    ],
+)
+def test_bad_input_raises_with_a_message_naming_it(kwargs, exc, match):
+    args = dict(quats=ptr([0, 0, 0], [10, 0, 0], [20, 0, 0]), times=[0.0, 1.0, 2.0])
+    args.update(kwargs)
+    with pytest.raises(exc, match=match):
+        SmoothSpline(args.pop("quats"), args.pop("times"), **args)
+
+
+def test_evaluation_outside_the_range_raises():
+    s = SmoothSpline(ptr([0, 0, 0], [10, 0, 0]), [0.0, 1.0])
+    with pytest.raises(ValueError, match=r"Time 1.5 s is outside the path's range \[0.0, 1.0\]"):
+        s(1.5)
+
+
+# --- keyframe files: [spline] method ------------------------------------------------
+
+KEYS = """
+[[keyframes]]
+t = 0.0
+pan = 0.0
+
+[[keyframes]]
+t = 1.0
+pan = 30.0
+
+[[keyframes]]
+t = 2.5
+tilt = 20.0
+"""
+
+
+@pytest.mark.parametrize(
+    "spline,cls,options",
+    [
+        ("", "SmoothSpline", {}),
+        (
+            "[spline]\nmethod = 'smooth'\nboundary = 'natural'\n",
+            "SmoothSpline",
+            {"boundary": "natural"},
+        ),
+        ("[spline]\nmethod = 'blending'\n", "BlendingSpline", {}),
+        ("[spline]\nk = 3\n", "BlendingSpline", {"k": 3}),  # written for the blending spline
+    ],
+)
+def test_keyframe_file_selects_the_method(tmp_path, spline, cls, options):
+    from trajgen.keyframes import load_keyframe_file
+
+    path = tmp_path / "keys.toml"
+    path.write_text(spline + KEYS)
+    kf = load_keyframe_file(path)
+    assert type(kf.spline()).__name__ == cls
+    assert kf.spline_options == options
+
+
+@pytest.mark.parametrize(
+    "spline,match",
+    [
+        ("method = 'fast'", r"\[spline\] method: expected one of smooth, blending, got 'fast'"),
+        ("method = 'smooth'\nk = 2", r"\[spline\] k: applies to method = 'blending' only"),
+        ("method = 'smooth'\nreparam = 'paper'", r"\[spline\] reparam: applies to method"),
+    ],
+)
+def test_keyframe_file_method_errors(tmp_path, spline, match):
+    from trajgen.keyframes import KeyframeFileError, load_keyframe_file
+
+    path = tmp_path / "keys.toml"
+    path.write_text(f"[spline]\n{spline}\n" + KEYS)
+    with pytest.raises(KeyframeFileError, match=match):
+        load_keyframe_file(path)

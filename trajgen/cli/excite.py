@@ -1,0 +1,167 @@
+"""The ``trajgen excite`` command: stream a multi-sine excitation with telemetry.
+
+The excitation (``sim.excite.Multisine``, about the file's first keyframe) is
+handed to the ``stream`` command as the path to stream, so bring-up, the
+approach, the fixed-rate loop, telemetry and the safe stop are the stream
+command's own.
+
+This module imports quickly: MuJoCo, dynamixel-sdk and pyserial load inside
+:func:`run_excite`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from trajgen.cli.common import EXIT_OK, add_file_argument, bad_input, baud_rate, positive_float
+
+DESCRIPTION = """\
+Stream a multi-sine excitation to the gimbal with telemetry every frame, for
+`trajgen identify`: each joint a sum of five sines between 0.3 and 2 Hz (its
+own frequencies), faded in and out so it starts and ends at rest, about the
+file's first keyframe. Planned like any stream (joint limits, the gimbal-lock
+guard) and checked against the torque envelope (torque_margin x the 12 V
+torque-speed line) before anything moves; then streamed exactly as `trajgen
+stream` does (bring-up, approach, telemetry, safe stop).
+
+With --virtual the excitation runs on the simulated gimbal of the file's
+[gimbal] tables and the torque report is printed (judged on torque only: an
+excitation is meant to lag).
+
+Then: trajgen identify FILE LOG.csv --out FITTED.toml
+
+exit status: 0 ok, 1 stream fault, 2 bad input (an excitation that leaves the
+envelope or the limits is bad input), 130 interrupted."""
+
+#: Tracking budget (rad) of the torque report with --virtual: an excitation lags on purpose.
+_NO_TRACKING_BUDGET = math.pi
+
+
+def register(subparsers) -> None:
+    """Add the ``excite`` subcommand to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "excite",
+        help="stream a multi-sine excitation with telemetry (for trajgen identify)",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_file_argument(p)
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
+    where.add_argument(
+        "--virtual", action="store_true", help="excite the simulated gimbal on a virtual bus"
+    )
+    p.add_argument("--telemetry", metavar="LOG.csv", required=True, help="telemetry file (.csv)")
+    p.add_argument(
+        "--seconds", type=positive_float, default=8.0, help="duration (s), >= 3; default 8"
+    )
+    p.add_argument(
+        "--amplitude",
+        type=positive_float,
+        metavar="DEG",
+        help="largest excursion of every joint (deg); default pan 25, tilt 15, roll 20",
+    )
+    p.add_argument("--baud", type=baud_rate, help="baud rate; default [bus] baud, else 1000000")
+    p.add_argument(
+        "--rate", type=positive_float, metavar="HZ", help="stream rate (Hz); default 200"
+    )
+    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
+    p.set_defaults(func=run_excite)
+
+
+@dataclass(frozen=True)
+class ExcitationFile:
+    """A keyframe file whose path is an excitation: what ``trajgen stream`` streams.
+
+    Attributes
+    ----------
+    path : Path
+        The keyframe file (for its [bus] and [gimbal] tables, and in messages).
+    tables : dict
+        Its tables.
+    rate_hz : float or None
+        Stream rate (Hz).
+    motion : sim.excite.Multisine
+        The excitation.
+    """
+
+    path: Path
+    tables: dict
+    rate_hz: float | None
+    motion: object = field(repr=False)
+
+    def spline(self):
+        """The excitation, an orientation path (the spline protocol)."""
+        return self.motion
+
+
+def excitation_file(args) -> ExcitationFile:
+    """Plan the excitation of ``args.file`` and check it; no hardware.
+
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad input: the file, the options, or an excitation that leaves the
+        joint limits, nears gimbal lock or leaves the torque envelope.
+    """
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim.check import check_planned_torque
+    from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
+    from trajgen.sim.model import gimbal_config_from_tables
+    from trajgen.stream import plan_joint_trajectory
+
+    if not args.telemetry.endswith(".csv"):
+        raise ValueError(f"--telemetry: expected a .csv path, got {args.telemetry!r}")
+    kf = load_keyframe_file(args.file)
+    config = gimbal_config_from_tables(kf.tables, kf.path)
+    center = GimbalKinematics().inverse(kf.quats[:1])[0]
+    amplitude = (
+        DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3
+    )
+    try:
+        motion = Multisine(center_rad=center, seconds=args.seconds, amplitude_rad=amplitude)
+    except ValueError as e:
+        raise ValueError(f"--seconds: {e}") from e
+    rate = args.rate or kf.rate_hz or 200.0
+    trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
+    reasons = check_planned_torque(trajectory, config)
+    if reasons:
+        raise ValueError(
+            f"the excitation leaves the torque envelope: {reasons[0]}; lower --amplitude"
+        )
+    tables = dict(kf.tables)
+    if args.virtual:
+        tables["gimbal"] = {
+            **tables.get("gimbal", {}),
+            "max_tracking_error_rad": _NO_TRACKING_BUDGET,
+        }
+    return ExcitationFile(kf.path, tables, rate, motion)
+
+
+def run_excite(args) -> int:
+    """Run ``trajgen excite``; returns the exit status."""
+    from trajgen.cli import stream
+
+    try:
+        source = excitation_file(args)
+    except (ValueError, TypeError, OSError) as e:
+        return bad_input(e)
+    # The stream command's own arguments, with its defaults, streaming the excitation.
+    parser = argparse.ArgumentParser(prog="trajgen")
+    stream.register(parser.add_subparsers())
+    argv = ["stream", str(source.path), "--telemetry", args.telemetry]
+    for flag, value in (("--port", args.port), ("--baud", args.baud), ("--json", args.json)):
+        if value is not None:
+            argv += [flag, str(value)]
+    if args.virtual:
+        argv.append("--virtual")
+    stream_args = parser.parse_args(argv)
+    stream_args.file = source
+    status = stream_args.func(stream_args)
+    if status == EXIT_OK:
+        print(f"next: trajgen identify {args.file} {args.telemetry} --out FITTED.toml")
+    return status

@@ -1,0 +1,441 @@
+"""The ``trajgen follow`` command: stream a plan that keyframes arriving on stdin change.
+
+:class:`Follower` is the part that does not touch hardware: it turns JSON lines
+into checked changes of an :class:`~trajgen.online.OnlineSpline` and wraps its
+joint stream, recording what was streamed, when each change reached the stream
+and what it cost. ``run_follow`` adds the bus, the servos and the report, as
+``trajgen stream`` does.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import threading
+import time
+
+import numpy as np
+
+from trajgen.cli import stream as stream_command
+from trajgen.cli.common import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, bad_input, open_bus
+from trajgen.errors import KeyframeFileError, KinematicsError
+from trajgen.gimbal import GimbalKinematics
+from trajgen.keyframes import check_keyframes
+from trajgen.online import MODES, ChangeTooLate, OnlineSpline
+from trajgen.sampling import sample_times
+from trajgen.stream import JointTrajectory, stream_frames
+
+#: Time (s) from the frame being streamed when a line arrives to the change it
+#: makes: room to build and check the new path off the streaming thread (a
+#: change costs 1-15 ms on a busy two-core machine, see bench/online_cost.py).
+CHANGE_MARGIN_S = 0.05
+
+LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
+
+FOLLOW_DESCRIPTION = f"""\
+Stream the keyframe file's plan as `trajgen stream` does, and change it while it
+runs from JSON lines on stdin, one keyframe per line:
+
+  {{"in": 0.8, "pan": 20, "tilt": 5}}          reach this 0.8 s from now
+  {{"t": 12.5, "quat": [1, 0, 0, 0]}}          ... at stream time 12.5 s
+  {{"in": 1, "pan": -10, "mode": "extend"}}    after the keyframes still planned
+
+"mode": "retarget" (the default) drops the keyframes still ahead and goes
+through the new one instead; "extend" keeps them and adds the new one after
+them. A change starts {CHANGE_MARGIN_S:g} s after the frame being streamed when its
+line arrives (time to build and check it off the streaming thread), and its
+keyframe must lie at least 0.2 s after that. Each line is checked as a keyframe
+file checks a keyframe, and the new path against the gimbal's joint limits and
+gimbal-lock margin; a bad line is reported on stderr and skipped, and the
+stream goes on. The path is C^k across every change (k from the file's
+[spline] table) and holds at rest when the keyframes run out. At the end of
+stdin the stream ends once the last keyframe is reached.
+
+Bring-up, safety and --virtual are those of `trajgen stream`; --virtual ends
+with the torque report of what was streamed.
+
+exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
+130 interrupted (servos hold their last goal)."""
+
+
+def register(subparsers) -> None:
+    """Add the ``follow`` subcommand to an argparse ``subparsers``."""
+    import argparse
+
+    p = subparsers.add_parser(
+        "follow",
+        help="stream a plan that keyframes arriving on stdin (JSON lines) change",
+        description=FOLLOW_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    stream_command.add_stream_arguments(p)
+    p.set_defaults(func=run_follow)
+
+
+class Follower:
+    """An online plan fed with keyframes as JSON lines, streamed as joint frames.
+
+    Parameters
+    ----------
+    spline : OnlineSpline
+        The plan; it is changed in place.
+    rate_hz : float
+        Stream rate (Hz).
+    kinematics : GimbalKinematics, optional
+        Joint limits and gimbal-lock margin every new path is checked against.
+    margin_s : float, optional
+        Time (s) from the frame being streamed to a change.
+    source : str, optional
+        Name of the line source in messages.
+
+    Attributes
+    ----------
+    latencies_s : list of float
+        Per accepted line: wall time (s) from its arrival to the first frame
+        that reflects it leaving :meth:`frames` (the servo gets it within one
+        period after).
+    change_costs_s : list of float
+        Per accepted line: time (s) to build and check the change.
+    keyframes : list of dict
+        Accepted keyframes: line number, mode, ``t``, ``quat``, ``at`` (the
+        change time) and ``now`` (stream time when the line arrived).
+    skipped : list of str
+        Messages of the lines refused.
+    """
+
+    def __init__(
+        self,
+        spline: OnlineSpline,
+        rate_hz: float,
+        kinematics: GimbalKinematics | None = None,
+        *,
+        margin_s: float = CHANGE_MARGIN_S,
+        source: str = "stdin",
+    ):
+        self.spline = spline
+        self.rate_hz = float(rate_hz)
+        self.kinematics = GimbalKinematics() if kinematics is None else kinematics
+        self.margin_s = float(margin_s)
+        self.source = source
+        self.latencies_s: list[float] = []
+        self.change_costs_s: list[float] = []
+        self.keyframes: list[dict] = []
+        self.skipped: list[str] = []
+        self._frames: list = []
+        self._pending: list[tuple[float, float]] = []  # (arrival, at) of changes not yet seen
+        self._lock = threading.Lock()
+        self._last_q = None
+        #: Why the stream ended early ("" if it did not).
+        self.fault = ""
+
+    # -- lines -------------------------------------------------------------
+
+    def read(self, lines, *, echo=sys.stderr) -> None:
+        """Feed every line of ``lines`` (an iterable of str), then close the plan.
+
+        Bad lines are reported to ``echo`` and skipped.
+        """
+        try:
+            for number, text in enumerate(lines, start=1):
+                if not text.strip():
+                    continue
+                try:
+                    self.feed(text, number)
+                except (ValueError, TypeError) as e:
+                    self.skipped.append(str(e))
+                    print(f"trajgen: follow: {e} (line skipped)", file=echo, flush=True)
+        finally:
+            self.spline.close()
+
+    def feed(self, text: str, number: int = 1) -> None:
+        """Apply one JSON line to the plan.
+
+        Raises
+        ------
+        KeyframeFileError
+            For a line that is not a keyframe (``"{source}: line N: ..."``).
+        ValueError
+            For a keyframe the plan refuses (too close, before the last one for
+            ``"extend"``, outside the joint limits or near gimbal lock).
+        """
+        arrival = time.monotonic()
+        where = f"line {number}"
+        mode, q, t, relative = self._parse(text, where)
+        now = self._now()
+        t = now + t if relative else t
+        for _ in range(3):
+            at = max(self.spline.committed, self.spline.t_start) + self.margin_s
+            if t - at < self.spline.min_lead_s:
+                raise self._error(
+                    where,
+                    f"keyframe at t = {t:.4g} s is {t - now:.3g} s ahead of the stream "
+                    f"(t = {now:.4g} s): it must be at least "
+                    f"{self.spline.min_lead_s + self.margin_s:g} s ahead",
+                )
+            started = time.perf_counter()
+            try:
+                getattr(self.spline, mode)(q[None], [t], at=at, check=self._limits(at))
+            except ChangeTooLate:
+                continue  # the stream passed `at` while the change was built: again, later
+            except ValueError as e:  # KinematicsError, or a keyframe the plan refuses
+                raise self._error(where, str(e)) from None
+            cost = time.perf_counter() - started
+            with self._lock:
+                self._pending.append((arrival, at))
+            break
+        else:
+            raise self._error(where, "the stream ran past three attempts to change it (busy?)")
+        self.change_costs_s.append(cost)
+        self.keyframes.append(
+            {"line": number, "mode": mode, "t": t, "quat": q.tolist(), "at": at, "now": now}
+        )
+
+    def _parse(self, text: str, where: str):
+        try:
+            entry = json.loads(text)
+        except json.JSONDecodeError as e:
+            raise self._error(where, f"invalid JSON: {e}") from None
+        if not isinstance(entry, dict):
+            raise self._error(where, f"expected a JSON object, got {text.strip()!r}")
+        for key in entry:
+            if key not in LINE_KEYS:
+                raise self._error(where, f"unknown field '{key}' (known: {', '.join(LINE_KEYS)})")
+        mode = entry.get("mode", "retarget")
+        if mode not in MODES:
+            raise self._error(where, f"field 'mode': expected one of {MODES}, got {mode!r}")
+        if ("t" in entry) == ("in" in entry):
+            raise self._error(where, "give exactly one of 't' (stream time) or 'in' (from now), s")
+        keyframe = {k: v for k, v in entry.items() if k not in ("mode", "in")}
+        keyframe["t"] = entry.get("t", entry.get("in"))
+        t, q = check_keyframes([keyframe], f"{self.source}: {where}", minimum=1)
+        return mode, q[0], float(t[0]), "in" in entry
+
+    def _error(self, where: str, problem: str) -> KeyframeFileError:
+        return KeyframeFileError(f"{self.source}: {where}: {problem}")
+
+    def _now(self) -> float:
+        committed = self.spline.committed
+        return self.spline.t_start if committed == -math.inf else committed
+
+    def _limits(self, at: float):
+        """The check of a new path: joint limits and gimbal lock from ``at`` to its end."""
+
+        def check(path) -> None:
+            t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)
+            self.kinematics.inverse(path.evaluate(t, max_order=0).q, t, start=self._last_q)
+
+        return check
+
+    # -- frames ------------------------------------------------------------
+
+    def frames(self, start=None):
+        """The joint stream (``trajgen.stream.stream_frames`` of the plan), recorded.
+
+        Parameters
+        ----------
+        start : array_like, shape (3,), optional
+            Joint angles whose 2 pi branch the first frame's pan and roll take.
+        """
+        frames = stream_frames(self.spline, self.rate_hz, self.kinematics, start=start)
+        while True:
+            try:
+                frame = next(frames)
+            except StopIteration:
+                return
+            except KinematicsError as e:
+                # Every change was checked on the stream's grid, so this is a path that
+                # passed its check between samples: end here, the servos hold the last goal.
+                self.fault = str(e)
+                return
+            with self._lock:
+                self._last_q = frame.q
+                if self._pending:
+                    now = time.monotonic()
+                    seen = [p for p in self._pending if frame.t > p[1]]
+                    self.latencies_s += [now - arrival for arrival, _ in seen]
+                    self._pending = [p for p in self._pending if p not in seen]
+            self._frames.append(frame)
+            yield frame
+
+    def trajectory(self) -> JointTrajectory:
+        """What :meth:`frames` yielded, as arrays."""
+        f = self._frames
+        return JointTrajectory(
+            np.array([x.t for x in f]),
+            np.array([x.q for x in f]).reshape(-1, 3),
+            np.array([x.qd for x in f]).reshape(-1, 3),
+            np.array([x.qdd for x in f]).reshape(-1, 3),
+            self.rate_hz,
+        )
+
+    # -- summary -----------------------------------------------------------
+
+    def summary(self) -> dict:
+        """Counts, latency and change cost (s; p50 and max), accepted keyframes."""
+
+        def stats(x):
+            return {"p50": float(np.median(x)), "max": float(np.max(x)), "n": len(x)} if x else None
+
+        return {
+            "accepted": len(self.keyframes),
+            "skipped": len(self.skipped),
+            "latency_s": stats(self.latencies_s),
+            "change_cost_s": stats(self.change_costs_s),
+            "keyframes": self.keyframes,
+            "skipped_lines": self.skipped,
+        }
+
+    def format(self) -> str:
+        """A line for a terminal."""
+        s = self.summary()
+
+        def ms(d):
+            return (
+                "n/a" if d is None else f"p50 {1e3 * d['p50']:.1f} ms, max {1e3 * d['max']:.1f} ms"
+            )
+
+        return (
+            f"follow: {s['accepted']} keyframes accepted, {s['skipped']} lines skipped; "
+            f"line to frame {ms(s['latency_s'])}; change cost {ms(s['change_cost_s'])}"
+        )
+
+
+def online_spline(kf) -> OnlineSpline:
+    """The plan of a keyframe file as an OnlineSpline: at rest at its first keyframe,
+    extended by the others (the same path as the file's BlendingSpline).
+
+    Raises
+    ------
+    ValueError
+        If the file's [spline] table asks for something the online plan does not
+        do (a boundary other than "rest", k above 3) or its second keyframe is
+        closer than 0.2 s to the first.
+    """
+    options = dict(kf.spline_options)
+    if options.pop("boundary", "rest") != "rest":
+        raise ValueError(f"{kf.path}: [spline] boundary: follow needs 'rest'")
+    if options.get("k", 2) > 3:
+        raise ValueError(f"{kf.path}: [spline] k: follow takes k in 1..3, got {options['k']}")
+    spline = OnlineSpline(kf.quats[0], kf.times[0], **options)
+    try:
+        spline.extend(kf.quats[1:], kf.times[1:], at=kf.times[0])
+    except ValueError as e:
+        raise ValueError(f"{kf.path}: {e}") from None
+    return spline
+
+
+def run_follow(args) -> int:
+    """Run ``trajgen follow`` on the lines of stdin; returns the exit status."""
+    try:
+        return follow(args, sys.stdin)[0]
+    except KeyboardInterrupt:
+        print("trajgen: interrupted: the servos hold their last goal", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def follow(args, lines):
+    """``trajgen follow`` with keyframe lines from ``lines``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``trajgen follow`` options.
+    lines : iterable of str, or callable
+        The JSON lines (read on a thread of their own while the stream runs),
+        or a function of the :class:`Follower` that returns them (to time them
+        against the stream).
+
+    Returns
+    -------
+    status : int
+        Exit status.
+    follower : Follower or None
+        What was streamed and the changes (None if the input was refused).
+    report : TorqueReport or None
+        With --virtual, the torque report of what was streamed.
+    """
+    from trajgen.drivers.errors import DriverError
+    from trajgen.drivers.streamer import Streamer
+
+    try:
+        kf, config, joints, rate, trajectory = stream_command._plan(args)
+        spline = online_spline(kf)
+    except (ValueError, TypeError, OSError) as e:  # KeyframeFileError, KinematicsError
+        return bad_input(e), None, None
+    follower = Follower(spline, rate)
+    lines = lines(follower) if callable(lines) else lines
+
+    virtual = plant = None
+    if args.virtual:
+        try:
+            virtual, plant = stream_command.start_virtual(kf, config, joints, rate, trajectory.q[0])
+        except (ValueError, TypeError) as e:
+            return bad_input(e), None, None
+        port = virtual.port
+    else:
+        port = args.port or config.port
+
+    streamer = None
+    status = EXIT_OK
+    try:
+        try:
+            bus = open_bus(port, args.baud or config.baud)
+        except DriverError as e:
+            return bad_input(e), None, None
+        try:
+            present = _bring_up(bus, config, joints, follower.kinematics)
+            streamer = Streamer(
+                bus,
+                joints,
+                telemetry=args.telemetry,
+                on_stop="torque_off" if args.torque_off else "hold",
+            )
+            reader = threading.Thread(target=follower.read, args=(lines,), daemon=True)
+            # While a change is built on the reader thread, the streaming thread waits for
+            # the GIL up to the switch interval (5 ms by default): keep that a tenth of a period.
+            switch = sys.getswitchinterval()
+            sys.setswitchinterval(min(switch, 0.1 / rate))
+            try:
+                reader.start()
+                streamer.run(follower.frames(start=present), rate_hz=rate)
+            finally:
+                sys.setswitchinterval(switch)
+            if follower.fault:
+                print(f"trajgen: stream stopped: {follower.fault}", file=sys.stderr)
+                status = EXIT_FAILED
+        except DriverError as e:
+            print(f"trajgen: stream failed: {e}", file=sys.stderr)
+            status = EXIT_FAILED
+        finally:
+            bus.close()
+            if streamer is not None and streamer.stats is not None:
+                print(streamer.stats.format())
+                for message in streamer.stop_errors:
+                    print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
+    finally:
+        if virtual is not None:
+            virtual.stop()
+            if virtual.error is not None:
+                print(f"trajgen: virtual bus stopped: {virtual.error}", file=sys.stderr)
+    print(follower.format())
+    result = {
+        "stream": None if streamer is None else streamer.stats.to_json_dict(),
+        "follow": follower.summary(),
+    }
+    report = None
+    if plant is not None and status == EXIT_OK:
+        status, report = stream_command.torque_report(plant, follower.trajectory(), args, result)
+    return stream_command.write_json(args, result, status), follower, report
+
+
+def _bring_up(bus, config, joints, kinematics) -> np.ndarray:
+    """Check and configure the servos for any goal the joint limits allow; return the
+    present joint angles (rad), whose 2 pi branch the stream starts on."""
+    from trajgen.drivers.bringup import bring_up
+    from trajgen.drivers.control_table import Register
+
+    corners = joints.to_ticks(np.array(kinematics.limits_rad).T)  # (2, 3): every goal between
+    bring_up(bus, joints, config.models, corners, watchdog_s=config.watchdog_s)
+    ticks = np.array([bus.read(i, Register.PRESENT_POSITION) for i in joints.ids])
+    return joints.to_rad(ticks)

@@ -1,0 +1,132 @@
+"""The ``trajgen identify`` command: fit the simulated gimbal to logged telemetry.
+
+This module imports quickly: MuJoCo and ``mujoco.sysid`` load inside :func:`run_identify`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+from trajgen.cli.common import EXIT_FAILED, EXIT_OK, bad_input
+
+DESCRIPTION = """\
+Fit each joint's armature (kg m^2), Coulomb friction (N m), viscous damping (N
+m s/rad) and Position P Gain (register units) of the simulated gimbal to
+telemetry logged by `trajgen excite` (or `trajgen stream --telemetry`), with
+mujoco.sysid (install the extra: pip install 'trajgen[sysid]'). FILE gives the
+gimbal (its [gimbal] table: servos, payload) and the starting values. Prints
+fit, 95 % interval and residual per joint and names every parameter the logs
+do not excite enough; writes FITTED.toml: FILE with its [gimbal.pan],
+[gimbal.tilt], [gimbal.roll] tables replaced by the fit (intervals in
+comments), ready for `trajgen sim FITTED.toml`.
+
+Each row's present values are taken --delay-ms after its goal (default 0: what
+the servo had as the goal arrived, as the virtual bus logs it; on hardware the
+read follows the write by about 1 ms); --fit-delay fits that delay too (after
+a first fit with it held, as it trades against the lag of the P gain).
+
+The logged current is fitted too, as torque over the torque constant (stall
+torque / stall current); --no-current fits positions and velocities only (a
+servo whose current reading is off by a scale would bias the fit).
+
+exit status: 0 fitted, 1 the fit failed, 2 bad input."""
+
+_JOINT_HEADER = re.compile(r"^\s*\[\s*gimbal\s*\.\s*(pan|tilt|roll)\s*\]")
+_ANY_HEADER = re.compile(r"^\s*\[")
+
+
+def register(subparsers) -> None:
+    """Add the ``identify`` subcommand to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "identify",
+        help="fit the simulated gimbal's friction, inertia and gains to telemetry logs",
+        description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("file", metavar="FILE", help="keyframe file of the gimbal (TOML)")
+    p.add_argument("logs", metavar="LOG", nargs="+", help="telemetry logs (.csv or .npz)")
+    p.add_argument("--out", metavar="FITTED.toml", required=True, help="write the fit here")
+    p.add_argument("--no-current", action="store_true", help="do not fit the logged current")
+    p.add_argument(
+        "--delay-ms",
+        type=float,
+        default=0.0,
+        metavar="MS",
+        help="time from a goal to its row's present values (ms); default 0",
+    )
+    p.add_argument("--fit-delay", action="store_true", help="fit that delay too")
+    p.add_argument(
+        "--max-iter", type=int, default=30, metavar="N", help="Gauss-Newton iterations (30)"
+    )
+    p.set_defaults(func=run_identify)
+
+
+def fitted_file_text(source_text: str, tables: str) -> str:
+    """``source_text`` without its ``[gimbal.<joint>]`` tables, then ``tables``.
+
+    Parameters
+    ----------
+    source_text : str
+        A keyframe file's text.
+    tables : str
+        The fitted ``[gimbal.<joint>]`` tables (``Fit.toml``).
+    """
+    kept, skipping = [], False
+    for line in source_text.splitlines():
+        if _JOINT_HEADER.match(line):
+            skipping = True
+        elif _ANY_HEADER.match(line):
+            skipping = False
+        if not skipping:
+            kept.append(line)
+    return "\n".join(kept).rstrip() + "\n\n" + tables
+
+
+def run_identify(args) -> int:
+    """Run ``trajgen identify``; returns the exit status."""
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim.errors import SimError
+    from trajgen.sim.identify import identify, load_telemetry
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    try:
+        if not 0 <= args.delay_ms < 1000:
+            raise ValueError(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
+        if args.max_iter < 1:
+            raise ValueError(f"--max-iter: expected >= 1, got {args.max_iter}")
+        if not args.out.endswith(".toml"):
+            raise ValueError(f"--out: expected a .toml path, got {args.out!r}")
+        if not Path(args.out).resolve().parent.is_dir():
+            raise ValueError(f"--out: no such directory for {args.out!r}")
+        kf = load_keyframe_file(args.file)
+        config = gimbal_config_from_tables(kf.tables, kf.path)
+        logs = [load_telemetry(path) for path in args.logs]
+        source_text = Path(args.file).read_text(encoding="utf-8")
+        fit = identify(
+            config,
+            logs,
+            use_current=not args.no_current,
+            delay_s=args.delay_ms / 1000.0,
+            fit_delay=args.fit_delay,
+            max_iter=args.max_iter,
+        )
+    except (ValueError, TypeError, OSError) as e:  # IdentifyError, KeyframeFileError
+        return bad_input(e)
+    except SimError as e:
+        print(f"trajgen: identify failed: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    print(fit.format())
+    sources = ", ".join(Path(p).name for p in args.logs)
+    text = fitted_file_text(source_text, fit.toml(sources))
+    try:
+        Path(args.out).write_text(text, encoding="utf-8")
+        # The result must load as the file it claims to be.
+        fitted = load_keyframe_file(args.out)
+        gimbal_config_from_tables(fitted.tables, fitted.path)
+    except (ValueError, OSError) as e:
+        return bad_input(e)
+    print(f"fitted: {args.out}")
+    return EXIT_OK

@@ -1,0 +1,124 @@
+"""The ``trajgen virtual-bus`` command: the simulated gimbal as a servo chain on a pty.
+
+This module imports quickly: MuJoCo and the virtual bus load inside
+``run_virtual_bus``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+from trajgen.cli.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    add_file_argument,
+    bad_input,
+    servo_ids,
+)
+
+VIRTUAL_BUS_DESCRIPTION = """\
+Serve the simulated gimbal of a keyframe file (its [gimbal] table; the built-in
+one by default) as three Dynamixel X-series servos on a pseudo-terminal, for
+any Protocol 2.0 tool: the official dynamixel-sdk, LeRobot's motor bus, a ROS 2
+hardware interface, your own scripts. Prints the port path as its first line,
+then serves until SIGINT (Ctrl-C) or SIGTERM.
+
+The servos start at rest at 0 rad (tick 2048) with torque off and their
+factory registers (the file's [bus] ids and models apply). Real time by
+default: the simulation runs on the wall clock whether packets arrive or not.
+--lockstep advances it only with the traffic: one period of the file's
+[stream] rate (200 Hz by default) per packet that writes Goal Position, and
+per poll of the present values with no goal written since the previous one.
+
+exit status: 0 stopped by a signal, 1 the simulation failed, 2 bad input."""
+
+
+def model_names(text: str) -> tuple[str, ...]:
+    """argparse type: one X-series model name, or three separated by commas."""
+    from trajgen.drivers.control_table import MODELS
+
+    names = tuple(part.strip() for part in text.split(","))
+    if len(names) not in (1, 3) or not all(n in MODELS for n in names):
+        raise argparse.ArgumentTypeError(
+            f"expected a model or 3 separated by commas, among {', '.join(MODELS)}; got {text!r}"
+        )
+    return names * 3 if len(names) == 1 else names
+
+
+def register(subparsers) -> None:
+    """Add the ``virtual-bus`` subcommand to an argparse ``subparsers`` object."""
+    p = subparsers.add_parser(
+        "virtual-bus",
+        help="serve the simulated gimbal as Dynamixel servos on a pseudo-terminal",
+        description=VIRTUAL_BUS_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_file_argument(p)
+    p.add_argument(
+        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
+    )
+    p.add_argument(
+        "--models",
+        type=model_names,
+        metavar="MODEL[,MODEL,MODEL]",
+        help="servo model(s); default the file's [bus] models, else XM430-W350",
+    )
+    p.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="advance the simulation with the traffic instead of the wall clock",
+    )
+    p.set_defaults(func=run_virtual_bus)
+
+
+def run_virtual_bus(args) -> int:
+    """Run ``trajgen virtual-bus``; returns the exit status."""
+    from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.keyframes import load_keyframe_file
+
+    try:
+        kf = load_keyframe_file(args.file)
+        config = bus_config_from_tables(kf.tables, kf.path)
+        from trajgen.sim.model import gimbal_config_from_tables
+        from trajgen.sim.plant import GimbalPlant
+
+        plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path))
+    except (ValueError, TypeError, OSError) as e:  # KeyframeFileError included
+        return bad_input(e)
+    from trajgen.drivers.virtual.bus import VirtualBus
+
+    ids = args.ids or config.joints.ids
+    models = args.models or config.models
+    period_s = 1.0 / (kf.rate_hz or 200.0) if args.lockstep else None
+    stop = threading.Event()
+    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    virtual = VirtualBus(
+        plant,
+        ids=ids,
+        models=models,
+        lockstep_dt_s=period_s,
+        registers=dict(zip(ids, plant.initial_registers(), strict=True)),  # the file's gains
+    ).start()
+    try:
+        print(virtual.port, flush=True)
+        clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
+        print(
+            f"trajgen: serving servos {', '.join(map(str, ids))} ({', '.join(models)}), "
+            f"{clock}; Ctrl-C to stop",
+            file=sys.stderr,
+        )
+        while not stop.wait(0.2):
+            if virtual.error is not None:
+                break
+    finally:
+        virtual.stop()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if virtual.error is not None:
+        print(f"trajgen: simulation failed: {virtual.error}", file=sys.stderr)
+        return EXIT_FAILED
+    print(f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated", file=sys.stderr)
+    return EXIT_OK

@@ -1,0 +1,325 @@
+"""A C3 orientation spline with globally chosen knot rates (SPEC section 8).
+
+The blending spline's knot jerk is ``3 f''(0) |dw| / h^2``, ``dw`` the gap between
+the two local curves' angular velocities at the knot. :class:`SmoothSpline`
+removes the gap by choosing the angular rate and acceleration at every knot at
+once, from the knot conditions of the flat C4 quintic spline (a block-tridiagonal
+system solved in O(n)), then joins the knots with septic Hermite curves in the
+tangent space of each segment's first keyframe, which makes the path C3 for any
+knot data and the flat quintic spline when all keyframes share one axis.
+
+Evaluation is closed form and vectorised: ``r(u)`` is a degree-7 polynomial per
+segment and axis, and the derivatives of ``exp(r)`` follow from those of
+``cos|r|`` and ``sin|r| / |r|`` as functions of ``x = r . r``.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+from math import comb
+
+import numpy as np
+
+from . import derivatives as D
+from . import jet as J
+from . import quat as Q
+from .path import OrientationPath, check_times
+from .spline import check_closed
+from .validate import check_choice
+
+BOUNDARIES = ("rest", "natural", "closed")
+
+# Septic Hermite basis in the power basis (columns u^0..u^7): H_m^(k)(0) = delta_mk,
+# H_m^(k)(1) = 0 for k = 0..3. Exact fractions, so that H_m(1 - u) expands exactly.
+_H_EXACT = [
+    [1, 0, 0, 0, -35, 84, -70, 20],
+    [0, 1, 0, 0, -20, 45, -36, 10],
+    [0, 0, Fraction(1, 2), 0, -5, 10, Fraction(-15, 2), 2],
+    [0, 0, 0, Fraction(1, 6), Fraction(-2, 3), 1, Fraction(-2, 3), Fraction(1, 6)],
+]
+
+
+def _mirrored(h: list) -> np.ndarray:
+    """Power-basis coefficients of ``(-1)^m H_m(1 - u)`` from those of ``H_m(u)``."""
+    out = [[Fraction(0)] * len(row) for row in h]
+    for m, row in enumerate(h):
+        for j, c in enumerate(row):  # (1 - u)^j = sum_l C(j, l) (-u)^l
+            for ell in range(j + 1):
+                out[m][ell] += (-1) ** (m + ell) * comb(j, ell) * c
+    return np.array(out, dtype=float)
+
+
+_H = np.array(_H_EXACT, dtype=float)
+_H_RIGHT = _mirrored(_H_EXACT)
+
+
+def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
+    """Blocks of the knot-rate system (SPEC 8.2), symmetric positive definite.
+
+    The unknowns at each free knot are ``(v, a)``; the rows are the snap condition
+    (``S0_i - S1_{i-1} = 0``) and the jerk condition (``J1_{i-1} - J0_i = 0``), the
+    gradient of the flat spline's integral of squared jerk, so the matrix is SPD and
+    block elimination needs no pivoting.
+
+    Parameters
+    ----------
+    D : ndarray, shape (n - 1, 3)
+        Segment increments ``log(q_{i+1} q_i*)``.
+    h : ndarray, shape (n - 1,)
+        Segment durations (s).
+    boundary : {"rest", "natural", "closed"}
+        ``"rest"``: ``v = a = 0`` at both ends (free knots 1..n-2); ``"natural"``:
+        free ends with zero jerk and snap (free knots 0..n-1); ``"closed"``: knot
+        n-1 is knot 0 (free knots 0..n-2), and the last segment couples them.
+
+    Returns
+    -------
+    diag : ndarray, shape (m, 2, 2)
+    upper : ndarray, shape (m - 1, 2, 2), or (m, 2, 2) when closed
+        Block coupling knot ``k`` to ``k + 1``; the lower blocks are its transposes.
+        When closed the last one couples knot m - 1 to knot 0.
+    rhs : ndarray, shape (m, 2, 3)
+    """
+    h = h[:, None, None]
+    # Segment i's share of the diagonal block at its left / right knot, its
+    # coupling block (rows: left knot, columns: right knot) and right-hand sides.
+    left = np.concatenate([192 / h**3, 36 / h**2, 36 / h**2, 9 / h], axis=2).reshape(-1, 2, 2)
+    right = left * np.array([[1, -1], [-1, 1]])
+    upper = np.concatenate([168 / h**3, -24 / h**2, 24 / h**2, -3 / h], axis=2).reshape(-1, 2, 2)
+    b_left = np.stack([360 * D / h[..., 0] ** 4, 60 * D / h[..., 0] ** 3], axis=1)
+    b_right = b_left * np.array([1, -1])[:, None]
+    n = len(D) + 1
+    diag = np.zeros((n, 2, 2))
+    diag[:-1] += left
+    diag[1:] += right
+    rhs = np.zeros((n, 2, 3))
+    rhs[:-1] += b_left
+    rhs[1:] += b_right
+    if boundary == "rest":
+        return diag[1:-1], upper[1:-1], rhs[1:-1]
+    if boundary == "closed":
+        diag[0] += diag[-1]
+        rhs[0] += rhs[-1]
+        return diag[:-1], upper, rhs[:-1]
+    return diag, upper, rhs
+
+
+def solve_block_tridiagonal(diag, upper, rhs) -> np.ndarray:
+    """Solve a symmetric block-tridiagonal system by block Thomas elimination, O(m).
+
+    Parameters
+    ----------
+    diag : ndarray, shape (m, b, b)
+    upper : ndarray, shape (m - 1, b, b)
+        Super-diagonal blocks; the sub-diagonal blocks are their transposes.
+    rhs : ndarray, shape (m, b, c)
+
+    Returns
+    -------
+    ndarray, shape (m, b, c)
+    """
+    m = len(diag)
+    if m == 0:
+        return rhs.copy()
+    gain = np.empty_like(upper)  # C'_k = M_k^-1 U_k
+    y = np.empty_like(rhs)  # d'_k = M_k^-1 (b_k - L_k d'_{k-1})
+    b = diag.shape[1]
+    for k in range(m):
+        pivot, r = diag[k], rhs[k]
+        if k > 0:
+            lower = upper[k - 1].T
+            pivot = pivot - lower @ gain[k - 1]
+            r = r - lower @ y[k - 1]
+        right = np.hstack([upper[k], r]) if k < m - 1 else r
+        sol = np.linalg.solve(pivot, right)
+        if k < m - 1:
+            gain[k], y[k] = sol[:, :b], sol[:, b:]
+        else:
+            y[k] = sol
+    for k in range(m - 2, -1, -1):
+        y[k] -= gain[k] @ y[k + 1]
+    return y
+
+
+def solve_block_cyclic(diag, upper, rhs) -> np.ndarray:
+    """Solve a symmetric block-tridiagonal system with the corner blocks of a loop, O(m).
+
+    ``A = T + E G E^T``: ``T`` the system without the corners (block Thomas), ``E``
+    picks knots 0 and m - 1, ``G = [[0, W^T], [W, 0]]`` with ``W = upper[-1]`` (row
+    knot m - 1, column knot 0). Woodbury: ``x = y - Z (I + G E^T Z)^-1 G E^T y``
+    with ``T y = b``, ``T Z = E``, both from one block solve.
+
+    Parameters
+    ----------
+    diag : ndarray, shape (m, b, b)
+    upper : ndarray, shape (m, b, b)
+    rhs : ndarray, shape (m, b, c)
+
+    Returns
+    -------
+    ndarray, shape (m, b, c)
+    """
+    m, b, c = rhs.shape
+    E = np.zeros((m, b, 2 * b))
+    E[0, :, :b] = np.eye(b)
+    E[-1, :, b:] += np.eye(b)
+    solved = solve_block_tridiagonal(diag, upper[:-1], np.concatenate([rhs, E], axis=2))
+    y, Z = solved[..., :c], solved[..., c:]
+    G = np.zeros((2 * b, 2 * b))
+    G[:b, b:], G[b:, :b] = upper[-1].T, upper[-1]
+    EtZ = np.concatenate([Z[0], Z[-1]])  # (2b, 2b)
+    Ety = np.concatenate([y[0], y[-1]])  # (2b, c)
+    correction = np.linalg.solve(np.eye(2 * b) + G @ EtZ, G @ Ety)
+    return y - np.einsum("kij,jc->kic", Z, correction)
+
+
+class SmoothSpline(OrientationPath):
+    """C3 orientation path through keyframes with globally chosen knot rates.
+
+    The angular rates and accelerations at the knots are those of the flat C4
+    quintic spline through the segment increments (one block-tridiagonal solve,
+    O(N)); each segment is a septic Hermite curve ``exp(r(u)) q_i`` matching the
+    knot jets of order 3 at both ends (SPEC section 8).
+
+    Parameters
+    ----------
+    quats : array_like, shape (N, 4)
+        Keyframe orientations, scalar first (w, x, y, z), any sign and norm
+        (normalised here). N >= 2.
+    times : array_like, shape (N,)
+        Keyframe times (s), strictly increasing.
+    boundary : {"rest", "natural", "closed"}, optional
+        ``"rest"``: angular velocity and acceleration are zero at both ends (the
+        jerk is not); ``"natural"``: free end rates chosen so that the flat spline's
+        jerk and snap vanish at the ends (it starts moving); ``"closed"``: a loop
+        whose last keyframe repeats the first, C3 all the way round (the knot
+        solve is cyclic; times outside the range wrap). Default "rest".
+
+    Raises
+    ------
+    ValueError, TypeError
+        For bad shapes or values, naming the argument and what arrived.
+
+    Notes
+    -----
+    Unlike :class:`~trajgen.spline.BlendingSpline`, the spline is global: moving
+    one keyframe moves every segment, with an effect that decays by about 2.5x per
+    knot. Times outside ``[t_start, t_end]`` raise.
+    """
+
+    def __init__(self, quats, times, *, boundary="rest"):
+        q = Q.as_quats(quats, "quats")
+        n = len(q)
+        if n < 2:
+            raise ValueError(f"Expected at least 2 keyframes, got {n}.")
+        self.times = check_times(times, n)
+        self.boundary = check_choice("boundary", boundary, BOUNDARIES)
+        if boundary == "closed":
+            check_closed(q)
+        self.periodic = boundary == "closed"
+        # SPEC 1: one sign per consecutive pair, the shortest geodesic.
+        for i in range(1, n):
+            if q[i] @ q[i - 1] < 0:
+                q[i] = -q[i]
+        self.quats = q
+        h = np.diff(self.times)
+        D = Q.log(Q.mul(q[1:], Q.conj(q[:-1])))
+        v, a, j = self._knot_rates(D, h)
+        #: Knot angular rate, acceleration and jerk of the tangent-space jets (N, 3).
+        self.knot_rates = (v, a, j)
+        self._h = h
+        self._poly = self._segment_coefficients(D, h, v, a, j)
+
+    def _knot_rates(self, D, h):
+        n = len(D) + 1
+        system = knot_system(D, h, self.boundary)
+        v, a = np.zeros((n, 3)), np.zeros((n, 3))
+        if self.boundary == "rest":
+            x = solve_block_tridiagonal(*system)
+            v[1:-1], a[1:-1] = x[:, 0], x[:, 1]
+        elif self.boundary == "closed":  # knot n - 1 is knot 0
+            x = solve_block_cyclic(*system)
+            v[:-1], a[:-1] = x[:, 0], x[:, 1]
+            v[-1], a[-1] = v[0], a[0]
+        else:
+            x = solve_block_tridiagonal(*system)
+            v, a = x[:, 0], x[:, 1]
+        hc = h[:, None]
+        # j_i = J0_i, j_{n-1} = J1_{n-2}.
+        j = np.empty((n, 3))
+        j[:-1] = (
+            60 * D - (36 * v[:-1] + 24 * v[1:]) * hc - (9 * a[:-1] - 3 * a[1:]) * hc**2
+        ) / hc**3
+        j[-1] = (
+            60 * D[-1] - (24 * v[-2] + 36 * v[-1]) * h[-1] + (9 * a[-1] - 3 * a[-2]) * h[-1] ** 2
+        ) / h[-1] ** 3
+        return v, a, j
+
+    def _segment_coefficients(self, D, h, v, a, j) -> np.ndarray:
+        """Power-basis coefficients of ``r_i(u)`` and of its first three time
+        derivatives, shape (n - 1, 12, 8): ``[i, 3 m + axis, k]`` multiplies ``u^k``
+        in the m-th derivative."""
+        q = self.quats
+        # R_m: time derivatives at t_{i+1} of log(K_{i+1}(t) q_i*), by jets in tau.
+        c = np.zeros((4, 3, len(D)))
+        c[1], c[2], c[3] = v[1:].T, a[1:].T / 2, j[1:].T / 6
+        step = Q.mul(q[1:], Q.conj(q[:-1])).T  # (4, n - 1) = exp(D_i)
+        with np.errstate(over="ignore", invalid="ignore"):  # qlog's unused branch at w = 0
+            R = J.qlog(J.qmul(J.qexp(J.Jet(c)), step))
+        R = np.stack([R.derivative(m).T for m in range(4)])  # (4, n - 1, 3)
+        R[0] = D  # the same value; keep the exact increment
+        L = np.stack([np.zeros_like(v[:-1]), v[:-1], a[:-1], j[:-1]])
+        hm = h[None, :, None] ** np.arange(4)[:, None, None]  # (4, n - 1, 1)
+        coef = np.einsum("mis,mk->iks", hm * L, _H) + np.einsum("mis,mk->iks", hm * R, _H_RIGHT)
+        out = np.empty((4, *coef.shape))
+        out[0] = coef
+        power = np.arange(8.0)
+        for m in range(1, 4):  # d/dt = (1/h) d/du
+            out[m, :, :-1] = out[m - 1, :, 1:] * power[1:, None] / h[:, None, None]
+            out[m, :, -1] = 0.0
+        return np.ascontiguousarray(out.transpose(1, 0, 3, 2).reshape(len(h), 12, 8))
+
+    def _tangent(self, t, seg, max_order) -> np.ndarray:
+        """``r_i(u)`` and its time derivatives 1..max_order at times ``t`` (M,) in
+        segments ``seg`` (M,), shape (max_order + 1, 3, M)."""
+        M = len(t)
+        U = np.empty((8, M))  # powers of u
+        U[0] = 1.0
+        np.divide(t - self.times[seg], self._h[seg], out=U[1])
+        for k in range(2, 8):
+            np.multiply(U[k - 1], U[1], out=U[k])
+        poly = self._poly[:, : 3 * (max_order + 1)]
+        steps = np.diff(seg)
+        starts = np.flatnonzero(steps) + 1
+        if (steps >= 0).all() and 16 * len(starts) < M:
+            # Sorted times, many samples per segment: one small matmul per segment.
+            out = np.empty((poly.shape[1], M))
+            bounds = [0, *starts.tolist(), M]
+            for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+                out[:, lo:hi] = poly[seg[lo]] @ U[:, lo:hi]
+        else:
+            out = np.einsum("mrk,km->rm", poly[seg], U)
+        return out.reshape(max_order + 1, 3, M)
+
+    def _space_rates(self, t, seg, max_order):
+        """Unit quaternions (M, 4) and space-frame angular derivatives of orders
+        1..max_order (each (M, 3)), in closed form.
+
+        ``q = E q_i`` with ``E = exp(r) = (C(x), S(x) r)``, ``x = r . r``, ``C`` and
+        ``S`` the cosine and sinc of ``sqrt x``, and ``q_i`` fixed on a segment, so
+        ``omega = 2 vec(E' E*)``, ``alpha = 2 vec(E'' E*)`` (``E' E'*`` is a scalar)
+        and ``jerk = 2 vec(E''' E* + E'' E'*)``.
+        """
+        r = list(self._tangent(t, seg, max_order))
+        C, S = D.cos_sinc_sqrt(D.vdot(r, r))
+        E = [np.concatenate([c[None], v]) for c, v in zip(C, D.product(S, r), strict=True)]
+        q = Q.mul(E[0].T, self.quats[seg])
+        conj = [e * _CONJ for e in E[: 2 if max_order >= 3 else 1]]
+        rates = [2.0 * D.hamilton_vec(E[m], conj[0]).T for m in range(1, min(max_order, 2) + 1)]
+        if max_order >= 3:
+            jerk = D.hamilton_vec(E[3], conj[0]) + D.hamilton_vec(E[2], conj[1])
+            rates.append(2.0 * jerk.T)
+        return q, rates
+
+
+_CONJ = np.array([1.0, -1.0, -1.0, -1.0])[:, None]
