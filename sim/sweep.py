@@ -324,11 +324,11 @@ def run_sweep(
 
 def scaled_trajectory(source, scale: float, rate_hz: float):
     """The file's planned stream with keyframe times (from the first) multiplied by ``scale``."""
-    from trajgen.spline import BlendingSpline
+    from trajgen.sim.fit import retimed
     from trajgen.stream import plan_joint_trajectory
 
     times = source.times[0] + (source.times - source.times[0]) * scale
-    spline = BlendingSpline(source.quats, times, **source.spline_options)
+    spline = retimed(source, times).spline()
     return plan_joint_trajectory(spline, rate_hz)
 
 
