@@ -17,7 +17,7 @@ move, one duration per segment. Two nested loops:
 2. Simulation: :func:`trajgen.sim.check.check_torque` on the fitted plan. A
    joint whose tracking error passes the limit in a segment gets a speed cap
    there (tracking lag grows with speed); a segment where a joint reaches the
-   torque limit is slowed by 3 %. Then loop 1 again.
+   torque limit (and tracks well) is slowed by 3 %. Then loop 1 again.
 
 The result is checked as written (times rounded to 1 us) and again 10 %
 faster, which must fail: the fit is tight.
@@ -433,7 +433,8 @@ class _Fitter:
             r = rows[np.argmin(flat[rows])]
             seg_factor[i] = flat[r] * self.slow[i]
             binding[i] = f"{BINDINGS[code[r, joint[r]]]} ({JOINT_NAMES[joint[r]]})"
-            if self.slow[i] < 1.0:
+            if self.slow[i] < 1.0 and flat[r] >= 1.0 + self.tolerance:
+                # The plan alone would allow more: the simulation's slow-down binds.
                 binding[i] = f"{BINDINGS[_SIM_LIMIT]} ({self.slow_joint[i]})"
         return seg_factor, binding
 
@@ -514,15 +515,17 @@ class _Fitter:
         learned = False
         for i in range(n_seg):
             rows, plan_rows = seg == i, plan_seg == i
+            capped = False
             for j in range(3):
                 worst = error[rows, j].max(initial=0.0)
                 if worst > limit:
                     peak = np.abs(plan.qd[plan_rows, j]).max(initial=0.0)
                     cap = peak * _TRACKING_TARGET * limit / worst
                     self.speed_cap[i, j] = min(self.speed_cap[i, j], cap)
-                    learned = True
+                    learned = capped = True
+            # A servo that falls behind also saturates: the speed cap deals with both.
             hit = [j for j in range(3) if at_limit[rows, j].any()]
-            if hit:
+            if hit and not capped:
                 self.slow[i] *= _SIM_SLOW_STEP
                 self.slow_joint[i] = JOINT_NAMES[hit[0]]
                 learned = True
