@@ -1,6 +1,7 @@
 """`trajgen fit` and `trajgen.sim.fit_timing`: the fastest timing that passes, and tight."""
 
 import argparse
+import re
 import tomllib
 
 import numpy as np
@@ -199,3 +200,19 @@ def test_cli_refusal_and_bad_input(tmp_path, capsys):
     assert main(["fit", str(bad), "--out", str(tmp_path / "o.toml")]) == 2
     assert "[limits] unknown key 'speed'" in capsys.readouterr().err
     assert not (tmp_path / "o.toml").exists()
+
+
+def test_sim_command_checks_the_limits_table(tmp_path, capsys):
+    from trajgen.cli import main
+
+    slow = KEYS.replace("rate_hz = 100", "rate_hz = 50") + "\n[limits]\nspeed_rad_s = {pan = 0.4}\n"
+    path = _write(tmp_path, slow)
+    assert main(["sim", str(path)]) == 1
+    out = capsys.readouterr().out
+    assert "torque check: OK" in out and "[limits]: FAILED" in out
+    assert re.search(r"  - pan: speed [0-9.]+ rad/s > limit 0.4 rad/s at t = ", out)
+    fitted = tmp_path / "fitted.toml"
+    assert main(["fit", str(path), "--out", str(fitted)]) == 0
+    capsys.readouterr()
+    assert main(["sim", str(fitted)]) == 0
+    assert "[limits]: OK" in capsys.readouterr().out

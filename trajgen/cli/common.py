@@ -139,12 +139,15 @@ class CheckedFile:
     bus : trajgen.drivers.config.BusConfig
         From ``[bus]``.
     spline : BlendingSpline
+    limits : trajgen.sim.JointLimits
+        From ``[limits]`` (none when absent).
     """
 
     keyframes: KeyframeFile
     gimbal: object
     bus: object
     spline: object
+    limits: object = None
 
 
 def load_checked(path) -> CheckedFile:
@@ -160,17 +163,19 @@ def load_checked(path) -> CheckedFile:
         For any table, keyframe or field; one line naming file and field.
     """
     from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.sim.limits import limits_from_tables
     from trajgen.sim.model import gimbal_config_from_tables
 
     kf = load_keyframe_file(path)
     gimbal = gimbal_config_from_tables(kf.tables, kf.path)
     bus = bus_config_from_tables(kf.tables, kf.path)
+    limits = limits_from_tables(kf.tables, kf.path)
     if len(kf.times) > _LARGE_FILE_KEYFRAMES:
         print(
             f"trajgen: building the spline through {len(kf.times):,} keyframes...",
             file=sys.stderr,
         )
-    return CheckedFile(kf, gimbal, bus, kf.spline())
+    return CheckedFile(kf, gimbal, bus, kf.spline(), limits)
 
 
 def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLES) -> int:

@@ -84,11 +84,19 @@ def run_fit(args) -> int:
 
 
 def _run(args) -> int:
+    from trajgen.cli.common import load_checked
     from trajgen.sim.errors import SimError
     from trajgen.sim.fit import fit_timing
 
     try:
-        result = fit_timing(args.file, rate_hz=args.rate, progress=_Progress())
+        checked = load_checked(args.file)
+        result = fit_timing(
+            checked.keyframes,
+            config=checked.gimbal,
+            limits=checked.limits,
+            rate_hz=args.rate,
+            progress=_Progress(),
+        )
     except SimError as e:
         print(f"trajgen: fit refused: {e}", file=sys.stderr)
         return EXIT_FAILED

@@ -130,14 +130,13 @@ def run_sweep(args) -> int:
 
 
 def _run(args) -> int:
-    from trajgen.keyframes import load_keyframe_file
+    from trajgen.cli.common import load_checked
     from trajgen.sim import sweep
     from trajgen.sim.errors import SimError
-    from trajgen.sim.model import gimbal_config_from_tables
 
     try:
-        source = load_keyframe_file(args.file)
-        base = gimbal_config_from_tables(source.tables, source.path)
+        checked = load_checked(args.file)
+        source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
         for joint, models in args.servo or []:
             per_joint[joint] = models
