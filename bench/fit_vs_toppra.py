@@ -5,8 +5,10 @@ the file's default spline (``method = "smooth"``), rest boundary, 200 Hz,
 XM430-W350 x 3, 0.15 kg payload; tracking budget widened to 1 rad so that
 torque, which is all TOPP-RA knows, decides rather than the servo's 45 ms lag):
 
-1. ``trajgen.sim.fit_timing`` fits the keyframe times (torque check incl.
-   simulation, tight to 10 %); its planned joint path is the geometric path.
+1. ``trajgen.sim.fit_timing`` fits the keyframe times twice: with the full
+   check (plan and simulated servo, "full check") and to the plan alone
+   (``simulate=False``: the envelope, as TOPP-RA sees it, "plan only"). The
+   plan-only fit's joint path is the geometric path given to TOPP-RA.
 2. TOPP-RA (``toppra``) re-times that same path (the stream's 200 Hz samples in
    its cubic-spline path, parametrized by our normalised time; 801 gridpoints,
    collocation) from rest to rest (``sd_start = sd_end = 0``), fed
@@ -24,6 +26,12 @@ torque, which is all TOPP-RA knows, decides rather than the servo's 45 ms lag):
      settles after 2). Viscous damping is in the ``sd`` term too. This is the
      time-optimal second-order retiming of our path under our envelope; the
      fair anchor.
+
+TOPP-RA's output trajectory (``compute_trajectory``, evaluated at 4001 times)
+is checked against our envelope with our full inverse dynamics ("its envelope
+use"); where it exceeds 1 (its constraint holds at gridpoints on its spline of
+our samples, not everywhere), it is slowed uniformly until it fits ("stretched
+into envelope"), and the ratio is taken against that.
 
 Parametrization: by our time the path's speed p'(s) goes to 0 at both ends
 (rest boundary, k = 2), and on some paths TOPP-RA's controllable set next to
@@ -118,7 +126,8 @@ def envelope_constraint(config, x0):
     the envelope's optimum. ``x`` enters as a 4th component of toppra's
     ``v = a u + b x + c``.
     """
-    from toppra.constraint import LinearConstraint
+    from toppra.constraint import DiscretizationType, LinearConstraint
+    from toppra.constraint.linear_constraint import canlinear_colloc_to_interpolate
 
     inv_dyn, friction, damping = _inverse_dynamics_parts(config)
     stall = np.array([s.stall_torque_nm for s in config.servos])
@@ -130,6 +139,7 @@ def envelope_constraint(config, x0):
             super().__init__()
             self.dof = 3
             self.identical = False
+            self.set_discretization_type(DiscretizationType.Interpolation)
 
         def compute_constraint_params(self, path, gridpoints, *args, **kwargs):
             p, ps, pss = path(gridpoints), path(gridpoints, 1), path(gridpoints, 2)
@@ -153,7 +163,9 @@ def envelope_constraint(config, x0):
                 f[:, 3 + j, j], f[:, 3 + j, 3] = -1.0, e_minus[:, j] / (2 * r0[:, 0])
                 g[:, j] = big_m[j] - e_plus[:, j] * r0[:, 0] / 2
                 g[:, 3 + j] = big_m[j] - e_minus[:, j] * r0[:, 0] / 2
-            return a4, b4, c4, f, g, None, None
+            return canlinear_colloc_to_interpolate(
+                a4, b4, c4, f, g, None, None, gridpoints, identical=False
+            )
 
     return Envelope()
 
@@ -201,13 +213,13 @@ def toppra_retime(
     _, sd, _ = instance.compute_parameterization(0.0, 0.0)
     if envelope:
         for _ in range(cuts):
-            if not np.isfinite(sd).all():
+            if sd is None or not np.isfinite(sd).all():
                 break
             instance = algo.TOPPRA(
                 [envelope_constraint(config, sd**2)], path, gridpoints=gridpoints
             )
             _, sd, _ = instance.compute_parameterization(0.0, 0.0)
-    if not np.isfinite(sd).all():
+    if sd is None or not np.isfinite(sd).all():
         raise RuntimeError("TOPP-RA found no parametrization")
     jnt = instance.compute_trajectory(0.0, 0.0)
     if jnt is None:
@@ -228,6 +240,28 @@ def envelope_usage(config, q, qd, qdd) -> float:
     return float(np.max(np.where(avail > 0, np.abs(tau) / avail, np.inf)))
 
 
+def stretch_into_envelope(config, q, qd, qdd) -> float:
+    """Smallest time stretch ``c >= 1`` that puts a profile inside our envelope.
+
+    Slowing a profile by ``c`` divides speed by ``c`` and acceleration by ``c^2``
+    on the same path; ``c`` is found by bisection on :func:`envelope_usage`.
+    """
+
+    def fits(c):
+        return envelope_usage(config, q, qd / c, qdd / c**2) <= 1.0
+
+    if fits(1.0):
+        return 1.0
+    hi = 1.5
+    while not fits(hi):
+        hi *= 1.5
+    lo = hi / 1.5
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if fits(mid) else (mid, hi)
+    return hi
+
+
 def main(argv=None) -> int:
     import torque_race
 
@@ -241,67 +275,61 @@ def main(argv=None) -> int:
     print(f"load average before: {os.getloadavg()[0]:.2f} (2 cores)")
     print()
     print(
-        "| motion | keys | ours (s) | TOPP-RA envelope (s) | ours / TOPP-RA envelope "
-        "| TOPP-RA box (s) | ours / TOPP-RA box | envelope use: ours, TOPP-RA env, box "
-        "| TOPP-RA max qdd step (rad/s^2) | TOPP-RA qdd at ends (rad/s^2) | ours: binding |"
+        "| motion | keys | ours, plan only (s) | ours, full check (s) | TOPP-RA envelope (s) "
+        "| its envelope use | TOPP-RA stretched into envelope (s) "
+        "| ours plan only / TOPP-RA stretched | TOPP-RA box (s) | TOPP-RA path "
+        "| TOPP-RA max qdd step (rad/s^2) | TOPP-RA qdd at ends (rad/s^2) |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---|---:|---:|---|")
-    ratios = {"envelope": [], "box": []}
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
+    ratios = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, angles in cases.items():
             t0 = time.monotonic()
             path = Path(tmp) / "keys.toml"
             path.write_text(keyframe_text(angles, 1.5))
-            fit = fit_timing(path)
+            full = fit_timing(path)
+            fit = fit_timing(path, simulate=False)
             fitted = Path(tmp) / "fitted.toml"
             fitted.write_text(fit.toml())
             trajectory, config = resolve_source(fitted)
-            ours_use = envelope_usage(config, trajectory.q, trajectory.qd, trajectory.qdd)
-            row = {}
+            row, param = {}, "-"
             for feed in ("envelope", "box"):
                 for arc in (False, True):
                     try:
                         row[feed] = toppra_retime(
                             trajectory, config, envelope=feed == "envelope", arc_length=arc
                         )
-                        row[feed + " path"] = "arc length" if arc else "time"
+                        param = "arc length" if arc else "time"
                         break
                     except RuntimeError as e:
                         row[feed] = str(e)
-            cells = []
-            for feed in ("envelope", "box"):
-                if isinstance(row[feed], str):
-                    cells += [f"failed: {row[feed]}", "-"]
-                else:
-                    ratio = fit.duration_s / row[feed][0]
-                    ratios[feed].append(ratio)
-                    tag = "" if row[feed + " path"] == "time" else " (arc length)"
-                    cells += [f"{row[feed][0]:.3f}{tag}", f"{ratio:.3f}"]
-            uses = [f"{ours_use:.2f}"] + [
-                "-" if isinstance(row[f], str) else f"{envelope_usage(config, *row[f][2:]):.2f}"
-                for f in ("envelope", "box")
-            ]
-            good = row["envelope"] if not isinstance(row["envelope"], str) else None
-            if good is None:
+            env, box = row["envelope"], row["box"]
+            box_cell = box if isinstance(box, str) else f"{box[0]:.3f}"
+            if isinstance(env, str):
+                cells = [f"failed: {env}", "-", "-", "-"]
                 jump = ends = "-"
             else:
-                qdd = good[4]
+                duration, _, q, qd, qdd = env
+                use = envelope_usage(config, q, qd, qdd)
+                stretched = duration * stretch_into_envelope(config, q, qd, qdd)
+                ratio = fit.duration_s / stretched
+                ratios.append(ratio)
+                cells = [f"{duration:.3f}", f"{use:.2f}", f"{stretched:.3f}", f"{ratio:.3f}"]
                 jump = f"{np.abs(np.diff(qdd, axis=0)).max():.1f}"
                 ends = f"{max(np.abs(qdd[0]).max(), np.abs(qdd[-1]).max()):.1f}"
-            bindings = sorted({seg.binding.split(" (")[0] for seg in fit.segments})
             print(
-                f"| {name} | {len(angles)} | {fit.duration_s:.3f} | {' | '.join(cells)} "
-                f"| {', '.join(uses)} | {jump} | {ends} | {', '.join(bindings)} |",
+                f"| {name} | {len(angles)} | {fit.duration_s:.3f} | {full.duration_s:.3f} "
+                f"| {' | '.join(cells)} | {box_cell} | {param} | {jump} | {ends} |",
                 flush=True,
             )
             print(f"  {name}: {time.monotonic() - t0:.1f} s", file=sys.stderr)
     print()
-    for feed, values in ratios.items():
-        if values:
-            print(
-                f"ours / TOPP-RA ({feed}): median {np.median(values):.3f}, "
-                f"range {np.min(values):.3f} .. {np.max(values):.3f} (goal <= 1.15)"
-            )
+    if ratios:
+        print(
+            f"ours (plan only) / TOPP-RA (envelope, stretched into it): median "
+            f"{np.median(ratios):.3f}, range {np.min(ratios):.3f} .. {np.max(ratios):.3f} "
+            "(goal <= 1.15)"
+        )
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 

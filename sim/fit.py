@@ -102,7 +102,8 @@ class FitResult:
         The input's keyframe times (s).
     segments : tuple of SegmentFit
     report : TorqueReport
-        The torque check at the fitted times (passes).
+        The torque check at the fitted times (passes, unless fitted with
+        ``simulate=False``).
     faster_reasons : tuple of str
         Why the same keyframes 10 % faster fail (the check's and the limits'
         reasons); empty would mean the fit is not tight.
@@ -168,6 +169,7 @@ def fit_timing(
     limits: JointLimits | None = None,
     rate_hz: float | None = None,
     tolerance: float = 0.005,
+    simulate: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
     """The fastest per-segment timing of a keyframe file that passes the torque check.
@@ -185,6 +187,11 @@ def fit_timing(
     tolerance : float
         Each segment ends within this fraction of its binding limit's speed, in
         (0, 0.05]. Default 0.005.
+    simulate : bool
+        Fit to the simulation's verdict too (default). False fits the plan
+        alone (envelope and ``[limits]``, as a time-optimal planner such as
+        TOPP-RA does); ``report`` then shows what the simulated servo makes of
+        it and may fail.
     progress : callable, optional
         Called with one line of text per plan iteration and simulation round.
 
@@ -235,7 +242,7 @@ def fit_timing(
         durations = np.diff(times)
         say(f"round {round_}: simulating {times[-1] - times[0]:.3f} s")
         report = check_torque(fitter.trajectory(times), config=config)
-        if report.ok:
+        if report.ok or not simulate:
             break
         if not fitter.learn_from_sim(report, times):
             raise FitError("the simulation fails where the plan passes: " + report.reasons[0])

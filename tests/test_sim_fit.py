@@ -216,3 +216,14 @@ def test_sim_command_checks_the_limits_table(tmp_path, capsys):
     capsys.readouterr()
     assert main(["sim", str(fitted)]) == 0
     assert "[limits]: OK" in capsys.readouterr().out
+
+
+def test_plan_only_fit_keeps_the_envelope(fitted):
+    from trajgen.sim.check import check_planned_torque
+
+    path, result, _ = fitted
+    plan_only = fit_timing(path, simulate=False)
+    trajectory, config = resolve_source(_write(path.parent, plan_only.toml(), "plan_only.toml"))
+    assert check_planned_torque(trajectory, config) == ()
+    assert plan_only.duration_s <= result.duration_s * 1.01
+    assert plan_only.faster_reasons  # 10% faster leaves the envelope
