@@ -277,7 +277,7 @@ def main(argv=None) -> int:
     print(
         "| motion | keys | ours, plan only (s) | ours, full check (s) | TOPP-RA envelope (s) "
         "| its envelope use | TOPP-RA stretched into envelope (s) "
-        "| ours plan only / TOPP-RA stretched | TOPP-RA box (s) | TOPP-RA path "
+        "| ours plan only / TOPP-RA stretched | TOPP-RA box (s) | TOPP-RA envelope path "
         "| TOPP-RA max qdd step (rad/s^2) | TOPP-RA qdd at ends (rad/s^2) |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
@@ -292,14 +292,14 @@ def main(argv=None) -> int:
             fitted = Path(tmp) / "fitted.toml"
             fitted.write_text(fit.toml())
             trajectory, config = resolve_source(fitted)
-            row, param = {}, "-"
+            row, params = {}, {}
             for feed in ("envelope", "box"):
                 for arc in (False, True):
                     try:
                         row[feed] = toppra_retime(
                             trajectory, config, envelope=feed == "envelope", arc_length=arc
                         )
-                        param = "arc length" if arc else "time"
+                        params[feed] = "arc length" if arc else "time"
                         break
                     except RuntimeError as e:
                         row[feed] = str(e)
@@ -319,7 +319,8 @@ def main(argv=None) -> int:
                 ends = f"{max(np.abs(qdd[0]).max(), np.abs(qdd[-1]).max()):.1f}"
             print(
                 f"| {name} | {len(angles)} | {fit.duration_s:.3f} | {full.duration_s:.3f} "
-                f"| {' | '.join(cells)} | {box_cell} | {param} | {jump} | {ends} |",
+                f"| {' | '.join(cells)} | {box_cell} | {params.get('envelope', '-')} | {jump} "
+                f"| {ends} |",
                 flush=True,
             )
             print(f"  {name}: {time.monotonic() - t0:.1f} s", file=sys.stderr)

@@ -40,7 +40,7 @@ from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 
 #: Speed-up per sample is searched on this grid, then refined by bisection.
 _S_GRID = np.geomspace(1.0 / 16.0, 16.0, 97)
-#: Largest change of a segment's duration per plan iteration.
+#: Largest change of the durations per uniform-scaling iteration or bisection start.
 _MAX_STEP = 4.0
 _TIME_DECIMALS = 6
 _FASTER = 1.1
@@ -303,8 +303,7 @@ class _Fitter:
         self.tolerance = tolerance
         self.say = say
         n_seg = len(source.times) - 1
-        #: Learned from simulation, per segment and joint: speed caps (rad/s) and
-        #: torque margin factors.
+        #: Learned from simulation, per segment and joint: speed caps (rad/s).
         self.speed_cap = np.full((n_seg, 3), np.inf)
         #: Per segment: a factor <= 1 on its speed-up, and the joint that reached
         #: the torque limit in simulation there.
