@@ -1,7 +1,7 @@
 """How fast ``trajgen sim`` runs the built-in example, against a bare ``mj_step`` loop.
 
 Three timings on the same machine in the same run, each the best of
-``--repeat`` tries:
+``--repeat`` tries, interleaved:
 
 - peer: a bare ``mujoco.mj_step`` loop on the gimbal model, as many steps as
   the example needs (MuJoCo's own speed on this model, no Python work per step
@@ -21,6 +21,7 @@ Run: .venv/bin/python bench/sim_speed.py [--repeat 5]
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import time
@@ -34,19 +35,23 @@ from trajgen.sim.model import build_model
 from trajgen.sim.run import simulate
 
 
-def best_of(repeat: int, fn) -> float:
-    """Shortest wall time (s) of ``repeat`` calls of ``fn``."""
-    times = []
+def best_of(repeat: int, *fns) -> list[float]:
+    """Shortest wall time (s) of ``repeat`` calls of each of ``fns``, interleaved.
+
+    Interleaving exposes every candidate to the same machine load.
+    """
+    best = [math.inf] * len(fns)
     for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return min(times)
+        for i, fn in enumerate(fns):
+            start = time.perf_counter()
+            fn()
+            best[i] = min(best[i], time.perf_counter() - start)
+    return best
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--repeat", type=int, default=10)
     args = parser.parse_args()
 
     trajectory, config = resolve_source(str(BUILTIN_EXAMPLE))
@@ -63,9 +68,12 @@ def main() -> None:
             mujoco.mj_step(model, data)
 
     load_before = os.getloadavg()
-    peer = best_of(args.repeat, bare)
-    sim = best_of(args.repeat, lambda: simulate(trajectory, config))
-    check = best_of(args.repeat, lambda: check_torque(str(BUILTIN_EXAMPLE)))
+    peer, sim, check = best_of(
+        args.repeat,
+        bare,
+        lambda: simulate(trajectory, config),
+        lambda: check_torque(str(BUILTIN_EXAMPLE)),
+    )
     load_after = os.getloadavg()
 
     print("# trajgen sim speed on the built-in example\n")

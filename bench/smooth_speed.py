@@ -4,6 +4,7 @@
 one ``evaluate(t, max_order=2)``, and ``s(t), s(t, 1), s(t, 2)`` as a scipy user
 writes it. scipy does the same work in the same run (interleaved, median of 9).
 Target (issue 10): at least 1x scipy on both patterns on a plain numpy install.
+Then construction alone for 16 to 10,000 keyframes (no target; for the record).
 
     python bench/smooth_speed.py
 """
@@ -54,6 +55,23 @@ def main():
     print("|---|---|---|---|")
     for name, sec in med.items():
         print(f"| {name} | {sec * 1e3:.2f} | {len(t) / sec / 1e6:.2f} | {base / sec:.2f}x |")
+
+    print("\nConstruction alone, random keyframes 1 s apart (median of 3, interleaved):\n")
+    print("| keyframes | SmoothSpline (ms) | scipy RotationSpline (ms) | speed vs scipy |")
+    print("|---|---|---|---|")
+    for n in (16, 1000, 10000):
+        quats, times = random_keyframes(n)
+        med = interleaved_medians(
+            {
+                "smooth": lambda q=quats, t=times: SmoothSpline(q, t),
+                "scipy": lambda q=quats, t=times: RotationSpline(
+                    t, Rotation.from_quat(q, scalar_first=True)
+                ),
+            },
+            repeats=3,
+        )
+        ratio = med["scipy"] / med["smooth"]
+        print(f"| {n} | {med['smooth'] * 1e3:.1f} | {med['scipy'] * 1e3:.1f} | {ratio:.2f}x |")
 
 
 if __name__ == "__main__":

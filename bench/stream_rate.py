@@ -49,7 +49,7 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float) -> dict:
     timing = WireTiming(baud=baud)
     with VirtualBus(plant, lockstep_dt_s=1 / rate_hz, timing=timing) as virtual:
         with ServoBus(virtual.port, baud=baud) as bus:
-            bring_up(bus, joints, ("XM430-W350",) * 3, joints.to_ticks(traj.q))
+            bring_up(bus, joints, ("XM430-W350",) * 3, traj)
             streamer = Streamer(bus, joints, telemetry_every=read_every)
             before = virtual.bytes_received + virtual.bytes_sent
             stats = streamer.run(traj)

@@ -50,6 +50,12 @@ UNEVEN_GAPS_S = (0.5, 2.5)
 UNEVEN = "uneven"
 #: The joint-space minimax-jerk plan (not an orientation spline): the bound as a plan.
 JOINT_MINIMAX = "joint-space minimax jerk (LP)"
+MINIMAX_KNOTS = "SmoothSpline minimax knots (LP)"
+#: Weight of the mean |jerk| beside the peak in the joint-space plan: small, so the
+#: peak comes first.
+JOINT_TIE_BREAK = 0.01
+#: Experiments raced beside the library's methods (they need scipy).
+EXPERIMENTS = (MINIMAX_KNOTS, JOINT_MINIMAX)
 #: Time step (s) of the grid on which the torque-rate bound is solved.
 BOUND_STEP_S = 0.01
 
@@ -118,7 +124,7 @@ def methods(reparam: str = "rational") -> dict[str, tuple[str, dict]]:
             table[f"Blending k={k} {local}"] = ("BlendingSpline", keywords)
     table["SmoothSpline"] = ("SmoothSpline", {})
     table["SmoothSpline natural"] = ("SmoothSpline", {"boundary": "natural"})
-    table["SmoothSpline minimax knots (LP)"] = ("MinimaxKnotSpline", {})
+    table[MINIMAX_KNOTS] = ("MinimaxKnotSpline", {})
     table[JOINT_MINIMAX] = ("", {})
     return table
 
@@ -434,16 +440,26 @@ def joint_minimax_path(theta: np.ndarray, times: np.ndarray, t: np.ndarray, step
     rows = [_ramps(x[keys[1:]], x, 3), _ramps(end, x, 2), _ramps(end, x, 1)]
     rhs = np.concatenate([theta[1:] - theta[0], [0.0, 0.0]])
     n = len(x) - 1
-    A_eq = hstack([csr_matrix(np.vstack(rows)), csr_matrix((len(rhs), 1))])
+    # Variables: the jerk J_l on each interval, z, and s_l >= |J_l| (s_l <= z).
+    # Minimise z + JOINT_TIE_BREAK * mean(s): the mean picks one of the many
+    # minimax plans (alone, the peak leaves the path free to wander).
+    A_eq = hstack([csr_matrix(np.vstack(rows)), csr_matrix((len(rhs), n + 1))])
     eye = identity(n, format="csr")
-    minus_z = csr_matrix(-np.ones((n, 1)))
+    none = csr_matrix((n, 1))
+    A_ub = vstack(
+        [
+            hstack([eye, none, -eye]),
+            hstack([-eye, none, -eye]),
+            hstack([csr_matrix((n, n)), csr_matrix(-np.ones((n, 1))), eye]),
+        ]
+    )
     res = linprog(
-        np.append(np.zeros(n), 1.0),
-        A_ub=vstack([hstack([eye, minus_z]), hstack([-eye, minus_z])]),
-        b_ub=np.zeros(2 * n),
+        np.concatenate([np.zeros(n), [1.0], np.full(n, JOINT_TIE_BREAK / n)]),
+        A_ub=A_ub,
+        b_ub=np.zeros(3 * n),
         A_eq=A_eq,
         b_eq=rhs,
-        bounds=[(None, None)] * n + [(0, None)],
+        bounds=[(None, None)] * n + [(0, None)] * (n + 1),
         method="highs-ipm",
     )
     if res.status != 0:
@@ -608,8 +624,9 @@ def random_set_summary(results: list[Result], bounds: dict[tuple[str, str], Boun
         f"({UNEVEN_GAPS_S[0]:g}-{UNEVEN_GAPS_S[1]:g} s), seed {RANDOM_SET_SEED}\n",
         "Bounds (N m/s): " + ", ".join(f"{bounds[c].rate_nm_s:.3f}" for c in by_case) + ".\n",
         "Medians and worst cases over the set. *lowest rate*: cases where the method "
-        "had the lowest peak torque rate of the methods that started and stopped at "
-        "rest; *torque / best*: its peak torque over the lowest of those methods'.\n",
+        "had the lowest peak torque rate of the library's methods that started and "
+        "stopped at rest (not the experiments); *torque / best*: its peak torque over "
+        "the lowest of those methods'.\n",
         "| method | rate / bound, median (max) | lowest rate | torque / best, median (max) "
         "| path / keyframe distance, median | max start / end speed (rad/s) "
         "| max tracking error (deg) | checks failed | refused |",
@@ -623,13 +640,13 @@ def random_set_summary(results: list[Result], bounds: dict[tuple[str, str], Boun
             if r.refused:
                 refused += 1
                 continue
-            rest = [x for x in rs if at_rest(x)]
+            rest = [x for x in rs if at_rest(x) and x.method not in EXPERIMENTS]
             ratio.append(r.peak_torque_rate_nm_s / bounds[case].rate_nm_s)
             torque.append(r.peak_torque_nm / min(x.peak_torque_nm for x in rest))
             path.append(r.path_ratio)
             speed.append(max(r.start_speed_rad_s, r.end_speed_rad_s))
             error.append(np.degrees(r.max_tracking_error_rad))
-            wins += at_rest(r) and r is min(rest, key=lambda x: x.peak_torque_rate_nm_s)
+            wins += r is min(rest, key=lambda x: x.peak_torque_rate_nm_s)
             failed += not r.ok
         if not ratio:
             out.append(f"| {name} | - | - | - | - | - | - | - | {refused} |")
@@ -648,7 +665,7 @@ PER_CASE = (
     "Blending k=2 auto",
     "Blending k=3 auto",
     "SmoothSpline",
-    "SmoothSpline minimax knots (LP)",
+    MINIMAX_KNOTS,
     JOINT_MINIMAX,
 )
 
@@ -678,52 +695,54 @@ def random_set_cases(results: list[Result], bounds: dict[tuple[str, str], Bound]
 
 
 def goals(results: list[Result], bounds: dict[tuple[str, str], Bound]) -> str:
-    """Did the default meet the race's goals on every case? Counts, then one line per miss.
+    """Did the default meet the race's goals on every case? Counts, then the misses.
 
     The default is compared with the other orientation splines that started and
-    stopped at rest; the joint-space minimax plan is the bound made a plan, and is
-    counted apart.
+    stopped at rest: the library's (every ``BlendingSpline`` variant), then those
+    and the minimax-knot experiment. The joint-space minimax plan is the bound
+    made a plan, and is counted apart.
     """
-    misses, counts, n = [], [0, 0, 0, 0], 0
+    misses, ratios, n = [], [], 0
+    counts = dict.fromkeys(("library", "splines", "torque", "joint"), 0)
     for case, rs in _by_case(results).items():
         n += 1
-        rest = [r for r in rs if at_rest(r) and r.method != JOINT_MINIMAX]
-        mine = next((r for r in rest if r.method == DEFAULT), None)
-        if mine is None:
-            misses.append(f"- {case[0]}, {case[1]}: {DEFAULT} did not run from rest to rest")
-            continue
-        best_rate = min(rest, key=lambda r: r.peak_torque_rate_nm_s)
-        best_torque = min(r.peak_torque_nm for r in rest)
-        ratio = mine.peak_torque_rate_nm_s / bounds[case].rate_nm_s
-        joint = next(r for r in rs if r.method == JOINT_MINIMAX)
-        met = [
-            best_rate is mine,
-            ratio <= 1.5,
-            mine.peak_torque_nm <= 1.1 * best_torque,
-            mine.peak_torque_rate_nm_s <= joint.peak_torque_rate_nm_s,
-        ]
-        counts = [c + m for c, m in zip(counts, met, strict=True)]
+        splines = [r for r in rs if at_rest(r) and r.method != JOINT_MINIMAX]
+        library = [r for r in splines if r.method not in EXPERIMENTS]
+        mine = next((r for r in library if r.method == DEFAULT), None)
         where = f"- {case[0]}, {case[1]}:"
-        if not met[0]:
-            misses.append(
-                f"{where} lowest rate is {best_rate.method}'s "
-                f"{best_rate.peak_torque_rate_nm_s:.3f} N m/s, not {mine.peak_torque_rate_nm_s:.3f}"
-            )
-        if not met[1]:
-            misses.append(f"{where} rate / bound {ratio:.2f} > 1.5")
-        if not met[2]:
+        if mine is None:
+            misses.append(f"{where} {DEFAULT} did not run from rest to rest")
+            continue
+        joint = next(r for r in rs if r.method == JOINT_MINIMAX)
+        best_torque = min(r.peak_torque_nm for r in library)
+        ratios.append(mine.peak_torque_rate_nm_s / bounds[case].rate_nm_s)
+        for key, group in (("library", library), ("splines", splines)):
+            best = min(group, key=lambda r: r.peak_torque_rate_nm_s)
+            counts[key] += best is mine
+            if best is not mine and (key == "library" or best.method not in library):
+                misses.append(
+                    f"{where} lower rate: {best.method}, {best.peak_torque_rate_nm_s:.3f} "
+                    f"against {mine.peak_torque_rate_nm_s:.3f} N m/s"
+                )
+        counts["torque"] += mine.peak_torque_nm <= 1.1 * best_torque
+        if mine.peak_torque_nm > 1.1 * best_torque:
             misses.append(
                 f"{where} peak torque {mine.peak_torque_nm:.3f} N m > 1.1 x the best "
-                f"rest-to-rest spline's {best_torque:.3f}"
+                f"library spline's {best_torque:.3f}"
             )
-    head = (
+        counts["joint"] += mine.peak_torque_rate_nm_s <= joint.peak_torque_rate_nm_s
+    within = sum(r <= 1.5 for r in ratios)
+    return (
         f"\n### Goals for the default ({DEFAULT}) on all {n} cases\n\n"
-        f"- lowest peak torque rate of the rest-to-rest orientation splines: {counts[0]} of {n}\n"
-        f"- within 1.5x of the bound: {counts[1]} of {n}\n"
-        f"- peak torque within 10% of the best rest-to-rest spline: {counts[2]} of {n}\n"
-        f"- peak torque rate at or below the joint-space minimax plan's: {counts[3]} of {n}\n"
+        f"- lowest peak torque rate of the library's rest-to-rest splines: "
+        f"{counts['library']} of {n}\n"
+        f"- lowest, counting the minimax-knot experiment too: {counts['splines']} of {n}\n"
+        f"- within 1.5x of the bound: {within} of {n} (rate / bound from "
+        f"{min(ratios):.2f} to {max(ratios):.2f}, median {np.median(ratios):.2f})\n"
+        f"- peak torque within 10% of the best library spline: {counts['torque']} of {n}\n"
+        f"- peak torque rate at or below the joint-space minimax plan's: "
+        f"{counts['joint']} of {n}\n" + ("\nMisses:\n\n" + "\n".join(misses) if misses else "")
     )
-    return head + ("\nMisses:\n\n" + "\n".join(misses) if misses else "\nAll met.")
 
 
 def plot(results: list[Result], bounds: dict[tuple[str, str], Bound], path: str) -> None:
@@ -767,8 +786,8 @@ def plot(results: list[Result], bounds: dict[tuple[str, str], Bound], path: str)
                 ax.axvline(bounds[(motion, pace)].rate_nm_s, color="k", ls="--", lw=1)
             ax.set_xlim(left=low / 2)  # bars on a log axis start at its left edge
             for i, v in enumerate(values):
-                label = " refused" if np.isnan(v) else f" {v:.3g}"
-                ax.text(low / 2 if np.isnan(v) else v, y[i], label, va="center", fontsize=6)
+                text = " refused" if np.isnan(v) else f" {v:.3g}"
+                ax.text(low / 2 if np.isnan(v) else v, y[i], text, va="center", fontsize=6)
             if row == 0:
                 ax.set_title(f"{motion}, {pace}", fontsize=10)
             if col == 0:

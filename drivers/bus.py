@@ -7,9 +7,12 @@ What it adds to them (see DYNAMIXEL.md for why):
   pyserial sets it with BOTHER), and packet timeouts from the adapter's real
   latency timer instead of the SDK's fixed 16 ms;
 - the FTDI latency timer set to 1 ms through sysfs where there is one;
-- every result code and status ERR byte checked, a retry budget, and errors
-  that name the servo, the register and the tries (``CommError``,
-  ``ServoError``); a failed read raises, it never reads as 0;
+- every reply checked before its value is used: the SDK's result code, then
+  the status packet itself (the id asked, the length asked: the SDK slices
+  whatever arrived, CRC bytes included, into the value), then its ERR byte; a
+  retry budget, and errors that name the servo, the register and the tries
+  (``CommError``, ``ServoError``); a bad reply raises, it never reads as a
+  number;
 - signed decoding of 2- and 4-byte registers;
 - group reads (fast sync read, or sync read) that keep each servo's ERR byte,
   which the SDK's ``GroupSyncRead`` discards, so the Alert bit is seen.
@@ -31,7 +34,7 @@ from trajgen.drivers.control_table import (
     layout,
 )
 from trajgen.drivers.errors import CommError, ServoError
-from trajgen.drivers.protocol import ALERT_BIT, StatusError
+from trajgen.drivers.protocol import ALERT_BIT, BROADCAST_ID, StatusError
 from trajgen.drivers.units import to_signed, to_unsigned
 from trajgen.validate import check_number
 
@@ -39,6 +42,11 @@ DEFAULT_BAUD = 1_000_000
 # The SDK's fixed assumption, used where the port has no latency timer to read.
 DEFAULT_LATENCY_MS = 16.0
 _SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{tty}/latency_timer"
+# Status packet layout (e-Manual, Protocol 2.0): ID at byte 4, LEN at 5..6.
+_PKT_ID, _PKT_LENGTH = 4, 5
+_STATUS_MIN_BYTES = 11  # header 4, ID, LEN 2, INST, ERR, CRC 2
+# LEN of a status packet without data: INST, ERR, CRC 2.
+_STATUS_LENGTH_NO_DATA = 4
 
 
 def _make_port(port_name: str, latency_ms: float):
@@ -61,6 +69,56 @@ def _make_port(port_name: str, latency_ms: float):
             self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
 
     return _Port(port_name)
+
+
+def _make_packet_handler():
+    """An SDK Protocol 2.0 packet handler that keeps the last status packet it read.
+
+    The SDK's read functions slice the data out of a status packet without
+    looking at its length field: a well-formed reply (valid CRC) with too few
+    data bytes hands the CRC, or nothing, to the caller as data. Keeping the
+    packet where it arrives lets ``ServoBus`` check the id and the length
+    before it trusts a value.
+    """
+    from dynamixel_sdk.protocol2_packet_handler import Protocol2PacketHandler
+
+    class _PacketHandler(Protocol2PacketHandler):
+        last_rx: list[int] = []
+
+        def rxPacket(self, port, fast_option):  # noqa: N802 (SDK name)
+            rxpacket, result = super().rxPacket(port, fast_option)
+            self.last_rx = rxpacket
+            return rxpacket, result
+
+    return _PacketHandler()
+
+
+def reply_problem(packet: Sequence[int], servo_id: int, length_field: int) -> str | None:
+    """Why a status packet (CRC already checked) cannot be trusted, or None.
+
+    Parameters
+    ----------
+    packet : sequence of int
+        The status packet, header to CRC, byte stuffing removed.
+    servo_id : int
+        The id the request addressed (``BROADCAST_ID`` for a fast sync read).
+    length_field : int
+        The LEN the reply must carry: INST + ERR + data + CRC, i.e. the number
+        of data bytes asked plus 4 (a fast sync read: 1 + (data + 4) per servo).
+
+    Returns
+    -------
+    str or None
+        A message naming what arrived against what was asked.
+    """
+    if len(packet) < _STATUS_MIN_BYTES:
+        return f"reply of {len(packet)} bytes, expected at least {_STATUS_MIN_BYTES}"
+    if packet[_PKT_ID] != servo_id:
+        return f"reply from id {packet[_PKT_ID]}, expected {servo_id}"
+    length = packet[_PKT_LENGTH] | packet[_PKT_LENGTH + 1] << 8
+    if length != length_field:
+        return f"reply of length {length} (LEN field), expected {length_field}"
+    return None
 
 
 def set_ftdi_latency_timer(port_name: str, latency_ms: int = 1) -> int | None:
@@ -184,13 +242,12 @@ class ServoBus:
             If the port cannot be opened or the baud rate set.
         """
         import serial
-        from dynamixel_sdk import PacketHandler
 
         if self.latency_ms is None:
             timer = set_ftdi_latency_timer(self.port_name)
             self.latency_ms = DEFAULT_LATENCY_MS if timer is None else float(timer)
         self._port = _make_port(self.port_name, self.latency_ms)
-        self._ph = PacketHandler(2.0)
+        self._ph = _make_packet_handler()
         try:
             ok = self._port.setBaudRate(self.baud)
         except (serial.SerialException, OSError, ValueError) as e:
@@ -268,6 +325,51 @@ class ServoBus:
         if error & ALERT_BIT:
             self.raise_hardware_error(servo_id, during=what)
 
+    def _problem(self, result: int, servo_id: int, length_field: int) -> str | None:
+        """What is wrong with the transaction just done, or None if its reply is sound.
+
+        Checks the SDK's result code, then the status packet it read (id and
+        length, see ``reply_problem``).
+        """
+        if result != 0:
+            return self._result_text(result)
+        return reply_problem(self._ph.last_rx, servo_id, length_field)
+
+    def _retry(self, who: str, what: str, attempt):
+        """Run ``attempt()`` up to ``retries + 1`` times; returns its value.
+
+        ``attempt`` returns ``(value, problem)``, ``problem`` None on success or
+        the reason the try failed (counted in ``failed_tries``).
+
+        Raises
+        ------
+        CommError
+            If every try failed, naming the last reason.
+        """
+        for _ in range(self.retries + 1):
+            value, problem = attempt()
+            if problem is None:
+                return value
+            self.failed_tries += 1
+        raise CommError(f"{who}: {what} failed after {self.retries + 1} tries: {problem}")
+
+    def _unicast(self, servo_id: int, what: str, call, *args, data_bytes: int = 0):
+        """One unicast transaction with retries; returns the SDK call's result tuple.
+
+        The reply is checked for the id asked and ``data_bytes`` of data (the
+        SDK's own checks are only CRC and, for some calls, the id); a servo
+        that reports a CRC error in the request is retried like a corrupt reply.
+        """
+
+        def attempt():
+            out = self._sdk(what, call, self._port, servo_id, *args)
+            problem = self._problem(out[-2], servo_id, data_bytes + _STATUS_LENGTH_NO_DATA)
+            if problem is None and out[-1] & ~ALERT_BIT == StatusError.CRC:
+                problem = "the servo received a corrupt request (status: crc)"
+            return out, problem
+
+        return self._retry(f"servo {servo_id}", what, attempt)
+
     def raise_hardware_error(self, servo_id: int, *, during: str) -> None:
         """Read Hardware Error Status of a servo whose Alert bit is set, and raise.
 
@@ -277,14 +379,19 @@ class ServoBus:
             Always: naming the hardware error bits (or the read failure).
         """
         address = self._address(servo_id, Register.HARDWARE_ERROR_STATUS)[0]
-        value, result, _ = self._sdk(
-            "read Hardware Error Status", self._ph.read1ByteTxRx, self._port, servo_id, address
-        )
-        if result != 0:
+        try:
+            value, _, _ = self._unicast(
+                servo_id,
+                "read Hardware Error Status",
+                self._ph.read1ByteTxRx,
+                address,
+                data_bytes=1,
+            )
+        except CommError as e:
             raise ServoError(
                 f"servo {servo_id}: Alert bit set during {during}; reading Hardware Error "
-                f"Status failed: {self._result_text(result)}"
-            )
+                f"Status failed: {e}"
+            ) from e
         raise ServoError(
             f"servo {servo_id}: hardware error during {during}: {describe_hardware_error(value)} "
             f"(Hardware Error Status {value:#04x}); torque stays off until the servo is rebooted"
@@ -296,17 +403,15 @@ class ServoBus:
         Raises
         ------
         CommError
-            If no valid reply arrives within the retry budget.
+            If no valid reply (this id, 3 data bytes) arrives within the retry budget.
+        ServoError
+            If the servo's status reports an error. (Its Alert bit is not
+            resolved here: the model, hence the register map, is not known yet.
+            ``drivers.bringup`` reads Hardware Error Status next.)
         """
-        for _ in range(self.retries + 1):
-            number, result, error = self._sdk("ping", self._ph.ping, self._port, servo_id)
-            if result == 0:
-                return number
-            self.failed_tries += 1
-        raise CommError(
-            f"servo {servo_id}: ping failed after {self.retries + 1} tries: "
-            f"{self._result_text(result)}"
-        )
+        number, _, error = self._unicast(servo_id, "ping", self._ph.ping, data_bytes=3)
+        self._check_status(servo_id, error & ~ALERT_BIT, "ping")
+        return number
 
     def scan(self) -> dict[int, tuple[int, int]]:
         """Broadcast ping: every servo that answers.
@@ -332,24 +437,16 @@ class ServoBus:
         Raises
         ------
         CommError
-            If no valid reply arrives within the retry budget.
+            If no valid reply (this id, the register's size in data bytes)
+            arrives within the retry budget.
         ServoError
             If the servo's status reports an error or a hardware error.
         """
         address, size = self._address(servo_id, register)
         what = f"read {register.value}"
-        for _ in range(self.retries + 1):
-            data, result, error = self._sdk(
-                what, self._ph.readTxRx, self._port, servo_id, address, size
-            )
-            if result == 0:
-                break
-            self.failed_tries += 1
-        else:
-            raise CommError(
-                f"servo {servo_id}: {what} failed after {self.retries + 1} tries: "
-                f"{self._result_text(result)}"
-            )
+        data, _, error = self._unicast(
+            servo_id, what, self._ph.readTxRx, address, size, data_bytes=size
+        )
         self._check_status(servo_id, error, what)
         value = int.from_bytes(bytes(data), "little")
         return to_signed(value, size) if register in SIGNED else value
@@ -370,18 +467,7 @@ class ServoBus:
         address, size = self._address(servo_id, register)
         data = list(to_unsigned(int(value), size).to_bytes(size, "little"))
         what = f"write {register.value} = {value}"
-        for _ in range(self.retries + 1):
-            result, error = self._sdk(
-                what, self._ph.writeTxRx, self._port, servo_id, address, size, data
-            )
-            if result == 0:
-                break
-            self.failed_tries += 1
-        else:
-            raise CommError(
-                f"servo {servo_id}: {what} failed after {self.retries + 1} tries: "
-                f"{self._result_text(result)}"
-            )
+        _, error = self._unicast(servo_id, what, self._ph.writeTxRx, address, size, data)
         self._check_status(servo_id, error, what)
 
     def reboot(self, servo_id: int) -> None:
@@ -392,15 +478,7 @@ class ServoBus:
         CommError
             If no valid reply arrives within the retry budget.
         """
-        for _ in range(self.retries + 1):
-            result, _ = self._sdk("reboot", self._ph.reboot, self._port, servo_id)
-            if result == 0:
-                return
-            self.failed_tries += 1
-        raise CommError(
-            f"servo {servo_id}: reboot failed after {self.retries + 1} tries: "
-            f"{self._result_text(result)}"
-        )
+        self._unicast(servo_id, "reboot", self._ph.reboot)
 
     def sync_write(self, register: Register, values: dict[int, int]) -> None:
         """One Sync Write of ``register`` to several servos (no reply to wait for).
@@ -459,23 +537,18 @@ class ServoBus:
         Raises
         ------
         CommError
-            If a reply is missing or corrupt after the retry budget.
+            If a reply is missing, corrupt, from another id or of another length
+            than the block asked, after the retry budget.
         """
         spans = [self._address(ids[0], r) for r in registers]
         start = min(a for a, _ in spans)
         length = max(a + s for a, s in spans) - start
         kind = "fast sync read" if fast else "sync read"
         what = f"{kind} of {', '.join(r.value for r in registers)}"
-        for _ in range(self.retries + 1):
-            raw, result = self._group_read(list(ids), start, length, fast, what)
-            if result == 0:
-                break
-            self.failed_tries += 1
-        else:
-            raise CommError(
-                f"servos {list(ids)}: {what} failed after {self.retries + 1} tries: "
-                f"{self._result_text(result)}"
-            )
+        ids = list(ids)
+        raw = self._retry(
+            f"servos {ids}", what, lambda: self._group_read(ids, start, length, fast, what)
+        )
         values, errors = {}, {}
         for servo_id, (error, data) in raw.items():
             errors[servo_id] = error
@@ -489,30 +562,38 @@ class ServoBus:
         return BlockRead(values, errors)
 
     def _group_read(self, ids, start, length, fast, what):
-        """One try: ({id: (error, data)}, result code)."""
+        """One try: ({id: (error, data)}, None), or (None, what went wrong).
+
+        Every servo's part of the reply is checked for its id and ``length``
+        data bytes before its data is kept.
+        """
         ph, port = self._ph, self._port
         result = self._sdk(what, ph.syncReadTx, port, start, length, ids, len(ids), fast)
         if result != 0:
-            return {}, result
+            return None, self._result_text(result)
         raw = {}
         if fast:
+            # One packet: INST, then ERR ID DATA CRC2 per servo (the last CRC2 is the packet's).
+            block = length + 4
             data, result, _ = self._sdk(
-                what, ph.fastSyncReadRx, port, 0xFE, (length + 4) * len(ids)
+                what, ph.fastSyncReadRx, port, BROADCAST_ID, block * len(ids)
             )
-            if result != 0:
-                return {}, result
+            problem = self._problem(result, BROADCAST_ID, 1 + block * len(ids))
+            if problem is not None:
+                return None, problem
             for k, servo_id in enumerate(ids):
-                block = data[k * (length + 4) : (k + 1) * (length + 4)]
-                if len(block) != length + 4 or block[1] != servo_id:
-                    return {}, -3002  # COMM_RX_CORRUPT: wrong id or short reply
-                raw[servo_id] = (block[0], block[2 : 2 + length])
-            return raw, 0
+                part = data[k * block : (k + 1) * block]
+                if part[1] != servo_id:
+                    return None, f"reply part {k} from id {part[1]}, expected {servo_id}"
+                raw[servo_id] = (part[0], part[2 : 2 + length])
+            return raw, None
         for servo_id in ids:
             data, result, error = self._sdk(what, ph.readRx, port, servo_id, length)
-            if result != 0:
-                return {}, result
+            problem = self._problem(result, servo_id, length + _STATUS_LENGTH_NO_DATA)
+            if problem is not None:
+                return None, f"servo {servo_id}: {problem}"
             raw[servo_id] = (error, data)
-        return raw, 0
+        return raw, None
 
     def check_block(self, block: BlockRead, what: str) -> None:
         """Raise ``ServoError`` for the first servo whose ERR byte is non-zero.

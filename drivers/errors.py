@@ -26,3 +26,28 @@ class WatchdogTripped(ServoError):
 
 class BringUpError(DriverError):
     """The servos on the bus do not match the configuration (missing, wrong model)."""
+
+
+class OutsideLimits(DriverError):
+    """A goal would leave a servo's installed position limits; it is not sent."""
+
+
+class StreamLagging(DriverError):
+    """The stream fell further behind its plan than allowed (host stalls, a slow bus)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop signal (SIGINT, SIGTERM, SIGHUP) arrived; handled like Ctrl-C.
+
+    Parameters
+    ----------
+    signum : int
+        The signal number; the command line exits with ``128 + signum``.
+    """
+
+    def __init__(self, signum: int) -> None:
+        import signal
+
+        self.signum = signum
+        self.name = signal.Signals(signum).name
+        super().__init__(f"interrupted by {self.name}")

@@ -1,21 +1,34 @@
 """Streaming a joint trajectory to the servos at a fixed rate.
 
 Each frame's deadline is absolute: ``start + (frame.t - first.t)`` on the
-stream's clock (``time.monotonic`` by default), so a late frame does not push
-the later ones (no drift).
-Per frame: one Sync Write of Goal Position. Every ``telemetry_every`` frames:
-one group read of present current, velocity and position (Fast Sync Read, or
-Sync Read where the servos do not answer it), whose ERR bytes reveal a
-hardware error (Alert bit). About every ``poll_s``: a group read of the Bus
-Watchdog. Any fault stops the stream safely: the servos hold their last goal
-(or, with ``on_stop="torque_off"``, are released) and the telemetry so far
-stays on disk.
+stream's clock (``time.monotonic`` by default, or a ``SimulatedClock`` against
+a lock-step virtual bus), so a frame a little late does not push the later
+ones (no drift). Per frame: one Sync Write of Goal Position. Every ``telemetry_every``
+frames: one group read of present current, velocity and position (Fast Sync
+Read, or Sync Read where the servos do not answer it: said with a
+``RuntimeWarning``), whose ERR bytes reveal a hardware error (Alert bit).
+About every ``poll_s``: a group read of the Bus Watchdog.
+
+Stalls (the host paused: GC, a busy machine, SIGSTOP): a frame more than
+``stall_s`` (default half a period) past its deadline is never sent early to
+catch up. The clock of the rest of the stream shifts by its lateness, so it
+goes out now and every later frame keeps its planned spacing: two goals are
+never closer than ``period - stall_s``, and the servos are never asked to
+move faster than the plan, only later. The Bus Watchdog is polled at once
+(a stall longer than its period stopped the servos), stalls are counted, and
+the stream fails when the total shift passes ``max_delay_s``.
+
+Any fault or stop signal stops the stream safely: the servos hold their last
+goal (or, with ``on_stop="torque_off"``, are released) and the telemetry so
+far stays on disk. Memory is constant in the number of frames (running
+statistics; CSV telemetry is written as it goes).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator
+import warnings
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from itertools import chain
 from pathlib import Path
@@ -23,16 +36,65 @@ from typing import Literal
 
 import numpy as np
 
+from trajgen.drivers.bringup import MAX_APPROACH_RAD, check_start, joint_names_for
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import WALL_CLOCK
 from trajgen.drivers.control_table import Register
-from trajgen.drivers.errors import CommError, DriverError, WatchdogTripped
+from trajgen.drivers.errors import (
+    CommError,
+    DriverError,
+    OutsideLimits,
+    StreamLagging,
+    WatchdogTripped,
+)
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import JointMap
-from trajgen.gimbal import JOINT_NAMES
 from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
+
+#: Default bound (s) on how far the stream may fall behind its plan in total.
+MAX_DELAY_S = 1.0
+
+
+class RunningQuantiles:
+    """Quantiles of a stream of non-negative values in constant memory.
+
+    A histogram with ``per_decade`` logarithmic bins from ``low`` to ``high``
+    (values below ``low`` count in the first bin, above ``high`` in the last);
+    quantiles are bin centres, so their relative error is below
+    ``10 ** (0.5 / per_decade) - 1`` (1.2 % at 100 bins a decade). The maximum
+    is exact.
+
+    Parameters
+    ----------
+    low, high : float
+        Range resolved (same unit as the values, e.g. s).
+    per_decade : int, optional
+        Bins per factor of ten.
+    """
+
+    def __init__(self, low: float = 1e-7, high: float = 1e3, per_decade: int = 100) -> None:
+        self._log_low = math.log10(low)
+        self._per_decade = per_decade
+        self._counts = np.zeros(int(round((math.log10(high) - self._log_low) * per_decade)) + 1)
+        self.count = 0
+        self.max = math.nan
+
+    def add(self, value: float) -> None:
+        """Count one value (>= 0)."""
+        k = 0 if value <= 0 else int((math.log10(value) - self._log_low) * self._per_decade)
+        self._counts[min(max(k, 0), len(self._counts) - 1)] += 1
+        self.count += 1
+        self.max = value if not value <= self.max else self.max
+
+    def quantile(self, q: float) -> float:
+        """The ``q`` quantile (0..1); NaN before any value."""
+        if self.count == 0:
+            return math.nan
+        k = int(np.searchsorted(np.cumsum(self._counts), q * self.count))
+        k = min(k, len(self._counts) - 1)
+        return min(10 ** (self._log_low + (k + 0.5) / self._per_decade), self.max)
 
 
 @dataclass
@@ -49,22 +111,32 @@ class StreamStats:
         Frames of the move from the present position to the first frame.
     achieved_rate_hz : float
         ``rate_hz`` times planned over actual time between the first and last
-        frame sent (NaN with fewer than two frames).
+        frame sent (NaN with fewer than two frames); stalls lower it.
     period_error_p50_s, period_error_p99_s, period_error_max_s : float
         Absolute error of each interval between frames sent, against its
-        planned interval (s).
+        planned interval (s); stalls included.
     lateness_max_s : float
-        Largest delay of a frame past its deadline (s).
+        Largest delay of a frame past its deadline (s), after stall shifts.
     overruns : int
         Frames sent more than one period after their deadline.
+    stalls : int
+        Times the stream's clock was shifted because a frame was more than
+        ``stall_s`` late (approach included).
+    stall_max_s : float
+        Longest stall (s): the largest single shift.
+    delay_s : float
+        Total shift (s): how far behind its plan the stream ran at the end
+        (each stall's lateness plus the Bus Watchdog poll that follows it).
     reads : int
         Telemetry group reads done.
     comm_errors : int
         Transactions that failed (retried, or fatal).
     read_method : str
         "fast sync read" or "sync read".
+    read_fallback : str
+        Why Fast Sync Read was given up for Sync Read ("" if it was not).
     fault : str
-        The message of the fault that stopped the stream ("" if none).
+        The message of the fault or signal that stopped the stream ("" if none).
     """
 
     rate_hz: float
@@ -77,26 +149,38 @@ class StreamStats:
     period_error_max_s: float = math.nan
     lateness_max_s: float = math.nan
     overruns: int = 0
+    stalls: int = 0
+    stall_max_s: float = 0.0
+    delay_s: float = 0.0
     reads: int = 0
     comm_errors: int = 0
     read_method: str = "fast sync read"
+    read_fallback: str = ""
     fault: str = ""
-    _sent_s: list[float] = field(default_factory=list, repr=False)
-    _deadline_s: list[float] = field(default_factory=list, repr=False)
+    _errors: RunningQuantiles = field(default_factory=RunningQuantiles, repr=False)
+    _first: tuple[float, float] | None = field(default=None, repr=False)
+    _last: tuple[float, float] | None = field(default=None, repr=False)
+
+    def _sent(self, sent_s: float, planned_s: float, deadline_s: float) -> None:
+        """Record one frame: when it went out, its unshifted and shifted deadlines."""
+        self.frames_sent += 1
+        late = sent_s - deadline_s
+        self.lateness_max_s = late if not late <= self.lateness_max_s else self.lateness_max_s
+        if late > 1.0 / self.rate_hz:
+            self.overruns += 1
+        if self._last is not None:
+            self._errors.add(abs((sent_s - self._last[0]) - (planned_s - self._last[1])))
+        self._first = self._first or (sent_s, planned_s)
+        self._last = (sent_s, planned_s)
 
     def _finish(self) -> None:
-        sent, deadline = np.asarray(self._sent_s), np.asarray(self._deadline_s)
-        self.frames_sent = len(sent)
-        if len(sent) == 0:
+        if self._errors.count == 0:
             return
-        self.lateness_max_s = float(np.max(sent - deadline))
-        if len(sent) >= 2:
-            error = np.abs(np.diff(sent) - np.diff(deadline))
-            self.period_error_p50_s = float(np.percentile(error, 50))
-            self.period_error_p99_s = float(np.percentile(error, 99))
-            self.period_error_max_s = float(np.max(error))
-            planned, actual = deadline[-1] - deadline[0], sent[-1] - sent[0]
-            self.achieved_rate_hz = self.rate_hz * planned / actual if actual > 0 else math.nan
+        self.period_error_p50_s = self._errors.quantile(0.50)
+        self.period_error_p99_s = self._errors.quantile(0.99)
+        self.period_error_max_s = self._errors.max
+        actual, planned = self._last[0] - self._first[0], self._last[1] - self._first[1]
+        self.achieved_rate_hz = self.rate_hz * planned / actual if actual > 0 else math.nan
 
     def to_json_dict(self) -> dict:
         """Plain values for JSON (NaN becomes None)."""
@@ -120,6 +204,8 @@ class StreamStats:
             f"period error: p50 {ms(self.period_error_p50_s)}, p99 {ms(self.period_error_p99_s)}, "
             f"max {ms(self.period_error_max_s)}; max lateness {ms(self.lateness_max_s)}; "
             f"overruns: {self.overruns}",
+            f"stalls: {self.stalls} (longest {ms(self.stall_max_s)}; "
+            f"stream ended {ms(self.delay_s)} behind its plan)",
             f"telemetry reads: {self.reads} ({self.read_method}); comm errors: {self.comm_errors}",
         ]
         if self.fault:
@@ -170,7 +256,8 @@ class Streamer:
     telemetry : str or Path or None, optional
         ``.csv`` or ``.npz`` file for per-frame telemetry.
     joint_names : sequence of str, optional
-        Column names of the joints in the telemetry.
+        Names of the joints (telemetry columns, messages); default pan, tilt,
+        roll for three joints.
     telemetry_every : int, optional
         Read present state every this many frames (>= 1).
     poll_s : float, optional
@@ -182,11 +269,25 @@ class Streamer:
         Peak joint speed of the move from the present position to the first
         frame (rad/s).
     fast_read : bool, optional
-        Try Fast Sync Read first (falls back to Sync Read if it gets no answer).
+        Try Fast Sync Read first (falls back to Sync Read, with a
+        ``RuntimeWarning``, if it gets no sound answer).
+    max_approach_rad : float, optional
+        Refuse to start when a joint reads farther than this from the first
+        frame (rad): the plausibility check of the read-back position that
+        starts the approach.
+    goal_bounds_ticks : array_like, shape (n, 2), optional
+        Lowest and highest goal (ticks) per servo, e.g. ``BringUp.goal_bounds_ticks``
+        (the installed position limits); a frame outside is a fault, never sent.
+    stall_s : float, optional
+        Lateness (s) past which a frame counts as a stall and the stream's
+        clock shifts; default half a period.
+    max_delay_s : float or None, optional
+        Fail the stream (``StreamLagging``) when the total shift passes this
+        (s); None: no bound (stalls are still counted).
     clock : object with ``now()`` and ``sleep_until(deadline_s)``, optional
         What the deadlines run on: the host's monotonic clock, or a
         ``drivers.clock.SimulatedClock`` against a lock-step virtual bus (the
-        stream then runs as fast as the simulation allows).
+        stream then runs as fast as the simulation allows, and never stalls).
 
     Attributes
     ----------
@@ -207,29 +308,50 @@ class Streamer:
         joints: JointMap,
         *,
         telemetry: str | Path | None = None,
-        joint_names: Iterable[str] = JOINT_NAMES,
+        joint_names: Sequence[str] | None = None,
         telemetry_every: int = 1,
         poll_s: float = 0.05,
         on_stop: Literal["hold", "torque_off"] = "hold",
         approach_speed_rad_s: float = 0.5,
         fast_read: bool = True,
+        max_approach_rad: float = MAX_APPROACH_RAD,
+        goal_bounds_ticks: np.ndarray | None = None,
+        stall_s: float | None = None,
+        max_delay_s: float | None = MAX_DELAY_S,
         clock=WALL_CLOCK,
     ) -> None:
-        telemetry_every = check_number("telemetry_every", telemetry_every, integer=True, low=1)
+        positive = {"low": 0.0, "low_open": True}
+        telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
         check_choice("on_stop", on_stop, ("hold", "torque_off"))
-        poll_s = check_number("poll_s", poll_s, low=0.0, low_open=True)
+        poll_s = check_number("poll_s", poll_s, **positive)
         approach_speed_rad_s = check_number(
-            "approach_speed_rad_s", approach_speed_rad_s, low=0.0, low_open=True
+            "approach_speed_rad_s", approach_speed_rad_s, **positive
         )
+        max_approach_rad = check_number("max_approach_rad", max_approach_rad, **positive)
+        if stall_s is not None:
+            stall_s = check_number("stall_s", stall_s, **positive)
+        if max_delay_s is not None:
+            max_delay_s = check_number("max_delay_s", max_delay_s, **positive)
+        if goal_bounds_ticks is not None:
+            goal_bounds_ticks = np.asarray(goal_bounds_ticks)
+            if goal_bounds_ticks.shape != (len(joints), 2):
+                raise ValueError(
+                    f"Expected `goal_bounds_ticks` of shape ({len(joints)}, 2), "
+                    f"got {goal_bounds_ticks.shape}."
+                )
         self.bus = bus
         self.joints = joints
         self.telemetry_path = telemetry
-        self.joint_names = tuple(joint_names)
+        self.joint_names = joint_names_for(joints, joint_names)
         self.telemetry_every = telemetry_every
         self.poll_s = poll_s
         self.on_stop = on_stop
         self.approach_speed_rad_s = approach_speed_rad_s
         self.fast_read = fast_read
+        self.max_approach_rad = max_approach_rad
+        self.goal_bounds_ticks = goal_bounds_ticks
+        self.stall_s = stall_s
+        self.max_delay_s = max_delay_s
         self.clock = clock
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []
@@ -252,11 +374,14 @@ class Streamer:
         ------
         ValueError
             If no rate is known or the stream is empty.
-        CommError, ServoError, WatchdogTripped
+        BringUpError
+            If a joint reads farther than ``max_approach_rad`` from the first
+            frame (nothing is sent; the servos hold or are released).
+        CommError, ServoError, WatchdogTripped, StreamLagging, OutsideLimits
             On a fault, after the safe stop; ``self.stats`` holds the statistics
             and ``self.stop_errors`` anything the safe stop could not do.
         KeyboardInterrupt
-            On Ctrl-C, after the safe stop.
+            On Ctrl-C (or ``errors.Interrupted``: a stop signal), after the safe stop.
         """
         rate_hz = getattr(stream, "rate_hz", None) if rate_hz is None else rate_hz
         if rate_hz is None or not rate_hz > 0:
@@ -269,24 +394,26 @@ class Streamer:
         planned = len(stream) if hasattr(stream, "__len__") else 0
         self.stats = stats = StreamStats(rate_hz=float(rate_hz), frames_planned=planned)
         self.stop_errors = []
-        writer = None
-        if self.telemetry_path is not None:
-            writer = TelemetryWriter(self.telemetry_path, self.joint_names)
-        self._writer = writer
+        self._writer = writer = None
         self._frame_no = 0
         failed_before = self.bus.failed_tries
         try:
+            if self.telemetry_path is not None:
+                self._writer = writer = TelemetryWriter(self.telemetry_path, self.joint_names)
             self._choose_read_method()
             present = self._read_state()[0]
+            check_start(
+                present, np.asarray(first.q, float), self.max_approach_rad, self.joint_names
+            )
             t_ramp, q_ramp = min_jerk_ramp(
                 present, np.asarray(first.q, float), rate_hz, self.approach_speed_rad_s
             )
             stats.approach_frames = len(t_ramp)
-            self._loop(zip(t_ramp, q_ramp, strict=True), "approach", None)
-            self._loop(((f.t, f.q) for f in chain([first], frames)), "stream", stats)
+            self._loop(zip(t_ramp, q_ramp, strict=True), "approach", timed=False)
+            self._loop(((f.t, f.q) for f in chain([first], frames)), "stream", timed=True)
         except (DriverError, KeyboardInterrupt) as e:
             stats.fault = str(e) or type(e).__name__
-            self._safe_stop()
+            self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop)
             raise
         finally:
             stats.comm_errors = self.bus.failed_tries - failed_before
@@ -295,7 +422,7 @@ class Streamer:
                 writer.close()
         if planned == 0:
             stats.frames_planned = stats.frames_sent
-        self._safe_stop()
+        self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop)
         return stats
 
     # -- reading -----------------------------------------------------------
@@ -305,9 +432,18 @@ class Streamer:
             try:
                 self.bus.read_block(self.joints.ids, _STATE, fast=True)
                 return
-            except CommError:
-                pass  # counted by the bus; try Sync Read
-        self.bus.read_block(self.joints.ids, _STATE, fast=False)
+            except CommError as e:  # counted by the bus; try Sync Read
+                reason = str(e)
+            self.bus.read_block(self.joints.ids, _STATE, fast=False)
+            self.stats.read_fallback = reason
+            warnings.warn(
+                f"fast sync read failed ({reason}); reading back by sync read for this stream "
+                "(one status packet per servo: slower)",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        else:
+            self.bus.read_block(self.joints.ids, _STATE, fast=False)
         self.stats.read_method = "sync read"
 
     @property
@@ -328,68 +464,117 @@ class Streamer:
             self.joints.signed_joint(current),
         )
 
-    def _poll_watchdog(self) -> None:
+    def _poll_watchdog(self, when: str) -> None:
         block = self.bus.read_block(self.joints.ids, (Register.BUS_WATCHDOG,), fast=self._use_fast)
         self.bus.check_block(block, "streaming")
         for servo_id, values in block.values.items():
             if values[Register.BUS_WATCHDOG] == -1:
                 raise WatchdogTripped(
-                    f"servo {servo_id}: Bus Watchdog tripped (register 98 = -1) before frame "
-                    f"{self._frame_no}: it stopped and refuses goals until the watchdog is "
+                    f"servo {servo_id}: Bus Watchdog tripped (register 98 = -1) {when} "
+                    f"frame {self._frame_no}: it stopped and refuses goals until the watchdog is "
                     "cleared (the bus was silent longer than its watchdog period)"
                 )
 
     # -- the loop ----------------------------------------------------------
 
-    def _loop(self, frames, phase: str, stats: StreamStats | None) -> None:
+    def _check_bounds(self, ticks: np.ndarray, t: float) -> None:
+        bounds = self.goal_bounds_ticks
+        if bounds is None:
+            return
+        outside = (ticks < bounds[:, 0]) | (ticks > bounds[:, 1])
+        if outside.any():
+            j = int(np.flatnonzero(outside)[0])
+            raise OutsideLimits(
+                f"{self.joint_names[j]}: goal tick {ticks[j]} at t = {t:.3f} s is outside "
+                f"{bounds[j, 0]}..{bounds[j, 1]} (servo {self.joints.ids[j]}'s position limits); "
+                "not sent"
+            )
+
+    def _loop(self, frames, phase: str, *, timed: bool) -> None:
+        stats = self.stats
         ids = self.joints.ids
-        period = 1.0 / self.stats.rate_hz
-        poll_every = max(1, round(self.poll_s * self.stats.rate_hz))
-        start = self.clock.now() + period
+        period = 1.0 / stats.rate_hz
+        stall_s = 0.5 * period if self.stall_s is None else self.stall_s
+        poll_every = max(1, round(self.poll_s * stats.rate_hz))
+        clock = self.clock
+        start = clock.now() + period
+        shift = 0.0  # this phase's clock shift (s), from stalls
         t_first = None
         nan = np.full(len(ids), math.nan)
         for k, (t, q) in enumerate(frames):
             t_first = t if t_first is None else t_first
-            deadline = start + (t - t_first)
-            self.clock.sleep_until(deadline)
-            sent = self.clock.now()
+            planned = start + (t - t_first)
+            clock.sleep_until(planned + shift)
+            late = clock.now() - (planned + shift)
+            if late > stall_s:  # never catch up: shift the rest of the stream instead
+                self._stall(late)
+                stats.delay_s += clock.now() - planned - shift
+                shift = clock.now() - planned
+            sent = clock.now()
             ticks = self.joints.to_ticks(q)
+            self._check_bounds(ticks, t)
             self.bus.sync_write(Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True)))
             self._frame_no += 1
-            if stats is not None:
-                stats._sent_s.append(sent)
-                stats._deadline_s.append(deadline)
-                if sent - deadline > period:
-                    stats.overruns += 1
+            if timed:
+                stats._sent(sent, planned, planned + shift)
             state = (nan, nan, nan)
             try:
                 if k % self.telemetry_every == 0:
                     state = self._read_state()
                 if k % poll_every == poll_every - 1:
-                    self._poll_watchdog()
+                    self._poll_watchdog("before")
             finally:  # the goal went out: its row is written even if the read failed
                 if self._writer is not None:
                     self._writer.write(
-                        [self._frame_no - 1, phase, t, sent - start, sent - deadline]
+                        [self._frame_no - 1, phase, t, sent - start, sent - planned - shift]
                         + list(q)
                         + ticks.tolist()
                         + [*state[0], *state[1], *state[2]]
                     )
 
-    def _safe_stop(self) -> None:
-        """Hold the last goal (clear the Bus Watchdog) or release the servos.
+    def _stall(self, late_s: float) -> None:
+        """A frame is ``late_s`` past its deadline: count it, check the servos, bound the delay."""
+        stats = self.stats
+        stats.stalls += 1
+        stats.stall_max_s = max(stats.stall_max_s, late_s)
+        if self.max_delay_s is not None and stats.delay_s + late_s > self.max_delay_s:
+            stats.delay_s += late_s
+            raise StreamLagging(
+                f"the stream fell {stats.delay_s:.3f} s behind its plan (bound "
+                f"{self.max_delay_s:g} s) after {stats.stalls} stalls, the last "
+                f"{1e3 * late_s:.1f} ms before frame {self._frame_no}: the host or the bus cannot "
+                f"keep {stats.rate_hz:g} Hz"
+            )
+        self._poll_watchdog(f"after a {1e3 * late_s:.1f} ms stall, before")
 
-        Best effort, one try per servo: what fails is kept in ``stop_errors``.
-        """
-        retries, self.bus.retries = self.bus.retries, 0
-        try:
-            for servo_id in self.joints.ids:
-                try:
-                    if self.on_stop == "torque_off":
-                        self.bus.write(servo_id, Register.TORQUE_ENABLE, 0)
-                    else:
-                        self.bus.write(servo_id, Register.BUS_WATCHDOG, 0)
-                except DriverError as e:
-                    self.stop_errors.append(str(e))
-        finally:
-            self.bus.retries = retries
+
+def safe_stop(bus: ServoBus, ids: Sequence[int], on_stop: str) -> list[str]:
+    """Hold the last goal (clear the Bus Watchdog) or release the servos (torque off).
+
+    Best effort, one try per servo.
+
+    Parameters
+    ----------
+    bus : ServoBus
+    ids : sequence of int
+    on_stop : {"hold", "torque_off"}
+
+    Returns
+    -------
+    list of str
+        What could not be done (e.g. a servo that no longer answers).
+    """
+    errors = []
+    retries, bus.retries = bus.retries, 0
+    try:
+        for servo_id in ids:
+            try:
+                if on_stop == "torque_off":
+                    bus.write(servo_id, Register.TORQUE_ENABLE, 0)
+                else:
+                    bus.write(servo_id, Register.BUS_WATCHDOG, 0)
+            except DriverError as e:
+                errors.append(str(e))
+    finally:
+        bus.retries = retries
+    return errors

@@ -1,14 +1,19 @@
 """Telemetry written as the stream runs, so a fault keeps everything up to it.
 
 CSV (``.csv``): one row per frame, flushed as written. NPZ (``.npz``): the same
-columns as arrays, written when the stream stops (on any stop, faults
-included; only a killed process loses it).
+columns as arrays, written when the stream stops (on any stop, faults and stop
+signals included; only SIGKILL loses it). Until then NPZ rows are spooled to
+an anonymous temporary file as binary doubles, so memory stays constant
+however long the stream; the file is assembled one column at a time.
 """
 
 from __future__ import annotations
 
 import csv
 import math
+import struct
+import tempfile
+import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -49,12 +54,16 @@ class TelemetryWriter:
         self.rows = 0
         self._file = None
         self._writer = None
-        self._arrays: list[list] = []
+        self._spool = None
         if self.path.suffix == ".csv":
             self._file = open(self.path, "w", newline="")  # noqa: SIM115 (closed in close())
             self._writer = csv.writer(self._file)
             self._writer.writerow(self.columns)
             self._file.flush()
+        else:
+            self._spool = tempfile.TemporaryFile()  # noqa: SIM115 (closed in close())
+            self._pack = struct.Struct(f"<{len(self.columns)}d").pack
+            self._phases: list[str] = []
 
     def write(self, row: Sequence) -> None:
         """Append one row (values in ``columns`` order; NaN where not measured)."""
@@ -62,20 +71,41 @@ class TelemetryWriter:
             self._writer.writerow("" if isinstance(v, float) and math.isnan(v) else v for v in row)
             self._file.flush()
         else:
-            self._arrays.append(list(row))
+            phase = row[_PHASE]
+            if phase not in self._phases:
+                self._phases.append(phase)
+            numbers = list(row)
+            numbers[_PHASE] = self._phases.index(phase)
+            self._spool.write(self._pack(*numbers))
         self.rows += 1
 
     def close(self) -> None:
-        """Flush and close (NPZ: write the file now)."""
+        """Flush and close (NPZ: write the file now, one column at a time)."""
         if self._file is not None:
             self._file.close()
             self._file = None
             self._writer = None
-        elif self._arrays is not None:
-            columns = list(zip(*self._arrays, strict=True)) if self._arrays else []
-            data = {
-                name: np.asarray(columns[k] if columns else [])
-                for k, name in enumerate(self.columns)
-            }
-            np.savez(self.path, **data)
-            self._arrays = None
+        elif self._spool is not None:
+            self._spool.flush()
+            n = len(self.columns)
+            table = (
+                np.memmap(self._spool, dtype="<f8", mode="r", shape=(self.rows, n))
+                if self.rows
+                else np.zeros((0, n))
+            )
+            with zipfile.ZipFile(self.path, "w", allowZip64=True) as archive:
+                for k, name in enumerate(self.columns):
+                    column = np.array(table[:, k])
+                    if name == "frame" or name.startswith("goal_tick_"):
+                        column = column.astype(np.int64)
+                    elif k == _PHASE:
+                        column = np.array(self._phases or [""])[column.astype(np.intp)]
+                    with archive.open(f"{name}.npy", "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, column)
+            del table
+            self._spool.close()
+            self._spool = None
+
+
+_COLUMNS = {name: k for k, name in enumerate(telemetry_columns(()))}
+_PHASE = _COLUMNS["phase"]

@@ -108,8 +108,8 @@ def plot(follower, report, path: Path) -> Path:
     axes[0, 0].set_ylabel("angle (deg)")
     axes[1, 0].set_ylabel("joint speed (rad/s)")
     axes[2, 0].set_ylabel("torque (N m)")
-    for ax in axes[:, 0]:
-        ax.legend(fontsize=8, loc="upper left")
+    for ax, where in zip(axes[:, 0], ("lower left", "upper left", "upper left"), strict=True):
+        ax.legend(fontsize=8, loc=where)
     s = follower.summary()
     fig.suptitle(
         f"trajgen follow --virtual: {s['accepted']} keyframes while moving, line to frame "

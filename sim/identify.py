@@ -2,19 +2,24 @@
 
 For each joint: ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping``
 (N m s/rad) and the Position P Gain (register units, which also tests the P
-divisor: a servo whose firmware divides by 256 fits half its register value),
-plus one transport delay (s) between a goal's time label and the present
-values read in the same frame.
+divisor: a servo whose firmware divides by 256 fits half its register value);
+optionally the transport delay (s) from a goal's time label to the present
+values read in its frame, and one scale between the logged current and the
+simulated torque over the torque constant.
 
 The model is the one ``trajgen sim`` runs (``sim.model``, the firmware loop of
 ``sim.firmware``). Each log's goals are replayed, held for one stream period,
 from the first logged state; the residual is the logged present position
-(rad) and velocity (weighted by ``VELOCITY_WEIGHT_S``) minus the simulated
-ones at each frame's time plus the delay. The fit is ``mujoco.sysid``'s
-box-constrained Gauss-Newton (``mujoco.minimize.least_squares``) over batched
-``mujoco.rollout`` rollouts; the confidence intervals are
-``mujoco.sysid.calculate_intervals`` (95 %, from the Jacobian at the optimum
-and the residual variance).
+(rad), velocity (weighted by ``VELOCITY_WEIGHT_S``) and current (weighted by
+``CURRENT_WEIGHT_RAD_A``) minus the simulated ones at each frame's time plus
+the delay. The fit is ``mujoco.sysid``'s optimizer (box-constrained
+Gauss-Newton, ``mujoco.minimize.least_squares``) over batched ``mujoco.rollout``
+replays, with a Jacobian that perturbs one parameter kind of all three joints
+per rollout (``_Replay.jacobian``); the 95 % confidence intervals are
+``mujoco.sysid.calculate_intervals`` on a full finite-difference Jacobian at
+the optimum. The rest of ``mujoco.sysid`` (its ``TimeSeries`` and ``MjSpec``
+model modifiers) is not used: the parameters here are plain ``MjModel``
+fields, set in place.
 
 ``mujoco.sysid`` needs the ``mujoco[sysid]`` extra (``pip install
 'trajgen[sysid]'``); it is imported only here.
@@ -174,8 +179,9 @@ class Fit:
     ----------
     joints : dict of str to JointFit
         By joint name.
-    delay_s, delay_interval_s : float
-        Transport delay (s) and its 95 % half-width.
+    extras : dict of str to tuple of (float, float or None)
+        ``"delay_s"`` (s) and ``"current_scale"``: value and 95 % half-width,
+        or None when held.
     config : GimbalConfig
         The input config with the fitted joints.
     rows : int
@@ -185,18 +191,30 @@ class Fit:
     """
 
     joints: dict
-    delay_s: float
-    delay_interval_s: float
+    extras: dict
     config: GimbalConfig
     rows: int
     iterations: int
 
-    def _delay_text(self) -> str:
-        if self.delay_interval_s == 0.0:
-            return f"transport delay {1e3 * self.delay_s:.2f} ms (held)"
-        return (
-            f"transport delay {1e3 * self.delay_s:.2f} ms +- {1e3 * self.delay_interval_s:.2f} ms"
-        )
+    @property
+    def delay_s(self) -> float:
+        """Transport delay (s), fitted or held."""
+        return self.extras["delay_s"][0]
+
+    @property
+    def current_scale(self) -> float:
+        """Logged current over (simulated torque / torque constant), fitted or held."""
+        return self.extras["current_scale"][0]
+
+    def _extras_text(self) -> str:
+        parts = []
+        for name, (value, interval), unit, factor in (
+            ("transport delay", self.extras["delay_s"], " ms", 1e3),
+            ("current scale", self.extras["current_scale"], "", 1.0),
+        ):
+            spread = "(held)" if interval is None else f"+- {factor * interval:.2g}{unit}"
+            parts.append(f"{name} {factor * value:.3g}{unit} {spread}")
+        return "; ".join(parts)
 
     def format(self) -> str:
         """A table of fit, interval and residual per joint, then what is poorly excited."""
@@ -211,7 +229,7 @@ class Fit:
                     f"{name if k == 0 else '':<6}{p:<17}{joint.values[p]:12.5g}"
                     f"{joint.intervals[p]:12.2g}  {_UNITS[p]:<10}{residual}"
                 )
-        lines.append(f"{self._delay_text()}; {self.rows} frames, {self.iterations} iterations")
+        lines.append(f"{self._extras_text()}; {self.rows} frames, {self.iterations} iterations")
         for name, joint in self.joints.items():
             for p in joint.poorly_excited:
                 lines.append(
@@ -224,7 +242,7 @@ class Fit:
     def toml(self, source: str = "") -> str:
         """``[gimbal.<joint>]`` tables with the intervals in comments."""
         lines = [f"# Fitted by trajgen identify{' from ' + source if source else ''}."]
-        lines.append(f"# {self._delay_text()}; intervals are 95 %.")
+        lines.append(f"# {self._extras_text()}; intervals are 95 %.")
         for name, joint in self.joints.items():
             lines += [
                 "",
@@ -247,14 +265,16 @@ def _relative(interval, value):
 class _Replay:
     """Batched rollouts of the gimbal replaying logged goals.
 
-    Parameter vector (12,) or (13,): per joint armature, frictionloss,
-    damping, P gain; then the delay (s), else ``delay_s``.
+    Parameter vector: per joint armature, frictionloss, damping, P gain (12);
+    then the names in ``extras`` (``"delay_s"``, ``"current_scale"``), in that
+    order; those not in ``extras`` take the values of ``held``.
     """
 
     def __init__(self, config: GimbalConfig, logs, *, use_current: bool):
         import mujoco
 
-        self.delay_s = 0.0
+        self.extras: tuple[str, ...] = ()
+        self.held = {"delay_s": 0.0, "current_scale": 1.0}
         self.model = build_model(config)
         self.dt = config.timestep_s
         self.kp_per_unit = np.array(
@@ -297,12 +317,19 @@ class _Replay:
         mujoco.mj_setConst(m, self.datas[0])  # constraint scaling depends on armature
         return m
 
+    def _extra_values(self, x) -> dict:
+        k = x.shape[1]
+        values = {name: np.full(k, value) for name, value in self.held.items()}
+        for n, name in enumerate(self.extras):
+            values[name] = x[12 + n]
+        return values
+
     def predict(self, x):
         """Simulated position, velocity and current at each logged frame, for columns of x.
 
         Parameters
         ----------
-        x : ndarray, shape (12 or 13, k)
+        x : ndarray, shape (12 + len(extras), k)
 
         Returns
         -------
@@ -321,12 +348,14 @@ class _Replay:
             torque_grid = grid[1:]  # a step's torque, as read at its end
             pos = np.empty((k, len(log.t), 3))
             vel, cur = np.empty_like(pos), np.empty_like(pos)
+            extra = self._extra_values(x)
             for i in range(k):
-                when = log.t + (x[12, i] if len(x) > 12 else self.delay_s)
+                when = log.t + extra["delay_s"][i]
                 for j in range(3):
                     pos[i, :, j] = np.interp(when, grid, qv[i, :, j])
                     vel[i, :, j] = np.interp(when, grid, qv[i, :, 3 + j])
                     cur[i, :, j] = np.interp(when, torque_grid, torque[i, :, j]) / self.kt[j]
+                cur[i] *= extra["current_scale"][i]
             out.append((pos, vel, cur))
         return out
 
@@ -336,9 +365,9 @@ class _Replay:
         The joints hardly couple (the reflected rotor inertia dwarfs the links),
         so one rollout perturbs the same parameter of all three joints and each
         joint's residual rows (every third row) are credited to its own
-        parameter: 4 or 5 rollouts instead of 12 or 13. The optimum is
-        unchanged (the residual is exact); only the step directions are
-        approximate.
+        parameter: 4 rollouts for the 12 joint parameters, plus one per extra.
+        The optimum is unchanged (the residual is exact); only the step
+        directions are approximate.
         """
         x = x[:, 0]
         n = len(x)
@@ -346,8 +375,8 @@ class _Replay:
         columns = np.repeat(x[:, None], n - 8, axis=1)
         for kind in range(4):
             columns[kind:12:4, kind] += steps[kind:12:4]
-        if n > 12:
-            columns[12, 4] += steps[12]
+        for e in range(12, n):
+            columns[e, e - 8] += steps[e]
         dr = self.residuals(columns) - r
         jac = np.zeros((len(r), n))
         joint = np.arange(len(r)) % 3
@@ -355,12 +384,12 @@ class _Replay:
             for j in range(3):
                 rows = joint == j
                 jac[rows, 4 * j + kind] = dr[rows, kind] / steps[4 * j + kind]
-        if n > 12:
-            jac[:, 12] = dr[:, 4] / steps[12]
+        for e in range(12, n):
+            jac[:, e] = dr[:, e - 8] / steps[e]
         return jac
 
     def residuals(self, x):
-        """Weighted residuals, shape (M, k), for ``x`` of shape (12 or 13, k)."""
+        """Weighted residuals, shape (M, k), for ``x`` of shape (12 + len(extras), k)."""
         parts = []
         for (pos, vel, cur), (log, _, _, ok, current) in zip(
             self.predict(x), self.cases, strict=True
@@ -388,21 +417,23 @@ def _sysid():
     return sysid
 
 
-def _fit(sysid, replay, start, max_iter, period=None):
-    """One ``mujoco.sysid`` fit from ``start`` (12 joint values, then maybe the delay).
+def _fit(sysid, replay, start, max_iter, bounds):
+    """One ``mujoco.sysid`` fit from ``start`` (12 joint values, then ``replay.extras``).
 
-    Returns the fitted vector, its 95 % half-widths and the iteration count.
+    ``bounds`` maps each extra to its (low, high). Returns the fitted vector,
+    its 95 % half-widths and the iteration count.
     """
     params = sysid.ParameterDict()
     for j, name in enumerate(JOINT_NAMES):
         for i, p in enumerate(PARAMETERS):
             low, high = _BOUNDS[p]
             # Start off the bounds (a zero friction or damping would sit on one).
-            value = float(np.clip(start[4 * j + i], low + 1e-3 * (high - low), high))
+            value = float(np.clip(start[4 * j + i], low + 2e-3 * (high - low), high))
             params.add(sysid.Parameter(f"{name}.{p}", value, low, high))
-    if len(start) > 12:
-        value = float(np.clip(start[12], 0.02 * period, 1.98 * period))
-        params.add(sysid.Parameter("delay_s", value, 0.0, 2.0 * period))
+    for n, name in enumerate(replay.extras):
+        low, high = bounds[name]
+        value = float(np.clip(start[12 + n], low + 0.02 * (high - low), high - 0.02 * (high - low)))
+        params.add(sysid.Parameter(name, value, low, high))
 
     def residual_fn(x, _params):
         x = np.asarray(x, dtype=float)
@@ -439,9 +470,10 @@ def identify(
     use_current: bool = True,
     delay_s: float = 0.0,
     fit_delay: bool = False,
+    fit_current_scale: bool = False,
     max_iter: int = 30,
 ) -> Fit:
-    """Fit each joint's armature, frictionloss, damping and P gain (and a delay).
+    """Fit each joint's armature, frictionloss, damping and P gain (and a delay, a current scale).
 
     Parameters
     ----------
@@ -449,25 +481,22 @@ def identify(
         The gimbal (servos, payload); its joints are the starting point.
     logs : sequence of TelemetryLog
         One or more logs (``load_telemetry``), all at the same servos.
-    delay_s : float
-        Time (s) from a frame's goal to its present values: 0 when the log's
-        present values are what the servo had as the goal arrived (the
-        virtual bus in lock-step); on hardware the read follows the write by
-        about a millisecond.
-    fit_delay : bool
-        Fit the delay too, starting from ``delay_s`` after a first fit with it held.
-    delay_s : float
-        Time (s) from a frame's goal to its present values: 0 when the log's
-        present values are what the servo had as the goal arrived (the
-        virtual bus in lock-step); on hardware the read follows the write by
-        about a millisecond.
-    fit_delay : bool
-        Fit the delay too, starting from ``delay_s`` after a first fit with it held.
     use_current : bool
         Also fit the logged current, as torque over the torque constant (stall
-        torque / stall current). Position data alone fix the parameters only
-        up to a common scale, which the known back-EMF pins weakly; current
-        pins it, if the servo reports it truly.
+        torque / stall current) times the current scale. Position data alone
+        fix the parameters only up to a common scale, which the known back-EMF
+        pins weakly; current pins it, if the servo reports it truly.
+    delay_s : float
+        Time (s) from a frame's goal to its present values: 0 when the log's
+        present values are what the servo had as the goal arrived (the
+        virtual bus in lock-step); on hardware the read follows the write by
+        about a millisecond.
+    fit_delay : bool
+        Fit the delay too (from ``delay_s``, within two stream periods).
+    fit_current_scale : bool
+        Fit the current scale too (from 1, within 0.2..5): for a servo whose
+        current reading is off by a factor. It brings back the common scale
+        that only the back-EMF pins, so expect wider intervals.
     max_iter : int
         Gauss-Newton iterations at most.
 
@@ -481,26 +510,42 @@ def identify(
         If ``mujoco[sysid]`` is missing or no log is given.
     SimError
         If the fit diverges.
+
+    Notes
+    -----
+    The delay and the current scale trade against the joints' parameters (the
+    lag of the P gain, the common scale), so the joints are fitted first with
+    them held, then everything together from there.
     """
     sysid = _sysid()
     if not logs:
         raise IdentifyError("no telemetry log to fit")
     replay = _Replay(config, logs, use_current=use_current)
-    start = [getattr(config.joints[j], p) for j in range(3) for p in PARAMETERS]
-    # The delay trades against the lag (P gain, damping): fit the joints with
-    # the delay held first, then (if asked) everything from there.
-    replay.delay_s = delay_s
-    x, intervals, iterations = _fit(sysid, replay, start, max_iter)
-    delay, delay_interval = delay_s, 0.0
-    if fit_delay:
-        period = 1.0 / min(log.rate_hz for log in logs)
-        x, intervals, more = _fit(sysid, replay, np.append(x, delay_s), max_iter, period)
+    replay.held["delay_s"] = float(delay_s)
+    x, intervals, iterations = _fit(
+        sysid,
+        replay,
+        [getattr(config.joints[j], p) for j in range(3) for p in PARAMETERS],
+        max_iter,
+        {},
+    )
+    period = 1.0 / min(log.rate_hz for log in logs)
+    bounds = {"delay_s": (0.0, 2.0 * period), "current_scale": (0.2, 5.0)}
+    replay.extras = tuple(
+        name
+        for name, asked in (("delay_s", fit_delay), ("current_scale", fit_current_scale))
+        if asked
+    )
+    if replay.extras:
+        start = np.append(x, [replay.held[name] for name in replay.extras])
+        x, intervals, more = _fit(sysid, replay, start, max_iter, bounds)
         iterations += more
-        delay, delay_interval = float(x[12]), float(intervals[12])
-        replay.delay_s = delay
+    extras = {name: (value, None) for name, value in replay.held.items()}
+    for n, name in enumerate(replay.extras):
+        extras[name] = (float(x[12 + n]), float(intervals[12 + n]))
 
     ok_rows = [case[3] for case in replay.cases]
-    predicted = replay.predict(x[:12, None])
+    predicted = replay.predict(x[:, None])
     joints = {}
     for j, name in enumerate(JOINT_NAMES):
         values = {p: float(x[4 * j + i]) for i, p in enumerate(PARAMETERS)}
@@ -531,8 +576,7 @@ def identify(
         )
     return Fit(
         joints=joints,
-        delay_s=delay,
-        delay_interval_s=delay_interval,
+        extras=extras,
         config=dataclasses.replace(config, joints=tuple(joints[n].params for n in JOINT_NAMES)),
         rows=sum(int(ok.sum()) for ok in ok_rows),
         iterations=iterations,

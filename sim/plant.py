@@ -52,6 +52,10 @@ class GimbalPlant:
     initial_rad : array_like, shape (3,), optional
         Joint angles (rad) at power-up, e.g. a trajectory's first frame, so a
         stream needs no move to its start. Default 0.
+    record : bool
+        Keep every physics step for :meth:`report` (16 numbers a step, about
+        0.5 GB an hour of simulated time). False for a long-running bus that
+        is never reported on.
 
     Raises
     ------
@@ -63,7 +67,12 @@ class GimbalPlant:
     n_joints = 3
 
     def __init__(
-        self, config: GimbalConfig | None = None, *, timestep_s: float = 0.001, initial_rad=None
+        self,
+        config: GimbalConfig | None = None,
+        *,
+        timestep_s: float = 0.001,
+        initial_rad=None,
+        record: bool = True,
     ):
         import mujoco
 
@@ -86,6 +95,7 @@ class GimbalPlant:
         self._goal_times: list[float] = []
         self._kt = np.array([s.torque_constant_nm_a for s in self.config.servos])
         self._log: list[np.ndarray] = []
+        self._record = bool(record)
         self._pending_s = 0.0
 
     @property
@@ -234,7 +244,8 @@ class GimbalPlant:
         rows[:, 10:13] = self._data.ctrl
         rows[:, 13:16] = self._model.actuator_gainprm[:, 7]
         step_and_record(self._model, self._data, rows[:, 1:4], rows[:, 4:7], rows[:, 7:10])
-        self._log.append(rows)
+        if self._record:
+            self._log.append(rows)
         raise_on_new_warnings(self._warnings, self._data, t_from, self.time_s)
 
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -293,6 +304,8 @@ class GimbalPlant:
         from trajgen.sim.errors import SimError
 
         check_trajectory(trajectory)
+        if not self._record:
+            raise SimError("the plant was made with record=False: nothing to report")
         if not self._goal_times:
             raise SimError("no goal position was received: nothing to report")
         # The stream's frames are the last goals received (bring-up and the

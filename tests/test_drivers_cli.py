@@ -3,11 +3,16 @@
 import argparse
 import csv
 import json
+import math
+import os
+import signal
 
+import numpy as np
 import pytest
 
 from trajgen.cli import scan, stream
 from trajgen.drivers.config import BusConfig, bus_config_from_tables
+from trajgen.drivers.control_table import Register
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import VirtualBus
 from trajgen.drivers.virtual.plant import FirstOrderPlant
@@ -138,8 +143,14 @@ def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
         (["--port", "/dev/x", "--virtual"], "--port and --virtual exclude each other"),
         ([], "no serial port: give --port, set [bus] port, or use --virtual"),
         (["--port", "/dev/x", "--plot", "p.png"], "--plot needs --virtual"),
-        (["--virtual", "--telemetry", "t.txt"], "--telemetry: expected a .csv or .npz path"),
-        (["--virtual", "--telemetry", "/no/dir/t.csv"], "--telemetry: no such directory"),
+        (
+            ["--virtual", "--telemetry", "t.txt"],
+            "--telemetry 't.txt': expected a .csv or .npz file",
+        ),
+        (
+            ["--virtual", "--telemetry", "/no/dir/t.csv"],
+            "--telemetry '/no/dir/t.csv': no such folder",
+        ),
         (["--port", "/nonexistent/tty"], "/nonexistent/tty: cannot open at 1000000 baud"),
     ],
 )
@@ -172,3 +183,129 @@ def test_scan_lists_servos(capsys):
 def test_scan_bad_port_exits_2(capsys):
     assert _run(["scan", "--port", "/nonexistent/tty"]) == 2
     assert capsys.readouterr().err.startswith("trajgen: error: /nonexistent/tty: cannot open")
+
+
+# -- issue 7: stops, signals, installed settings ------------------------------
+
+
+class _SignalAtFrame(FirstOrderPlant):
+    """A plant that sends this process ``signum`` on its ``frame``-th read.
+
+    A read, not a goal: a signal sent the instant a goal arrives would land, every
+    time, in the few microseconds between the goal leaving the driver and the
+    driver counting it, which a signal from outside hits almost never.
+    """
+
+    def __init__(self, frame, signum):
+        super().__init__(time_constant_s=0.01)
+        self.frame, self.signum, self.reads = frame, signum, 0
+
+    def read(self):
+        self.reads += 1
+        if self.reads == self.frame:
+            os.kill(os.getpid(), self.signum)
+        return super().read()
+
+
+@pytest.mark.parametrize(
+    ("signum", "status", "torque_off"),
+    [(signal.SIGTERM, 143, True), (signal.SIGHUP, 129, False), (signal.SIGINT, 130, True)],
+    ids=["SIGTERM", "SIGHUP", "SIGINT"],
+)
+def test_stop_signal_stops_safely_and_keeps_every_record(
+    tmp_path, capsys, signum, status, torque_off
+):
+    path = _write(tmp_path / "k.toml")
+    argv = ["stream", path, "--telemetry", tmp_path / "t.npz", "--json", tmp_path / "r.json"]
+    argv += ["--torque-off"] if torque_off else []
+    with VirtualBus(_SignalAtFrame(80, signum), lockstep_dt_s=0.01) as virtual:
+        assert _run([*argv, "--port", virtual.port]) == status
+        torque = [servo.torque_on for servo in virtual.servos.values()]
+        watchdog = [servo.get(Register.BUS_WATCHDOG) for servo in virtual.servos.values()]
+        received = virtual.frames_received
+    captured = capsys.readouterr()
+    name = signal.Signals(signum).name
+    state = (
+        "the servos were released (torque off)" if torque_off else "the servos hold their last goal"
+    )
+    assert f"trajgen: interrupted: interrupted by {name}; {state}" in captured.err
+    assert torque == [not torque_off] * 3
+    if not torque_off:
+        assert watchdog == [0, 0, 0]  # held goals are not dropped by a watchdog later
+    assert 20 <= received < 81  # stopped mid-stream (bring-up reads too)
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["status"] == status and result["stopped_by"] == f"interrupted by {name}"
+    assert result["on_stop"] == ("torque_off" if torque_off else "hold")
+    assert result["stream"]["frames_sent"] == received
+    assert len(np.load(tmp_path / "t.npz")["frame"]) == received
+
+
+def test_torque_off_at_the_end_says_released(tmp_path, capsys):
+    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+        assert _run(["stream", _write(tmp_path / "k.toml"), "--port", virtual.port]) == 0
+        assert "servos: hold their last goal" in capsys.readouterr().out
+        assert _run(["stream", tmp_path / "k.toml", "--port", virtual.port, "--torque-off"]) == 0
+        assert "servos: were released (torque off)" in capsys.readouterr().out
+
+
+def test_command_line_uses_the_tested_bring_up(tmp_path, capsys, monkeypatch):
+    from trajgen.drivers import bringup
+
+    calls = []
+    real = bringup.bring_up
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr("trajgen.drivers.bringup.bring_up", spy)
+    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+        assert _run(["stream", _write(tmp_path / "k.toml"), "--port", virtual.port]) == 0
+    assert len(calls) == 1 and calls[0]["max_approach_rad"] == pytest.approx(math.radians(45))
+
+
+def test_installed_limits_refuse_then_set_limits_writes_them(tmp_path, capsys):
+    path = _write(tmp_path / "k.toml")  # tilt goes to 5 deg (tick 2105) at t = 0.4 s
+    limits = {Register.MIN_POSITION_LIMIT: 2000, Register.MAX_POSITION_LIMIT: 2080}
+    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, registers={2: limits}) as virtual:
+        assert _run(["stream", path, "--port", virtual.port, "--json", tmp_path / "r.json"]) == 1
+        err = capsys.readouterr().err
+        assert virtual.frames_received == 0
+        assert not any(servo.torque_on for servo in virtual.servos.values())
+        tilt = virtual.servos[2]
+        assert (tilt.get(Register.MIN_POSITION_LIMIT), tilt.get(Register.MAX_POSITION_LIMIT)) == (
+            2000,
+            2080,
+        )
+        assert _run(["stream", path, "--port", virtual.port, "--set-limits", "tilt=-20:20"]) == 0
+        assert (tilt.get(Register.MIN_POSITION_LIMIT), tilt.get(Register.MAX_POSITION_LIMIT)) == (
+            2048 - 228,
+            2048 + 228,
+        )
+    assert err.startswith("trajgen: stream failed: tilt leaves its position limits at t = 0.")
+    assert "past the Max Position Limit 2080 (2.8 deg) of servo 2" in err
+    assert err.rstrip().endswith("bring-up refused before torque on: no servo was moved")
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["status"] == 1 and result["stream"] is None
+
+
+def test_set_limits_bad_values(tmp_path, capsys):
+    path = _write(tmp_path / "k.toml")
+    assert _run(["stream", path, "--virtual", "--set-limits", "tilt=-200:10"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("trajgen: error: --set-limits tilt=-200:10: ticks -228..2162 fall")
+    with pytest.raises(SystemExit):
+        _run(["stream", path, "--virtual", "--set-limits", "yaw=1:2"])
+    assert "expected a joint of pan, tilt, roll, got 'yaw'" in capsys.readouterr().err
+
+
+def test_fast_sync_read_fallback_is_said_on_stderr(tmp_path, capsys):
+    path = _write(tmp_path / "k.toml")
+    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, fast_sync_read=False) as virtual:
+        assert _run(["stream", path, "--port", virtual.port, "--json", tmp_path / "r.json"]) == 0
+    err = capsys.readouterr().err
+    assert "trajgen: warning: fast sync read failed (servos [1, 2, 3]: " in err
+    assert "reading back by sync read for this stream" in err
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["stream"]["read_method"] == "sync read"
+    assert "There is no status packet" in result["stream"]["read_fallback"]

@@ -44,7 +44,7 @@ def test_stream_small_sweep_tracks(bus, tmp_path):
     q = (0.2 * np.sin(np.pi * s) ** 2)[:, None] * np.array([1.0, 0.5, 0.25])
     trajectory = JointTrajectory(t, q, np.gradient(q, t, axis=0), np.zeros_like(q), rate)
     joints = JointMap()
-    bring_up(bus, joints, (MODEL,) * 3, joints.to_ticks(q))
+    bring_up(bus, joints, (MODEL,) * 3, trajectory)
     stats = Streamer(bus, joints, telemetry=tmp_path / "t.csv", on_stop="torque_off").run(
         trajectory
     )

@@ -67,7 +67,7 @@ def rig():
 
 
 def _stream(r, trajectory, joints, tmp_path, **kwargs):
-    bring_up(r.bus, joints, MODELS, joints.to_ticks(trajectory.q))
+    bring_up(r.bus, joints, MODELS, trajectory)
     streamer = Streamer(r.bus, joints, telemetry=tmp_path / "telemetry.csv", **kwargs)
     return streamer
 
@@ -83,7 +83,7 @@ def test_every_goal_received_equals_the_plan(rig, rng, tmp_path):
     r = rig()
     streamer = _stream(r, trajectory, joints, tmp_path)
     stats = streamer.run(trajectory)
-    received = np.array(r.virtual.goal_log[-len(trajectory) :])
+    received = np.array(list(r.virtual.goal_log)[-len(trajectory) :])
     # Servo frame -> joint angle, frame by frame, within one tick.
     received_rad = joints.to_rad(received)
     tick = 2 * math.pi / 4096
@@ -91,7 +91,11 @@ def test_every_goal_received_equals_the_plan(rig, rng, tmp_path):
     assert len(r.virtual.goal_log) == stats.approach_frames + len(trajectory)
     # The stats are sane.
     assert stats.frames_sent == stats.frames_planned == len(trajectory)
-    assert stats.achieved_rate_hz == pytest.approx(RATE_HZ, rel=0.05)
+    # Never faster than planned: stalls (a busy host) only stretch the stream, by at
+    # most the total shift (which includes the approach's).
+    duration_s = trajectory.t[-1] - trajectory.t[0]
+    assert stats.achieved_rate_hz <= 1.01 * RATE_HZ
+    assert stats.achieved_rate_hz >= 0.98 * RATE_HZ * duration_s / (duration_s + stats.delay_s)
     assert 0 <= stats.period_error_p50_s <= stats.period_error_p99_s <= stats.period_error_max_s
     assert stats.period_error_p50_s < 0.5 / RATE_HZ
     assert stats.overruns <= 0.05 * len(trajectory)
@@ -117,7 +121,7 @@ def test_starts_with_a_smooth_move_to_the_first_frame(rig, rng, tmp_path):
     joints = JointMap()
     r = rig(FirstOrderPlant(initial_rad=start, time_constant_s=0.005))
     stats = _stream(r, trajectory, joints, tmp_path, approach_speed_rad_s=2.0).run(trajectory)
-    approach = joints.to_rad(np.array(r.virtual.goal_log[: stats.approach_frames]))
+    approach = joints.to_rad(np.array(list(r.virtual.goal_log)[: stats.approach_frames]))
     distance = np.max(np.abs(trajectory.q[0] - start))
     # Peak speed 2 rad/s on a minimum-jerk ramp: duration 1.875 d / 2.
     assert stats.approach_frames == math.ceil(1.875 * distance / 2.0 * RATE_HZ)
@@ -230,8 +234,8 @@ def test_wrong_model_refuses_to_stream(rig, rng):
         BringUpError,
         match=r"servo 2: model number 1060 \(XL430-W250\), expected 1020 \(XM430-W350\); refus",
     ):
-        bring_up(r.bus, joints, MODELS, joints.to_ticks(trajectory.q))
-    assert r.virtual.goal_log == []
+        bring_up(r.bus, joints, MODELS, trajectory)
+    assert r.virtual.frames_received == 0
     assert not any(servo.torque_on for servo in r.virtual.servos.values())
 
 
@@ -240,7 +244,7 @@ def test_missing_servo_refuses_to_stream(rig, rng):
     r = rig()
     joints = JointMap(ids=(1, 2, 4))
     with pytest.raises(BringUpError, match="servo 4: no reply to ping at 1000000 baud"):
-        bring_up(r.bus, joints, MODELS, joints.to_ticks(trajectory.q))
+        bring_up(r.bus, joints, MODELS, trajectory)
 
 
 def test_latched_hardware_error_refuses_bring_up(rig, rng):
@@ -248,7 +252,7 @@ def test_latched_hardware_error_refuses_bring_up(rig, rng):
     r = rig()
     r.virtual.servos[2].raise_hardware_error(0x20)
     with pytest.raises(ServoError, match=r"servo 2: hardware error during read Hardware Error"):
-        bring_up(r.bus, JointMap(), MODELS, JointMap().to_ticks(trajectory.q))
+        bring_up(r.bus, JointMap(), MODELS, trajectory)
     assert not any(servo.torque_on for servo in r.virtual.servos.values())
 
 
@@ -272,7 +276,7 @@ def test_watchdog_units_and_argument_errors(rig):
     with pytest.raises(ValueError, match="Expected `telemetry_every` to be an integer >= 1, got 0"):
         Streamer(r.bus, JointMap(), telemetry_every=0)
     with pytest.raises(
-        ValueError, match=r"`on_stop` to be one of \('hold', 'torque_off'\), got 'x'"
+        ValueError, match=r"Expected `on_stop` to be one of \('hold', 'torque_off'\), got 'x'"
     ):
         Streamer(r.bus, JointMap(), on_stop="x")
 
@@ -280,7 +284,7 @@ def test_watchdog_units_and_argument_errors(rig):
 def test_npz_telemetry(rig, rng, tmp_path):
     trajectory = _trajectory(rng, duration_s=0.1)
     r = rig()
-    bring_up(r.bus, JointMap(), MODELS, JointMap().to_ticks(trajectory.q))
+    bring_up(r.bus, JointMap(), MODELS, trajectory)
     Streamer(r.bus, JointMap(), telemetry=tmp_path / "t.npz", telemetry_every=2).run(trajectory)
     data = np.load(tmp_path / "t.npz")
     assert len(data["frame"]) == len(trajectory)
@@ -302,7 +306,7 @@ def test_simulated_gimbal_tracks_and_passes_torque_check(rng, tmp_path):
     plant = sim_plant.GimbalPlant()
     r = _Rig(plant)
     try:
-        bring_up(r.bus, JointMap(), MODELS, JointMap().to_ticks(q))
+        bring_up(r.bus, JointMap(), MODELS, trajectory)
         stats = Streamer(r.bus, JointMap()).run(trajectory)
         received = JointMap().to_rad(np.array(r.virtual.goal_log))
     finally:
@@ -316,8 +320,14 @@ def test_simulated_gimbal_tracks_and_passes_torque_check(rng, tmp_path):
 def test_falls_back_to_sync_read_without_fast_sync_read(rig, rng, tmp_path):
     trajectory = _trajectory(rng, duration_s=0.2)
     r = rig(fast=False)
-    stats = _stream(r, trajectory, JointMap(), tmp_path).run(trajectory)
+    with pytest.warns(
+        RuntimeWarning,
+        match=r"fast sync read failed \(servos \[1, 2, 3\]: .*"
+        r"There is no status packet!\); reading back by sync read",
+    ):
+        stats = _stream(r, trajectory, JointMap(), tmp_path).run(trajectory)
     assert stats.read_method == "sync read"
+    assert "There is no status packet" in stats.read_fallback
     assert stats.comm_errors == 3  # the probe: one fast sync read, three tries
     assert stats.frames_sent == len(trajectory)
     rows = _telemetry(tmp_path)

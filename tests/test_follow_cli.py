@@ -44,20 +44,27 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         '{"in": 0.7, "pan": -5, "mode": "extend"}',
     ]
 
+    def stream_time():
+        return seen["follower"].spline.committed if "follower" in seen else -1.0
+
     def writer():
+        # Lines paced on the stream's own clock, not the wall clock: after a host stall
+        # the stream shifts its clock (it never catches up), so wall time runs ahead.
         with os.fdopen(write_end, "w") as pipe:
-            while "follower" not in seen or seen["follower"].spline.committed < 0.5:
-                time.sleep(0.01)  # the stream is running: lines arrive mid-motion
+            due = 0.5  # the stream is running: lines arrive mid-motion
             for line in lines:
+                while stream_time() < due:
+                    time.sleep(0.005)
                 pipe.write(line + "\n")
                 pipe.flush()
-                time.sleep(0.35)
+                due = stream_time() + 0.35
 
     thread = threading.Thread(target=writer, daemon=True)
     thread.start()
     out = tmp_path / "follow.json"
     # The built-in example, with a tracking budget for the servo's lag (45 ms x
-    # speed with default gains) on the quick moves the lines ask for.
+    # speed with default gains) on the quick moves the lines ask for, and room in the
+    # Bus Watchdog for stalls of a busy machine (the stream runs in real time).
     from trajgen import BUILTIN_EXAMPLE
 
     keys = tmp_path / "keys.toml"
@@ -65,10 +72,13 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         BUILTIN_EXAMPLE.read_text().replace(
             "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
         )
+        + "\n[bus]\nwatchdog_s = 0.5\n"
     )
     assert main(["follow", str(keys), "--virtual", "--json", str(out)]) == 0
     thread.join(timeout=5)
-    result = json.loads(out.read_text())["follow"]
+    run = json.loads(out.read_text())
+    assert run["stream"]["fault"] == "" and "torque" in run
+    result = run["follow"]
     assert result["accepted"] == 4 and result["skipped"] == 1
     assert "line 3" in result["skipped_lines"][0]
     assert result["latency_s"]["n"] == 4 and result["latency_s"]["max"] < 0.5

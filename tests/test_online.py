@@ -56,7 +56,48 @@ class Model:
         self.keys += list(zip(times, quats, strict=True))
 
 
-def run_sequence(rng, steps, k, check_jets=True):
+def apply_and_check(s, model, mode, quats, times, at, rng):
+    """Make one change and check everything promised about it."""
+    k = s.k
+    past = np.sort(np.concatenate([rng.uniform(s.t_start, at, 20), [at]]))
+    old = [s(past, order) for order in range(4)]
+    _, before = s.snapshot()
+    getattr(s, mode)(quats, times, at=at)
+    model.change(mode, quats, times, at)
+    _, after = s.snapshot()
+
+    # Past unchanged, bit for bit (where the path is still kept).
+    kept = past > s.t_start
+    for order in range(4):
+        np.testing.assert_array_equal(s(past[kept], order), old[order][kept])
+
+    # C^k across the splice: exact jets from both sides.
+    splice = after.pieces[-1].start
+    left, right = one_sided_jets(before, after, splice, k)
+    scale = 1.0 + np.abs(left).max(axis=1, keepdims=True)
+    np.testing.assert_allclose(right / scale, left / scale, rtol=0, atol=1e-9)
+    # ... and through the public API: no jump in derivatives 0..k.
+    for order in range(k + 1 if splice - 1e-6 > s.t_start else 0):
+        size = 1.0 + np.linalg.norm(s(splice, order))
+        assert jump_estimate(s, splice, order) < 1e-6 * size, (mode, order)
+
+    # Every keyframe ahead is passed at its time.
+    ahead = [(t, q) for t, q in model.keys if t > at]
+    for t, q in ahead:
+        assert Q.distance(s(t), q) < 1e-9
+    assert s.t_end == pytest.approx(ahead[-1][0] if ahead else s.t_end)
+
+
+def check_rest_at_the_end(s, model):
+    t_last, q_last = model.keys[-1]
+    assert s.t_end == t_last
+    for t in (t_last, t_last + 0.3, t_last + 3600.0):
+        assert Q.distance(s(t), q_last) < 1e-9
+        for order in range(1, s.k + 1):
+            np.testing.assert_allclose(s(t, order), 0.0, atol=1e-8)
+
+
+def run_sequence(rng, steps, k):
     """Apply ``steps`` (mode, dt, lead, n) to a fresh spline, checking after each."""
     q0 = random_quats(rng, 1)[0]
     s = OnlineSpline(q0, 0.0, k=k)
@@ -68,44 +109,24 @@ def run_sequence(rng, steps, k, check_jets=True):
         if mode == "extend":
             first = max(first, s.t_end + rng.uniform(0.1, 0.6))
         times = first + np.concatenate([[0.0], np.cumsum(rng.uniform(0.2, 0.9, n - 1))])
-        quats = random_quats(rng, n)
-        past = np.sort(np.concatenate([rng.uniform(s.t_start, at, 20), [at]]))
-        old = [s(past, order) for order in range(4)]
-        _, before = s.snapshot()
-        getattr(s, mode)(quats, times, at=at)
-        model.change(mode, quats, times, at)
-        _, after = s.snapshot()
-
-        # Past unchanged, bit for bit (where the path is still kept).
-        kept = past > s.t_start
-        for order in range(4):
-            np.testing.assert_array_equal(s(past[kept], order), old[order][kept])
-
-        # C^k across the splice: exact jets from both sides.
-        splice = after.pieces[-1].start
-        if check_jets:
-            left, right = one_sided_jets(before, after, splice, k)
-            scale = 1.0 + np.abs(left).max(axis=1, keepdims=True)
-            np.testing.assert_allclose(right / scale, left / scale, rtol=0, atol=1e-9)
-        # ... and through the public API: no jump in derivatives 0..k.
-        for order in range(k + 1 if splice - 1e-6 > s.t_start else 0):
-            size = 1.0 + np.linalg.norm(s(splice, order))
-            assert jump_estimate(s, splice, order) < 1e-6 * size, (mode, order)
-
-        # Every keyframe ahead is passed at its time.
-        ahead = [(t, q) for t, q in model.keys if t > at]
-        for t, q in ahead:
-            assert Q.distance(s(t), q) < 1e-9
-        assert s.t_end == pytest.approx(ahead[-1][0] if ahead else s.t_end)
-
-    # Rest and hold after the last keyframe.
-    t_last, q_last = model.keys[-1]
-    assert s.t_end == t_last
-    for t in (t_last, t_last + 0.3, t_last + 3600.0):
-        assert Q.distance(s(t), q_last) < 1e-9
-        for order in range(1, k + 1):
-            np.testing.assert_allclose(s(t, order), 0.0, atol=1e-8)
+        apply_and_check(s, model, mode, random_quats(rng, n), times, at, rng)
+    check_rest_at_the_end(s, model)
     return s
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_extend_right_before_the_last_keyframe(rng, k):
+    """Extends when the one keyframe ahead is closer than the minimum lead: the new part
+    starts from rest there; a second extend then splices at that rest start."""
+    q0 = random_quats(rng, 1)[0]
+    s, model = OnlineSpline(q0, k=k), Model(q0, 0.0)
+    apply_and_check(s, model, "extend", random_quats(rng, 1), [1.0], 0.0, rng)
+    apply_and_check(s, model, "extend", random_quats(rng, 1), [1.5], 0.9, rng)  # deferred
+    assert s.pieces == 2 and s._plan.pieces[-1].start == 1.0
+    apply_and_check(s, model, "extend", random_quats(rng, 2), [2.0, 2.6], 0.95, rng)
+    assert s._plan.pieces[-1].start == 1.0  # spliced at the rest start, both ahead kept
+    apply_and_check(s, model, "retarget", random_quats(rng, 1), [2.2], 1.7, rng)
+    check_rest_at_the_end(s, model)
 
 
 STEP = st.tuples(

@@ -96,6 +96,31 @@ def test_excite_then_identify_recovers_a_simulated_gimbal(tmp_path, capsys):
     assert len(kf.times) == 2  # the keyframes kept, the old [gimbal.pan] replaced
     assert "# my gimbal" in fitted.read_text() and "# +- " in fitted.read_text()
 
+    # A servo whose current reads 30 % high: --fit-current-scale finds the factor.
+    import csv
+
+    with open(log, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for row in rows:
+        for joint in ("pan", "tilt", "roll"):
+            row[f"current_a_{joint}"] = str(1.3 * float(row[f"current_a_{joint}"]))
+    scaled = tmp_path / "scaled.csv"
+    with open(scaled, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    argv = ["identify", nominal, scaled, "--out", fitted, "--fit-current-scale"]
+    assert _run(identify, argv) == 0
+    out = capsys.readouterr().out
+    scale = float(out.split("current scale ")[1].split()[0])
+    assert scale == pytest.approx(1.3, rel=0.05)
+    kf = load_keyframe_file(fitted)
+    config = gimbal_config_from_tables(kf.tables, kf.path)
+    for j, joint in enumerate(("pan", "tilt", "roll")):
+        assert config.joints[j].position_p_gain == pytest.approx(
+            TRUE[joint]["position_p_gain"], rel=0.05
+        )
+
 
 def test_a_gentle_move_does_not_excite_damping(tmp_path, capsys):
     # A slow pan-only move: tilt and roll never move, so nothing about them is known.
@@ -238,3 +263,22 @@ def test_file_gains_reach_the_virtual_servos():
             port.closePort()
     assert (value, result, error) == (1234, 0, 0)
     assert [loop.p_gain for loop in plant.loops] == [800, 800, 1234]
+
+
+def test_trajgen_sim_and_the_virtual_stream_agree(tmp_path, capsys):
+    import json
+
+    from trajgen.cli import sim, stream
+
+    path = _write(tmp_path / "k.toml", "[gimbal.tilt]\nposition_p_gain = 1500\n")
+    assert _run(sim, ["sim", path, "--json", tmp_path / "sim.json"]) == 0
+    assert _run(stream, ["stream", path, "--virtual", "--json", tmp_path / "bus.json"]) == 0
+    capsys.readouterr()
+    offline = json.loads((tmp_path / "sim.json").read_text())["joints"]
+    virtual = json.loads((tmp_path / "bus.json").read_text())["torque"]["joints"]
+    # Equal but for the start: `trajgen sim` switches the servos on at the first
+    # frame, the virtual ones have held it against gravity through bring-up.
+    # (The previous plant differed by 2-4x in peak torque.)
+    for joint in ("pan", "tilt", "roll"):
+        for key in ("max_tracking_error_rad", "peak_torque_nm", "rms_torque_nm"):
+            assert virtual[joint][key] == pytest.approx(offline[joint][key], rel=1e-2)

@@ -91,3 +91,13 @@ def test_bad_calls_are_refused():
         plant.report(quintic_trajectory([0.1, 0, 0], 0.5))
     with pytest.raises(ValueError, match=r"`timestep_s` .* in \(0, 0.001\], got 0.01"):
         GimbalPlant(timestep_s=0.01)
+
+
+def test_a_plant_that_does_not_record_says_so():
+    plant = GimbalPlant(record=False)
+    plant.set_torque_enabled(0, True)
+    plant.set_goal([0.1, 0.0, 0.0])
+    plant.advance(0.05)
+    assert plant.read()[0][0] > 0.01  # it moves all the same
+    with pytest.raises(SimError, match=r"record=False: nothing to report"):
+        plant.report(quintic_trajectory([0.1, 0, 0], 0.5))

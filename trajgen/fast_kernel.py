@@ -18,7 +18,10 @@ from .derivatives import _PHI2
 from .jet import _COS, _SINC, SERIES_BELOW
 from .local_curves import CIRCLE, G_POLY, G_RATIONAL, PARABOLA, POINT
 
-njit = numba.njit(cache=True, fastmath=False, error_model="numpy")
+njit = numba.njit(cache=True, error_model="numpy")
+# The per-sample functions take the spline's arrays; inlined at numba's level, so
+# no reference counting of those arrays happens per sample.
+inline = numba.njit(cache=True, error_model="numpy", inline="always")
 
 
 @njit
@@ -91,16 +94,15 @@ def cos_sinc_sqrt(x):
     return chain(c0, c1, c2, c3, x), chain(s0, s1, s2, s3, x)
 
 
-@njit
+@inline
 def curve(c, t, tab):
     """Curve ``c`` at time ``t``: its four components, each a derivative list."""
-    kind, tw, inv_window, a3, g_kind, g_coef, gram, rise, power, axis_len, basis = tab
-    k = kind[c]
+    k = int(tab[c, 0])
     zero = (0.0, 0.0, 0.0, 0.0)
     a0, a1, a2 = (1.0, 0.0, 0.0, 0.0), zero, zero
     if k == PARABOLA:
-        tau = t - tw[c, 1]
-        aa, ab, bb = gram[0, c], gram[1, c], gram[2, c]
+        tau = t - tab[c, 2]
+        aa, ab, bb = tab[c, 11], tab[c, 12], tab[c, 13]
         x = (
             tau * tau * (aa + tau * (2.0 * ab + tau * bb)),
             tau * (2.0 * aa + tau * (6.0 * ab + 4.0 * bb * tau)),
@@ -111,18 +113,18 @@ def curve(c, t, tab):
         a1 = prod(sinc, (tau, 1.0, 0.0, 0.0))
         a2 = prod(sinc, (tau * tau, 2.0 * tau, 2.0, 0.0))
     elif k != POINT:
-        rate = inv_window[c]
-        s = (t - tw[c, 0]) * rate
+        rate = tab[c, 4]
+        s = (t - tab[c, 1]) * rate
         if k == CIRCLE:
-            gk = g_kind[c]
+            gk = int(tab[c, 6])
             if gk == G_RATIONAL:
-                b = g_coef[c, 0]
+                b = tab[c, 7]
                 inv = 1.0 / (1.0 + b * s)
                 g1 = (1.0 + b) * inv * inv
                 g2 = -2.0 * b * g1 * inv
                 g = ((1.0 + b) * s * inv, g1, g2, -3.0 * b * g2 * inv)
             elif gk == G_POLY:
-                c0, c1, c2, c3 = g_coef[c, 0], g_coef[c, 1], g_coef[c, 2], g_coef[c, 3]
+                c0, c1, c2, c3 = tab[c, 7], tab[c, 8], tab[c, 9], tab[c, 10]
                 g = (
                     c0 + s * (c1 + s * (c2 + s * c3)),
                     c1 + s * (2.0 * c2 + 3.0 * c3 * s),
@@ -130,7 +132,7 @@ def curve(c, t, tab):
                     6.0 * c3,
                 )
             else:  # G_POWER; at s = 0 the derivatives are taken at 1e-12 (see _g_power)
-                al = g_coef[c, 0]
+                al = tab[c, 7]
                 xs = max(s, 1e-12)
                 g = (
                     0.0 if s < 1e-12 else xs**al,
@@ -138,39 +140,38 @@ def curve(c, t, tab):
                     al * (al - 1.0) * xs ** (al - 2.0),
                     al * (al - 1.0) * (al - 2.0) * xs ** (al - 3.0),
                 )
-            sc = a3[c]
+            sc = tab[c, 5]
             th = (sc * g[0], sc * rate * g[1], sc * rate**2 * g[2], sc * rate**3 * g[3])
             a1, a2 = cos_sin(th)
         else:  # GEODESIC
-            s_i = (tw[c, 1] - tw[c, 0]) * rate
-            up = rise[c] > 0
+            s_i = (tab[c, 2] - tab[c, 1]) * rate
+            up = tab[c, 14] > 0
             x = (s - s_i) / (1.0 - s_i) if up else (s_i - s) / s_i
             dx = rate / (1.0 - s_i) if up else -rate / s_i
-            p = power[c]
-            h = [0.0, 0.0, 0.0, 0.0]
-            if x > 0.0:
-                falling, dxn = 1.0, 1.0
-                for j in range(4):
-                    h[j] = falling * x ** (p - j) * dxn if falling != 0.0 else 0.0
-                    falling, dxn = falling * (p - j), dxn * dx
+            p = tab[c, 15]
+            h0 = h1 = h2 = h3 = 0.0
+            if x > 0.0:  # x^p and its derivatives; p (p-1) ... is 0 past an integer p
+                f1, f2, f3 = p, p * (p - 1.0), p * (p - 1.0) * (p - 2.0)
+                h0 = x**p
+                h1 = f1 * x ** (p - 1.0) * dx if f1 != 0.0 else 0.0
+                h2 = f2 * x ** (p - 2.0) * dx * dx if f2 != 0.0 else 0.0
+                h3 = f3 * x ** (p - 3.0) * dx * dx * dx if f3 != 0.0 else 0.0
             if not up:
-                h[0] = 1.0 - h[0]
-                for j in range(1, 4):
-                    h[j] = -h[j]
-            L = axis_len[c]
-            a0, a1 = cos_sin((L * h[0], L * h[1], L * h[2], L * h[3]))
+                h0, h1, h2, h3 = 1.0 - h0, -h1, -h2, -h3
+            L = tab[c, 16]
+            a0, a1 = cos_sin((L * h0, L * h1, L * h2, L * h3))
     return (
-        combine(a0, a1, a2, basis, c, 0),
-        combine(a0, a1, a2, basis, c, 1),
-        combine(a0, a1, a2, basis, c, 2),
-        combine(a0, a1, a2, basis, c, 3),
+        combine(a0, a1, a2, tab, c, 0),
+        combine(a0, a1, a2, tab, c, 1),
+        combine(a0, a1, a2, tab, c, 2),
+        combine(a0, a1, a2, tab, c, 3),
     )
 
 
-@njit
-def combine(a0, a1, a2, basis, c, i):
+@inline
+def combine(a0, a1, a2, tab, c, i):
     """Component i of a0 K_0 + a1 K_1 + a2 K_2, K the basis of curve c."""
-    k0, k1, k2 = basis[i, c], basis[4 + i, c], basis[8 + i, c]
+    k0, k1, k2 = tab[c, 17 + i], tab[c, 21 + i], tab[c, 25 + i]
     return (
         a0[0] * k0 + a1[0] * k1 + a2[0] * k2,
         a0[1] * k0 + a1[1] * k1 + a2[1] * k2,
@@ -211,7 +212,7 @@ def slerp_weights(z, f):
     return wa, wb
 
 
-@njit
+@inline
 def sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
     """Sample m: unit quaternion into out_q[m], omega, alpha, jerk into out_w[:, m]."""
     i = seg[m]
@@ -273,12 +274,21 @@ def vec_mul_conj(Q, a, b):
 
 
 @njit
-def evaluate_serial(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
-    for m in range(len(t)):
+def evaluate_range(a, b, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
+    """Samples a..b-1."""
+    for m in range(a, b):
         sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
+
+
+@njit
+def evaluate_serial(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
+    evaluate_range(0, len(t), t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def evaluate_parallel(t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
-    for m in numba.prange(len(t)):
-        sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
+    # Ranges of samples across the threads (the per-sample code stays out of the parfor).
+    n, parts = len(t), 64
+    for k in numba.prange(parts):
+        a, b = k * n // parts, (k + 1) * n // parts
+        evaluate_range(a, b, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)

@@ -13,12 +13,25 @@ stable series branches near the identity, where ``|v|`` itself is not smooth.
 
 from __future__ import annotations
 
+from functools import cache
 from math import factorial
 
 import numpy as np
 
 #: Squared size below which exp/log use their series (|angle| < 0.1 rad).
 SERIES_BELOW = 1e-2
+
+#: Values per coefficient below which a product is one ``einsum`` rather than a loop
+#: of small products (3-20x faster for one sample, as when a path is spliced online;
+#: slower for long arrays).
+EINSUM_BELOW = 64
+
+
+@cache
+def _cauchy(k: int) -> np.ndarray:
+    """``T[j, m, n] = 1`` where ``j + m = n``: the Cauchy product of two order-k series."""
+    n = np.arange(k + 1)
+    return (n[:, None, None] + n[None, :, None] == n[None, None, :]).astype(float)
 
 
 class Jet:
@@ -93,6 +106,8 @@ class Jet:
             return Jet(self.c * np.asarray(other, dtype=float))
         k = min(self.order, other.order)
         a, b = self.c, other.c
+        if a[0].size * b[0].size < EINSUM_BELOW:  # bounds the broadcast size, cheaply
+            return Jet(np.einsum("jmn,j...,m...->n...", _cauchy(k), a[: k + 1], b[: k + 1]))
         out = np.empty((k + 1, *np.broadcast_shapes(a.shape[1:], b.shape[1:])))
         tmp = np.empty(out.shape[1:])
         for n in range(k + 1):

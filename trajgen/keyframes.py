@@ -116,6 +116,12 @@ class KeyframeFile:
     #: ``[spline] method``: "smooth" or "blending".
     method: str = DEFAULT_METHOD
 
+    @property
+    def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
+        """The class ``[spline] method`` names, to build the file's spline at other
+        times: ``kf.spline_class(kf.quats, times, **kf.spline_options)``."""
+        return METHODS[self.method]
+
     def spline(self) -> SmoothSpline | BlendingSpline:
         """The file's spline, built on first use and kept.
 
@@ -127,7 +133,7 @@ class KeyframeFile:
         """
         if not self._spline:
             try:
-                spline = METHODS[self.method](self.quats, self.times, **self.spline_options)
+                spline = self.spline_class(self.quats, self.times, **self.spline_options)
                 self._spline.append(spline)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None

@@ -386,21 +386,25 @@ class LocalCurves:
         return len(self.kind)
 
     @cached_property
-    def kernel_table(self) -> tuple:
-        """The columns :mod:`trajgen.fast_kernel` reads, in its order."""
-        return (
-            self.kind,
-            self.t,
-            self.inv_window,
-            self.a3,
-            self.g_kind,
-            self.g_coef,
-            self.ab_gram,
-            self.rise,
-            self.power,
-            self.axis_len,
-            self.basis,
-        )
+    def kernel_table(self) -> np.ndarray:
+        """The columns :mod:`trajgen.fast_kernel` reads, one row per curve (C, 29): kind,
+        t (3), 1 / window, a3, g_kind, g_coef (4), A.A, A.B, B.B, rise, power, |A|,
+        basis (12). One contiguous row per curve, one array to hand over."""
+        return np.column_stack(
+            [
+                self.kind,
+                self.t,
+                self.inv_window,
+                self.a3,
+                self.g_kind,
+                self.g_coef,
+                self.ab_gram.T,
+                self.rise,
+                self.power,
+                self.axis_len,
+                self.basis.T,
+            ]
+        ).astype(float)
 
     def derivatives(self, ids: np.ndarray, t: np.ndarray, order: int) -> list[np.ndarray]:
         """Curves ``ids`` (M,) at times ``t`` (M,) and their time derivatives up to ``order`` <= 3.

@@ -60,9 +60,10 @@ from .spline import LOCALS, REPARAMS, BlendingSpline
 from .validate import check_choice, check_number
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
-#: piece grow like 1 / lead^2 (acceleration) and 1 / lead^3 (jerk); measured on
-#: mid-motion retargets (k = 2, median [90th percentile] relative to the old
-#: plan): 0.2 s gives 14x [32x] the acceleration, 0.5 s 2.8x [5.7x], 1 s 1.3x.
+#: piece grow like 1 / lead^2 (acceleration) and 1 / lead^3 (jerk); measured after
+#: random mid-motion retargets (k = 2, median [90th percentile] relative to the old
+#: plan's peak, bench/online_cost.py): 0.2 s gives 8.3x [16x] the acceleration and
+#: 36x [95x] the jerk, 0.5 s 1.9x [3.2x] and 3.5x [7.4x], 1 s 0.9x [1.6x] and 0.8x [1.8x].
 MIN_LEAD_S = 0.2
 
 MODES = ("extend", "retarget")

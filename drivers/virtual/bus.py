@@ -130,34 +130,49 @@ class Fault:
 
     Attributes
     ----------
-    kind : {"drop", "corrupt", "delay", "close", "overload", "watchdog"}
+    kind : {"drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"}
         drop: replies are not sent. corrupt: replies get a wrong CRC. delay:
-        replies come ``delay_s`` late. close: the pty master closes (the port
-        goes away). overload: servo ``servo_id`` latches hardware error bit 5
-        (torque off, since the default Shutdown covers it). watchdog: servo
-        ``servo_id``'s Bus Watchdog trips.
+        replies come ``delay_s`` late. short: servo ``servo_id``'s reply
+        loses ``n_bytes`` data bytes but stays well formed (valid CRC; in a
+        fast sync read, its part of the one packet). wrong_id: servo
+        ``servo_id``'s reply carries id ``reply_id`` (valid CRC). close: the
+        pty master closes (the port goes away). overload: servo ``servo_id``
+        latches hardware error bit 5 (torque off, since the default Shutdown
+        covers it). watchdog: servo ``servo_id``'s Bus Watchdog trips.
     at_frame : int
         Number of Goal Position sync writes received before the fault starts.
     servo_id : int or None
-        The servo affected (required for overload and watchdog); None means
-        every servo's replies.
+        The servo affected (required for short, wrong_id, overload and
+        watchdog); None means every servo's replies.
     count : int or None
-        How many replies drop / corrupt / delay affect; None: all from then on.
+        How many replies drop / corrupt / delay / short / wrong_id affect;
+        None: all from then on.
     delay_s : float
         Extra delay (s) for ``kind="delay"``.
+    n_bytes : int or None
+        Data bytes a short reply loses; None: all of them (an empty reply).
+    reply_id : int or None
+        The id a wrong_id reply carries; None: ``servo_id + 1``.
+    address : int or None
+        Only replies to reads (READ, SYNC_READ, FAST_SYNC_READ) of this start
+        address are affected; None: any reply. (short and wrong_id leave fast
+        bulk read replies alone.)
     """
 
-    kind: Literal["drop", "corrupt", "delay", "close", "overload", "watchdog"]
+    kind: Literal["drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"]
     at_frame: int = 0
     servo_id: int | None = None
     count: int | None = None
     delay_s: float = 0.0
+    n_bytes: int | None = None
+    reply_id: int | None = None
+    address: int | None = None
 
     def __post_init__(self) -> None:
-        kinds = ("drop", "corrupt", "delay", "close", "overload", "watchdog")
+        kinds = ("drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog")
         if self.kind not in kinds:
             raise ValueError(f"Expected `kind` in {kinds}, got {self.kind!r}.")
-        if self.kind in ("overload", "watchdog") and self.servo_id is None:
+        if self.kind in ("short", "wrong_id", "overload", "watchdog") and self.servo_id is None:
             raise ValueError(f"Expected a `servo_id` for a {self.kind} fault, got None.")
 
 
@@ -185,6 +200,9 @@ class VirtualBus:
     registers : mapping of int to mapping of str to int, optional
         Per servo id, register values set before power-up (as someone
         configured the servo; see ``VirtualServo``).
+    goal_log_size : int, optional
+        How many of the latest frames ``goal_log`` keeps (memory stays
+        constant on long streams).
     sim_step_s : float, optional
         Real time: the simulation thread's step (s).
 
@@ -204,7 +222,10 @@ class VirtualBus:
         The servos by their power-up id (a servo answers to its ID register,
         which a host may change).
     goal_log : list of ndarray, shape (n,)
-        Goal ticks of every Goal Position sync write received, in ``ids`` order.
+        Goal ticks of the latest Goal Position sync writes received (at least
+        ``goal_log_size``, at most twice that), in ``ids`` order.
+    frames_received : int
+        Goal Position sync writes received so far.
     bytes_received, bytes_sent : int
         Bytes read from and written to the host.
     sim_time_s : float
@@ -228,6 +249,7 @@ class VirtualBus:
         faults: Sequence[Fault] = (),
         fast_sync_read: bool = True,
         registers: Mapping[int, Mapping[str, int]] | None = None,
+        goal_log_size: int = 100_000,
         sim_step_s: float = 1e-3,
     ) -> None:
         if not isinstance(plant, Plant):
@@ -259,6 +281,8 @@ class VirtualBus:
         self.fast_sync_read = fast_sync_read
         self._faults = [[f, f.count] for f in faults]
         self.goal_log: list[np.ndarray] = []
+        self.goal_log_size = goal_log_size
+        self.frames_received = 0
         self.bytes_received = 0
         self.bytes_sent = 0
         self.sim_time_s = 0.0
@@ -335,11 +359,6 @@ class VirtualBus:
 
     def __exit__(self, *exc) -> None:
         self.stop()
-
-    @property
-    def frames_received(self) -> int:
-        """Goal Position sync writes received so far."""
-        return len(self.goal_log)
 
     @property
     def wall_time_s(self) -> float:
@@ -571,7 +590,7 @@ class VirtualBus:
         self._commit_goals()
         if packet.instruction == Instruction.SYNC_WRITE and self._after_frame() is None:
             return None
-        return self._apply_reply_faults(replies)
+        return self._apply_reply_faults(replies, packet)
 
     def _status(self, servo_id: int, error: int, data: bytes = b"") -> bytes:
         servo = self.servos[servo_id]
@@ -730,6 +749,9 @@ class VirtualBus:
         if (address, size) == servo.items["Goal Position"]:
             goals = [self.servos[i].get("Goal Position") for i in self.ids]
             self.goal_log.append(np.array(goals, dtype=np.int64))
+            self.frames_received += 1
+            if len(self.goal_log) >= 2 * self.goal_log_size:  # bounded, amortised O(1)
+                del self.goal_log[: -self.goal_log_size]
         return []
 
     def _bulk_write(self, packet_id: int, params: bytes) -> list:
@@ -847,7 +869,11 @@ class VirtualBus:
                 self._trip_watchdog(fault.servo_id)
         return []
 
-    def _apply_reply_faults(self, replies: list) -> list[tuple[int, bytes, float]]:
+    def _apply_reply_faults(self, replies: list, request) -> list[tuple[int, bytes, float]]:
+        inst = request.instruction
+        reads = (Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
+        address = _word(request.params, 0) if inst in reads and len(request.params) >= 2 else None
+        reshapable = inst != Instruction.FAST_BULK_READ
         out = []
         for reply in replies:
             servo_id, data = reply[0], reply[1]
@@ -855,9 +881,13 @@ class VirtualBus:
             members = reply[2] if len(reply) == 3 else [servo_id]
             extra_s = 0.0
             dropped = False
-            for entry in self._active(("drop", "corrupt", "delay")):
+            for entry in self._active(_REPLY_FAULTS):
                 fault, remaining = entry
                 if fault.servo_id is not None and fault.servo_id not in members:
+                    continue
+                if fault.address is not None and fault.address != address:
+                    continue
+                if fault.kind in ("short", "wrong_id") and not reshapable:
                     continue
                 if remaining is not None:
                     if remaining <= 0:
@@ -867,11 +897,46 @@ class VirtualBus:
                     dropped = True
                 elif fault.kind == "corrupt":
                     data = data[:-1] + bytes([data[-1] ^ 0xFF])
+                elif fault.kind in ("short", "wrong_id"):
+                    data = _reshape_reply(data, members, fault)
                 else:
                     extra_s += fault.delay_s
             if not dropped:
                 out.append((servo_id, data, extra_s))
         return out
+
+
+_REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id")
+
+
+def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
+    """A well-formed reply (valid CRC) with ``fault.servo_id``'s part short or re-addressed.
+
+    ``reply`` is a status packet, or a fast sync read reply whose parts are
+    ``ERR ID DATA CRC2`` for ``members`` in order, all of one data size.
+    """
+    packet = decode(reply)
+    reply_id = fault.servo_id + 1 if fault.reply_id is None else fault.reply_id
+
+    def reshaped(servo_id: int, error: int, data: bytes) -> tuple[int, int, bytes]:
+        if fault.kind == "wrong_id":
+            return reply_id, error, data
+        keep = 0 if fault.n_bytes is None else max(0, len(data) - fault.n_bytes)
+        return servo_id, error, data[:keep]
+
+    if packet.servo_id != BROADCAST_ID:  # one servo's status packet
+        servo_id, error, data = reshaped(packet.servo_id, packet.params[0], packet.params[1:])
+        return encode_status(servo_id, error, data)
+    body = reply[8:]  # after INST: every part, the last CRC2 included
+    size = len(body) // len(members) - 4
+    entries = []
+    for k, member in enumerate(members):
+        part = body[k * (size + 4) : (k + 1) * (size + 4)]
+        servo_id, error, data = part[1], part[0], part[2 : 2 + size]
+        if member == fault.servo_id:
+            servo_id, error, data = reshaped(servo_id, error, data)
+        entries.append((error, servo_id, data))
+    return encode_fast_sync_status(entries)
 
 
 def _word(params: bytes, k: int) -> int:

@@ -384,23 +384,16 @@ def follow(args, lines):
         except DriverError as e:
             return bad_input(e), None, None
         try:
-            present = _bring_up(bus, config, joints, follower.kinematics)
+            present, bounds = _bring_up(bus, config, joints, follower.kinematics)
             streamer = Streamer(
                 bus,
                 joints,
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
+                goal_bounds_ticks=bounds,
             )
-            reader = threading.Thread(target=follower.read, args=(lines,), daemon=True)
-            # While a change is built on the reader thread, the streaming thread waits for
-            # the GIL up to the switch interval (5 ms by default): keep that a tenth of a period.
-            switch = sys.getswitchinterval()
-            sys.setswitchinterval(min(switch, 0.1 / rate))
-            try:
-                reader.start()
-                streamer.run(follower.frames(start=present), rate_hz=rate)
-            finally:
-                sys.setswitchinterval(switch)
+            threading.Thread(target=follower.read, args=(lines,), daemon=True).start()
+            streamer.run(follower.frames(start=present), rate_hz=rate)
             if follower.fault:
                 print(f"trajgen: stream stopped: {follower.fault}", file=sys.stderr)
                 status = EXIT_FAILED
@@ -429,13 +422,19 @@ def follow(args, lines):
     return stream_command.write_json(args, result, status), follower, report
 
 
-def _bring_up(bus, config, joints, kinematics) -> np.ndarray:
+def _bring_up(bus, config, joints, kinematics):
     """Check and configure the servos for any goal the joint limits allow; return the
-    present joint angles (rad), whose 2 pi branch the stream starts on."""
-    from trajgen.drivers.bringup import bring_up
-    from trajgen.drivers.control_table import Register
+    present joint angles (rad), whose 2 pi branch the stream starts on, and the
+    lowest / highest goal per servo (ticks, shape (3, 2)) for the streamer's guard."""
+    from types import SimpleNamespace
 
-    corners = joints.to_ticks(np.array(kinematics.limits_rad).T)  # (2, 3): every goal between
-    bring_up(bus, joints, config.models, corners, watchdog_s=config.watchdog_s)
-    ticks = np.array([bus.read(i, Register.PRESENT_POSITION) for i in joints.ids])
-    return joints.to_rad(ticks)
+    from trajgen.drivers.bringup import bring_up
+
+    def envelope(present):
+        # The stream starts where the servos are and may go anywhere the joint limits
+        # allow: bring-up checks that range against the servos' installed limits.
+        corners = np.array(kinematics.limits_rad).T  # (2, 3): every goal between
+        return SimpleNamespace(t=np.array([0.0, np.nan, np.nan]), q=np.vstack([present, corners]))
+
+    setup = bring_up(bus, joints, config.models, envelope, watchdog_s=config.watchdog_s)
+    return joints.to_rad(setup.present_ticks), setup.goal_bounds_ticks

@@ -29,8 +29,10 @@ read follows the write by about 1 ms); --fit-delay fits that delay too (after
 a first fit with it held, as it trades against the lag of the P gain).
 
 The logged current is fitted too, as torque over the torque constant (stall
-torque / stall current); --no-current fits positions and velocities only (a
-servo whose current reading is off by a scale would bias the fit).
+torque / stall current); --fit-current-scale fits a factor between the two (a
+real servo's reading needs one; it widens the intervals, as only the motor's
+back-EMF then fixes the overall scale), --no-current fits positions and
+velocities only.
 
 exit status: 0 fitted, 1 the fit failed, 2 bad input."""
 
@@ -58,6 +60,11 @@ def register(subparsers) -> None:
         help="time from a goal to its row's present values (ms); default 0",
     )
     p.add_argument("--fit-delay", action="store_true", help="fit that delay too")
+    p.add_argument(
+        "--fit-current-scale",
+        action="store_true",
+        help="fit a scale between the logged current and torque / torque constant",
+    )
     p.add_argument(
         "--max-iter", type=int, default=30, metavar="N", help="Gauss-Newton iterations (30)"
     )
@@ -95,6 +102,8 @@ def run_identify(args) -> int:
     try:
         if not 0 <= args.delay_ms < 1000:
             raise ValueError(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
+        if args.fit_current_scale and args.no_current:
+            raise ValueError("--fit-current-scale needs the current: drop --no-current")
         if args.max_iter < 1:
             raise ValueError(f"--max-iter: expected >= 1, got {args.max_iter}")
         if not args.out.endswith(".toml"):
@@ -111,6 +120,7 @@ def run_identify(args) -> int:
             use_current=not args.no_current,
             delay_s=args.delay_ms / 1000.0,
             fit_delay=args.fit_delay,
+            fit_current_scale=args.fit_current_scale,
             max_iter=args.max_iter,
         )
     except (ValueError, TypeError, OSError) as e:  # IdentifyError, KeyframeFileError

@@ -30,13 +30,17 @@ _PROGRESS_AFTER_S = 1.0
 
 DESCRIPTION = """\
 Plan the joint stream of a keyframe file, play it to a simulated pan-tilt-roll
-gimbal of Dynamixel servos (MuJoCo, 1 ms physics, setpoints held for one stream
-period) and check torque: the planned torque (inverse dynamics) must stay within
+gimbal of Dynamixel servos (MuJoCo, 1 ms physics; goal positions in whole ticks
+held for one stream period, followed by each servo's own firmware position
+loop) and check torque: the planned torque (inverse dynamics) must stay within
 torque_margin x the 12 V torque-speed envelope tau_stall (1 - |w| / w0), no
 simulated step may reach the servo's torque limit, and the tracking error must stay
-below the limit. The file's [gimbal] table picks the servos (servo = "XM430-W350"
-or servo = {pan = ..., tilt = ..., roll = ...}), payload_kg, payload_offset_m,
-torque_margin and max_tracking_error_rad.
+below the limit (with default gains a servo lags about speed x 45 ms). The
+file's [gimbal] table picks the servos (servo = "XM430-W350" or servo = {pan =
+..., tilt = ..., roll = ...}), payload_kg, payload_offset_m, torque_margin,
+max_tracking_error_rad and p_divisor; [gimbal.pan], [gimbal.tilt] and
+[gimbal.roll] set armature, frictionloss, damping and position_p_gain per joint
+(trajgen identify fits them).
 
 exit status: 0 every joint within the envelope, 1 a joint outside it (or the
 simulation failed), 2 bad input."""

@@ -1,5 +1,15 @@
 """The ``trajgen stream`` command.
 
+One function per stage, so each can be read (and tested) on its own:
+``plan`` (everything that can fail on bad input, before any hardware),
+``open_port`` (the serial port, or a virtual bus), ``bring_up_servos`` (the
+same ``drivers.bringup.bring_up`` the tests exercise), ``stream_plan`` and
+``report`` (terminal lines and ``--json``, written on every stop).
+
+SIGINT, SIGTERM and SIGHUP are handled alike: the servos are stopped safely
+(hold, or released with ``--torque-off``), the telemetry and the JSON report
+are written, and the exit status is 128 + the signal number (130, 143, 129).
+
 This module imports quickly: dynamixel-sdk, pyserial and MuJoCo load inside
 ``run_stream``.
 """
@@ -8,44 +18,78 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import signal
 import sys
-from pathlib import Path
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 from trajgen.cli.common import (
     EXIT_FAILED,
-    EXIT_INTERRUPTED,
     EXIT_OK,
     add_file_argument,
     bad_input,
     baud_rate,
+    check_output_path,
     open_bus,
     positive_float,
     servo_ids,
 )
+from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 STREAM_DESCRIPTION = """\
 Plan the joint stream of a keyframe file and stream it to Dynamixel X-series
-servos at a fixed rate: bring-up (ping and model check, Return Delay 0, operating
-mode, no profile, torque on, Bus Watchdog), a smooth move from the present
-position to the first frame, then one sync write of Goal Position per frame with
-present position, velocity and current read back. Prints the rate achieved,
-period jitter (p50, p99, max), overruns and communication errors.
+servos at a fixed rate: bring-up (ping and model check; every servo checked
+for a latched hardware error, its Drive Mode, position limits and present
+position before any is changed; Return Delay 0, operating mode, no profile,
+torque on, Bus Watchdog), a smooth move from the present position to the first
+frame, then one sync write of Goal Position per frame with present position,
+velocity and current read back. Prints the rate achieved, period jitter (p50,
+p99, max), stalls and communication errors.
+
+Safety: a plan that leaves a joint's installed position limits is refused
+before torque on (limits are never widened; --set-limits is the only way to
+write them; Drive Mode is never written); a joint farther than --max-approach
+from the first frame is refused; after a host stall the rest of the stream is
+shifted in time, never replayed faster, and the stream fails once it is more
+than --max-delay behind its plan.
 
 The file's [bus] table may set port, baud, ids, directions, zeros, models and
-watchdog_s; flags override it. On any stop the servos hold their last goal
-(--torque-off releases them); the telemetry written so far is kept.
+watchdog_s; flags override it. On any stop (end, fault, Ctrl-C, SIGTERM,
+SIGHUP) the servos hold their last goal (--torque-off releases them); the
+telemetry and --json report written so far are kept.
 
 --virtual runs the same driver, SDK and serial layer against a virtual servo bus
 on a pseudo-terminal, backed by the MuJoCo gimbal of `trajgen sim` (the file's
 [gimbal] table; ideal assembly: direction +1, zero 2048), advancing one stream
 period per frame received, and then prints the torque report.
 
-exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
-130 interrupted (servos hold their last goal)."""
+exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
+2 bad input, 128 + signal number when stopped by a signal (130 SIGINT,
+143 SIGTERM, 129 SIGHUP)."""
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: Default --max-delay (s), as ``trajgen.drivers.streamer.MAX_DELAY_S`` (which loads the SDK).
+MAX_DELAY_S = 1.0
+
+
+def _limits(text: str) -> tuple[str, float, float]:
+    """argparse type: ``JOINT=MIN:MAX`` in degrees."""
+    try:
+        joint, span = text.split("=")
+        low, high = (float(v) for v in span.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected JOINT=MIN:MAX, got {text!r}") from None
+    if joint not in JOINTS:
+        raise argparse.ArgumentTypeError(f"expected a joint of {', '.join(JOINTS)}, got {joint!r}")
+    if not (math.isfinite(low) and math.isfinite(high) and low < high):
+        raise argparse.ArgumentTypeError(f"expected finite MIN < MAX, got {text!r}")
+    return joint, low, high
 
 
 def register(subparsers) -> None:
-    """Add the ``stream`` and ``scan`` subcommands to an argparse ``subparsers``."""
+    """Add the ``stream`` subcommand to an argparse ``subparsers``."""
     p = subparsers.add_parser(
         "stream",
         help="stream a keyframe file to Dynamixel servos (or a virtual bus)",
@@ -53,6 +97,29 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_stream_arguments(p)
+    p.add_argument(
+        "--set-limits",
+        type=_limits,
+        action="append",
+        metavar="JOINT=MIN:MAX",
+        help="write this joint's Min/Max Position Limit (joint degrees) during bring-up; "
+        "without it the installed limits are only read, and a plan leaving them is refused",
+    )
+    p.add_argument(
+        "--max-approach",
+        type=positive_float,
+        default=45.0,
+        metavar="DEG",
+        help="refuse to start when a joint is farther than this from the first frame (default 45)",
+    )
+    p.add_argument(
+        "--max-delay",
+        type=positive_float,
+        default=MAX_DELAY_S,
+        metavar="S",
+        help="fail the stream when host stalls have put it this far behind its plan "
+        f"(default {MAX_DELAY_S:g} s; --virtual runs on simulated time and never stalls)",
+    )
     p.set_defaults(func=run_stream)
 
 
@@ -87,22 +154,110 @@ def add_stream_arguments(p) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
 
 
-def run_stream(args) -> int:
-    """Run ``trajgen stream``; returns the exit status."""
-    try:
-        return _stream(args)
-    except KeyboardInterrupt:
-        print("trajgen: interrupted: the servos hold their last goal", file=sys.stderr)
-        return EXIT_INTERRUPTED
+# -- signals -----------------------------------------------------------------
+
+
+class _StopSignals:
+    """SIGINT, SIGTERM and SIGHUP as ``Interrupted``, raised only while ``armed``.
+
+    Outside the armed stretch (planning, reporting), a signal is remembered and
+    acted on at the next ``arm`` or in the exit status; while the safe stop
+    runs, a second signal is ignored so that the stop completes.
+    """
+
+    def __init__(self) -> None:
+        self.received: int | None = None
+        self._armed = False
+
+    def _handle(self, signum, frame) -> None:
+        from trajgen.drivers.errors import Interrupted
+
+        first = self.received is None
+        self.received = signum if first else self.received
+        if self._armed and first:
+            self._armed = False
+            raise Interrupted(signum)
+
+    @contextmanager
+    def installed(self):
+        previous = {s: signal.signal(s, self._handle) for s in STOP_SIGNALS}
+        try:
+            yield self
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+
+    @contextmanager
+    def armed(self):
+        from trajgen.drivers.errors import Interrupted
+
+        if self.received is not None:
+            raise Interrupted(self.received)
+        self._armed = True
+        try:
+            yield
+        finally:
+            self._armed = False
+
+
+@contextmanager
+def _warnings_to_stderr():
+    """Print the drivers' RuntimeWarnings as ``trajgen: warning:`` lines when they happen."""
+
+    def show(message, *args, **kwargs):
+        print(f"trajgen: warning: {message}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", RuntimeWarning)
+        warnings.showwarning = show
+        yield
+
+
+# -- stages ------------------------------------------------------------------
+
+
+@dataclass
+class Plan:
+    """Everything decided before any hardware is touched."""
+
+    kf: object
+    config: object
+    joints: object
+    rate_hz: float
+    trajectory: object
+    set_limits: dict[int, tuple[int, int]]
+
+
+@dataclass
+class Outcome:
+    """What happened, for the report: filled in as the stages run."""
+
+    status: int = EXIT_OK
+    stopped_by: str = ""
+    untouched: bool = False
+    refused: bool = False
+    bring_up: dict | None = None
+    streamer: object = None
+    stop_errors: list[str] = field(default_factory=list)
 
 
 def _plan(args):
-    """Everything that can fail on bad input, before any hardware is touched."""
+    """Everything that can fail on bad input, before any hardware is touched.
+
+    Shared with ``trajgen follow``. Returns ``(kf, config, joints, rate, trajectory)``.
+
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
+    """
     from trajgen.drivers.config import bus_config_from_tables
     from trajgen.drivers.units import JointMap
     from trajgen.keyframes import load_keyframe_file
     from trajgen.stream import plan_joint_trajectory
 
+    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
+    check_output_path("--json", args.json, (".json",))
     # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
     kf = args.file if hasattr(args.file, "spline") else load_keyframe_file(args.file)
     config = bus_config_from_tables(kf.tables, kf.path)
@@ -117,97 +272,62 @@ def _plan(args):
         raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
     if args.ids:
         joints = JointMap(args.ids, joints.directions, joints.zeros)
-    if args.telemetry and not args.telemetry.endswith((".csv", ".npz")):
-        raise ValueError(f"--telemetry: expected a .csv or .npz path, got {args.telemetry!r}")
-    if args.telemetry and not Path(args.telemetry).resolve().parent.is_dir():
-        raise ValueError(f"--telemetry: no such directory for {args.telemetry!r}")
     rate = args.rate or kf.rate_hz or 200.0
     trajectory = plan_joint_trajectory(kf.spline(), rate)
     return kf, config, joints, rate, trajectory
 
 
-def _bring_up(bus, kf, config, joints, rate):
-    """Check the servos, re-plan from their present position, configure them.
+def _set_limits(args, joints) -> dict[int, tuple[int, int]]:
+    """``--set-limits`` as servo id -> (min, max) ticks, through each joint's mapping.
 
-    Planning with ``start`` = the present joint angles puts pan and roll on the
-    2 pi branch nearest to where the servos are, so the move to the first
-    frame never unwinds a turn.
+    Raises
+    ------
+    ValueError
+        If a limit falls outside the registers' range 0..4095.
     """
     import numpy as np
 
-    from trajgen.drivers.bringup import check_servos, configure, operating_mode_for
-    from trajgen.drivers.control_table import Register
-    from trajgen.stream import plan_joint_trajectory
+    from trajgen.drivers.units import TICKS_PER_REV
 
-    check_servos(bus, joints, config.models)
-    ticks = np.array([bus.read(i, Register.PRESENT_POSITION) for i in joints.ids])
-    trajectory = plan_joint_trajectory(kf.spline(), rate, start=joints.to_rad(ticks))
-    mode = operating_mode_for(joints.to_ticks(trajectory.q))
-    configure(bus, joints, operating_mode=mode, watchdog_s=config.watchdog_s)
-    return trajectory
-
-
-def _stream(args) -> int:
-    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
-    from trajgen.drivers.errors import DriverError
-    from trajgen.drivers.streamer import Streamer
-
-    try:
-        kf, config, joints, rate, trajectory = _plan(args)
-    except (ValueError, TypeError, OSError) as e:  # KeyframeFileError, KinematicsError
-        return bad_input(e)
-
-    virtual = plant = None
-    if args.virtual:
-        try:
-            virtual, plant = start_virtual(kf, config, joints, rate, trajectory.q[0])
-        except (ValueError, TypeError) as e:
-            return bad_input(e)
-        port = virtual.port
-    else:
-        port = args.port or config.port
-
-    streamer = None
-    status = EXIT_OK
-    try:
-        try:
-            bus = open_bus(port, args.baud or config.baud)
-        except DriverError as e:
-            return bad_input(e)
-        try:
-            trajectory = _bring_up(bus, kf, config, joints, rate)
-            streamer = Streamer(
-                bus,
-                joints,
-                telemetry=args.telemetry,
-                on_stop="torque_off" if args.torque_off else "hold",
-                # Lock-step: simulated time moves with the frames, so do not wait for them.
-                clock=WALL_CLOCK if virtual is None else SimulatedClock(),
+    limits = {}
+    for joint, low_deg, high_deg in args.set_limits or ():
+        j = JOINTS.index(joint)
+        angles = np.zeros((2, len(JOINTS)))
+        angles[:, j] = np.radians([low_deg, high_deg])
+        ticks = sorted(int(v) for v in joints.to_ticks(angles)[:, j])
+        if not 0 <= ticks[0] < ticks[1] <= TICKS_PER_REV - 1:
+            raise ValueError(
+                f"--set-limits {joint}={low_deg:g}:{high_deg:g}: ticks {ticks[0]}..{ticks[1]} "
+                f"fall outside the registers' range 0..{TICKS_PER_REV - 1}"
             )
-            streamer.run(trajectory)
-        except DriverError as e:
-            print(f"trajgen: stream failed: {e}", file=sys.stderr)
-            status = EXIT_FAILED
-        except ValueError as e:  # re-planning from the present position (KinematicsError)
-            return bad_input(e)
-        finally:
-            bus.close()
-            if streamer is not None and streamer.stats is not None:
-                print(streamer.stats.format())
-                for message in streamer.stop_errors:
-                    print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
-    finally:
-        if virtual is not None:
-            virtual.stop()
-            if virtual.error is not None:
-                print(f"trajgen: virtual bus stopped: {virtual.error}", file=sys.stderr)
-    if args.telemetry and streamer is not None:
-        print(f"telemetry: {args.telemetry}")
+        limits[joints.ids[j]] = (ticks[0], ticks[1])
+    return limits
 
-    result = {"stream": None if streamer is None else streamer.stats.to_json_dict()}
-    if plant is not None and status == EXIT_OK:
-        status, _ = torque_report(plant, trajectory, args, result)
-    return write_json(args, result, status)
+
+def plan(args) -> Plan:
+    """The stream command's plan (``_plan``) and its ``--set-limits``; no hardware.
+
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad input.
+    """
+    kf, config, joints, rate, trajectory = _plan(args)
+    return Plan(kf, config, joints, rate, trajectory, _set_limits(args, joints))
+
+
+def open_port(args, p: Plan):
+    """Start the virtual bus (with ``--virtual``); returns (port, virtual bus, plant).
+
+    Raises
+    ------
+    ValueError, TypeError
+        If the simulated gimbal cannot be built from the file.
+    """
+    if not args.virtual:
+        return args.port or p.config.port, None, None
+    virtual, plant = start_virtual(p.kf, p.config, p.joints, p.rate_hz, p.trajectory.q[0])
+    return virtual.port, virtual, plant
 
 
 def start_virtual(kf, config, joints, rate, first_q):
@@ -228,6 +348,152 @@ def start_virtual(kf, config, joints, rate, first_q):
         registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
     )
     return virtual.start(), plant
+
+
+def bring_up_servos(bus, args, p: Plan):
+    """``drivers.bringup.bring_up``, planning from where the servos are.
+
+    Planning with ``start`` = the present joint angles puts pan and roll on the
+    2 pi branch nearest to where the servos are, so the move to the first
+    frame never unwinds a turn.
+    """
+    from trajgen.drivers.bringup import bring_up
+    from trajgen.stream import plan_joint_trajectory
+
+    setup = bring_up(
+        bus,
+        p.joints,
+        p.config.models,
+        lambda present: plan_joint_trajectory(p.kf.spline(), p.rate_hz, start=present),
+        watchdog_s=p.config.watchdog_s,
+        joint_names=JOINTS,
+        set_limits=p.set_limits,
+        max_approach_rad=math.radians(args.max_approach),
+    )
+    p.trajectory = setup.trajectory
+    return setup
+
+
+def stream_plan(bus, args, p: Plan, setup, outcome: Outcome) -> None:
+    """Stream the brought-up plan (the streamer's statistics go in ``outcome``)."""
+    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
+    from trajgen.drivers.streamer import Streamer
+
+    outcome.streamer = Streamer(
+        bus,
+        p.joints,
+        telemetry=args.telemetry,
+        joint_names=JOINTS,
+        on_stop="torque_off" if args.torque_off else "hold",
+        max_approach_rad=math.radians(args.max_approach),
+        goal_bounds_ticks=setup.goal_bounds_ticks,
+        max_delay_s=args.max_delay,
+        # Lock-step: simulated time moves with the frames, so do not wait for them.
+        clock=SimulatedClock() if args.virtual else WALL_CLOCK,
+    )
+    try:
+        outcome.streamer.run(p.trajectory)
+    finally:
+        outcome.stop_errors += outcome.streamer.stop_errors
+
+
+def _bring_up_summary(setup) -> dict:
+    return {
+        joint: {
+            "servo": s.servo_id,
+            "drive_mode": s.drive_mode,
+            "operating_mode": mode,
+            "position_limits": [int(low), int(high)],
+            "start_tick": int(tick),
+        }
+        for joint, s, mode, (low, high), tick in zip(
+            JOINTS,
+            setup.installed,
+            setup.operating_modes,
+            setup.limits_ticks,
+            setup.present_ticks,
+            strict=True,
+        )
+    }
+
+
+def _run(args, signals: _StopSignals, outcome: Outcome):
+    """Open, bring up, stream; returns (plan, plant) for the report, or an int on bad input."""
+    from trajgen.drivers.errors import BringUpError, DriverError, Interrupted
+    from trajgen.drivers.streamer import safe_stop
+
+    try:
+        p = plan(args)
+        port, virtual, plant = open_port(args, p)
+    except (ValueError, TypeError, OSError) as e:
+        return bad_input(e)
+    on_stop = "torque_off" if args.torque_off else "hold"
+    bus = None
+    try:
+        with signals.armed():
+            bus = open_bus(port, args.baud or p.config.baud)
+            setup = bring_up_servos(bus, args, p)
+            outcome.bring_up = _bring_up_summary(setup)
+            stream_plan(bus, args, p, setup, outcome)
+    except (DriverError, Interrupted) as e:
+        if bus is None and not isinstance(e, Interrupted):
+            return bad_input(e)  # the port did not open
+        outcome.stopped_by = str(e)
+        outcome.status = 128 + e.signum if isinstance(e, Interrupted) else EXIT_FAILED
+        streamed = outcome.streamer is not None and outcome.streamer.stats is not None
+        outcome.untouched = bus is None
+        outcome.refused = isinstance(e, BringUpError) and not streamed
+        if bus is not None and not streamed and not outcome.refused:
+            # Stopped during bring-up, possibly after it changed something: stop safely.
+            outcome.stop_errors += safe_stop(bus, p.joints.ids, on_stop)
+    except ValueError as e:  # re-planning from the present position (KinematicsError)
+        return bad_input(e)
+    finally:
+        if bus is not None:
+            bus.close()
+        if virtual is not None:
+            virtual.stop()
+            if virtual.error is not None:
+                print(f"trajgen: virtual bus stopped: {virtual.error}", file=sys.stderr)
+    return p, plant
+
+
+def report(args, p: Plan, plant, outcome: Outcome) -> int:
+    """Print the statistics and what the servos were left doing; write ``--json``."""
+    stats = None if outcome.streamer is None else outcome.streamer.stats
+    if stats is not None:
+        print(stats.format())
+    for message in outcome.stop_errors:
+        print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
+    if outcome.untouched:
+        state = "no servo was touched"
+    elif outcome.refused:
+        state = "bring-up refused before torque on: no servo was moved"
+    elif args.torque_off:
+        state = "the servos were released (torque off)"
+    else:
+        state = "the servos hold their last goal"
+    if outcome.stop_errors:
+        state += " (except where the safe stop failed: see the warnings above)"
+    if outcome.stopped_by:
+        kind = "interrupted" if outcome.status > EXIT_FAILED else "stream failed"
+        print(f"trajgen: {kind}: {outcome.stopped_by}; {state}", file=sys.stderr)
+    else:
+        print(f"servos: {state.removeprefix('the servos ')}")
+    if args.telemetry and stats is not None:
+        print(f"telemetry: {args.telemetry}")
+    result = {
+        "status": outcome.status,
+        "stopped_by": outcome.stopped_by,
+        "on_stop": "torque_off" if args.torque_off else "hold",
+        "stop_errors": outcome.stop_errors,
+        "bring_up": outcome.bring_up,
+        "stream": None if stats is None else stats.to_json_dict(),
+    }
+    if plant is not None and outcome.status == EXIT_OK:
+        outcome.status, _ = torque_report(plant, p.trajectory, args, result)
+        result["status"] = outcome.status
+    return write_json(args, result, outcome.status)
 
 
 def torque_report(plant, trajectory, args, result: dict):
@@ -262,4 +528,19 @@ def write_json(args, result: dict, status: int) -> int:
         except OSError as e:
             return bad_input(e)
         print(f"json: {args.json}")
+    return status
+
+
+def run_stream(args) -> int:
+    """Run ``trajgen stream``; returns the exit status."""
+    signals = _StopSignals()
+    outcome = Outcome()
+    with signals.installed(), _warnings_to_stderr():
+        ran = _run(args, signals, outcome)
+        if isinstance(ran, int):
+            return ran
+        status = report(args, *ran, outcome)
+    if signals.received is not None and not outcome.stopped_by:
+        # A signal after the stream ended: everything was done and reported.
+        status = 128 + signals.received
     return status
