@@ -27,11 +27,14 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 
 bench: $(STAMP)
-	$(BIN)/python bench/spline_speed.py | tee bench/results/spline_speed.md
+	TRAJGEN_NUMBA=1 $(BIN)/python bench/spline_speed.py --large | tee bench/results/spline_speed.md
 	TRAJGEN_NUMBA=0 $(BIN)/python bench/spline_speed.py | tee bench/results/spline_speed_numpy.md
 	TRAJGEN_NUMBA=0 $(BIN)/python bench/paper_table3.py | tee bench/results/paper_table3_numpy.md
 	$(BIN)/python bench/paper_table3.py | tee bench/results/paper_table3.md
 	$(BIN)/python bench/construction.py | tee bench/results/construction.md
+	TRAJGEN_NUMBA=0 $(BIN)/python bench/stream_latency.py | tee bench/results/stream_latency_numpy.md
+	TRAJGEN_NUMBA=1 $(BIN)/python bench/stream_latency.py | tee bench/results/stream_latency_numba.md
+	$(BIN)/python bench/numba_load.py | tee bench/results/numba_load.md
 	$(BIN)/python bench/torque_race.py --plot bench/results/torque_race.png \
 		| tee bench/results/torque_race.md
 	$(BIN)/python bench/stream_rate.py --seconds 3 | tee bench/results/stream_rate.md

@@ -719,7 +719,7 @@ def goals(results: list[Result], bounds: dict[tuple[str, str], Bound]) -> str:
         for key, group in (("library", library), ("splines", splines)):
             best = min(group, key=lambda r: r.peak_torque_rate_nm_s)
             counts[key] += best is mine
-            if best is not mine and (key == "library" or best.method not in library):
+            if best is not mine and (key == "library" or best not in library):
                 misses.append(
                     f"{where} lower rate: {best.method}, {best.peak_torque_rate_nm_s:.3f} "
                     f"against {mine.peak_torque_rate_nm_s:.3f} N m/s"

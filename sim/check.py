@@ -107,6 +107,9 @@ class TorqueReport:
     record : SimRecord
         The simulated run.
     config : GimbalConfig
+    planned_torque_smooth_nm : ndarray, shape (N, 3), or None
+        The planned torque without Coulomb friction (N m), which steps by twice
+        the friction at every start and reversal whatever the plan.
     """
 
     ok: bool
@@ -120,6 +123,7 @@ class TorqueReport:
     planned_torque_nm: np.ndarray = field(repr=False)
     record: SimRecord = field(repr=False)
     config: GimbalConfig = field(repr=False)
+    planned_torque_smooth_nm: np.ndarray | None = field(default=None, repr=False)
 
     def to_json_dict(self) -> dict:
         """Plain-JSON summary: ``{"ok", "reasons", ..., "joints": {"pan": {...}, ...}}``."""
@@ -174,12 +178,14 @@ class TorqueReport:
 def _cell(value: float, width: int, decimals: int) -> str:
     """``value`` right-aligned in ``width`` characters, at least one of them a space.
 
-    Fixed decimals while they fit; otherwise 3 significant digits
-    (``1.23e+09``), so that columns never run together whatever the figures.
+    Fixed decimals while they fit; otherwise as few significant digits as fit
+    (``1.2e+09``), so that columns never run together whatever the figures.
     """
     text = f"{value:.{decimals}f}"
-    if len(text) >= width:
-        text = f"{value:.3g}"
+    for digits in (3, 2, 1):
+        if len(text) < width:
+            break
+        text = f"{value:.{digits}g}"
     return f" {text:>{width - 1}}"
 
 
@@ -324,6 +330,7 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
         planned_torque_nm=tau_plan,
         record=record,
         config=config,
+        planned_torque_smooth_nm=tau_smooth,
     )
 
 

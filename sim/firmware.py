@@ -101,9 +101,7 @@ class PositionLoop:
         for name in ("pwm_limit", "goal_pwm"):
             check_register(name, getattr(self, name), 0, PWM_FULL_SCALE)
         for name in ("p_divisor", "loop_period_s"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ValueError(f"Expected `{name}` > 0, got {value!r}.")
+            check_number(name, getattr(self, name), low=0.0, low_open=True)
 
     @property
     def pwm_cap(self) -> int:

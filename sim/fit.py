@@ -25,7 +25,6 @@ faster, which must fail: the fit is tight.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import tomllib
 from collections.abc import Callable
@@ -37,6 +36,7 @@ import numpy as np
 from trajgen.sim.errors import SimError
 from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.validate import check_number
 
 #: Speed-up per sample is searched on this grid, then refined by bisection.
 _S_GRID = np.geomspace(1.0 / 16.0, 16.0, 97)
@@ -221,10 +221,7 @@ def fit_timing(
             f"Expected `source` to be a keyframe file path or KeyframeFile, got "
             f"{type(source).__name__}."
         )
-    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)):
-        raise TypeError(f"Expected `tolerance` to be a number, got {tolerance!r}.")
-    if not 0 < tolerance <= 0.05:
-        raise ValueError(f"Expected `tolerance` in (0, 0.05], got {tolerance!r}.")
+    tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
     if config is None:
         config = gimbal_config_from_tables(source.tables, source.path)
     if limits is None:
@@ -274,11 +271,6 @@ def fit_timing(
     )
 
 
-def retimed(source, times):
-    """The keyframe file ``source`` at keyframe ``times`` (same spline method and options)."""
-    return dataclasses.replace(source, times=np.asarray(times, dtype=float), _spline=[])
-
-
 def _round_times(t0: float, durations: np.ndarray) -> np.ndarray:
     return np.round(t0 + np.concatenate([[0.0], np.cumsum(durations)]), _TIME_DECIMALS)
 
@@ -321,7 +313,8 @@ class _Fitter:
         from trajgen.gimbal import KinematicsError
         from trajgen.stream import plan_joint_trajectory
 
-        spline = retimed(self.source, times).spline()
+        source = self.source
+        spline = source.spline_class(source.quats, times, **source.spline_options)
         try:
             return plan_joint_trajectory(spline, self.rate_hz)
         except KinematicsError as e:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from trajgen.sim.model import JOINT_NAMES
+from trajgen.validate import check_number
 
 #: ``[limits]`` keys and the quantity each bounds.
 LIMIT_KEYS = {
@@ -59,12 +60,12 @@ class JointLimits:
                 value = (value,) * 3
             if len(value) != 3:
                 raise ValueError(f"Expected `{name}` to have 3 entries, got {value!r}.")
-            for v in value:
-                if isinstance(v, bool) or not isinstance(v, (int, float)):
-                    raise TypeError(f"Expected `{name}` to be numbers, got {v!r}.")
-                if not v > 0:
-                    raise ValueError(f"Expected `{name}` > 0, got {v!r}.")
-            object.__setattr__(self, name, tuple(float(v) for v in value))
+            # inf is "no limit"; anything else a finite number > 0.
+            bounds = tuple(
+                math.inf if v == math.inf else check_number(name, v, low=0.0, low_open=True)
+                for v in value
+            )
+            object.__setattr__(self, name, bounds)
 
     def as_array(self) -> np.ndarray:
         """Bounds as shape (3, 3): rows speed, acceleration, jerk; columns pan, tilt, roll."""

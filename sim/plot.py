@@ -1,4 +1,4 @@
-"""Plot a torque report: joint angles, velocities and torque against the envelope."""
+"""Plot a torque report: joint angles, velocities, torque, and how much of the envelope is used."""
 
 from __future__ import annotations
 
@@ -6,17 +6,71 @@ from pathlib import Path
 
 import numpy as np
 
-from trajgen.sim.model import JOINT_NAMES
+from trajgen.gimbal import JOINT_NAMES
+
+#: The use panel's logarithmic axis starts here (%): a joint at rest uses ~0 %.
+USE_FLOOR_PCT = 0.1
+
+
+def reversals(qd: np.ndarray) -> np.ndarray:
+    """Indices where a joint speed changes sign, or leaves zero (where Coulomb friction steps).
+
+    Parameters
+    ----------
+    qd : ndarray, shape (N,)
+        Joint speed (rad/s).
+
+    Returns
+    -------
+    ndarray of int
+        Sample indices ``i`` with the step between samples ``i - 1`` and ``i``.
+    """
+    sign = np.sign(qd)
+    return np.flatnonzero(sign[1:] != sign[:-1]) + 1
+
+
+def envelope_use_pct(tau_nm: np.ndarray, usable_nm: np.ndarray) -> np.ndarray:
+    """``|tau| / usable`` in percent; ``inf`` where nothing is usable (at or past no-load speed)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(usable_nm > 0, 100.0 * np.abs(tau_nm) / usable_nm, np.inf)
+
+
+def period_mean_and_range(t, values, period_s):
+    """Mean, min and max of ``values`` (K,) over consecutive windows of ``period_s``.
+
+    Returns
+    -------
+    tuple of ndarray
+        Window centres (s), mean, min, max; shape (W,) each.
+    """
+    t = np.asarray(t, dtype=float)
+    window = np.floor((t - t[0]) / period_s + 1e-9).astype(int)
+    starts = np.flatnonzero(np.diff(window, prepend=-1))
+    count = np.diff(np.append(starts, len(t)))
+    mean = np.add.reduceat(values, starts) / count
+    return (
+        t[starts] + 0.5 * period_s,
+        mean,
+        np.minimum.reduceat(values, starts),
+        np.maximum.reduceat(values, starts),
+    )
 
 
 def plot_report(report, path) -> Path:
     """Save a 4 x 3 figure (rows: angle, velocity, torque, envelope use; columns: joints).
 
-    The torque row shows the planned torque (``mj_inverse``), the simulated
-    actuator torque, and, where they fall inside the axis range, the envelope
-    ``+-tau_stall (1 - |w| / w0)`` at the planned speed, full and times the
-    margin. The last row shows the planned torque as a share of margin x
-    envelope (%): the check fails above 100 %.
+    - torque: the planned torque (``mj_inverse``) with its Coulomb-friction
+      steps marked (the joint starts or reverses, so friction flips sign: a
+      step of twice the friction whatever the plan), the plan without Coulomb
+      friction dashed, and the simulated actuator torque as its mean over each
+      stream period with the range within the period shaded (the zero-order
+      hold's setpoint steps make the 1 ms torque ripple inside each period).
+      The envelope ``tau_stall (1 - |w| / w0)``, clipped at 0, is drawn when it
+      is within reach of the axis; otherwise the panel says how far off it is.
+    - use: the planned and the simulated (period mean) torque as a share of
+      margin x envelope, on a logarithmic axis with the 100 % limit labelled;
+      the check fails above it. Speeds at or past no-load (no torque left) are
+      shaded.
 
     Parameters
     ----------
@@ -40,7 +94,9 @@ def plot_report(report, path) -> Path:
     import matplotlib.pyplot as plt
 
     traj, rec = report.trajectory, report.record
-    fig, axes = plt.subplots(4, 3, figsize=(13, 10), sharex=True)
+    period = 1.0 / report.rate_hz
+    margin = report.torque_margin
+    fig, axes = plt.subplots(4, 3, figsize=(14, 11), sharex=True)
     for j, name in enumerate(JOINT_NAMES):
         servo = report.config.servos[j]
         ax_q, ax_w, ax_t, ax_u = axes[:, j]
@@ -49,29 +105,131 @@ def plot_report(report, path) -> Path:
         ax_q.set_title(f"{name} ({servo.name})")
         ax_w.plot(traj.t, traj.qd[:, j], label="planned")
         ax_w.plot(rec.t, rec.qd[:, j], "--", label="simulated")
-        envelope = servo.tau_max(traj.qd[:, j])
-        for scale, style, label in ((1.0, "k:", "envelope"), (report.torque_margin, "r-", None)):
-            label = label or f"{scale:g} x envelope"
-            ax_t.plot(traj.t, scale * envelope, style, lw=1, label=label)
-            ax_t.plot(traj.t, -scale * envelope, style, lw=1)
+        ax_w.axhline(0.0, color="0.6", lw=0.5)
+
         tau = report.planned_torque_nm[:, j]
-        ax_t.plot(rec.t, rec.torque_nm[:, j], color="tab:orange", lw=0.5, label="simulated")
-        ax_t.plot(traj.t, tau, color="tab:blue", label="planned")
-        lim = 1.2 * max(np.abs(tau).max(), np.abs(rec.torque_nm[:, j]).max(), 0.05)
+        tc, sim_mean, sim_lo, sim_hi = period_mean_and_range(rec.t, rec.torque_nm[:, j], period)
+        ax_t.fill_between(
+            tc,
+            sim_lo,
+            sim_hi,
+            color="tab:orange",
+            alpha=0.25,
+            lw=0,
+            label="simulated, range within each period",
+        )
+        ax_t.plot(
+            tc, sim_mean, color="tab:orange", lw=0.6, alpha=0.8, label="simulated, mean per period"
+        )
+        if report.planned_torque_smooth_nm is not None:
+            ax_t.plot(
+                traj.t,
+                report.planned_torque_smooth_nm[:, j],
+                "--",
+                color="tab:blue",
+                lw=0.8,
+                label="planned without Coulomb friction",
+            )
+        ax_t.plot(traj.t, tau, color="tab:blue", lw=1.4, zorder=3, label="planned")
+        steps = reversals(traj.qd[:, j])
+        if len(steps):
+            ax_t.plot(
+                traj.t[steps],
+                tau[steps],
+                "v",
+                color="tab:red",
+                zorder=4,
+                ms=5,
+                ls="none",
+                label="friction step: the joint starts or reverses, so Coulomb friction "
+                "flips sign (a step of 2 x friction, not of the plan)",
+            )
+        peak = max(np.abs(tau).max(), np.abs(sim_hi).max(), np.abs(sim_lo).max(), 0.02)
+        lim = 1.25 * peak
+        envelope = np.maximum(servo.tau_max(traj.qd[:, j]), 0.0)
+        if envelope.min() <= 3 * lim:
+            for scale, style, label in (
+                (1.0, "k:", "envelope"),
+                (margin, "r-", f"{margin:g} x envelope"),
+            ):
+                ax_t.plot(traj.t, scale * envelope, style, lw=1, label=label)
+                ax_t.plot(traj.t, -scale * envelope, style, lw=1)
+            lim = max(lim, 1.05 * envelope.max())
+        else:
+            ax_t.text(
+                0.99,
+                0.97,
+                f"envelope {envelope.min():.2g}..{envelope.max():.2g} N m: off this scale",
+                transform=ax_t.transAxes,
+                ha="right",
+                va="top",
+                fontsize=8,
+                color="0.3",
+            )
         ax_t.set_ylim(-lim, lim)
-        usable = report.torque_margin * envelope
-        share = np.where(usable > 0, np.abs(tau) / np.where(usable > 0, usable, 1.0), np.inf)
-        ax_u.plot(traj.t, 100.0 * np.minimum(share, 10.0), color="tab:blue")
+
+        usable = margin * servo.tau_max(traj.qd[:, j])
+        use = envelope_use_pct(tau, usable)
+        sim_usable = margin * servo.tau_max(np.interp(tc, rec.t, rec.qd[:, j]))
+        sim_use = envelope_use_pct(sim_mean, sim_usable)
+        finite = np.concatenate([use[np.isfinite(use)], sim_use[np.isfinite(sim_use)], [100.0]])
+        top = 10 ** np.ceil(np.log10(max(2.0 * finite.max(), 200.0)))
+        ax_u.plot(
+            tc,
+            np.clip(sim_use, USE_FLOOR_PCT, top),
+            color="tab:orange",
+            lw=0.6,
+            alpha=0.8,
+            label="use: simulated (period mean)",
+        )
+        ax_u.plot(
+            traj.t,
+            np.clip(use, USE_FLOOR_PCT, top),
+            color="tab:blue",
+            lw=1.4,
+            zorder=3,
+            label="use: planned",
+        )
         ax_u.axhline(100.0, color="r", lw=1)
+        ax_u.text(traj.t[0], 100.0, " 100 %: the limit", color="r", va="bottom", fontsize=8)
+        no_torque = ~(usable > 0)
+        if no_torque.any():
+            ax_u.fill_between(
+                traj.t,
+                USE_FLOOR_PCT,
+                top,
+                where=no_torque,
+                color="tab:red",
+                alpha=0.15,
+                lw=0,
+                label="at or past no-load speed: no torque left",
+            )
+        worst = int(np.argmax(np.where(np.isfinite(use), use, -1.0)))
+        title = f"planned peak {use[worst]:.3g} % at t = {traj.t[worst]:.2f} s"
+        if no_torque.any():
+            title += f"; past no-load speed from t = {traj.t[np.argmax(no_torque)]:.2f} s"
+        ax_u.set_title(title, fontsize=9)
+        ax_u.set_yscale("log")
+        ax_u.set_ylim(USE_FLOOR_PCT, top)
+        ax_u.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g} %"))
         ax_u.set_xlabel("t (s)")
     axes[0, 0].set_ylabel("angle (rad)")
     axes[1, 0].set_ylabel("velocity (rad/s)")
     axes[2, 0].set_ylabel("torque (N m)")
-    axes[3, 0].set_ylabel("planned / usable (%)")
+    axes[3, 0].set_ylabel(f"|torque| / ({margin:g} x envelope)")
     axes[0, 0].legend(fontsize=8)
-    axes[2, 0].legend(fontsize=8)
-    fig.suptitle(f"torque check: {'OK' if report.ok else 'FAILED'}")
-    fig.tight_layout()
+    # One legend for the torque and use rows, below the figure, clear of the data.
+    handles = {}
+    for ax in axes[2:, :].flat:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            handles.setdefault(label, handle)
+    fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=3, fontsize=8)
+    verdict = "OK" if report.ok else "FAILED"
+    fig.suptitle(
+        f"torque check: {verdict} ({report.duration_s:.2f} s at {report.rate_hz:g} Hz, "
+        f"margin {margin:g} of the 12 V envelope)"
+    )
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     path = Path(path)
     try:
         fig.savefig(path, dpi=100)

@@ -24,6 +24,7 @@ import numpy as np
 
 from trajgen.sim.errors import SimulationError
 from trajgen.sim.model import GimbalConfig, gimbal_mjcf
+from trajgen.validate import check_number
 
 _FAILED_PARTS = {"x envelope": "envelope", "torque limit": "limit", "tracking error": "tracking"}
 
@@ -298,8 +299,7 @@ def run_sweep(
         from trajgen.sim.model import gimbal_config_from_tables
 
         config = gimbal_config_from_tables(source.tables, source.path)
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise ValueError(f"Expected `threads` >= 1, got {threads!r}.")
+    threads = check_number("threads", threads, integer=True, low=1)
     rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
     results: list[VariantResult | None] = [None] * len(sweep)
     by_scale: dict[float, list[int]] = {}
@@ -324,11 +324,10 @@ def run_sweep(
 
 def scaled_trajectory(source, scale: float, rate_hz: float):
     """The file's planned stream with keyframe times (from the first) multiplied by ``scale``."""
-    from trajgen.sim.fit import retimed
     from trajgen.stream import plan_joint_trajectory
 
     times = source.times[0] + (source.times - source.times[0]) * scale
-    spline = retimed(source, times).spline()
+    spline = source.spline_class(source.quats, times, **source.spline_options)
     return plan_joint_trajectory(spline, rate_hz)
 
 

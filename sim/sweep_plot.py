@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from trajgen.gimbal import JOINT_NAMES
+
 
 def plot_sweep(results, path) -> Path:
     """One panel per (payload offset, servo set); payload across, time scale down.
@@ -83,9 +85,7 @@ def plot_sweep(results, path) -> Path:
         if len(set(servos)) == 1:
             names = f"all {servos[0]}"
         else:
-            names = ", ".join(
-                f"{j} {s}" for j, s in zip(("pan", "tilt", "roll"), servos, strict=True)
-            )
+            names = ", ".join(f"{j} {s}" for j, s in zip(JOINT_NAMES, servos, strict=True))
         ax.set_title(f"{names}\noffset ({', '.join(f'{o:g}' for o in offset)}) m", fontsize=8)
     axes[0, 0].set_ylabel("time scale (x keyframe times)")
     fig.colorbar(image, ax=axes[0].tolist(), label="worst planned margin (N m)")

@@ -63,7 +63,7 @@ def test_builtin_and_shipped_examples_load():
     assert len(files) >= 4
     for f in files:
         kf = load_keyframe_file(f)
-        assert len(kf.times) >= 3
+        assert len(kf.times) >= 2
         kf.spline()
 
 
@@ -210,3 +210,9 @@ def test_the_fast_reader_leaves_what_it_does_not_handle_to_tomllib(tmp_path, tex
     else:
         with pytest.raises(KeyframeFileError, match=match):
             load_keyframe_file(path)
+
+
+def test_the_spline_is_built_once_on_first_use():
+    kf = load_keyframe_file(BUILTIN_EXAMPLE)
+    assert kf.spline() is kf.spline()
+    assert kf.stream_rate() == 200.0 and kf.stream_rate(50.0) == 50.0

@@ -166,3 +166,14 @@ def test_resolve_source_refuses_what_it_cannot_use():
         resolve_source(42)
     with pytest.raises(ValueError, match=r"`rate_hz` to match the trajectory's 200.0 Hz, got 100"):
         resolve_source(quintic_trajectory(*GENTLE), rate_hz=100)
+
+
+def test_report_columns_never_run_together():
+    from trajgen.sim.check import _cell
+
+    for value in (0.0, -5.711, 334.27, -123456789.0, 1.5e300, -1e11):
+        for width, decimals in ((8, 3), (9, 2), (8, 0)):
+            text = _cell(value, width, decimals)
+            assert len(text) == width and text[0] == " " and text.strip(), (value, text)
+            # at least one significant digit survives
+            assert float(text) == pytest.approx(value, rel=0.5, abs=10**-decimals)

@@ -194,12 +194,12 @@ def test_trajgen_main_runs_the_builtin_example_and_fails_a_fast_file(tmp_path, c
 def test_progress_line_appears_only_on_long_runs():
     import io
 
-    from trajgen.cli.sim import _Progress
+    from trajgen.cli.common import Progress
 
-    quick = _Progress(stream=io.StringIO())
+    quick = Progress("trajgen sim: simulating", stream=io.StringIO())
     quick(0.5)
     assert quick.stream.getvalue() == ""
-    slow = _Progress(stream=io.StringIO())
+    slow = Progress("trajgen sim: simulating", stream=io.StringIO())
     slow.start -= 5.0  # as if the run began 5 s ago
     slow(0.5)
     slow(1.0)

@@ -169,9 +169,11 @@ def test_bad_limits_table(tmp_path, extra, match):
 def test_bad_arguments(tmp_path):
     with pytest.raises(TypeError, match="Expected `source`"):
         fit_timing(3.0)
-    with pytest.raises(ValueError, match="Expected `tolerance` in"):
+    with pytest.raises(
+        ValueError, match=r"Expected `tolerance` to be a finite number in \(0, 0.05\]"
+    ):
         fit_timing(_write(tmp_path), tolerance=0.5)
-    with pytest.raises(ValueError, match="Expected `speed_rad_s` > 0"):
+    with pytest.raises(ValueError, match="Expected `speed_rad_s` to be a finite number > 0"):
         JointLimits(speed_rad_s=0.0)
 
 

@@ -153,12 +153,12 @@ def test_bad_logs_and_options_exit_2(tmp_path, capsys):
     assert _run(identify, ["identify", path, empty, "--out", tmp_path / "f.toml"]) == 2
     assert "empty.csv: not a telemetry log (no column 'frame')" in capsys.readouterr().err
     assert _run(identify, ["identify", path, empty, "--out", tmp_path / "f.txt"]) == 2
-    assert "--out: expected a .toml path" in capsys.readouterr().err
+    assert "': expected a .toml file" in capsys.readouterr().err
     with pytest.raises(IdentifyError, match=r"no column 'frame'"):
         (tmp_path / "x.csv").write_text("a\n1\n")
         load_telemetry(tmp_path / "x.csv")
     assert _run(excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.npz"]) == 2
-    assert "--telemetry: expected a .csv path" in capsys.readouterr().err
+    assert "': expected a .csv file" in capsys.readouterr().err
     status = _run(
         excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.csv", "--seconds", 2]
     )

@@ -341,3 +341,16 @@ def test_a_scipy_rotation_is_accepted_and_converted_at_the_boundary():
     # A single Rotation is one keyframe: too few.
     with pytest.raises(ValueError, match="at least 2 keyframes, got 1"):
         BlendingSpline(keys[0], [0.0])
+
+
+def test_every_path_class_takes_a_scipy_rotation():
+    Rotation = pytest.importorskip("scipy.spatial.transform").Rotation
+    from trajgen import compare
+
+    keys = Rotation.from_euler("ZYX", [[0, 0, 0], [35, -10, 0], [60, 15, 5]], degrees=True)
+    wxyz = np.roll(keys.as_quat(), 1, axis=1)
+    from trajgen.smooth import SmoothSpline
+
+    for cls in (SmoothSpline, *(getattr(compare, name) for name in compare.__all__)):
+        path = cls(keys, [0.0, 1.5, 3.0])
+        assert Q.distance(path(1.5), wxyz[1]) < 1e-9, cls.__name__

@@ -38,6 +38,7 @@ message are exactly tomllib's.
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from dataclasses import dataclass, field
@@ -47,9 +48,10 @@ import numpy as np
 
 from . import quat as Q
 from .errors import KeyframeFileError
+from .gimbal import JOINT_NAMES
 from .smooth import SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
-from .validate import check_choice, check_number
+from .validate import check_choice, check_keys, check_number
 
 #: The built-in example: a gentle pan/tilt look-around.
 BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
@@ -67,7 +69,8 @@ DEFAULT_METHOD = "smooth"
 BLENDING_ONLY = ("k", "local", "reparam")
 STREAM_KEYS = ("rate_hz",)
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
-ANGLE_KEYS = ("pan", "tilt", "roll")
+#: Keyframe angle fields (degrees), one per gimbal joint.
+ANGLE_KEYS = JOINT_NAMES
 #: Top-level tables, and the package that checks each.
 TABLES = {
     "spline": "trajgen",
@@ -112,7 +115,6 @@ class KeyframeFile:
     spline_options: dict
     rate_hz: float | None = None
     tables: dict = field(default_factory=dict)
-    _spline: list = field(default_factory=list, repr=False, compare=False)
     #: ``[spline] method``: "smooth" or "blending".
     method: str = DEFAULT_METHOD
 
@@ -131,13 +133,14 @@ class KeyframeFile:
             If the spline refuses the keyframes (a reversal with
             ``local = "circle"``, a ``"closed"`` loop that does not close).
         """
-        if not self._spline:
+        built = self.__dict__.get("_built_spline")
+        if built is None:
             try:
-                spline = self.spline_class(self.quats, self.times, **self.spline_options)
-                self._spline.append(spline)
+                built = self.spline_class(self.quats, self.times, **self.spline_options)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
-        return self._spline[0]
+            object.__setattr__(self, "_built_spline", built)  # a cache, not a field
+        return built
 
     def stream_rate(self, rate_hz: float | None = None) -> float:
         """``rate_hz`` if given, else the file's ``[stream] rate_hz``, else the default.
@@ -288,18 +291,10 @@ def _table(value, name: str, path: Path) -> dict:
     return value
 
 
-def _check_keys(table: dict, name: str, known, path: Path) -> None:
-    for key in table:
-        if key not in known:
-            raise KeyframeFileError(
-                f"{path}: [{name}] unknown key '{key}' (known: {', '.join(known)})"
-            )
-
-
 def _spline_options(table, path: Path) -> dict:
     """The ``[spline]`` table, checked: ``method`` and the keywords for its class."""
     table = _table(table, "spline", path)
-    _check_keys(table, "spline", SPLINE_KEYS, path)
+    check_keys(table, SPLINE_KEYS, error=lambda p: KeyframeFileError(f"{path}: [spline] {p}"))
     if "k" in table:
         check_number(
             "k", table["k"], integer=True, low=1, high=MAX_K, error=_error(path, "[spline] k")
@@ -321,7 +316,7 @@ def _spline_options(table, path: Path) -> dict:
 def _stream_rate(table, path: Path) -> float | None:
     """The ``[stream]`` table, checked: its ``rate_hz`` or None."""
     table = _table(table, "stream", path)
-    _check_keys(table, "stream", STREAM_KEYS, path)
+    check_keys(table, STREAM_KEYS, error=lambda p: KeyframeFileError(f"{path}: [stream] {p}"))
     if "rate_hz" not in table:
         return None
     return check_number(
@@ -413,6 +408,10 @@ def _keyframes(columns: dict, path: Path, minimum: int = 2) -> tuple[np.ndarray,
         raise KeyframeFileError(
             f"{path}: keyframe {_first(neither) + 1}: no orientation: give 'quat' or "
             "pan/tilt/roll (degrees)"
+        )
+    if not math.isfinite(float(t[-1]) - float(t[0])):
+        raise KeyframeFileError(
+            f"{path}: keyframes 1 to {n}: field 't': the times span more than 1e308 s"
         )
     late = np.diff(t) <= 0
     if late.any():

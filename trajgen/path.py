@@ -217,7 +217,14 @@ class OrientationPath:
 
     def sample(self, rate_hz: float, *, max_order: int = 2, frame: str = "space") -> Samples:
         """:meth:`evaluate` at ``rate_hz`` from ``t_start`` to ``t_end`` inclusive (the last
-        sample at ``t_end`` even when the duration is not a whole number of periods)."""
+        sample at ``t_end`` even when the duration is not a whole number of periods; for a
+        closed path too, whose ``t_end`` repeats the orientation at ``t_start``).
+
+        Raises
+        ------
+        trajgen.PlanTooLarge
+            Above :data:`trajgen.sampling.MAX_SAMPLES` samples, before allocating.
+        """
         t = sample_times(self.t_start, self.t_end, rate_hz)
         return self.evaluate(t, max_order=max_order, frame=frame)
 

@@ -19,15 +19,18 @@ MAX_SAMPLES = 5_000_000
 
 
 def sample_count(t_start: float, t_end: float, rate_hz: float) -> float:
-    """How many samples :func:`sample_times` gives (``inf`` if it would overflow).
+    """How many samples :func:`sample_times` gives (``inf`` if the count overflows).
 
     A float, so that an absurd plan (``t = 1e308``, ``rate 1e9``) can be
     refused with its count before anything is allocated.
     """
-    periods = (t_end - t_start) * rate_hz
+    periods = (float(t_end) - float(t_start)) * float(rate_hz)  # Python floats: inf, no warning
     if not math.isfinite(periods):
         return math.inf
-    return math.floor(periods + 1e-9) + 2.0  # at most one extra sample at t_end
+    # Whole periods that fit, with a tolerance so 2.0 s at 100 Hz gives 201 samples;
+    # one more sample at t_end when it is not on the grid.
+    last = math.floor(periods + 1e-9)
+    return last + 1.0 + float(periods - last > 1e-9)
 
 
 def check_sample_count(
@@ -101,12 +104,8 @@ def sample_time_blocks(
     rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
     if not t_end > t_start:
         raise ValueError(f"Expected t_end > t_start, got {t_start} .. {t_end}.")
-    check_sample_count(t_start, t_end, rate_hz, max_samples)
+    total = check_sample_count(t_start, t_end, rate_hz, max_samples)
     period = 1.0 / rate_hz
-    # Whole periods that fit, with a tolerance so 2.0 s at 100 Hz gives 201 samples.
-    last = math.floor((t_end - t_start) / period + 1e-9)
-    # The last sample is t_end: an extra one when t_end is not on the grid.
-    total = last + 1 + int(t_end - (t_start + last * period) > 1e-9 * period)
     step = total if block is None else block
     for first in range(0, total, step):
         t = t_start + np.arange(first, min(first + step, total)) * period

@@ -20,7 +20,7 @@ from math import comb
 
 import numpy as np
 
-from . import derivatives as D
+from . import derivatives as dv
 from . import jet as J
 from . import quat as Q
 from .path import OrientationPath, check_times
@@ -224,8 +224,12 @@ class SmoothSpline(OrientationPath):
     Notes
     -----
     Unlike :class:`~trajgen.spline.BlendingSpline`, the spline is global: moving
-    one keyframe moves every segment, with an effect that decays by about 2.5x per
-    knot. Times outside ``[t_start, t_end]`` raise.
+    one keyframe moves every segment, with an effect that decays by 2-3x per knot
+    (measured). Times outside ``[t_start, t_end]`` raise (they wrap when closed).
+
+    References
+    ----------
+    ``SPEC.md`` section 8 in the project's shared notes states the construction.
     """
 
     def __init__(self, quats, times, *, boundary="rest"):
@@ -332,13 +336,13 @@ class SmoothSpline(OrientationPath):
         and ``jerk = 2 vec(E''' E* + E'' E'*)``.
         """
         r = list(self._tangent(t, seg, max_order))
-        C, S = D.cos_sinc_sqrt(D.vdot(r, r))
-        E = [np.concatenate([c[None], v]) for c, v in zip(C, D.product(S, r), strict=True)]
+        C, S = dv.cos_sinc_sqrt(dv.vdot(r, r))
+        E = [np.concatenate([c[None], v]) for c, v in zip(C, dv.product(S, r), strict=True)]
         q = Q.mul(E[0].T, self.quats[seg])
         conj = [e * _CONJ for e in E[: 2 if max_order >= 3 else 1]]
-        rates = [2.0 * D.hamilton_vec(E[m], conj[0]).T for m in range(1, min(max_order, 2) + 1)]
+        rates = [2.0 * dv.hamilton_vec(E[m], conj[0]).T for m in range(1, min(max_order, 2) + 1)]
         if max_order >= 3:
-            jerk = D.hamilton_vec(E[3], conj[0]) + D.hamilton_vec(E[2], conj[1])
+            jerk = dv.hamilton_vec(E[3], conj[0]) + dv.hamilton_vec(E[2], conj[1])
             rates.append(2.0 * jerk.T)
         return q, rates
 

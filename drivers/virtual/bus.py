@@ -75,9 +75,9 @@ _OVERLOAD_BIT = 0x20
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).
 _SWITCH_INTERVAL_S = 1e-3
 # Real time: how often the simulation thread wakes (s), and the most steps it
-# runs per hold of the lock (when the plant has fallen behind the wall clock).
+# runs per hold of the lock (short holds: a packet may be waiting for it).
 _SIM_WAKE_S = 0.005
-_MAX_STEPS_PER_HOLD = 10
+_MAX_STEPS_PER_HOLD = 2
 # The first and last of the registers the plant fills (addresses 120..146).
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
@@ -397,9 +397,17 @@ class VirtualBus:
         """Real time: keep the plant on the wall clock, whatever the traffic.
 
         Wakes every ``_SIM_WAKE_S``; a packet brings the plant to its arrival
-        time itself, so a reply waits for at most that much simulation.
+        time itself, so a reply waits for at most that much simulation. Steps
+        in short holds of the lock, and not while a packet is waiting.
         """
         while not self._stop.is_set():
+            try:
+                waiting = select.select([self._master], [], [], 0)[0]
+            except (OSError, ValueError):
+                return  # the port is gone
+            if waiting:  # a packet first: the serving thread needs the lock now
+                time.sleep(0.0002)
+                continue
             try:
                 with self.lock:
                     now = time.monotonic()

@@ -21,9 +21,16 @@ from trajgen.errors import TrajgenError
 COMMANDS = (plan, sim, fit, sweep, stream, follow, scan, virtual_bus, excite, identify)
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (exit status 2)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``trajgen`` argument parser with every subcommand registered."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="trajgen",
         description=(
             "Smooth orientation trajectories for pan-tilt-roll gimbals and robot wrists: "

@@ -8,6 +8,7 @@ import importlib.util
 import math
 import os
 import sys
+import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -129,7 +130,7 @@ def check_module(option: str, module: str, package: str) -> None:
 
 @dataclass(frozen=True)
 class CheckedFile:
-    """A keyframe file with every table checked and its spline built.
+    """A keyframe file with every table checked; its spline is built on first use.
 
     Attributes
     ----------
@@ -138,20 +139,26 @@ class CheckedFile:
         From ``[gimbal]``.
     bus : trajgen.drivers.config.BusConfig
         From ``[bus]``.
-    spline : BlendingSpline
-    limits : trajgen.sim.JointLimits
-        From ``[limits]`` (none when absent).
+    limits : trajgen.sim.limits.JointLimits
+        From ``[limits]``.
     """
 
     keyframes: KeyframeFile
     gimbal: object
     bus: object
-    spline: object
-    limits: object = None
+    limits: object
+
+    @property
+    def spline(self):
+        """The file's spline (built on first use; raises KeyframeFileError if refused)."""
+        n = len(self.keyframes.times)
+        if n > _LARGE_FILE_KEYFRAMES:
+            print(f"trajgen: building the spline through {n:,} keyframes...", file=sys.stderr)
+        return self.keyframes.spline()
 
 
 def load_checked(path) -> CheckedFile:
-    """Load a keyframe file and check the whole of it, whatever the command.
+    """Load a keyframe file and check every table of it, whatever the command.
 
     ``plan`` does not use ``[gimbal]`` or ``[bus]``, but a mistake in them is
     refused by every command alike, so a file that plans also simulates and
@@ -170,12 +177,7 @@ def load_checked(path) -> CheckedFile:
     gimbal = gimbal_config_from_tables(kf.tables, kf.path)
     bus = bus_config_from_tables(kf.tables, kf.path)
     limits = limits_from_tables(kf.tables, kf.path)
-    if len(kf.times) > _LARGE_FILE_KEYFRAMES:
-        print(
-            f"trajgen: building the spline through {len(kf.times):,} keyframes...",
-            file=sys.stderr,
-        )
-    return CheckedFile(kf, gimbal, bus, kf.spline(), limits)
+    return CheckedFile(kf, gimbal, bus, limits)
 
 
 def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLES) -> int:
@@ -221,6 +223,33 @@ def speed_warning(peak_rad_s: float) -> str | None:
         f"peak |omega| {peak_rad_s:.3g} rad/s is beyond the no-load speed of every supported "
         f"servo (fastest: {name}, {top:.2f} rad/s); `trajgen sim` will fail this motion"
     )
+
+
+class Progress:
+    """A stderr progress line, shown only once the work has taken over a second.
+
+    Call it with the fraction done (0..1). ``fraction`` keeps the last one
+    (what was done when a run is interrupted).
+    """
+
+    #: Quiet for work shorter than this (s).
+    AFTER_S = 1.0
+
+    def __init__(self, label: str, stream=None):
+        self.label = label
+        self.stream = sys.stderr if stream is None else stream
+        self.start = time.monotonic()
+        self.shown = False
+        self.fraction = 0.0
+
+    def __call__(self, fraction: float) -> None:
+        self.fraction = fraction
+        if not self.shown and time.monotonic() - self.start < self.AFTER_S:
+            return
+        self.shown = True
+        end = "\n" if fraction >= 1.0 else ""
+        self.stream.write(f"\r{self.label} {100 * fraction:3.0f}%{end}")
+        self.stream.flush()
 
 
 def servo_ids(text: str) -> tuple[int, ...]:

@@ -16,7 +16,15 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from trajgen.cli.common import EXIT_OK, add_file_argument, bad_input, baud_rate, positive_float
+from trajgen.cli.common import (
+    EXIT_OK,
+    add_file_argument,
+    bad_input,
+    baud_rate,
+    check_output_path,
+    load_checked,
+    positive_float,
+)
 
 DESCRIPTION = """\
 Stream a multi-sine excitation to the gimbal with telemetry every frame, for
@@ -108,16 +116,14 @@ def excitation_file(args) -> ExcitationFile:
         joint limits, nears gimbal lock or leaves the torque envelope.
     """
     from trajgen.gimbal import GimbalKinematics
-    from trajgen.keyframes import load_keyframe_file
     from trajgen.sim.check import check_planned_torque
     from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
-    from trajgen.sim.model import gimbal_config_from_tables
     from trajgen.stream import plan_joint_trajectory
 
-    if not args.telemetry.endswith(".csv"):
-        raise ValueError(f"--telemetry: expected a .csv path, got {args.telemetry!r}")
-    kf = load_keyframe_file(args.file)
-    config = gimbal_config_from_tables(kf.tables, kf.path)
+    check_output_path("--telemetry", args.telemetry, (".csv",))
+    check_output_path("--json", args.json, (".json",))
+    checked = load_checked(args.file)  # every table of the file
+    kf, config = checked.keyframes, checked.gimbal
     center = GimbalKinematics().inverse(kf.quats[:1])[0]
     amplitude = (
         DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3

@@ -14,8 +14,11 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    check_output_path,
+    load_checked,
     positive_float,
 )
+from trajgen.errors import TrajgenError
 
 _PROGRESS_AFTER_S = 1.0
 
@@ -84,12 +87,12 @@ def run_fit(args) -> int:
 
 
 def _run(args) -> int:
-    from trajgen.cli.common import load_checked
     from trajgen.sim.errors import SimError
     from trajgen.sim.fit import fit_timing
 
     try:
-        checked = load_checked(args.file)
+        check_output_path("--out", args.out)
+        checked = load_checked(args.file)  # every table, [bus] included
         result = fit_timing(
             checked.keyframes,
             config=checked.gimbal,
@@ -100,7 +103,7 @@ def _run(args) -> int:
     except SimError as e:
         print(f"trajgen: fit refused: {e}", file=sys.stderr)
         return EXIT_FAILED
-    except (ValueError, TypeError, OSError) as e:
+    except TrajgenError as e:
         return bad_input(e)
     print(result.format())
     header = (

@@ -391,6 +391,7 @@ def follow(args, lines):
                 telemetry=args.telemetry,
                 on_stop="torque_off" if args.torque_off else "hold",
                 goal_bounds_ticks=bounds,
+                max_delay_s=args.max_delay,
             )
             threading.Thread(target=follower.read, args=(lines,), daemon=True).start()
             streamer.run(follower.frames(start=present), rate_hz=rate)

@@ -10,7 +10,7 @@ import re
 import sys
 from pathlib import Path
 
-from trajgen.cli.common import EXIT_FAILED, EXIT_OK, bad_input
+from trajgen.cli.common import EXIT_FAILED, EXIT_OK, bad_input, check_output_path
 
 DESCRIPTION = """\
 Fit each joint's armature (kg m^2), Coulomb friction (N m), viscous damping (N
@@ -100,16 +100,13 @@ def run_identify(args) -> int:
     from trajgen.sim.model import gimbal_config_from_tables
 
     try:
+        check_output_path("--out", args.out, (".toml",))
         if not 0 <= args.delay_ms < 1000:
             raise ValueError(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
         if args.fit_current_scale and args.no_current:
             raise ValueError("--fit-current-scale needs the current: drop --no-current")
         if args.max_iter < 1:
             raise ValueError(f"--max-iter: expected >= 1, got {args.max_iter}")
-        if not args.out.endswith(".toml"):
-            raise ValueError(f"--out: expected a .toml path, got {args.out!r}")
-        if not Path(args.out).resolve().parent.is_dir():
-            raise ValueError(f"--out: no such directory for {args.out!r}")
         kf = load_keyframe_file(args.file)
         config = gimbal_config_from_tables(kf.tables, kf.path)
         logs = [load_telemetry(path) for path in args.logs]

@@ -13,6 +13,7 @@ import numpy as np
 
 from trajgen.cli.common import (
     EXIT_OK,
+    Progress,
     add_file_argument,
     add_rate_argument,
     bad_input,
@@ -39,14 +40,16 @@ def run_plan(args) -> int:
 
 
 def _plan(args) -> int:
-    check_output_path("--out", args.out, (".csv",))
+    check_output_path("--out", args.out)
     checked = load_checked(args.file)
-    kf, spline = checked.keyframes, checked.spline
+    kf = checked.keyframes
     rate = kf.stream_rate(args.rate)
     try:
-        check_timing(kf, rate, args.max_samples)
+        total = check_timing(kf, rate, args.max_samples)
     except PlanTooLarge as e:
         raise PlanTooLarge(f"{e}; --max-samples N raises the limit") from None
+    spline = checked.spline
+    progress = Progress(f"trajgen plan: writing {total:,} rows") if args.out else None
     out = open(args.out, "w", newline="") if args.out else sys.stdout
     peak_w = peak_a = 0.0
     rows = 0
@@ -61,6 +64,8 @@ def _plan(args) -> int:
             writer.writerows(np.column_stack([s.t, s.q, s.omega, s.alpha]).round(12).tolist())
             peak_w = max(peak_w, float(np.linalg.norm(s.omega, axis=1).max()))
             peak_a = max(peak_a, float(np.linalg.norm(s.alpha, axis=1).max()))
+            if progress is not None:
+                progress(rows / total)
     finally:
         if args.out:
             out.close()

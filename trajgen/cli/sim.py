@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
     PLOT_SUFFIXES,
+    Progress,
     add_file_argument,
     add_rate_argument,
     bad_input,
@@ -25,8 +25,6 @@ from trajgen.cli.common import (
     load_checked,
 )
 from trajgen.errors import TrajgenError
-
-_PROGRESS_AFTER_S = 1.0
 
 DESCRIPTION = """\
 Plan the joint stream of a keyframe file, play it to a simulated pan-tilt-roll
@@ -76,28 +74,6 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_sim)
 
 
-class _Progress:
-    """A stderr progress line, shown only once a run has taken over a second.
-
-    ``fraction`` keeps the last fraction reported (for ``--json`` on Ctrl-C).
-    """
-
-    def __init__(self, stream=None):
-        self.stream = sys.stderr if stream is None else stream
-        self.start = time.monotonic()
-        self.shown = False
-        self.fraction = 0.0
-
-    def __call__(self, fraction: float) -> None:
-        self.fraction = fraction
-        if not self.shown and time.monotonic() - self.start < _PROGRESS_AFTER_S:
-            return
-        self.shown = True
-        end = "\n" if fraction >= 1.0 else ""
-        self.stream.write(f"\rtrajgen sim: simulating {100 * fraction:3.0f}%{end}")
-        self.stream.flush()
-
-
 def check_sim_arguments(args) -> None:
     """Refuse unusable output options before anything is planned or simulated.
 
@@ -118,7 +94,7 @@ def check_sim_arguments(args) -> None:
 def run_sim(args) -> int:
     """Run ``trajgen sim``; returns the exit status (0 ok, 1 check failed, 2 bad input,
     130 interrupted)."""
-    progress = _Progress()
+    progress = Progress("trajgen sim: simulating")
     done = {"stage": "checking the file", "file": str(args.file)}
     try:
         check_sim_arguments(args)
@@ -139,7 +115,7 @@ def _write_json(path: str, data: dict) -> None:
     print(f"json: {path}")
 
 
-def _run(args, progress: _Progress, done: dict) -> int:
+def _run(args, progress: Progress, done: dict) -> int:
     from trajgen.sim.check import check_torque
     from trajgen.sim.errors import SimError
 

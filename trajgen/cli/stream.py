@@ -28,10 +28,13 @@ from dataclasses import dataclass, field
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    PLOT_SUFFIXES,
     add_file_argument,
     bad_input,
     baud_rate,
     check_output_path,
+    check_timing,
+    load_checked,
     open_bus,
     positive_float,
     servo_ids,
@@ -112,14 +115,6 @@ def register(subparsers) -> None:
         metavar="DEG",
         help="refuse to start when a joint is farther than this from the first frame (default 45)",
     )
-    p.add_argument(
-        "--max-delay",
-        type=positive_float,
-        default=MAX_DELAY_S,
-        metavar="S",
-        help="fail the stream when host stalls have put it this far behind its plan "
-        f"(default {MAX_DELAY_S:g} s; --virtual runs on simulated time and never stalls)",
-    )
     p.set_defaults(func=run_stream)
 
 
@@ -145,6 +140,14 @@ def add_stream_arguments(p) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
     p.add_argument(
         "--torque-off", action="store_true", help="release the servos when the stream stops"
+    )
+    p.add_argument(
+        "--max-delay",
+        type=positive_float,
+        default=MAX_DELAY_S,
+        metavar="S",
+        help="fail the stream when host stalls have put it this far behind its plan "
+        f"(default {MAX_DELAY_S:g} s; stream --virtual runs on simulated time: no stalls)",
     )
     p.add_argument(
         "--virtual",
@@ -253,14 +256,22 @@ def _plan(args):
     """
     from trajgen.drivers.config import bus_config_from_tables
     from trajgen.drivers.units import JointMap
-    from trajgen.keyframes import load_keyframe_file
+    from trajgen.keyframes import DEFAULT_RATE_HZ
     from trajgen.stream import plan_joint_trajectory
 
     check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
     check_output_path("--json", args.json, (".json",))
-    # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
-    kf = args.file if hasattr(args.file, "spline") else load_keyframe_file(args.file)
-    config = bus_config_from_tables(kf.tables, kf.path)
+    check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+    if hasattr(args.file, "spline"):
+        # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
+        kf = args.file
+        config = bus_config_from_tables(kf.tables, kf.path)
+        rate = args.rate or kf.rate_hz or DEFAULT_RATE_HZ
+    else:
+        checked = load_checked(args.file)
+        kf, config = checked.keyframes, checked.bus
+        rate = kf.stream_rate(args.rate)
+        check_timing(kf, rate)
     joints = config.joints
     if args.virtual:
         if args.port:
@@ -272,7 +283,6 @@ def _plan(args):
         raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
     if args.ids:
         joints = JointMap(args.ids, joints.directions, joints.zeros)
-    rate = args.rate or kf.rate_hz or 200.0
     trajectory = plan_joint_trajectory(kf.spline(), rate)
     return kf, config, joints, rate, trajectory
 

@@ -16,13 +16,16 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    PLOT_SUFFIXES,
     add_file_argument,
     bad_input,
+    check_output_path,
+    load_checked,
     positive_float,
 )
+from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 _PROGRESS_AFTER_S = 1.0
-JOINTS = ("pan", "tilt", "roll")
 
 DESCRIPTION = """\
 Run `trajgen sim`'s torque check on every combination of payload mass, payload
@@ -130,12 +133,13 @@ def run_sweep(args) -> int:
 
 
 def _run(args) -> int:
-    from trajgen.cli.common import load_checked
     from trajgen.sim import sweep
     from trajgen.sim.errors import SimError
 
     try:
-        checked = load_checked(args.file)
+        check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+        check_output_path("--json", args.json, (".json",))
+        checked = load_checked(args.file)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
         for joint, models in args.servo or []:

@@ -16,8 +16,10 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    load_checked,
     servo_ids,
 )
+from trajgen.errors import TrajgenError
 
 VIRTUAL_BUS_DESCRIPTION = """\
 Serve the simulated gimbal of a keyframe file (its [gimbal] table; the built-in
@@ -76,24 +78,20 @@ def register(subparsers) -> None:
 
 def run_virtual_bus(args) -> int:
     """Run ``trajgen virtual-bus``; returns the exit status."""
-    from trajgen.drivers.config import bus_config_from_tables
-    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim.plant import GimbalPlant
 
     try:
-        kf = load_keyframe_file(args.file)
-        config = bus_config_from_tables(kf.tables, kf.path)
-        from trajgen.sim.model import gimbal_config_from_tables
-        from trajgen.sim.plant import GimbalPlant
-
-        # Served until stopped and never reported on: no step record kept.
-        plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), record=False)
-    except (ValueError, TypeError, OSError) as e:  # KeyframeFileError included
+        checked = load_checked(args.file)
+    except TrajgenError as e:
         return bad_input(e)
+    kf, config = checked.keyframes, checked.bus
+    # Served until stopped and never reported on: no step record kept.
+    plant = GimbalPlant(checked.gimbal, record=False)
     from trajgen.drivers.virtual.bus import VirtualBus
 
     ids = args.ids or config.joints.ids
     models = args.models or config.models
-    period_s = 1.0 / (kf.rate_hz or 200.0) if args.lockstep else None
+    period_s = 1.0 / kf.stream_rate() if args.lockstep else None
     stop = threading.Event()
     previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
     virtual = VirtualBus(

@@ -1,0 +1,1068 @@
+"""Every bad input we tried on the command line, with the exit status and message it gets.
+
+Each row is ``(name, argv, file, status, message, before)``:
+
+- ``argv``: the command line after ``trajgen``; ``{file}`` is the keyframe
+  file written from ``file`` (TOML text), ``{tmp}`` a fresh empty folder;
+- ``status``: 2 bad input (one line on stderr naming the option or the
+  file/keyframe/field, no traceback), 1 a failed check, 0 accepted;
+- ``message``: a regular expression the output must match;
+- ``before``: what the same input did before issue 8 was fixed, measured on
+  the earlier command line: ``"ok"`` (already a clear refusal), ``"crash"``
+  (a traceback), ``"silent"`` (accepted, or refused only after planning,
+  simulating or streaming, or a wrong result), ``"hang"`` (no answer in
+  90 s), ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more
+  than one line, or a message that did not name the option), ``"new"`` (an
+  option or table that did not exist then).
+
+Every row runs in-process through :func:`trajgen.cli.main`; nothing here
+touches a serial port (``stream`` refuses before opening one).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+import pytest
+
+from trajgen.cli import main
+
+# Three keyframes, 2 s apart: a gentle pan and tilt.
+KEYS = """
+[[keyframes]]
+t = 0.0
+pan = 0.0
+
+[[keyframes]]
+t = 2.0
+pan = 30.0
+tilt = 10.0
+
+[[keyframes]]
+t = 4.0
+pan = 0.0
+"""
+GOOD = KEYS
+
+
+def keys(*rows: str) -> str:
+    """``[[keyframes]]`` tables from rows of ``key = value`` lines separated by ';'."""
+    return "".join("\n[[keyframes]]\n" + row.replace(";", "\n") + "\n" for row in rows)
+
+
+def closed(local: str = "auto") -> str:
+    return f'[spline]\nboundary = "closed"\nlocal = "{local}"\n' + keys(
+        "t = 0;pan = 0", "t = 1;pan = 30", "t = 2;pan = 0;tilt = 20", "t = 3;pan = 0"
+    )
+
+
+CASES = [
+    # --- the command line itself -----------------------------------------------
+    (
+        "no command",
+        [],
+        None,
+        2,
+        r"trajgen: error: the following arguments are required: COMMAND",
+        "unclear",
+    ),
+    ("unknown command", ["fly"], None, 2, r"invalid choice: 'fly'", "unclear"),
+    (
+        "plan --rate 0",
+        ["plan", "--rate", "0"],
+        None,
+        2,
+        r"argument --rate: expected a number > 0, got '0'",
+        "unclear",
+    ),
+    (
+        "plan --rate -5",
+        ["plan", "--rate=-5"],
+        None,
+        2,
+        r"argument --rate: expected a number > 0",
+        "unclear",
+    ),
+    (
+        "plan --rate nan",
+        ["plan", "--rate", "nan"],
+        None,
+        2,
+        r"argument --rate: expected a number > 0",
+        "unclear",
+    ),
+    (
+        "plan --rate inf",
+        ["plan", "--rate", "inf"],
+        None,
+        2,
+        r"argument --rate: expected a number > 0",
+        "unclear",
+    ),
+    (
+        "plan --rate abc",
+        ["plan", "--rate", "abc"],
+        None,
+        2,
+        r"argument --rate: expected a number, got 'abc'",
+        "unclear",
+    ),
+    (
+        "plan --rate 1e9",
+        ["plan", "--rate", "1e9"],
+        None,
+        2,
+        r"8 s at 1e\+09 Hz is 8e\+09 samples, over the limit of 5,000,000",
+        "crash",
+    ),
+    (
+        "plan --rate 1e-9",
+        ["plan", "--rate", "1e-9"],
+        None,
+        2,
+        r"keyframes 1 and 2: 1.5 s apart, less than one sample period",
+        "silent",
+    ),
+    (
+        "plan --max-samples 0",
+        ["plan", "--max-samples", "0"],
+        None,
+        2,
+        r"argument --max-samples: expected a whole number >= 2",
+        "new",
+    ),
+    (
+        "plan --max-samples 1.5",
+        ["plan", "--max-samples", "1.5"],
+        None,
+        2,
+        r"argument --max-samples: expected a whole number >= 2",
+        "new",
+    ),
+    (
+        "plan --max-samples too few",
+        ["plan", "--max-samples", "100"],
+        None,
+        2,
+        r"is 1601 samples, over the limit of 100 .*; --max-samples N raises the limit",
+        "new",
+    ),
+    (
+        "plan --out no folder",
+        ["plan", "--out", "{tmp}/no/such/p.csv"],
+        None,
+        2,
+        r"--out '.*/no/such/p.csv': no such folder",
+        "crash",
+    ),
+    (
+        "plan --out a folder",
+        ["plan", "--out", "{tmp}"],
+        None,
+        2,
+        r"--out '.*': is a directory; give a file name",
+        "crash",
+    ),
+    ("plan --out ''", ["plan", "--out", ""], None, 2, r"--out '': is a directory", "silent"),
+    # --- the keyframe file as a file -------------------------------------------
+    ("file missing", ["plan", "{tmp}/missing.toml"], None, 2, r"missing.toml: no such file", "ok"),
+    (
+        "file is a folder",
+        ["plan", "{tmp}"],
+        None,
+        2,
+        r": is a directory, not a keyframe file",
+        "ok",
+    ),
+    (
+        "file empty",
+        ["plan", "{file}"],
+        "",
+        2,
+        r"no \[\[keyframes\]\] \(at least 2 are needed\)",
+        "ok",
+    ),
+    ("file not TOML", ["plan", "{file}"], "t = = 1\n", 2, r"invalid TOML", "ok"),
+    (
+        "file binary",
+        ["plan", "{file}"],
+        b"\xff\xfe\x00\x01",
+        2,
+        r"cannot read: 'utf-8' codec",
+        "ok",
+    ),
+    (
+        "unknown table",
+        ["plan", "{file}"],
+        "[camera]\nfov = 60\n" + KEYS,
+        2,
+        r"unknown table \[camera\] \(known: spline, keyframes, stream, gimbal, bus",
+        "ok",
+    ),
+    # --- [spline] ----------------------------------------------------------------
+    (
+        "k = 0",
+        ["plan", "{file}"],
+        "[spline]\nk = 0\n" + KEYS,
+        2,
+        r"\[spline\] k: expected an integer in 1\.\.6, got 0",
+        "ok",
+    ),
+    (
+        "k = 7",
+        ["plan", "{file}"],
+        "[spline]\nk = 7\n" + KEYS,
+        2,
+        r"\[spline\] k: expected an integer in 1\.\.6, got 7",
+        "silent",
+    ),
+    (
+        "k = 30",
+        ["plan", "{file}"],
+        "[spline]\nk = 30\n" + KEYS,
+        2,
+        r"\[spline\] k: expected an integer in 1\.\.6, got 30",
+        "silent",
+    ),
+    (
+        "k = 1000",
+        ["plan", "{file}"],
+        "[spline]\nk = 1000\n" + KEYS,
+        2,
+        r"\[spline\] k: expected an integer in 1\.\.6, got 1000",
+        "crash",
+    ),
+    (
+        "k = 2.5",
+        ["plan", "{file}"],
+        "[spline]\nk = 2.5\n" + KEYS,
+        2,
+        r"\[spline\] k: expected an integer in 1\.\.6, got 2.5",
+        "ok",
+    ),
+    (
+        "k = true",
+        ["plan", "{file}"],
+        "[spline]\nk = true\n" + KEYS,
+        2,
+        r"\[spline\] k: expected an integer in 1\.\.6, got True",
+        "ok",
+    ),
+    (
+        "boundary unknown",
+        ["plan", "{file}"],
+        '[spline]\nboundary = "free"\n' + KEYS,
+        2,
+        r"\[spline\] boundary: expected one of rest, natural, closed, got 'free'",
+        "ok",
+    ),
+    (
+        "local not a string",
+        ["plan", "{file}"],
+        "[spline]\nlocal = 3\n" + KEYS,
+        2,
+        r"\[spline\] local: expected one of auto, circle, parabola, got 3",
+        "ok",
+    ),
+    (
+        "reparam unknown",
+        ["plan", "{file}"],
+        '[spline]\nreparam = "cubic"\n' + KEYS,
+        2,
+        r"\[spline\] reparam: expected one of paper, rational",
+        "ok",
+    ),
+    (
+        "spline unknown key",
+        ["plan", "{file}"],
+        "[spline]\norder = 2\n" + KEYS,
+        2,
+        r"\[spline\] unknown key 'order' \(known: method, k, boundary",
+        "ok",
+    ),
+    (
+        "spline not a table",
+        ["plan", "{file}"],
+        "spline = 2\n" + KEYS,
+        2,
+        r"\[spline\] must be a table, got 2",
+        "ok",
+    ),
+    (
+        "closed loop not closed",
+        ["plan", "{file}"],
+        '[spline]\nboundary = "closed"\n'
+        + keys("t = 0;pan = 0", "t = 1;pan = 30", "t = 2;pan = 9"),
+        2,
+        r"needs the last keyframe to repeat the first; they are 9 deg apart",
+        "ok",
+    ),
+    (
+        "closed with 2 keyframes",
+        ["plan", "{file}"],
+        '[spline]\nboundary = "closed"\n' + keys("t = 0;pan = 0", "t = 1;pan = 0"),
+        2,
+        r"A closed spline needs at least 3 keyframes, got 2",
+        "ok",
+    ),
+    (
+        "circle through a reversal",
+        ["plan", "{file}"],
+        '[spline]\nlocal = "circle"\n' + keys("t = 0;pan = 0", "t = 1;pan = 30", "t = 2;pan = 0"),
+        2,
+        r"no circle passes through them; use local='auto' or 'parabola'",
+        "ok",
+    ),
+    (
+        "closed loop plans to t_end",
+        ["plan", "{file}"],
+        closed(),
+        0,
+        r"planned .*: 601 samples at 200 Hz over 3\.000 s",
+        "silent",
+    ),
+    # --- [stream] ------------------------------------------------------------------
+    (
+        "rate_hz = 0",
+        ["plan", "{file}"],
+        "[stream]\nrate_hz = 0\n" + KEYS,
+        2,
+        r"\[stream\] rate_hz: expected a finite number > 0, got 0",
+        "ok",
+    ),
+    (
+        "rate_hz string",
+        ["plan", "{file}"],
+        '[stream]\nrate_hz = "fast"\n' + KEYS,
+        2,
+        r"\[stream\] rate_hz: expected a finite number > 0, got 'fast'",
+        "ok",
+    ),
+    (
+        "rate_hz inf",
+        ["plan", "{file}"],
+        "[stream]\nrate_hz = inf\n" + KEYS,
+        2,
+        r"\[stream\] rate_hz: expected a finite number > 0, got inf",
+        "ok",
+    ),
+    (
+        "rate_hz 1e9",
+        ["plan", "{file}"],
+        "[stream]\nrate_hz = 1e9\n" + KEYS,
+        2,
+        r"is 4e\+09 samples, over the limit",
+        "crash",
+    ),
+    (
+        "stream unknown key",
+        ["plan", "{file}"],
+        "[stream]\nrate = 100\n" + KEYS,
+        2,
+        r"\[stream\] unknown key 'rate' \(known: rate_hz\)",
+        "ok",
+    ),
+    (
+        "stream not a table",
+        ["plan", "{file}"],
+        "stream = 100\n" + KEYS,
+        2,
+        r"\[stream\] must be a table, got 100",
+        "ok",
+    ),
+    ("one default rate", ["plan", "{file}"], KEYS, 0, r"801 samples at 200 Hz", "silent"),
+    # --- [[keyframes]] -------------------------------------------------------------
+    (
+        "no keyframes",
+        ["plan", "{file}"],
+        "[spline]\nk = 2\n",
+        2,
+        r"no \[\[keyframes\]\] \(at least 2 are needed\)",
+        "ok",
+    ),
+    (
+        "one keyframe",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0"),
+        2,
+        r"\[\[keyframes\]\]: at least 2 are needed, got 1",
+        "ok",
+    ),
+    (
+        "keyframes not tables",
+        ["plan", "{file}"],
+        "keyframes = 5\n",
+        2,
+        r"\[\[keyframes\]\]: at least 2 are needed, got not a list of tables",
+        "ok",
+    ),
+    (
+        "keyframe not a table",
+        ["plan", "{file}"],
+        "keyframes = [1, 2]\n",
+        2,
+        r"keyframe 1: expected a table, got 1",
+        "ok",
+    ),
+    (
+        "t missing",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "pan = 10"),
+        2,
+        r"keyframe 2: field 't' is missing \(seconds\)",
+        "ok",
+    ),
+    (
+        "t string",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", 't = "1s";pan = 10'),
+        2,
+        r"keyframe 2: field 't': expected a finite number, got '1s'",
+        "ok",
+    ),
+    (
+        "t nan",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = nan;pan = 10"),
+        2,
+        r"keyframe 2: field 't': expected a finite number, got nan",
+        "ok",
+    ),
+    (
+        "t inf",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = inf;pan = 10"),
+        2,
+        r"keyframe 2: field 't': expected a finite number, got inf",
+        "ok",
+    ),
+    (
+        "t boolean",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = true;pan = 10"),
+        2,
+        r"keyframe 2: field 't': expected a finite number, got True",
+        "ok",
+    ),
+    (
+        "t = 1e308",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1e308;pan = 10"),
+        2,
+        r"1e\+308 s at 200 Hz is more than 1e300 samples, over the limit",
+        "crash",
+    ),
+    (
+        "t = -1e308 .. 1e308",
+        ["plan", "{file}"],
+        keys("t = -1e308;pan = 0", "t = 1e308;pan = 10"),
+        2,
+        r"keyframes 1 to 2: field 't': the times span more than 1e308 s",
+        "crash",
+    ),
+    (
+        "1e6 s apart at 1 kHz",
+        ["plan", "{file}", "--rate", "1000"],
+        keys("t = 0;pan = 0", "t = 1e6;pan = 10"),
+        2,
+        r"1e\+06 s at 1000 Hz is 1e\+09 samples, over the limit of 5,000,000",
+        "crash",
+    ),
+    (
+        "times equal",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 0;pan = 10"),
+        2,
+        r"keyframe 2: field 't': 0 s is not after keyframe 1's 0 s",
+        "ok",
+    ),
+    (
+        "times decreasing",
+        ["plan", "{file}"],
+        keys("t = 1;pan = 0", "t = 0.5;pan = 10"),
+        2,
+        r"keyframe 2: field 't': 0.5 s is not after keyframe 1's 1 s",
+        "ok",
+    ),
+    (
+        "keyframes 1 ns apart",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1e-9;pan = 90"),
+        2,
+        r"keyframes 1 and 2: 1e-09 s apart, less than one sample period \(0.005 s at 200 Hz\)",
+        "silent",
+    ),
+    (
+        "keyframes 1 ms apart",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;pan = 10", "t = 1.001;pan = 90", "t = 2;pan = 0"),
+        2,
+        r"keyframes 2 and 3: 0.001 s apart, less than one sample period",
+        "silent",
+    ),
+    (
+        "90 deg in 20 ms: a clear warning",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 0.02;pan = 90"),
+        0,
+        r"warning: peak \|omega\| .* rad/s is beyond the no-load speed of every supported servo",
+        "silent",
+    ),
+    (
+        "unknown field",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;yaw = 10"),
+        2,
+        r"keyframe 2: unknown field 'yaw' \(known: t, pan, tilt, roll, quat\)",
+        "ok",
+    ),
+    (
+        "pan string",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", 't = 1;pan = "ten"'),
+        2,
+        r"keyframe 2: field 'pan': expected a finite number, got 'ten'",
+        "ok",
+    ),
+    (
+        "pan nan",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;pan = nan"),
+        2,
+        r"keyframe 2: field 'pan': expected a finite number, got nan",
+        "ok",
+    ),
+    (
+        "no orientation",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1"),
+        2,
+        r"keyframe 2: no orientation: give 'quat' or pan/tilt/roll",
+        "ok",
+    ),
+    (
+        "quat and pan",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;pan = 3;quat = [1, 0, 0, 0]"),
+        2,
+        r"keyframe 2: give either 'quat' or pan/tilt/roll, not both",
+        "ok",
+    ),
+    (
+        "quat of 3",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;quat = [1, 0, 0]"),
+        2,
+        r"keyframe 2: field 'quat': expected \[w, x, y, z\], got \[1, 0, 0\]",
+        "ok",
+    ),
+    (
+        "quat zero",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;quat = [0, 0, 0, 0]"),
+        2,
+        r"keyframe 2: field 'quat': zero quaternion",
+        "ok",
+    ),
+    (
+        "quat strings",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", 't = 1;quat = ["1", 0, 0, 0]'),
+        2,
+        r"keyframe 2: field 'quat': expected a finite number, got '1'",
+        "ok",
+    ),
+    (
+        "quat not a list",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 1;quat = 1"),
+        2,
+        r"keyframe 2: field 'quat': expected \[w, x, y, z\], got 1",
+        "ok",
+    ),
+    # --- [gimbal], checked by every command ----------------------------------------
+    (
+        "plan: gimbal servo unknown",
+        ["plan", "{file}"],
+        '[gimbal]\nservo = "XM999"\n' + KEYS,
+        2,
+        r"\[gimbal\] servo: unknown model 'XM999'",
+        "silent",
+    ),
+    (
+        "plan: gimbal payload negative",
+        ["plan", "{file}"],
+        "[gimbal]\npayload_kg = -1\n" + KEYS,
+        2,
+        r"\[gimbal\] payload_kg: expected a finite number >= 0, got -1",
+        "silent",
+    ),
+    (
+        "plan: gimbal margin 2",
+        ["plan", "{file}"],
+        "[gimbal]\ntorque_margin = 2\n" + KEYS,
+        2,
+        r"\[gimbal\] torque_margin: expected a finite number in \(0, 1\], got 2",
+        "silent",
+    ),
+    (
+        "plan: gimbal unknown key",
+        ["plan", "{file}"],
+        "[gimbal]\nmass = 1\n" + KEYS,
+        2,
+        r"\[gimbal\] unknown key 'mass'",
+        "silent",
+    ),
+    (
+        "plan: gimbal not a table",
+        ["plan", "{file}"],
+        "gimbal = 1\n" + KEYS,
+        2,
+        r"\[gimbal\]: expected a table, got 1",
+        "silent",
+    ),
+    (
+        "plan: gimbal offset of 2",
+        ["plan", "{file}"],
+        "[gimbal]\npayload_offset_m = [0, 0]\n" + KEYS,
+        2,
+        r"\[gimbal\] payload_offset_m: expected a list of 3 numbers, got \[0, 0\]",
+        "silent",
+    ),
+    (
+        "sim: gimbal servo per joint unknown",
+        ["sim", "{file}"],
+        '[gimbal]\nservo = {yaw = "XM430-W350"}\n' + KEYS,
+        2,
+        r"\[gimbal\] servo.yaw: unknown joint \(known: pan, tilt, roll\)",
+        "ok",
+    ),
+    (
+        "stream: lower-case servo name",
+        ["stream", "{file}", "--port", "{tmp}/no-port"],
+        '[gimbal]\nservo = "xm430-w350"\n' + KEYS,
+        2,
+        r"no-port",
+        "wrong",
+    ),
+    # --- [bus], checked by every command --------------------------------------------
+    (
+        "plan: bus baud 123",
+        ["plan", "{file}"],
+        "[bus]\nbaud = 123\n" + KEYS,
+        2,
+        r"\[bus\] baud: expected one of 9600, 57600, 115200, 1000000, .*, 4500000, got 123",
+        "silent",
+    ),
+    (
+        "plan: bus baud string",
+        ["plan", "{file}"],
+        '[bus]\nbaud = "fast"\n' + KEYS,
+        2,
+        r"\[bus\] baud: expected an integer, got 'fast'",
+        "silent",
+    ),
+    (
+        "plan: bus ids repeated",
+        ["plan", "{file}"],
+        "[bus]\nids = [1, 1, 2]\n" + KEYS,
+        2,
+        r"\[bus\] ids: expected 3 distinct ids, got \[1, 1, 2\]",
+        "silent",
+    ),
+    (
+        "plan: bus id 300",
+        ["plan", "{file}"],
+        "[bus]\nids = [1, 2, 300]\n" + KEYS,
+        2,
+        r"\[bus\] ids: expected an integer in 0\.\.252, got 300 in \[1, 2, 300\]",
+        "silent",
+    ),
+    (
+        "plan: bus directions 0",
+        ["plan", "{file}"],
+        "[bus]\ndirections = [1, 0, 1]\n" + KEYS,
+        2,
+        r"\[bus\] directions: expected \+1 or -1 each, got \[1, 0, 1\]",
+        "silent",
+    ),
+    (
+        "plan: bus zero tick 5000",
+        ["plan", "{file}"],
+        "[bus]\nzeros = [2048, 2048, 5000]\n" + KEYS,
+        2,
+        r"\[bus\] zeros: expected an integer in 0\.\.4095, got 5000",
+        "silent",
+    ),
+    (
+        "plan: bus model unknown",
+        ["plan", "{file}"],
+        '[bus]\nmodels = "MX-28"\n' + KEYS,
+        2,
+        r"\[bus\] models: unknown model 'MX-28'",
+        "silent",
+    ),
+    (
+        "plan: bus watchdog 5 s",
+        ["plan", "{file}"],
+        "[bus]\nwatchdog_s = 5\n" + KEYS,
+        2,
+        r"\[bus\] watchdog_s: expected a finite number in 0\.02\.\.2\.54, got 5",
+        "silent",
+    ),
+    (
+        "plan: bus port a number",
+        ["plan", "{file}"],
+        "[bus]\nport = 3\n" + KEYS,
+        2,
+        r"\[bus\] port: expected a device path string, got 3",
+        "silent",
+    ),
+    (
+        "plan: bus unknown key",
+        ["plan", "{file}"],
+        "[bus]\nspeed = 3\n" + KEYS,
+        2,
+        r"\[bus\] speed: unknown key",
+        "silent",
+    ),
+    (
+        "stream: bus baud 123",
+        ["stream", "{file}", "--virtual"],
+        "[bus]\nbaud = 123\n" + KEYS,
+        2,
+        r"\[bus\] baud: expected one of 9600",
+        "silent",
+    ),
+    (
+        "plan: limits unknown key",
+        ["plan", "{file}"],
+        "[limits]\nspeed = 1\n" + KEYS,
+        2,
+        r"\[limits\] unknown key 'speed'",
+        "new",
+    ),
+    (
+        "plan: limits speed negative",
+        ["plan", "{file}"],
+        "[limits]\nspeed_rad_s = -1\n" + KEYS,
+        2,
+        r"\[limits\] speed_rad_s: expected a number > 0",
+        "new",
+    ),
+    # --- sim ------------------------------------------------------------------------
+    (
+        "sim --rate 0",
+        ["sim", "--rate", "0"],
+        None,
+        2,
+        r"argument --rate: expected a number > 0",
+        "unclear",
+    ),
+    (
+        "sim --json no folder",
+        ["sim", "--json", "{tmp}/no/r.json"],
+        None,
+        2,
+        r"--json '.*/no/r.json': no such folder",
+        "silent",
+    ),
+    (
+        "sim --json a folder",
+        ["sim", "--json", "{tmp}"],
+        None,
+        2,
+        r"--json '.*': is a directory",
+        "silent",
+    ),
+    (
+        "sim --plot no folder",
+        ["sim", "--plot", "{tmp}/no/p.png"],
+        None,
+        2,
+        r"--plot '.*/no/p.png': no such folder",
+        "silent",
+    ),
+    (
+        "sim --plot .txt",
+        ["sim", "--plot", "{tmp}/p.txt"],
+        None,
+        2,
+        r"--plot '.*p.txt': expected a \.png or \.pdf or \.svg or \.jpg or \.jpeg file",
+        "silent",
+    ),
+    (
+        "sim --video .avi",
+        ["sim", "--video", "{tmp}/v.avi"],
+        None,
+        2,
+        r"--video '.*v.avi': expected a \.mp4 file",
+        "silent",
+    ),
+    ("sim --rate 1e9", ["sim", "--rate", "1e9"], None, 2, r"over the limit of 5,000,000", "crash"),
+    (
+        "sim: 1e6 s of motion",
+        ["sim", "{file}"],
+        keys("t = 0;pan = 0", "t = 1e6;pan = 10"),
+        2,
+        r"1e\+06 s at 200 Hz is 2e\+08 samples, over the limit",
+        "hang",
+    ),
+    (
+        "sim: keyframes 1 ns apart",
+        ["sim", "{file}"],
+        keys("t = 0;pan = 0", "t = 1e-9;pan = 90"),
+        2,
+        r"keyframes 1 and 2: 1e-09 s apart",
+        "silent",
+    ),
+    (
+        "sim: too fast is a clear failed check",
+        ["sim", "{file}"],
+        keys("t = 0;pan = 0", "t = 0.3;pan = 90"),
+        1,
+        r"torque check: FAILED[\s\S]*pan: planned speed .* exceeds the XM430-W350's no-load speed",
+        "ok",
+    ),
+    # --- commands added since: fit, sweep -----------------------------------------------
+    (
+        "fit --out no folder",
+        ["fit", "--out", "{tmp}/no/f.toml"],
+        None,
+        2,
+        r"--out '.*/no/f.toml': no such folder",
+        "new",
+    ),
+    (
+        "fit: bus baud 123",
+        ["fit", "{file}", "--out", "{tmp}/f.toml"],
+        "[bus]\nbaud = 123\n" + KEYS,
+        2,
+        r"\[bus\] baud: expected one of",
+        "new",
+    ),
+    (
+        "sweep --plot .txt",
+        ["sweep", "--plot", "{tmp}/s.txt"],
+        None,
+        2,
+        r"--plot '.*s.txt': expected a \.png",
+        "new",
+    ),
+    (
+        "sweep --json a folder",
+        ["sweep", "--json", "{tmp}"],
+        None,
+        2,
+        r"--json '.*': is a directory",
+        "new",
+    ),
+    # --- stream and scan: refused before any port is opened ---------------------------
+    (
+        "stream --baud 123",
+        ["stream", "--baud", "123", "--virtual"],
+        None,
+        2,
+        r"argument --baud: 123 is not an X-series baud rate",
+        "silent",
+    ),
+    (
+        "stream --baud abc",
+        ["stream", "--baud", "abc"],
+        None,
+        2,
+        r"argument --baud: expected an integer, got 'abc'",
+        "unclear",
+    ),
+    (
+        "stream --ids repeated",
+        ["stream", "--ids", "1,1,2"],
+        None,
+        2,
+        r"argument --ids: expected 3 distinct ids in 0\.\.252, got '1,1,2'",
+        "unclear",
+    ),
+    (
+        "stream --ids two",
+        ["stream", "--ids", "1,2"],
+        None,
+        2,
+        r"argument --ids: expected 3 distinct ids",
+        "unclear",
+    ),
+    (
+        "stream --ids 300",
+        ["stream", "--ids", "1,2,300"],
+        None,
+        2,
+        r"argument --ids: expected 3 distinct ids in 0\.\.252",
+        "unclear",
+    ),
+    (
+        "stream --ids letters",
+        ["stream", "--ids", "a,b,c"],
+        None,
+        2,
+        r"argument --ids: expected ids like 1,2,3, got 'a,b,c'",
+        "unclear",
+    ),
+    (
+        "stream no port",
+        ["stream"],
+        None,
+        2,
+        r"no serial port: give --port, set \[bus\] port, or use --virtual",
+        "ok",
+    ),
+    (
+        "stream --port and --virtual",
+        ["stream", "--port", "/dev/null", "--virtual"],
+        None,
+        2,
+        r"--port and --virtual exclude each other",
+        "ok",
+    ),
+    (
+        "stream --plot without --virtual",
+        ["stream", "--port", "/dev/null", "--plot", "{tmp}/p.png"],
+        None,
+        2,
+        r"--plot needs --virtual",
+        "ok",
+    ),
+    (
+        "stream --telemetry .txt",
+        ["stream", "--virtual", "--telemetry", "{tmp}/t.txt"],
+        None,
+        2,
+        r"--telemetry '.*t.txt': expected a \.csv or \.npz file",
+        "ok",
+    ),
+    (
+        "stream --telemetry no folder",
+        ["stream", "--virtual", "--telemetry", "{tmp}/no/t.csv"],
+        None,
+        2,
+        r"--telemetry '.*/no/t.csv': no such folder",
+        "ok",
+    ),
+    (
+        "stream --json no folder",
+        ["stream", "--virtual", "--json", "{tmp}/no/r.json"],
+        None,
+        2,
+        r"--json '.*/no/r.json': no such folder",
+        "silent",
+    ),
+    (
+        "stream --rate 1e9",
+        ["stream", "--virtual", "--rate", "1e9"],
+        None,
+        2,
+        r"over the limit of 5,000,000",
+        "crash",
+    ),
+    (
+        "stream: keyframes 1 ms apart",
+        ["stream", "{file}", "--virtual"],
+        keys("t = 0;pan = 0", "t = 0.001;pan = 1"),
+        2,
+        r"keyframes 1 and 2: 0.001 s apart",
+        "silent",
+    ),
+    (
+        "stream: port that does not exist",
+        ["stream", "--port", "{tmp}/ttyUSB9"],
+        None,
+        2,
+        r"ttyUSB9",
+        "ok",
+    ),
+    (
+        "scan --baud 123",
+        ["scan", "--port", "/dev/null", "--baud", "123"],
+        None,
+        2,
+        r"argument --baud: 123 is not an X-series baud rate",
+        "silent",
+    ),
+    (
+        "scan no --port",
+        ["scan"],
+        None,
+        2,
+        r"the following arguments are required: --port",
+        "unclear",
+    ),
+]
+
+
+def _write(path, content) -> None:
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content, encoding="utf-8")
+
+
+def run_case(argv, file, tmp_path, capsys) -> tuple[int, str, str]:
+    """Run one row through ``trajgen.cli.main``; returns (status, stdout, stderr)."""
+    folder = tmp_path / "empty"
+    folder.mkdir()
+    path = tmp_path / "keys.toml"
+    if file is not None:
+        _write(path, file)
+    argv = [a.format(file=path, tmp=folder) for a in argv]
+    try:
+        status = main(argv)
+    except SystemExit as e:  # argparse
+        status = e.code
+    out = capsys.readouterr()
+    return status, out.out, out.err
+
+
+@pytest.mark.parametrize(
+    ("argv", "file", "status", "message"),
+    [pytest.param(*row[1:5], id=row[0]) for row in CASES],
+)
+def test_bad_input_is_refused_clearly(argv, file, status, message, tmp_path, capsys):
+    got, out, err = run_case(argv, file, tmp_path, capsys)
+    assert "Traceback" not in err
+    assert got == status, err
+    if status == 2:
+        line = err.strip()
+        assert line.startswith("trajgen") and "\n" not in line, err
+        assert re.search(message, line), line
+    else:
+        assert re.search(message, out + err), out + err
+
+
+def test_the_table_is_what_the_report_counts():
+    names = [row[0] for row in CASES]
+    assert len(names) == len(set(names))
+    assert all(
+        row[5] in ("ok", "crash", "hang", "silent", "wrong", "unclear", "new") for row in CASES
+    )
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
+def test_an_unwritable_folder_is_refused(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    status, _, err = run_case(["plan", "--out", f"{locked}/p.csv"], None, tmp_path, capsys)
+    assert status == 2 and "is not writable" in err
+
+
+def test_a_closed_pipe_ends_quietly():
+    import subprocess
+    import sys
+
+    code = "import sys; from trajgen.cli import main; sys.exit(main(['plan']))"
+    plan = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    assert plan.stdout.readline().startswith(b"t_s,")
+    plan.stdout.close()  # as `trajgen plan | head -1` does
+    assert plan.wait(timeout=60) == 0
+    err = plan.stderr.read()
+    assert b"Traceback" not in err and b"BrokenPipe" not in err
