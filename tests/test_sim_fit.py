@@ -234,3 +234,21 @@ def test_plan_only_fit_keeps_the_envelope(fitted):
     assert check_planned_torque(trajectory, config) == ()
     assert plan_only.duration_s <= result.duration_s * 1.01
     assert plan_only.faster_reasons  # 10% faster leaves the envelope
+
+
+def test_too_fast_motion_is_slowed_to_what_the_servos_track(tmp_path):
+    """Default tracking budget (0.05 rad): the firmware loop's lag binds; fit slows it, tight."""
+    text = KEYS.replace("max_tracking_error_rad = 0.3\n", "")
+    for old, new in (("t = 2.0", "t = 0.3"), ("t = 4.0", "t = 0.6"), ("t = 6.0", "t = 0.9")):
+        text = text.replace(old, new)
+    path = _write(tmp_path, text)
+    assert not check_torque(path).ok
+    result = fit_timing(path)
+    assert result.duration_s > 0.9
+    out = _write(tmp_path, result.toml(), "out.toml")
+    assert check_torque(out).ok
+    faster = check_torque(
+        _retimed(tmp_path, tomllib.loads(out.read_text()), result.times / 1.1, "f.toml")
+    )
+    assert not faster.ok
+    assert any("tracking" in s.binding for s in result.segments)
