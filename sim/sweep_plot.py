@@ -13,7 +13,8 @@ def plot_sweep(results, path) -> Path:
     """One panel per (payload offset, servo set); payload across, time scale down.
 
     Each cell is coloured by the worst planned margin (N m; red below zero) and
-    marked "ok" or "FAIL" with the failed parts.
+    marked "ok" or "FAIL" with the failed parts; failing cells are hatched in red
+    (a variant can fail on tracking with plenty of torque margin).
 
     Parameters
     ----------
@@ -30,6 +31,7 @@ def plot_sweep(results, path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.patches import Rectangle
 
     path = Path(path)
     panels = list(dict.fromkeys((r.variant.payload_offset_m, r.variant.servos) for r in results))
@@ -54,6 +56,18 @@ def plot_sweep(results, path) -> Path:
             row, col = scales.index(v.time_scale), masses.index(v.payload_kg)
             grid[row, col] = r.worst_margin_nm
             text = "ok" if r.ok else "FAIL\n" + "\n".join(r.failed)
+            if not r.ok:
+                ax.add_patch(
+                    Rectangle(
+                        (col - 0.46, row - 0.46),
+                        0.92,
+                        0.92,
+                        fill=False,
+                        hatch="//",
+                        edgecolor="tab:red",
+                        linewidth=2.5,
+                    )
+                )
             dark = abs(r.worst_margin_nm) > 0.6 * bound
             ax.text(
                 col,
@@ -76,7 +90,8 @@ def plot_sweep(results, path) -> Path:
     axes[0, 0].set_ylabel("time scale (x keyframe times)")
     fig.colorbar(image, ax=axes[0].tolist(), label="worst planned margin (N m)")
     fig.suptitle(
-        "torque check per variant (cell: verdict, failed parts, worst margin in N m)",
+        "torque check per variant (cell: verdict, failed parts, worst planned margin in N m; "
+        "hatched: fails)",
         fontsize=9,
         y=1.02,
     )

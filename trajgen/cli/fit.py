@@ -92,8 +92,14 @@ def _run(args) -> int:
 
     try:
         check_output_path("--out", args.out)
-        kf = load_checked(args.file).keyframes  # every table, [bus] included
-        result = fit_timing(kf, rate_hz=args.rate, progress=_Progress())
+        checked = load_checked(args.file)  # every table, [bus] included
+        result = fit_timing(
+            checked.keyframes,
+            config=checked.gimbal,
+            limits=checked.limits,
+            rate_hz=args.rate,
+            progress=_Progress(),
+        )
     except SimError as e:
         print(f"trajgen: fit refused: {e}", file=sys.stderr)
         return EXIT_FAILED

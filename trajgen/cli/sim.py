@@ -131,10 +131,18 @@ def _run(args, progress: Progress, done: dict) -> int:
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
         return EXIT_FAILED
-    done.update(stage="writing outputs", report=report.to_json_dict())
+    from trajgen.sim.limits import check_limits
+
+    limit_reasons = check_limits(report.trajectory, checked.limits)
+    summary = {**report.to_json_dict(), "limits_ok": not limit_reasons}
+    summary["limit_reasons"] = list(limit_reasons)
+    done.update(stage="writing outputs", report=summary)
     print(report.format())
+    if "limits" in kf.tables:
+        print(f"[limits]: {'FAILED' if limit_reasons else 'OK'}")
+        print("\n".join(f"  - {r}" for r in limit_reasons), end="\n" if limit_reasons else "")
     if args.json:
-        _write_json(args.json, report.to_json_dict())
+        _write_json(args.json, summary)
     if args.plot:
         from trajgen.sim.plot import plot_report
 
@@ -143,4 +151,4 @@ def _run(args, progress: Progress, done: dict) -> int:
         from trajgen.sim.video import render_video
 
         print(f"video: {render_video(report.record, args.video, report.config)}")
-    return EXIT_OK if report.ok else EXIT_FAILED
+    return EXIT_OK if report.ok and not limit_reasons else EXIT_FAILED
