@@ -37,33 +37,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trajgen.servo_ratings import P_DIVISOR, PWM_FULL_SCALE
 from trajgen.sim.errors import SimError
 from trajgen.sim.servos import SUPPLY_VOLTAGE_V, ServoModel
 from trajgen.validate import check_number
 
-PWM_FULL_SCALE = 885
 PULSES_PER_RAD = 4096 / (2.0 * math.pi)
-P_DIVISOR = 128.0
 I_DIVISOR = 65536.0
 D_DIVISOR = 16.0
 LOOP_PERIOD_S = 1e-3
 
 #: Operating modes whose loop this module models: Position (3), Extended Position (4).
 POSITION_MODES = (3, 4)
-
-#: The registers that shape the position loop (the SDK's control-table names).
-CONTROL_REGISTERS = (
-    "Position P Gain",
-    "Position I Gain",
-    "Position D Gain",
-    "Feedforward 1st Gain",
-    "Feedforward 2nd Gain",
-    "PWM Limit",
-    "Goal PWM",
-    "Profile Velocity",
-    "Profile Acceleration",
-    "Operating Mode",
-)
 
 
 class UnsupportedServoSetting(SimError):

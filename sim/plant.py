@@ -158,7 +158,7 @@ class GimbalPlant:
             0, 1 or 2.
         registers : mapping of str to int
             Register values in register units keyed by the SDK's control-table
-            names (``sim.firmware.CONTROL_REGISTERS``); missing ones keep their
+            names (``trajgen.servo_ratings.CONTROL_REGISTERS``); missing ones keep their
             last value (initially the gains of ``config``, full PWM, no
             profile, Position Mode).
 

@@ -101,17 +101,13 @@ def vdot(a: list, b: list) -> list:
     return out
 
 
-def hamilton(p: np.ndarray, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Hamilton product of quaternions stored components first, (4, ...) x (4, ...)."""
+def hamilton_vec(p: np.ndarray, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """The vector part (3, ...) of the Hamilton product ``p q`` (components first)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
     if out is None:
-        out = np.empty(np.broadcast_shapes(p.shape, q.shape))
-    w, x, y, z = out
-    np.multiply(pw, qw, out=w)
-    w -= px * qx
-    w -= py * qy
-    w -= pz * qz
+        out = np.empty((3, *np.broadcast_shapes(pw.shape, qw.shape)))
+    x, y, z = out
     np.multiply(pw, qx, out=x)
     x += px * qw
     x += py * qz
@@ -127,24 +123,18 @@ def hamilton(p: np.ndarray, q: np.ndarray, out: np.ndarray | None = None) -> np.
     return out
 
 
-def hamilton_vec(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """The vector part (3, ...) of the Hamilton product ``p q`` (components first)."""
+def hamilton(p: np.ndarray, q: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Hamilton product of quaternions stored components first, (4, ...) x (4, ...)."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    out = np.empty((3, *np.broadcast_shapes(pw.shape, qw.shape)))
-    x, y, z = out
-    np.multiply(pw, qx, out=x)
-    x += px * qw
-    x += py * qz
-    x -= pz * qy
-    np.multiply(pw, qy, out=y)
-    y -= px * qz
-    y += py * qw
-    y += pz * qx
-    np.multiply(pw, qz, out=z)
-    z += px * qy
-    z -= py * qx
-    z += pz * qw
+    if out is None:
+        out = np.empty(np.broadcast_shapes(p.shape, q.shape))
+    w = out[0]
+    np.multiply(pw, qw, out=w)
+    w -= px * qx
+    w -= py * qy
+    w -= pz * qz
+    hamilton_vec(p, q, out=out[1:])
     return out
 
 

@@ -21,6 +21,30 @@ from dataclasses import dataclass
 
 RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 
+#: The registers that shape an X-series servo's position loop, by their SDK
+#: control-table names: what the virtual bus hands its plant
+#: (``trajgen.drivers.virtual.plant.Plant.set_control``) and what the simulated
+#: firmware loop (``trajgen.sim.firmware``) reads.
+CONTROL_REGISTERS = (
+    "Position P Gain",
+    "Position I Gain",
+    "Position D Gain",
+    "Feedforward 1st Gain",
+    "Feedforward 2nd Gain",
+    "PWM Limit",
+    "Goal PWM",
+    "Profile Velocity",
+    "Profile Acceleration",
+    "Operating Mode",
+)
+
+#: Present PWM / Goal PWM / PWM Limit value of 100 % of the supply (e-Manual).
+PWM_FULL_SCALE = 885
+
+#: Position P Gain scale: KP = P / 128, PWM units per pulse of error (e-Manual;
+#: BAM measured /256 on an XL330, so the simulator keeps it a parameter).
+P_DIVISOR = 128.0
+
 
 @dataclass(frozen=True)
 class ServoRating:

@@ -68,8 +68,9 @@ from trajgen.drivers.protocol import (
     encode_status,
 )
 from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
-from trajgen.drivers.virtual.plant import CONTROL_REGISTERS, PWM_FULL_SCALE, Plant
+from trajgen.drivers.virtual.plant import Plant
 from trajgen.drivers.virtual.servo import FACTORY_RESET_KEEPS, VirtualServo
+from trajgen.servo_ratings import CONTROL_REGISTERS, PWM_FULL_SCALE
 
 _OVERLOAD_BIT = 0x20
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).

@@ -12,27 +12,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from trajgen.drivers.units import RAD_PER_TICK
-
-#: The registers that shape an X-series servo's position loop, by their SDK
-#: control-table names: what ``Plant.set_control`` receives.
-CONTROL_REGISTERS = (
-    "Position P Gain",
-    "Position I Gain",
-    "Position D Gain",
-    "Feedforward 1st Gain",
-    "Feedforward 2nd Gain",
-    "PWM Limit",
-    "Goal PWM",
-    "Profile Velocity",
-    "Profile Acceleration",
-    "Operating Mode",
-)
-
-#: Present PWM / Goal PWM / PWM Limit value of 100 % of the supply (e-Manual).
-PWM_FULL_SCALE = 885
-
-#: Position P Gain scale: KP = P / 128, PWM units per pulse of error (e-Manual).
-P_GAIN_DIVISOR = 128
+from trajgen.servo_ratings import CONTROL_REGISTERS, P_DIVISOR, PWM_FULL_SCALE
 
 
 @runtime_checkable
@@ -201,6 +181,6 @@ class FirstOrderPlant:
             if not self._torque[j]:
                 continue
             limit = min(registers["PWM Limit"], abs(registers["Goal PWM"]))
-            pwm = registers["Position P Gain"] / P_GAIN_DIVISOR * error_pulses[j]
+            pwm = registers["Position P Gain"] / P_DIVISOR * error_pulses[j]
             out[j] = np.clip(pwm, -limit, limit) / PWM_FULL_SCALE
         return out

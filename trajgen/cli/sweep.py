@@ -9,7 +9,6 @@ import argparse
 import itertools
 import json
 import sys
-import time
 from dataclasses import asdict
 
 from trajgen.cli.common import (
@@ -17,6 +16,7 @@ from trajgen.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     PLOT_SUFFIXES,
+    Progress,
     add_file_argument,
     bad_input,
     check_output_path,
@@ -24,8 +24,6 @@ from trajgen.cli.common import (
     positive_float,
 )
 from trajgen.gimbal import JOINT_NAMES as JOINTS
-
-_PROGRESS_AFTER_S = 1.0
 
 DESCRIPTION = """\
 Run `trajgen sim`'s torque check on every combination of payload mass, payload
@@ -111,16 +109,10 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_sweep)
 
 
-class _Progress:
-    def __init__(self):
-        self.start = time.monotonic()
-
-    def __call__(self, done: int, total: int) -> None:
-        elapsed = time.monotonic() - self.start
-        if elapsed >= _PROGRESS_AFTER_S:
-            end = "\n" if done >= total else ""
-            sys.stderr.write(f"\rtrajgen sweep: {done}/{total} variants, {elapsed:.1f} s{end}")
-            sys.stderr.flush()
+def _progress():
+    """A ``(done, total)`` callback that drives the shared progress line."""
+    line = Progress("trajgen sweep: variants")
+    return lambda done, total: line(done / total)
 
 
 def run_sweep(args) -> int:
@@ -161,7 +153,7 @@ def _run(args) -> int:
                 config=base,
                 rate_hz=args.rate,
                 threads=args.threads,
-                progress=_Progress(),
+                progress=_progress(),
             )
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
@@ -189,11 +181,11 @@ def _on_dask(address, sweep, source, variants, base, rate):
     if address == "local":
         with LocalCluster(n_workers=2, threads_per_worker=1) as cluster, Client(cluster) as c:
             return sweep.sweep_on_dask(
-                source, variants, c, config=base, rate_hz=rate, progress=_Progress()
+                source, variants, c, config=base, rate_hz=rate, progress=_progress()
             )
     with Client(address) as c:
         return sweep.sweep_on_dask(
-            source, variants, c, config=base, rate_hz=rate, progress=_Progress()
+            source, variants, c, config=base, rate_hz=rate, progress=_progress()
         )
 
 
