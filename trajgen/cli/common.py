@@ -128,6 +128,13 @@ def check_module(option: str, module: str, package: str) -> None:
         raise BadInput(f"{option} needs the {package} package: pip install {package}")
 
 
+def check_plot_path(path: str | None) -> None:
+    """Refuse ``--plot PATH`` up front: a writable image path, and matplotlib installed."""
+    check_output_path("--plot", path, PLOT_SUFFIXES)
+    if path is not None:
+        check_module("--plot", "matplotlib", "matplotlib")
+
+
 @dataclass(frozen=True)
 class CheckedFile:
     """A keyframe file with every table checked; its spline is built on first use.

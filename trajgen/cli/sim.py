@@ -14,13 +14,13 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
-    PLOT_SUFFIXES,
     Progress,
     add_file_argument,
     add_rate_argument,
     bad_input,
     check_module,
     check_output_path,
+    check_plot_path,
     check_timing,
     load_checked,
 )
@@ -83,10 +83,8 @@ def check_sim_arguments(args) -> None:
         Naming the option.
     """
     check_output_path("--json", args.json, (".json",))
-    check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+    check_plot_path(args.plot)
     check_output_path("--video", args.video, (".mp4",))
-    if args.plot:
-        check_module("--plot", "matplotlib", "matplotlib")
     if args.video:
         check_module("--video", "imageio_ffmpeg", "imageio-ffmpeg")
 

@@ -28,17 +28,18 @@ from dataclasses import dataclass, field
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
-    PLOT_SUFFIXES,
     add_file_argument,
     bad_input,
     baud_rate,
     check_output_path,
+    check_plot_path,
     check_timing,
     load_checked,
     open_bus,
     positive_float,
     servo_ids,
 )
+from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 STREAM_DESCRIPTION = """\
@@ -263,7 +264,7 @@ def _plan(args):
 
     check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
     check_output_path("--json", args.json, (".json",))
-    check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+    check_plot_path(args.plot)
     if hasattr(args.file, "spline"):
         # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
         kf = args.file
@@ -477,7 +478,7 @@ def _run(args, signals: _StopSignals, outcome: Outcome, stages=None):
         if bus is not None and not streamed and not outcome.refused:
             # Stopped during bring-up, possibly after it changed something: stop safely.
             outcome.stop_errors += safe_stop(bus, p.joints.ids, on_stop)
-    except ValueError as e:  # re-planning from the present position (KinematicsError)
+    except TrajgenError as e:  # re-planning from the present position (KinematicsError)
         return bad_input(e)
     finally:
         if bus is not None:

@@ -15,11 +15,11 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
-    PLOT_SUFFIXES,
     Progress,
     add_file_argument,
     bad_input,
     check_output_path,
+    check_plot_path,
     load_checked,
     positive_float,
 )
@@ -129,7 +129,7 @@ def _run(args) -> int:
     from trajgen.sim.errors import SimError
 
     try:
-        check_output_path("--plot", args.plot, PLOT_SUFFIXES)
+        check_plot_path(args.plot)
         check_output_path("--json", args.json, (".json",))
         checked = load_checked(args.file)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
@@ -144,6 +144,9 @@ def _run(args) -> int:
             v.config(base)
         if args.threads < 1:
             raise ValueError(f"--threads: expected >= 1, got {args.threads}")
+    except (ValueError, TypeError, OSError, ModuleNotFoundError) as e:
+        return bad_input(e)  # every option and table, checked before any simulation
+    try:
         if args.dask:
             results = _on_dask(args.dask, sweep, source, variants, base, args.rate)
         else:
@@ -158,8 +161,8 @@ def _run(args) -> int:
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
         return EXIT_FAILED
-    except (ValueError, TypeError, OSError, ModuleNotFoundError) as e:
-        return bad_input(e)
+    except OSError as e:  # a Dask scheduler that cannot be reached
+        return bad_input(f"--dask {args.dask}: {e}")
     print(format_results(results))
     try:
         if args.plot:
