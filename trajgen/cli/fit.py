@@ -10,7 +10,6 @@ import time
 
 from trajgen.cli.common import (
     EXIT_FAILED,
-    EXIT_INTERRUPTED,
     EXIT_OK,
     add_file_argument,
     bad_input,
@@ -79,14 +78,6 @@ class _Progress:
 
 def run_fit(args) -> int:
     """Run ``trajgen fit``; returns the exit status (0 fitted, 1 refused, 2 bad input)."""
-    try:
-        return _run(args)
-    except KeyboardInterrupt:
-        print("trajgen: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-
-
-def _run(args) -> int:
     from trajgen.sim.errors import SimError
     from trajgen.sim.fit import fit_timing
 

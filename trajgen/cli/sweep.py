@@ -13,7 +13,6 @@ from dataclasses import asdict
 
 from trajgen.cli.common import (
     EXIT_FAILED,
-    EXIT_INTERRUPTED,
     EXIT_OK,
     Progress,
     add_file_argument,
@@ -117,14 +116,6 @@ def _progress():
 
 def run_sweep(args) -> int:
     """Run ``trajgen sweep``; returns the exit status."""
-    try:
-        return _run(args)
-    except KeyboardInterrupt:
-        print("trajgen: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
-
-
-def _run(args) -> int:
     from trajgen.sim import sweep
     from trajgen.sim.errors import SimError
 
