@@ -48,15 +48,17 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from math import comb
+from math import comb, factorial
 
 import numpy as np
+from numpy.polynomial import polynomial as P
 
+from . import derivatives as D
 from . import jet as J
 from . import quat as Q
 from .errors import TrajgenError
 from .path import OrientationPath, check_times
-from .spline import LOCALS, REPARAMS, BlendingSpline
+from .spline import CONJ, LOCALS, REPARAMS, BlendingSpline
 from .validate import check_choice, check_number
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
@@ -74,7 +76,7 @@ class ChangeTooLate(TrajgenError):
 
 
 class _Splice(OrientationPath):
-    """The first segment of a spliced piece: ``exp(r(u)) q_a``, ``u = (t - s) / h``."""
+    """A spliced segment: ``exp(r(u)) q_a``, ``u = (t - s) / h``, ``r`` a polynomial in ``u``."""
 
     def __init__(self, s: float, h: float, q_a: np.ndarray, coef: np.ndarray):
         self.s, self.h = s, h
@@ -87,13 +89,55 @@ class _Splice(OrientationPath):
         r = J.Jet(np.stack([J.polyval(self.coef[:, i], u).c for i in range(3)], axis=1))
         return J.qmul(J.qexp(r), self.q_a)
 
+    def _space_rates(self, t, seg, max_order):
+        """The same path as :meth:`_jet`, in closed form (as the spline's blends): ``r`` and
+        its time derivatives by Horner, ``exp`` by the rules of :mod:`trajgen.derivatives`."""
+        u = (t - self.s) * (1.0 / self.h)
+        r, c = [], self.coef
+        for n in range(max_order + 1):
+            r.append(P.polyval(u, c) * self.h**-n)  # (3, M)
+            c = P.polyder(c)
+        cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
+        q_a = self.q_a[:, None]
+        derivs = [
+            D.hamilton(np.concatenate([ca[None], v]), q_a)
+            for ca, v in zip(cos_a, D.product(sinc, r), strict=True)
+        ]
+        return space_rates(derivs)
+
+
+def space_rates(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Unit quaternions (M, 4) and space-frame rates of orders 1..K, each (M, 3), from the
+    derivative list ``[Q, Q', ...]`` (each (4, M)) of a unit quaternion path, K <= 3:
+    ``omega = 2 vec(Q' Q*)``, ``alpha = 2 vec(Q'' Q*)``, ``jerk = 2 vec(Q''' Q* + Q'' Q'*)``."""
+    q = derivs[0] / np.sqrt(D.vdot(derivs[:1], derivs[:1])[0])
+    q_conj = q * CONJ
+    rates = [2.0 * D.hamilton_vec(d, q_conj) for d in derivs[1:]]
+    if len(rates) >= 3:
+        rates[2] += 2.0 * D.hamilton_vec(derivs[2], derivs[1] * CONJ)
+    return q.T, [x.T for x in rates]
+
+
+def _taylor_from_rates(rates: list) -> np.ndarray:
+    """Taylor coefficients (K + 1, 4) of ``d(tau) = q(t + tau) q(t)*`` from the space-frame
+    rates ``omega, alpha, jerk`` at ``t`` (each (3,), K = len(rates) <= 3), using
+    ``d' = omega d / 2`` (``omega`` as a pure quaternion) differentiated: ``d(0) = 1``,
+    ``d^(n+1) = 1/2 sum_j C(n, j) omega^(j) d^(n-j)``."""
+    w = [np.concatenate([[0.0], x]) for x in rates]
+    d = [np.array([1.0, 0.0, 0.0, 0.0])]
+    for n in range(len(rates)):
+        d.append(0.5 * sum(comb(n, j) * Q.mul(w[j], d[n - j]) for j in range(n + 1)))
+    return np.array(d) / np.array([factorial(n) for n in range(len(d))])[:, None]
+
 
 @dataclass(frozen=True)
 class _Piece:
     """One piece of the plan, used on ``(start, next piece's start]``.
 
-    ``spline`` is a rest BlendingSpline (None: hold ``q_end`` from ``start``);
-    ``splice`` replaces its first segment. After ``t_end`` the piece holds ``q_end``.
+    ``spline`` is a rest BlendingSpline, ``splice`` a spliced segment that replaces
+    its first segment (or, without a spline, leads to ``q_end`` on its own); with
+    neither, the piece holds ``q_end`` from ``start``. After ``t_end`` the piece
+    holds ``q_end``.
     """
 
     start: float
@@ -102,23 +146,29 @@ class _Piece:
     q_end: np.ndarray  # (4,)
 
     @property
-    def t_end(self) -> float:
-        return self.start if self.spline is None else float(self.spline.times[-1])
-
-    @property
     def key_times(self) -> np.ndarray:
-        return np.array([self.start]) if self.spline is None else self.spline.times
+        if self.spline is not None:
+            return self.spline.times
+        return self.splice.times if self.splice is not None else np.array([self.start])
 
     @property
     def key_quats(self) -> np.ndarray:
-        return self.q_end[None] if self.spline is None else self.spline.quats
+        if self.spline is not None:
+            return self.spline.quats
+        if self.splice is not None:
+            return np.stack([self.splice.q_a, self.q_end])
+        return self.q_end[None]
+
+    @property
+    def t_end(self) -> float:
+        return float(self.key_times[-1])
 
     def _parts(self, t: np.ndarray):
         """Masks (M,) of the held, spliced and blended times; the blended ones' segments."""
         hold = t >= self.t_end
         spliced = np.zeros(len(t), bool)
         if self.splice is not None:
-            spliced = ~hold & (t < self.spline.times[1])
+            spliced = ~hold & (t < self.splice.times[1])
         blended = ~hold & ~spliced
         times = self.spline.times if self.spline is not None else t[:0]
         seg = np.clip(np.searchsorted(times, t[blended], side="right") - 1, 0, len(times) - 2)
@@ -194,6 +244,19 @@ class _Plan(OrientationPath):
         return q, rates
 
 
+def _log_near_identity(d: np.ndarray) -> np.ndarray:
+    """Taylor coefficients (K + 1, 3) of ``log d(tau)`` from those (K + 1, 4) of a unit
+    quaternion ``d`` with ``d(0) = 1``, K <= 4.
+
+    ``log d = atan(|y|) y / |y|`` with ``y = vec(d) / w(d)``, and ``atan(x) / x =
+    1 - x^2 / 3 + O(x^4)``: as ``y = O(tau)``, the ``x^4`` term is ``O(tau^5)``.
+    """
+    if len(d) > 5:
+        raise ValueError(f"Expected at most 5 Taylor coefficients, got {len(d)}.")
+    y = J.scale(J.reciprocal(J.Jet(d[:, 0])), J.Jet(d[:, 1:]))
+    return (y - J.scale(J.dot(y, y), y) * (1.0 / 3.0)).c
+
+
 def _hermite_matrix(k: int) -> np.ndarray:
     """Inverse of the map from the top coefficients ``a_{k+2..2k+2}`` of ``r(u)`` to its
     Taylor coefficients of orders 0..k at ``u = 1``."""
@@ -256,6 +319,11 @@ class OnlineSpline:
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         self.min_lead_s = check_number("min_lead_s", min_lead_s, low=MIN_LEAD_S)
         self._hermite = _hermite_matrix(self.k)
+        # Taylor coefficients at u = 1 of the terms u^0..u^(k+1).
+        self._low = np.array(
+            [[comb(i, j) for i in range(self.k + 2)] for j in range(self.k + 1)], float
+        )
+        self._factorials = np.array([factorial(n) for n in range(self.k + 2)], float)
         self._plan = _Plan((_Piece(t0, None, None, q[0]),))
         self._version = 0
         self._committed = -np.inf
@@ -418,8 +486,8 @@ class OnlineSpline:
                 f"extend: the first new keyframe (t = {t[0]} s) must come after the last "
                 f"keyframe kept (t = {kt[-1]} s)."
             )
-        if at >= plan.t_end:  # at rest: start a rest spline from where it rests
-            return self._rest_piece(np.vstack([last.q_end, q]), np.concatenate([[at], t]))
+        if at >= plan.t_end:  # at rest: start from where it rests
+            return self._rest_piece(last.q_end, at, q, t)
         if mode == "extend":
             ahead = int((kt > at).sum())
             if ahead >= 2:  # splice at the second-to-last keyframe: the offline spline
@@ -428,7 +496,7 @@ class OnlineSpline:
                 spline = self._spline(np.vstack([kq[j:], q]), np.concatenate([kt[j:], t]))
                 return _Piece(float(kt[i]), spline, None, spline.quats[-1])
             if kt[-1] - at < self.min_lead_s:  # too close to splice: go on from its rest
-                return self._rest_piece(np.vstack([kq[-1:], q]), np.concatenate([kt[-1:], t]))
+                return self._rest_piece(kq[-1], float(kt[-1]), q, t)
             q, t = np.vstack([kq[-1:], q]), np.concatenate([kt[-1:], t])
         return self._splice_piece(plan, q, t, at)
 
@@ -437,31 +505,49 @@ class OnlineSpline:
             q, t, k=self.k, boundary="rest", local=self.local, reparam=self.reparam
         )
 
-    def _rest_piece(self, q, t) -> _Piece:
-        spline = self._spline(q, t)
-        return _Piece(float(t[0]), spline, None, spline.quats[-1])
+    def _rest_piece(self, q0: np.ndarray, t0: float, q, t) -> _Piece:
+        """From rest at ``q0`` (4,) at ``t0`` through keyframes ``q`` (N, 4) at ``t`` (N,)."""
+        if len(t) == 1:  # one segment: a splice whose start is at rest to every order
+            return self._spliced(t0, q0, np.zeros((self.k + 2, 3)), q, t)
+        spline = self._spline(np.vstack([q0, q]), np.concatenate([[t0], t]))
+        return _Piece(t0, spline, None, spline.quats[-1])
 
     def _splice_piece(self, plan: _Plan, q, t, at: float) -> _Piece:
-        k = self.k
+        """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,)."""
         ta = np.array([at])
-        old = plan._jet(ta, plan._segment(ta)[0], k + 1)
-        q_a = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
-        spline = self._spline(np.vstack([q_a, q]), np.concatenate([[at], t]))
-        t1 = float(spline.times[1])
-        h = t1 - at
-        p = J.qlog(J.qmul(old, Q.conj(q_a))).c[:, :, 0]  # (k + 2, 3)
-        p[0] = 0.0
+        seg = plan._segment(ta)[0]
+        order = self.k + 1
+        if order <= 3:  # the closed-form rates (the spline's compiled kernel where enabled)
+            q_a, rates = plan._space_rates(ta, seg, order)
+            q_a = q_a[0]
+            d = _taylor_from_rates([x[0] for x in rates])
+        else:  # order 4: only the jets go that far
+            old = plan._jet(ta, seg, order)
+            q_a = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
+            d = J.qmul(old, Q.conj(q_a)).c[:, :, 0]
+            d[0] = (1.0, 0.0, 0.0, 0.0)
+        return self._spliced(at, q_a, _log_near_identity(d), q, t)
+
+    def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t) -> _Piece:
+        """The piece that leaves ``q_a`` (4,) at ``s`` with Taylor coefficients ``p``
+        (k + 2, 3) of ``log(q(s + tau) q_a*)`` and goes through ``q`` (N, 4) at ``t`` (N,):
+        the splice on ``[s, t[0]]``, then the rest spline's blends (none if N = 1)."""
+        k = self.k
+        h = float(t[0]) - s
         if len(t) >= 2:  # C_1 through (q_a, q_1, q_2): curve 0 of the spline
-            c1 = spline._curves.evaluate(np.array([0]), np.array([t1]), k)
-            r = J.qlog(J.qmul(c1, Q.conj(q_a))).c[:, :, 0]  # (k + 1, 3)
-        else:  # the rest point q_1
+            spline = self._spline(np.vstack([q_a, q]), np.concatenate([[s], t]))
+            c1 = spline._curves.derivatives(np.array([0]), t[:1], k)  # (k + 1) x (4, 1)
+            c1 = np.array(c1)[..., 0] / self._factorials[: k + 1, None]
+            r = J.qlog(J.qmul(J.Jet(c1[:, :, None]), Q.conj(q_a))).c[:, :, 0]  # (k + 1, 3)
+            q_end = spline.quats[-1]
+        else:  # the rest point q_1, on the short way round (as the spline takes it)
+            spline = None
+            q_end = q[0] if q[0] @ q_a >= 0 else -q[0]
             r = np.zeros((k + 1, 3))
-            r[0] = Q.log(Q.mul(spline.quats[1], Q.conj(q_a)))
+            r[0] = Q.log(Q.mul(q_end, Q.conj(q_a)))
         powers = h ** np.arange(2 * k + 3)[:, None]
         coef = np.zeros((2 * k + 3, 3))
         coef[: k + 2] = powers[: k + 2] * p
         # Taylor coefficients at u = 1 of the known low part, then solve for the top.
-        low = np.array([[comb(i, j) for i in range(k + 2)] for j in range(k + 1)], float)
-        coef[k + 2 :] = self._hermite @ (powers[: k + 1] * r - low @ coef[: k + 2])
-        splice = _Splice(at, h, q_a, coef)
-        return _Piece(at, spline, splice, spline.quats[-1])
+        coef[k + 2 :] = self._hermite @ (powers[: k + 1] * r - self._low @ coef[: k + 2])
+        return _Piece(s, spline, _Splice(s, h, q_a, coef), q_end)
