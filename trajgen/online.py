@@ -70,6 +70,9 @@ MIN_LEAD_S = 0.2
 
 MODES = ("extend", "retarget")
 
+#: ``C(j, n)`` for the Taylor shift of a splice's polynomial (degree 2k + 2 <= 8), (9, 9).
+_BINOMIAL = np.array([[comb(j, n) for j in range(9)] for n in range(9)], float)
+
 
 class ChangeTooLate(TrajgenError):
     """A change at a time that a stream has already used (see :meth:`OnlineSpline.commit`)."""
@@ -88,6 +91,18 @@ class _Splice(OrientationPath):
         u = (J.Jet.variable(t, order) - self.s) * (1.0 / self.h)
         r = J.Jet(np.stack([J.polyval(self.coef[:, i], u).c for i in range(3)], axis=1))
         return J.qmul(J.qexp(r), self.q_a)
+
+    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``:
+        ``r`` shifted to ``t`` and ``exp`` as one series (no array of samples)."""
+        # r^(n)(t) / n! = h^-n sum_j C(j, n) u^(j - n) coef_j: the polynomial shifted to u.
+        u = (t - self.s) / self.h
+        n, j = np.ogrid[: order + 1, : len(self.coef)]
+        shift = _BINOMIAL[: order + 1, : len(self.coef)] * u ** np.maximum(j - n, 0)
+        r = (shift @ self.coef) * (1.0 / self.h) ** n  # (order + 1, 3)
+        e = _qexp_series(J.Jet(r))  # (order + 1, 4)
+        e0 = e[:1].T  # (4, 1)
+        return D.hamilton(e0, self.q_a[:, None])[:, 0], D.hamilton(e.T, e0 * CONJ).T
 
     def _space_rates(self, t, seg, max_order):
         """The same path as :meth:`_jet`, in closed form (as the spline's blends): ``r`` and
@@ -185,6 +200,25 @@ class _Piece:
             out[:, :, blended] = self.spline._jet(t[blended], seg, order).c
         return J.Jet(out)
 
+    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``
+        (``d(0) = 1``), order <= 4: what a splice at ``t`` starts from."""
+        hold, spliced, blended, seg = self._parts(np.array([t]))
+        if hold[0]:
+            d = np.zeros((order + 1, 4))
+            d[0, 0] = 1.0
+            return self.q_end, d
+        if spliced[0]:
+            return self.splice.taylor(t, order)
+        if order <= 3:  # the closed-form rates (the compiled kernel where it is loaded)
+            q, rates = self.spline._space_rates(np.array([t]), seg, order)
+            return q[0], _taylor_from_rates([x[0] for x in rates])
+        old = self.spline._jet(np.array([t]), seg, order)  # order 4: only the jets go that far
+        q = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
+        d = J.qmul(old, Q.conj(q)).c[:, :, 0]
+        d[0] = (1.0, 0.0, 0.0, 0.0)
+        return q, d
+
     def space_rates(self, t: np.ndarray, max_order: int):
         """Unit quaternions (M, 4) and space-frame rates of orders 1..max_order (M, 3),
         the blended part by the spline's own (compiled, where enabled) evaluation."""
@@ -242,6 +276,19 @@ class _Plan(OrientationPath):
             for r, p in zip(rates, part, strict=True):
                 r[m] = p
         return q, rates
+
+
+def _qexp_series(r: J.Jet) -> np.ndarray:
+    """:func:`trajgen.jet.qexp` for one vector series ``r`` (K + 1, 3), K <= 4: Taylor
+    coefficients (K + 1, 4) of ``(cos |r|, sin|r| r / |r|)``, with only the branch
+    (series or closed form in ``x = |r|^2``) that its value needs."""
+    x = J.dot(r, r)
+    K = x.order
+    x0 = np.atleast_1d(x.value)
+    both = (D._cos_sinc_series if x0[0] < J.SERIES_BELOW else D._cos_sinc_closed)([x0], K)
+    cos_a = J.compose(x, [v[0] for v in both[: K + 1]])
+    sinc = J.compose(x, [v[0] for v in both[K + 1 :]])
+    return np.concatenate([cos_a.c[:, None], J.scale(sinc, r).c], axis=1)
 
 
 def _log_near_identity(d: np.ndarray) -> np.ndarray:
@@ -514,18 +561,8 @@ class OnlineSpline:
 
     def _splice_piece(self, plan: _Plan, q, t, at: float) -> _Piece:
         """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,)."""
-        ta = np.array([at])
-        seg = plan._segment(ta)[0]
-        order = self.k + 1
-        if order <= 3:  # the closed-form rates (the spline's compiled kernel where enabled)
-            q_a, rates = plan._space_rates(ta, seg, order)
-            q_a = q_a[0]
-            d = _taylor_from_rates([x[0] for x in rates])
-        else:  # order 4: only the jets go that far
-            old = plan._jet(ta, seg, order)
-            q_a = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
-            d = J.qmul(old, Q.conj(q_a)).c[:, :, 0]
-            d[0] = (1.0, 0.0, 0.0, 0.0)
+        piece = plan.pieces[int(plan._segment(np.array([at]))[0][0])]
+        q_a, d = piece.taylor(at, self.k + 1)
         return self._spliced(at, q_a, _log_near_identity(d), q, t)
 
     def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t) -> _Piece:
