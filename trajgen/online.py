@@ -51,7 +51,6 @@ from dataclasses import dataclass
 from math import comb, factorial
 
 import numpy as np
-from numpy.polynomial import polynomial as P
 
 from . import derivatives as D
 from . import jet as J
@@ -109,9 +108,13 @@ class _Splice(OrientationPath):
         its time derivatives by Horner, ``exp`` by the rules of :mod:`trajgen.derivatives`."""
         u = (t - self.s) * (1.0 / self.h)
         r, c = [], self.coef
-        for n in range(max_order + 1):
-            r.append(P.polyval(u, c) * self.h**-n)  # (3, M)
-            c = P.polyder(c)
+        for _ in range(max_order + 1):
+            acc = np.repeat(c[-1][:, None], len(u), axis=1)  # Horner, (3, M)
+            for cj in c[-2::-1]:
+                acc *= u
+                acc += cj[:, None]
+            r.append(acc)
+            c = c[1:] * (np.arange(1.0, len(c))[:, None] / self.h)  # d/dt of the power basis
         cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
         q_a = self.q_a[:, None]
         derivs = [
@@ -138,11 +141,11 @@ def _taylor_from_rates(rates: list) -> np.ndarray:
     rates ``omega, alpha, jerk`` at ``t`` (each (3,), K = len(rates) <= 3), using
     ``d' = omega d / 2`` (``omega`` as a pure quaternion) differentiated: ``d(0) = 1``,
     ``d^(n+1) = 1/2 sum_j C(n, j) omega^(j) d^(n-j)``."""
-    w = [np.concatenate([[0.0], x]) for x in rates]
-    d = [np.array([1.0, 0.0, 0.0, 0.0])]
+    w = [np.concatenate([[0.0], x])[:, None] for x in rates]  # (4, 1)
+    d = [np.array([[1.0], [0.0], [0.0], [0.0]])]
     for n in range(len(rates)):
-        d.append(0.5 * sum(comb(n, j) * Q.mul(w[j], d[n - j]) for j in range(n + 1)))
-    return np.array(d) / np.array([factorial(n) for n in range(len(d))])[:, None]
+        d.append(0.5 * sum(comb(n, j) * D.hamilton(w[j], d[n - j]) for j in range(n + 1)))
+    return np.array(d)[..., 0] / np.array([factorial(n) for n in range(len(d))])[:, None]
 
 
 @dataclass(frozen=True)

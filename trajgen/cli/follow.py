@@ -9,6 +9,7 @@ and what it cost. ``run_follow`` adds the bus, the servos and the report, as
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import sys
@@ -18,6 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from trajgen import fast
 from trajgen.cli import stream as stream_command
 from trajgen.cli.common import EXIT_FAILED
 from trajgen.errors import KeyframeFileError, KinematicsError
@@ -25,6 +27,7 @@ from trajgen.gimbal import GimbalKinematics
 from trajgen.keyframes import check_keyframes
 from trajgen.online import MODES, ChangeTooLate, OnlineSpline
 from trajgen.sampling import sample_times
+from trajgen.spline import BlendingSpline
 from trajgen.stream import JointTrajectory, stream_frames
 
 #: Time (s) from the frame being streamed when a line arrives to the change it
@@ -305,6 +308,23 @@ class Follower:
         )
 
 
+def load_compiled_kernel() -> bool:
+    """Load the blending spline's compiled kernel (:mod:`trajgen.fast`) now, where numba
+    is installed and ``TRAJGEN_NUMBA`` is not 0; returns whether it is loaded.
+
+    Then every later evaluation runs compiled, those of the stream's frames and of the
+    old path where a change splices onto it: both run while the stream waits (a change
+    holds the interpreter), and compiled they cost a few microseconds per sample
+    instead of about 0.5 ms per call (bench/online_cost.py). Loading costs a second or
+    so (longer the first time, while numba fills its cache).
+    """
+    if not fast.ENABLED:
+        return False
+    importlib.import_module("trajgen.fast_kernel")
+    BlendingSpline([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [1.0, 0, 0, 0]], [0.0, 1.0, 2.0]).evaluate(0.5)
+    return True
+
+
 def online_spline(kf) -> OnlineSpline:
     """The plan of a keyframe file as an OnlineSpline: at rest at its first keyframe,
     extended by the others (the same path as the file's BlendingSpline; a file whose
@@ -365,6 +385,7 @@ def follow(args, lines):
     def make_plan(args):
         p = stream_command.plan(args)
         made["follower"] = Follower(online_spline(p.kf), p.rate_hz)
+        load_compiled_kernel()  # before the stream starts: evaluations then run compiled
         if p.kf.method != "blending":
             print(
                 f"trajgen: note: {p.kf.path}: follow plans with the blending spline (changes "
