@@ -28,6 +28,7 @@ import numpy as np
 
 from trajgen import fast
 from trajgen import quat as Q
+from trajgen.cli import follow
 from trajgen.cli.follow import Follower, load_compiled_kernel
 from trajgen.drivers.clock import sleep_until
 from trajgen.online import OnlineSpline
@@ -177,8 +178,18 @@ def streaming(seconds, rng, label):
         "| change cost ms | latency ms |"
     )
     print("|---|---|---|---|---|---|")
-    for name, changes in (("peer: no changes", False), ("changes", True)):
-        late, follower = paced_stream(seconds, 1000.0, changes, rng)
+    runs = (
+        ("peer: no changes", False, follow.SWITCH_INTERVAL_S),
+        (f"changes (switch interval {1e3 * follow.SWITCH_INTERVAL_S:g} ms)", True, None),
+        ("changes, Python's default switch interval 5 ms", True, 5e-3),
+    )
+    default = follow.SWITCH_INTERVAL_S
+    for name, changes, switch in runs:
+        follow.SWITCH_INTERVAL_S = default if switch is None else switch
+        try:
+            late, follower = paced_stream(seconds, 1000.0, changes, rng)
+        finally:
+            follow.SWITCH_INTERVAL_S = default
         cost, lat = follower.change_costs_s, follower.latencies_s
         cost = f"{ms(cost)} (n = {len(cost)})" if cost else "-"
         lat = ms(lat) if lat else "-"

@@ -388,3 +388,17 @@ def test_splice_closed_form_matches_its_jet(rng, k):
         np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-13)
         for order, (a, b) in enumerate(zip(rates, ref, strict=True), start=1):
             np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * 10**order)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_one_keyframe_from_rest_is_the_offline_spline(rng, k):
+    """From rest to one keyframe (no spline built): the offline rest spline's segment."""
+    from trajgen.spline import BlendingSpline
+
+    q = random_quats(rng, 2)
+    s = OnlineSpline(q[0], 0.5, k=k)
+    s.extend(q[1:], [1.7], at=0.5)
+    offline = BlendingSpline(q, [0.5, 1.7], k=k)
+    t = np.linspace(0.5, 1.7, 41)[:-1]  # order k + 1 jumps at the end (rest holds there)
+    for order in range(min(k + 1, 3) + 1):
+        np.testing.assert_allclose(s(t, order), offline(t, order), rtol=0, atol=1e-11)

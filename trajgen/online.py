@@ -57,7 +57,7 @@ from . import jet as J
 from . import quat as Q
 from .errors import TrajgenError
 from .path import OrientationPath, check_times
-from .spline import CONJ, LOCALS, REPARAMS, BlendingSpline
+from .spline import CONJ, LOCALS, REPARAMS, BlendingSpline, blend_polynomial
 from .validate import check_choice, check_number
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
@@ -557,8 +557,10 @@ class OnlineSpline:
 
     def _rest_piece(self, q0: np.ndarray, t0: float, q, t) -> _Piece:
         """From rest at ``q0`` (4,) at ``t0`` through keyframes ``q`` (N, 4) at ``t`` (N,)."""
-        if len(t) == 1:  # one segment: a splice whose start is at rest to every order
-            return self._spliced(t0, q0, np.zeros((self.k + 2, 3)), q, t)
+        if len(t) == 1:  # the rest spline's one segment, exp(f_(k+1)(u) log(q_1 q0*)) q0
+            q1 = q[0] if q[0] @ q0 >= 0 else -q[0]  # the short way round, as the spline goes
+            coef = blend_polynomial(self.k + 1)[:, None] * Q.log(Q.mul(q1, Q.conj(q0)))
+            return _Piece(t0, None, _Splice(t0, float(t[0]) - t0, q0, coef), q1)
         spline = self._spline(np.vstack([q0, q]), np.concatenate([[t0], t]))
         return _Piece(t0, spline, None, spline.quats[-1])
 

@@ -35,6 +35,10 @@ from trajgen.stream import JointTrajectory, stream_frames
 #: change costs 1-15 ms on a busy two-core machine, see bench/online_cost.py).
 CHANGE_MARGIN_S = 0.05
 
+#: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
+#: how long the streaming thread may wait for a change being built on another thread.
+SWITCH_INTERVAL_S = 1e-4
+
 LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
 
 FOLLOW_DESCRIPTION = f"""\
@@ -245,25 +249,32 @@ class Follower:
             Joint angles whose 2 pi branch the first frame's pan and roll take.
         """
         frames = stream_frames(self.spline, self.rate_hz, self.kinematics, start=start)
-        while True:
-            try:
-                frame = next(frames)
-            except StopIteration:
-                return
-            except KinematicsError as e:
-                # Every change was checked on the stream's grid, so this is a path that
-                # passed its check between samples: end here, the servos hold the last goal.
-                self.fault = str(e)
-                return
-            with self._lock:
-                self._last_q = frame.q
-                if self._pending:
-                    now = time.monotonic()
-                    seen = [p for p in self._pending if frame.t > p[1]]
-                    self.latencies_s += [now - arrival for arrival, _ in seen]
-                    self._pending = [p for p in self._pending if p not in seen]
-            self._frames.append(frame)
-            yield frame
+        # A change is built on the reading thread and holds the interpreter meanwhile: let
+        # the streaming thread take it back within a fraction of a period.
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
+        try:
+            while True:
+                try:
+                    frame = next(frames)
+                except StopIteration:
+                    return
+                except KinematicsError as e:
+                    # Every change was checked on the stream's grid, so this is a path that
+                    # passed its check between samples: end here, the servos hold the last goal.
+                    self.fault = str(e)
+                    return
+                with self._lock:
+                    self._last_q = frame.q
+                    if self._pending:
+                        now = time.monotonic()
+                        seen = [p for p in self._pending if frame.t > p[1]]
+                        self.latencies_s += [now - arrival for arrival, _ in seen]
+                        self._pending = [p for p in self._pending if p not in seen]
+                self._frames.append(frame)
+                yield frame
+        finally:
+            sys.setswitchinterval(switch)
 
     def trajectory(self) -> JointTrajectory:
         """What :meth:`frames` yielded, as arrays."""
