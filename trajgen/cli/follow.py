@@ -230,10 +230,11 @@ class Follower:
         return self.spline.t_start if committed == -math.inf else committed
 
     def _limits(self, at: float):
-        """The check of a new path: joint limits and gimbal lock from ``at`` to its end."""
+        """The check of a new path: joint limits and gimbal lock at the stream's frame times
+        after ``at`` to its end (the frame at ``at`` is the old path's, checked already)."""
 
         def check(path) -> None:
-            t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)
+            t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)[1:]
             self.kinematics.inverse(path.evaluate(t, max_order=0).q, t, start=self._last_q)
 
         return check
