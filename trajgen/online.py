@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from functools import cached_property
 from math import comb, factorial
 
 import numpy as np
@@ -117,23 +118,25 @@ class _Splice(OrientationPath):
 
     def _space_rates(self, t, seg, max_order):
         """The same path as :meth:`_jet`, in closed form (as the spline's blends): ``r`` and
-        its time derivatives by Horner, ``exp`` by the rules of :mod:`trajgen.derivatives`."""
+        its time derivatives from the powers of ``u``, ``exp`` by the rules of
+        :mod:`trajgen.derivatives`; the rates are those of ``exp(r)`` (``q_a`` is fixed)."""
         u = (t - self.s) * (1.0 / self.h)
-        r, c = [], self.coef
-        for _ in range(max_order + 1):
-            acc = np.repeat(c[-1][:, None], len(u), axis=1)  # Horner, (3, M)
-            for cj in c[-2::-1]:
-                acc *= u
-                acc += cj[:, None]
-            r.append(acc)
-            c = c[1:] * (np.arange(1.0, len(c))[:, None] / self.h)  # d/dt of the power basis
+        powers = u[:, None] ** np.arange(len(self.coef))  # (M, 2k + 3)
+        r = [(powers[:, : len(c)] @ c).T for c in self._derivative_coefs[: max_order + 1]]
         cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
-        q_a = self.q_a[:, None]
-        derivs = [
-            D.hamilton(np.concatenate([ca[None], v]), q_a)
-            for ca, v in zip(cos_a, D.product(sinc, r), strict=True)
-        ]
-        return space_rates(derivs)
+        e = [np.concatenate([ca[None], v]) for ca, v in zip(cos_a, D.product(sinc, r), strict=True)]
+        _, rates = space_rates(e)
+        q = D.hamilton(e[0], self.q_a[:, None])
+        return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
+
+    @cached_property
+    def _derivative_coefs(self) -> list[np.ndarray]:
+        """Power-basis coefficients in ``u`` of ``d^n r / dt^n``, n = 0..3, each (D - n, 3)."""
+        out, c = [self.coef], self.coef
+        for _ in range(3):
+            c = c[1:] * (np.arange(1.0, len(c))[:, None] / self.h)
+            out.append(c)
+        return out
 
 
 def space_rates(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:
