@@ -1,18 +1,22 @@
 """What changing the plan while moving costs: OnlineSpline changes, frames, latency, peaks.
 
-1. Cost of one change (extend at a kept keyframe, mid-motion retarget, from
-   rest) against the 1 ms period of a 1 kHz stream and against building the
-   offline BlendingSpline through the same keyframes (the peer), same run.
+1. Cost of one change (mid-motion retarget, in a blended segment and inside a
+   splice, from rest, extend at a kept keyframe; one new keyframe as ``follow``
+   sends, and two) against the 1 ms period of a 1 kHz stream and against
+   building a BlendingSpline through (q(at), the new keyframes) (the peer), same
+   run; and the joint-limit / lock-guard check ``follow`` adds.
 2. Cost of one online frame block against the same block of a BlendingSpline.
-3. A 1 kHz stream of ``stream_frames(OnlineSpline)`` paced on the monotonic
-   clock, with a second thread changing the plan every 0.3-1 s at
-   ``at = committed + margin``: latency from the change request to the first
-   frame that reflects it, and frame lateness, against the same stream without
-   changes (peer).
+3. A 1 kHz stream of ``trajgen follow``'s frames (its ``Follower``) paced on the
+   monotonic clock, a second thread feeding it a keyframe line every 0.3-1 s
+   (a retarget 0.65 s ahead, checked against the joint limits as ``follow``
+   does): latency from the line to the first frame that reflects it, the cost
+   of each change, and frame lateness against the same stream of the same
+   moving plan without the lines (peer); with numpy evaluation, and with the
+   compiled kernel loaded as ``trajgen follow`` does where numba is installed.
 4. Peaks after mid-motion retargets by lead time, relative to the old plan's
    (the lead-time table of the design notes, measured again).
 
-Run: .venv/bin/python bench/online_cost.py [--seconds 6]
+Run: .venv/bin/python bench/online_cost.py [--seconds 6] [--repeats 40]
 """
 
 from __future__ import annotations
@@ -145,11 +149,16 @@ WINDOW_S = 0.01
 
 def paced_stream(seconds, rate_hz, changes, rng):
     """Stream ``trajgen follow``'s frames for ``seconds`` at ``rate_hz`` on the monotonic
-    clock, a second thread feeding it a line every 0.3-1 s (``changes``) or only noting
-    when it would have (the peer); returns the deadlines and lateness (s) per frame, the
-    times the lines were due, and the follower (its latencies and change costs)."""
+    clock, from a plan that moves all the way, a second thread feeding it a line every
+    0.3-1 s (``changes``) or only noting when it would have (the peer); returns the
+    deadlines and lateness (s) per frame, the times the lines were due, and the
+    follower (its latencies and change costs)."""
+    # The same moving plan in every run (keyframes every 0.6 s to the end): the peer
+    # streams as much motion as the runs whose lines change it.
+    keys = np.random.default_rng(3)
     s = OnlineSpline([1.0, 0, 0, 0])
-    s.extend(random_quats(rng, 1), [0.5], at=0.0)
+    times = np.arange(0.6, seconds + 1.0, 0.6)
+    s.extend(random_quats(keys, len(times), 30.0), times, at=0.0)
     follower = Follower(s, rate_hz)
     frames = follower.frames()
     deadlines, lateness, asked = [], [], []
