@@ -31,8 +31,9 @@ from trajgen.spline import BlendingSpline
 from trajgen.stream import JointTrajectory, stream_frames
 
 #: Time (s) from the frame being streamed when a line arrives to the change it
-#: makes: room to build and check the new path off the streaming thread (a
-#: change costs 1-15 ms on a busy two-core machine, see bench/online_cost.py).
+#: makes: room to build and check the new path off the streaming thread (on the
+#: busy two-core machine a change and its check took 0.4-3 ms, up to 10 ms when
+#: the host stalls; see bench/online_cost.py).
 CHANGE_MARGIN_S = 0.05
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
@@ -332,7 +333,10 @@ def load_compiled_kernel() -> bool:
     """
     if not fast.ENABLED:
         return False
-    importlib.import_module("trajgen.fast_kernel")
+    try:
+        importlib.import_module("trajgen.fast_kernel")
+    except ImportError:  # a broken numba install: numpy evaluates, as without numba
+        return False
     BlendingSpline([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [1.0, 0, 0, 0]], [0.0, 1.0, 2.0]).evaluate(0.5)
     return True
 
