@@ -155,12 +155,30 @@ def _taylor_from_rates(rates: list) -> np.ndarray:
     """Taylor coefficients (K + 1, 4) of ``d(tau) = q(t + tau) q(t)*`` from the space-frame
     rates ``omega, alpha, jerk`` at ``t`` (each (3,), K = len(rates) <= 3), using
     ``d' = omega d / 2`` (``omega`` as a pure quaternion) differentiated: ``d(0) = 1``,
-    ``d^(n+1) = 1/2 sum_j C(n, j) omega^(j) d^(n-j)``."""
-    w = [np.concatenate([[0.0], x])[:, None] for x in rates]  # (4, 1)
-    d = [np.array([[1.0], [0.0], [0.0], [0.0]])]
+    ``d^(n+1) = 1/2 sum_j C(n, j) omega^(j) d^(n-j)``. Plain floats: a handful of
+    quaternion products, each far cheaper than a numpy call."""
+    w = [(0.0, *map(float, x)) for x in rates]
+    d = [(1.0, 0.0, 0.0, 0.0)]
     for n in range(len(rates)):
-        d.append(0.5 * sum(comb(n, j) * D.hamilton(w[j], d[n - j]) for j in range(n + 1)))
-    return np.array(d)[..., 0] / np.array([factorial(n) for n in range(len(d))])[:, None]
+        acc = [0.0, 0.0, 0.0, 0.0]
+        for j in range(n + 1):
+            c = 0.5 * comb(n, j)
+            for i, x in enumerate(_hamilton_floats(w[j], d[n - j])):
+                acc[i] += c * x
+        d.append(tuple(acc))
+    return np.array(d) / np.array([factorial(n) for n in range(len(d))])[:, None]
+
+
+def _hamilton_floats(p: tuple, q: tuple) -> tuple:
+    """Hamilton product of two quaternions given as 4 floats (w, x, y, z)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
 
 
 @dataclass(frozen=True)
