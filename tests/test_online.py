@@ -279,28 +279,6 @@ def test_check_rejects_and_keeps_the_path():
     assert s.version == 0 and s.t_end == 0.0
 
 
-def test_prepare_builds_aside_and_apply_makes_it():
-    s = OnlineSpline([1, 0, 0, 0])
-    q = Q.from_pan_tilt_roll(0.3, 0.0, 0.0)[None]
-    change = s.prepare("retarget", q, [1.0], at=0.0)
-    assert s.version == 0 and s.t_end == 0.0  # nothing made yet
-    assert change.path.t_end == 1.0
-    s.apply(change)
-    assert s.version == 1 and s.t_end == 1.0
-    with pytest.raises(ChangeTooLate, match="since this change was prepared"):
-        s.apply(change)  # built on version 0
-    later = s.prepare("extend", q, [1.5], at=0.2)
-    s.commit(0.3, s.version)
-    with pytest.raises(ChangeTooLate, match="before the streamed time 0.3"):
-        s.apply(later)
-    with pytest.raises(ValueError, match="`mode`"):
-        s.prepare("jump", q, [2.0], at=0.5)
-    last = s.prepare("extend", q, [2.0], at=0.5)
-    s.close()
-    with pytest.raises(ValueError, match="closed"):
-        s.apply(last)
-
-
 def test_changes_from_another_thread_are_atomic(rng):
     """A reader sees each evaluation wholly before or wholly after a change."""
     s = OnlineSpline([1, 0, 0, 0])

@@ -90,19 +90,6 @@ class ChangeTooLate(TrajgenError):
     """A change at a time that a stream has already used (see :meth:`OnlineSpline.commit`)."""
 
 
-@dataclass(frozen=True)
-class Change:
-    """A change built aside by :meth:`OnlineSpline.prepare`, made by :meth:`OnlineSpline.apply`.
-
-    ``path`` is the path it makes, an ``OrientationPath`` defined from at or before
-    ``at`` (s); ``version`` the spline's version it was built on.
-    """
-
-    at: float
-    path: OrientationPath
-    version: int
-
-
 class _Splice(OrientationPath):
     """A spliced segment: ``exp(r(u)) q_a``, ``u = (t - s) / h``, ``r`` a polynomial in ``u``."""
 
@@ -536,79 +523,39 @@ class OnlineSpline:
         """
         self._change_plan("retarget", quats, times, at, check)
 
-    def prepare(self, mode: str, quats, times, *, at) -> Change:
-        """Build a change aside, without making it: :meth:`apply` makes it.
-
-        For a caller that checks the new path in steps of its own (as ``trajgen
-        follow`` does between the frames of its stream). ``mode`` is "extend" or
-        "retarget"; the other parameters and the errors are those of
-        :meth:`extend` and :meth:`retarget`.
-        """
-        mode = check_choice("mode", mode, MODES)
-        q = Q.as_quats(quats, "quats")
-        t = check_times(times, len(q))
-        at = check_number("at", at)
-        with self._change:
-            return self._prepare(mode, q, t, at)
-
-    def apply(self, change: Change) -> None:
-        """Make a change built by :meth:`prepare`.
-
-        Raises
-        ------
-        ChangeTooLate
-            If a stream has committed a time after its ``at``, or another change
-            was made since it was prepared (prepare it again).
-        ValueError
-            If the spline was closed meanwhile.
-        """
-        with self._change:
-            self._apply(change)
-
     def _change_plan(self, mode, quats, times, at, check) -> None:
         q = Q.as_quats(quats, "quats")
         t = check_times(times, len(q))
         at = check_number("at", at)
         with self._change:
-            change = self._prepare(mode, q, t, at)
-            if check is not None:
-                check(change.path)
-            self._apply(change)
-
-    def _prepare(self, mode, q, t, at) -> Change:
-        if self._closed:
-            raise ValueError("The spline is closed: no more changes.")
-        if at < self._last_at:
-            raise ValueError(f"`at` = {at} s is before the previous change at {self._last_at} s.")
-        self._check_not_streamed(at)
-        lead = t[0] - at
-        if lead < self.min_lead_s - 1e-9:
-            raise ValueError(
-                f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
-                f"it must be at least {self.min_lead_s} s after it."
-            )
-        plan = self._plan
-        piece = self._new_piece(plan, mode, q, t, at)
-        kept = [p for p in plan.pieces if p.start < piece.start]
-        # Drop what lies wholly before `at` (before the streamed time, if earlier:
-        # a stream still needs the path from there).
-        drop = min(at, self._committed) if self._committed > -np.inf else at
-        first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
-        return Change(at, _Plan((*kept[first:], piece)), self._version)
-
-    def _apply(self, change: Change) -> None:
-        if self._closed:
-            raise ValueError("The spline is closed: no more changes.")
-        with self._swap:
-            if change.version != self._version:
-                raise ChangeTooLate(
-                    f"The plan changed (version {self._version}) since this change was "
-                    f"prepared on version {change.version}: prepare it again."
+            if self._closed:
+                raise ValueError("The spline is closed: no more changes.")
+            if at < self._last_at:
+                raise ValueError(
+                    f"`at` = {at} s is before the previous change at {self._last_at} s."
                 )
-            self._check_not_streamed(change.at)
-            self._plan = change.path
-            self._version += 1
-            self._last_at = change.at
+            self._check_not_streamed(at)
+            lead = t[0] - at
+            if lead < self.min_lead_s - 1e-9:
+                raise ValueError(
+                    f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
+                    f"it must be at least {self.min_lead_s} s after it."
+                )
+            plan = self._plan
+            piece = self._new_piece(plan, mode, q, t, at)
+            kept = [p for p in plan.pieces if p.start < piece.start]
+            # Drop what lies wholly before `at` (before the streamed time, if earlier:
+            # a stream still needs the path from there).
+            drop = min(at, self._committed) if self._committed > -np.inf else at
+            first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
+            new_plan = _Plan((*kept[first:], piece))
+            if check is not None:
+                check(new_plan)
+            with self._swap:
+                self._check_not_streamed(at)
+                self._plan = new_plan
+                self._version += 1
+                self._last_at = at
 
     def _check_not_streamed(self, at: float) -> None:
         if at < self._committed:
