@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import os
 import sys
 import threading
 import time
@@ -146,8 +147,10 @@ class Follower:
     def read(self, lines, *, echo=sys.stderr) -> None:
         """Feed every line of ``lines`` (an iterable of str), then close the plan.
 
-        Bad lines are reported to ``echo`` and skipped.
+        Bad lines are reported to ``echo`` and skipped. Call it on a thread of its
+        own: it lowers that thread's scheduling priority (see :func:`yield_to_stream`).
         """
+        yield_to_stream()
         try:
             for number, text in enumerate(lines, start=1):
                 if not text.strip():
@@ -319,6 +322,21 @@ class Follower:
             f"follow: {s['accepted']} keyframes accepted, {s['skipped']} lines skipped; "
             f"line to frame {ms(s['latency_s'])}; change cost {ms(s['change_cost_s'])}"
         )
+
+
+#: Nice value of the thread that reads lines and builds changes (Linux): when the two
+#: threads and other processes want the CPU, the streaming thread comes first.
+READER_NICE = 10
+
+
+def yield_to_stream() -> None:
+    """Lower the calling thread's scheduling priority to :data:`READER_NICE` (Linux,
+    where a thread has its own nice value; elsewhere nothing)."""
+    if sys.platform.startswith("linux"):
+        try:
+            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), READER_NICE)
+        except OSError:  # not allowed: the thread keeps its priority
+            pass
 
 
 def load_compiled_kernel() -> bool:
