@@ -493,3 +493,14 @@ def test_end_minimax_two_keyframes_reach_the_best_symmetric_septic():
     brute = np.abs(d3[0] + x * d3[1]).max(axis=1).min()
     assert peak[1] == pytest.approx(brute, rel=2e-3)  # END_SAMPLES is 33 points of u
     assert peak[1] / 32 < 1.25
+
+
+def test_end_minimax_coefficients_are_the_segment_formula_of_its_knot_data(rng):
+    # The end segments are patched by the linear terms; a rebuild from the knot data
+    # (what a per-frame evaluator does) must give the same coefficients.
+    for n in (2, 3, 7):
+        q, t = random_keys(rng, n)
+        s = SmoothSpline(q, t, knots="end-minimax")
+        D = Q.log(Q.mul(s.quats[1:], Q.conj(s.quats[:-1])))
+        rebuilt = s._segment_coefficients(D, np.diff(t), *s.knot_rates)
+        np.testing.assert_allclose(s._poly, rebuilt, rtol=1e-12, atol=1e-12 * np.abs(rebuilt).max())

@@ -113,6 +113,19 @@ def minimax_offset(c: np.ndarray, b: np.ndarray, prefer: np.ndarray) -> np.ndarr
     return out
 
 
+def _with_time_derivatives(coef: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Segment coefficients of ``r_i(u)`` (n, 8, 3), ``[i, k, axis]`` multiplying
+    ``u^k``, with those of its first three time derivatives (``d/dt = (1/h) d/du``),
+    shape (n, 12, 8): ``[i, 3 m + axis, k]`` for the m-th derivative."""
+    out = np.empty((4, *coef.shape))
+    out[0] = coef
+    power = np.arange(8.0)
+    for m in range(1, 4):
+        out[m, :, :-1] = out[m - 1, :, 1:] * power[1:, None] / h[:, None, None]
+        out[m, :, -1] = 0.0
+    return np.ascontiguousarray(out.transpose(1, 0, 3, 2).reshape(len(h), 12, 8))
+
+
 def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
     """Blocks of the knot-rate system (SPEC 8.2), symmetric positive definite.
 
@@ -325,12 +338,13 @@ class SmoothSpline(OrientationPath):
         h = np.diff(self.times)
         D = Q.log(Q.mul(q[1:], Q.conj(q[:-1])))
         v, a, j = self._knot_rates(D, h)
+        poly = self._segment_coefficients(D, h, v, a, j)
         if knots == "end-minimax":
-            j = self._end_minimax_jerk(D, h, v, a, j)
+            j, poly = self._end_minimax(h, j, poly)
         #: Knot angular rate, acceleration and jerk of the tangent-space jets (N, 3).
         self.knot_rates = (v, a, j)
         self._h = h
-        self._poly = self._segment_coefficients(D, h, v, a, j)
+        self._poly = poly
 
     def _knot_rates(self, D, h):
         n = len(D) + 1
@@ -357,40 +371,45 @@ class SmoothSpline(OrientationPath):
         ) / h[-1] ** 3
         return v, a, j
 
-    def _end_minimax_jerk(self, D, h, v, a, j) -> np.ndarray:
-        """Knot jerks (N, 3): ``j`` with the jerk at each rest end chosen minimax.
+    def _end_minimax(self, h, j, poly):
+        """Knot jerks (N, 3) and segment coefficients with each rest end's jerk chosen
+        minimax (``knots="end-minimax"``), from the quintic choice's ``j`` and ``poly``.
 
-        First segment: ``L = (0, 0, 0, j_0)``, so ``r'''(u) = base(u) + j_0 H_3'''(u)``
-        exactly: one minimax in one variable per axis (:func:`minimax_offset`). Last
-        segment: the end jerk enters only through ``R_3``, the third derivative of
-        ``log(exp(j tau^3 / 6) exp(D))`` at ``tau = 0`` (``v = a = 0`` there), which
-        is linear, ``R_3 = M j``: the minimax is taken over ``R_3``, then
-        ``j = M^-1 R_3``. Neither choice can raise the sampled peak it minimises.
+        ``r_i(u)`` is linear in the knot data ``L`` and ``R``. First segment: ``L_3 =
+        j_0`` (``v = a = 0`` there), so ``r'''(u) = base(u) + j_0 H_3'''(u)``: one
+        minimax in one variable per axis (:func:`minimax_offset`). Last segment: the
+        end jerk enters only through ``R_3``, the third derivative of
+        ``log(exp(j tau^3 / 6) exp(D))`` at ``tau = 0``, which is linear, ``R_3 = M j``:
+        the minimax is taken over ``R_3``, then ``j = M^-1 R_3``. Neither choice can
+        raise the sampled peak it minimises; the two end segments' coefficients change
+        by the linear terms, all others stay.
 
         With two keyframes both ends share one segment, and choosing one end with
         the other held would stall (each end's peak sits at the other end). There
-        ``j_0 = R_3`` is chosen as one unknown, the symmetric choice the flat
-        optimum takes: peak jerk 38.6 D / T^3 against 60 for the quintic choice and
-        32 for the bang-bang bound.
+        ``j_0 = R_3`` is chosen as one unknown, the symmetric choice the flat optimum
+        takes: peak jerk 38.6 D / T^3 against 60 for the quintic choice and 32 for
+        the bang-bang bound.
         """
-        j = j.copy()
-        last = len(h) - 1
+        j, poly = j.copy(), poly.copy()
         step = Q.mul(self.quats[-1], Q.conj(self.quats[-2]))[:, None]  # (4, 1) = exp(D)
-        rest = np.zeros((1, 3))
-        M = np.stack([self._right_data(step, rest, rest, e[None])[3, 0] for e in np.eye(3)], 1)
+        none = np.zeros((3, 3))
+        M = self._right_data(np.repeat(step, 3, axis=1), none, none, np.eye(3))[3].T
         powers = END_SAMPLES[:, None] ** np.arange(8)  # (S, 8)
-        jerk = self._segment_coefficients(D, h, v, a, j)[:, 9:12] @ powers.T  # (n-1, 3, S)
-        r3 = M @ j[-1]
-        if last == 0:
-            both = _START_JERK + _STOP_JERK
-            base = jerk[0].T - _START_JERK[:, None] * j[0] - _STOP_JERK[:, None] * r3
-            j[0] = minimax_offset(base, both, (j[0] + r3) / 2)
-            j[-1] = np.linalg.solve(M, j[0])
-            return j
-        j[0] = minimax_offset(jerk[0].T - _START_JERK[:, None] * j[0], _START_JERK, j[0])
-        base = jerk[last].T - _STOP_JERK[:, None] * r3
-        j[-1] = np.linalg.solve(M, minimax_offset(base, _STOP_JERK, r3))
-        return j
+        first, last = (poly[i, 9:12] @ powers.T for i in (0, -1))  # r''' (3, S)
+        j0, r3 = j[0].copy(), M @ j[-1]
+        if len(h) == 1:
+            base = first.T - _START_JERK[:, None] * j0 - _STOP_JERK[:, None] * r3
+            j[0] = new_r3 = minimax_offset(base, _START_JERK + _STOP_JERK, (j0 + r3) / 2)
+        else:
+            j[0] = minimax_offset(first.T - _START_JERK[:, None] * j0, _START_JERK, j0)
+            base = last.T - _STOP_JERK[:, None] * r3
+            new_r3 = minimax_offset(base, _STOP_JERK, r3)
+        j[-1] = np.linalg.solve(M, new_r3)
+        # r gains h^3 (L_3 change) H_3(u) and h^3 (R_3 change) (-H_3(1 - u)).
+        for i, change, basis in ((0, j[0] - j0, _H[3]), (-1, new_r3 - r3, _H_RIGHT[3])):
+            coef = h[i] ** 3 * basis[None, :, None] * change[None, None, :]  # (1, 8, 3)
+            poly[i] += _with_time_derivatives(coef, h[[i]])[0]
+        return j, poly
 
     @staticmethod
     def _right_data(step, v, a, j) -> np.ndarray:
@@ -418,13 +437,7 @@ class SmoothSpline(OrientationPath):
         L = np.stack([np.zeros_like(v[:-1]), v[:-1], a[:-1], j[:-1]])
         hm = h[None, :, None] ** np.arange(4)[:, None, None]  # (4, n - 1, 1)
         coef = np.einsum("mis,mk->iks", hm * L, _H) + np.einsum("mis,mk->iks", hm * R, _H_RIGHT)
-        out = np.empty((4, *coef.shape))
-        out[0] = coef
-        power = np.arange(8.0)
-        for m in range(1, 4):  # d/dt = (1/h) d/du
-            out[m, :, :-1] = out[m - 1, :, 1:] * power[1:, None] / h[:, None, None]
-            out[m, :, -1] = 0.0
-        return np.ascontiguousarray(out.transpose(1, 0, 3, 2).reshape(len(h), 12, 8))
+        return _with_time_derivatives(coef, h)
 
     def _tangent(self, t, seg, max_order) -> np.ndarray:
         """``r_i(u)`` and its time derivatives 1..max_order at times ``t`` (M,) in
