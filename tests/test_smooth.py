@@ -149,7 +149,7 @@ def test_single_axis_is_the_flat_quintic_spline(rng):
     angles = np.concatenate([[0.0], np.cumsum(rng.uniform(-1.2, 1.2, n - 1))])
     axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.3, 2.5, n - 1))])
-    s = SmoothSpline(Q.from_axis_angle(axis, angles), t)
+    s = SmoothSpline(Q.from_axis_angle(axis, angles), t, knots="quintic")
     D, h = np.diff(angles) / 2, np.diff(t)
     v, a = dense_knot_rates(D, h)
     v, a = np.concatenate([[0], v, [0]]), np.concatenate([[0], a, [0]])
@@ -287,7 +287,7 @@ def test_property_random_keyframes(seed, n, spread, boundary):
     S = s.evaluate(np.linspace(t[0], t[-1], 301), max_order=3)
     assert all(np.isfinite(x).all() for x in S[1:])
     if knots:  # never a higher sampled peak jerk on an end segment, any axis
-        quintic = SmoothSpline(q, t)
+        quintic = SmoothSpline(q, t, knots="quintic")
         for i in (0, n - 2):
             ours, theirs = end_segment_jerk(s, i).max(1), end_segment_jerk(quintic, i).max(1)
             assert (ours <= theirs + 1e-9 * (1 + theirs)).all()
@@ -427,7 +427,7 @@ def test_minimax_offset_takes_the_optimum_nearest_the_preference():
 
 def test_end_minimax_changes_only_the_end_jerks_and_end_segments(rng):
     q, t = random_keys(rng, 8)
-    a, b = SmoothSpline(q, t), SmoothSpline(q, t, knots="end-minimax")
+    a, b = SmoothSpline(q, t, knots="quintic"), SmoothSpline(q, t, knots="end-minimax")
     for x, y in zip(a.knot_rates[:2], b.knot_rates[:2], strict=True):
         np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(a.knot_rates[2][1:-1], b.knot_rates[2][1:-1])
@@ -483,7 +483,10 @@ def test_end_minimax_two_keyframes_reach_the_best_symmetric_septic():
 
     D, T = np.radians(50.0), 2.0
     q = ptr([0, 0, 0], [50, 0, 0])
-    quintic, best = SmoothSpline(q, [0.0, T]), SmoothSpline(q, [0.0, T], knots="end-minimax")
+    quintic, best = (
+        SmoothSpline(q, [0.0, T], knots="quintic"),
+        SmoothSpline(q, [0.0, T], knots="end-minimax"),
+    )
     tt = np.linspace(0, T, 20001)
     peak = [np.abs(s(tt, 3)).max() * T**3 / D for s in (quintic, best)]
     assert peak[0] == pytest.approx(60.0, rel=1e-6)
@@ -504,3 +507,16 @@ def test_end_minimax_coefficients_are_the_segment_formula_of_its_knot_data(rng):
         D = Q.log(Q.mul(s.quats[1:], Q.conj(s.quats[:-1])))
         rebuilt = s._segment_coefficients(D, np.diff(t), *s.knot_rates)
         np.testing.assert_allclose(s._poly, rebuilt, rtol=1e-12, atol=1e-12 * np.abs(rebuilt).max())
+
+
+@pytest.mark.parametrize(
+    "boundary,knots", [("rest", "end-minimax"), ("natural", "quintic"), ("closed", "quintic")]
+)
+def test_default_knot_choice_is_end_minimax_at_rest_else_quintic(rng, boundary, knots):
+    q, t = closed_keys(rng) if boundary == "closed" else random_keys(rng)
+    default, named = (
+        SmoothSpline(q, t, boundary=boundary),
+        SmoothSpline(q, t, boundary=boundary, knots=knots),
+    )
+    assert default.knots == knots
+    np.testing.assert_array_equal(default._poly, named._poly)

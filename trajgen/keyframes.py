@@ -4,7 +4,8 @@
 [spline]            # optional
 method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
 boundary = "rest"   # "rest", "natural" or "closed" (both methods)
-knots = "quintic"   # the smooth spline's knot choice: "quintic" or "end-minimax"
+knots = "end-minimax"  # the smooth spline's knot choice, "end-minimax" (default at
+                      # rest) or "quintic" (default otherwise; end-minimax needs rest)
                     # k, local, reparam are the blending spline's keywords; a file
                     # giving them without `method` gets method = "blending"
 

@@ -296,7 +296,9 @@ class SmoothSpline(OrientationPath):
         space frame, to minimise the peak of that axis' tangent-space jerk over its
         end segment (sampled at :data:`END_SAMPLES`; exact, see
         :func:`minimax_offset`). It moves only the two end segments and never
-        raises their sampled peak. Default "quintic".
+        raises their sampled peak; it depends on the space frame's axes (the
+        gimbal's: z is the pan axis). Default: "end-minimax" when ``boundary`` is
+        "rest" (the torque race chose it, see the README), else "quintic".
 
     Raises
     ------
@@ -314,13 +316,16 @@ class SmoothSpline(OrientationPath):
     ``SPEC.md`` section 8 in the project's shared notes states the construction.
     """
 
-    def __init__(self, quats, times, *, boundary="rest", knots="quintic"):
+    def __init__(self, quats, times, *, boundary="rest", knots=None):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
             raise ValueError(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
+        if knots is None:
+            knots = "end-minimax" if boundary == "rest" else "quintic"
+        #: The knot choice, "quintic" or "end-minimax".
         self.knots = check_choice("knots", knots, KNOTS)
         if knots == "end-minimax" and boundary != "rest":
             raise ValueError(
@@ -382,7 +387,7 @@ class SmoothSpline(OrientationPath):
         ``log(exp(j tau^3 / 6) exp(D))`` at ``tau = 0``, which is linear, ``R_3 = M j``:
         the minimax is taken over ``R_3``, then ``j = M^-1 R_3``. Neither choice can
         raise the sampled peak it minimises; the two end segments' coefficients change
-        by the linear terms, all others stay.
+        by the linear terms, all others stay. ``j`` and ``poly`` are updated in place.
 
         With two keyframes both ends share one segment, and choosing one end with
         the other held would stall (each end's peak sits at the other end). There
@@ -390,7 +395,6 @@ class SmoothSpline(OrientationPath):
         takes: peak jerk 38.6 D / T^3 against 60 for the quintic choice and 32 for
         the bang-bang bound.
         """
-        j, poly = j.copy(), poly.copy()
         step = Q.mul(self.quats[-1], Q.conj(self.quats[-2]))[:, None]  # (4, 1) = exp(D)
         none = np.zeros((3, 3))
         M = self._right_data(np.repeat(step, 3, axis=1), none, none, np.eye(3))[3].T
