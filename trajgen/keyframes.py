@@ -4,8 +4,7 @@
 [spline]            # optional
 method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
 boundary = "rest"   # "rest", "natural" or "closed" (both methods)
-knots = "end-minimax"  # the smooth spline's knot choice, "end-minimax" (default at
-                      # rest) or "quintic" (default otherwise; end-minimax needs rest)
+knots = "quintic"   # SmoothSpline's knots: "end-minimax" (default at rest) or "quintic"
                     # k, local, reparam are the blending spline's keywords; a file
                     # giving them without `method` gets method = "blending"
 
