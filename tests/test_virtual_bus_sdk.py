@@ -166,6 +166,22 @@ def test_goal_limits_follow_the_limit_registers(sdk):
     assert s.write(2, GOAL_POSITION, 2_000_000, 4) == DATA_RANGE  # beyond +-1,048,575
 
 
+def test_goal_held_is_clamped_when_the_limits_narrow(sdk):
+    s = sdk(FirstOrderPlant(time_constant_s=0.0))
+    assert s.write(1, GOAL_POSITION, 3000, 4) == 0  # torque off: goals are accepted
+    assert s.write(1, MAX_POSITION_LIMIT, 2500, 4) == 0
+    assert s.read(1, GOAL_POSITION, 4) == 3000  # the register keeps what was written
+    s.write(1, TORQUE, 1, 1)
+    _poll_until_at(s, 1, 2500, threshold=0)  # the servo goes no further than the limit
+    assert max(s.position(1) for _ in range(5)) == 2500
+    s.write(1, TORQUE, 0, 1)
+    s.write(1, OPERATING_MODE, 4, 1)  # extended position: no limits
+    s.write(1, GOAL_POSITION, 9000, 4)
+    s.write(1, OPERATING_MODE, 3, 1)  # back to position mode: the goal is clamped again
+    s.write(1, TORQUE, 1, 1)
+    _poll_until_at(s, 1, 2500, threshold=0)
+
+
 # -- what a real servo refuses ----------------------------------------------------------
 
 
@@ -361,6 +377,18 @@ def test_present_pwm_is_the_p_loop_on_the_error(sdk):
     s.write(1, GOAL_PWM, 300, 2)
     assert s.read(1, PRESENT_PWM, 2, signed=True) == -300  # Goal PWM caps it too
     assert s.virtual.plant.control[0]["Goal PWM"] == 300
+
+
+def test_changing_operating_mode_resets_goal_pwm_gains_and_profile(sdk):
+    s = sdk()
+    for address, value, size in [(GOAL_PWM, 300, 2), (P_GAIN, 500, 2), (PROFILE_VELOCITY, 50, 4)]:
+        assert s.write(1, address, value, size) == 0
+    assert s.write(1, OPERATING_MODE, 4, 1) == 0
+    assert s.read(1, GOAL_PWM, 2) == 885  # back to PWM Limit (e-Manual, Operating Mode)
+    assert s.read(1, P_GAIN, 2) == 800
+    assert s.read(1, PROFILE_VELOCITY, 4) == 0
+    assert s.virtual.plant.control[0]["Goal PWM"] == 885  # the plant was told
+    assert s.virtual.plant.control[0]["Operating Mode"] == 4
 
 
 def test_plant_is_told_the_control_registers_at_start(sdk):

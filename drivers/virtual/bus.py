@@ -81,6 +81,8 @@ _SIM_WAKE_S = 0.005
 _MAX_STEPS_PER_HOLD = 2
 # The first and last of the registers the plant fills (addresses 120..146).
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
+# Registers that decide how Goal Position is clamped (the limits, in Position Mode).
+_GOAL_CLAMP = {"Min Position Limit", "Max Position Limit", "Operating Mode"}
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
 _CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
@@ -444,6 +446,11 @@ class VirtualBus:
         if "Goal Position" in names:
             self._goal_rad[j] = self._goal_for_plant(servo)
             self._goal_written = True
+        elif names & _GOAL_CLAMP:  # the goal held, clamped to the new limits or mode
+            goal = self._goal_for_plant(servo)
+            if goal != self._goal_rad[j]:
+                self._goal_rad[j] = goal
+                self.plant.set_goal(self._goal_rad.copy())
 
     def _commit_goals(self) -> None:
         """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
