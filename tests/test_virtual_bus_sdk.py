@@ -391,6 +391,26 @@ def test_changing_operating_mode_resets_goal_pwm_gains_and_profile(sdk):
     assert s.virtual.plant.control[0]["Operating Mode"] == 4
 
 
+def test_what_the_plant_does_not_simulate_is_refused_and_the_bus_lives_on(sdk):
+    sim_firmware = pytest.importorskip("trajgen.sim.firmware")
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
+    told = []
+    s = sdk(
+        sim_plant.GimbalPlant(record=False),
+        unsupported=(sim_firmware.UnsupportedServoSetting,),
+        on_refusal=lambda servo_id, reason: told.append((servo_id, reason)),
+    )
+    assert s.write(1, PROFILE_VELOCITY, 100, 4) == RESULT_FAIL
+    assert s.read(1, PROFILE_VELOCITY, 4) == 0  # undone
+    assert s.write(2, OPERATING_MODE, 1, 1) == RESULT_FAIL  # velocity mode
+    assert s.read(2, OPERATING_MODE, 1) == 3
+    assert [i for i, _ in told] == [1, 2]
+    assert "Profile Velocity 100" in told[0][1] and "Operating Mode 1" in told[1][1]
+    assert s.write(2, OPERATING_MODE, 4, 1) == 0  # extended position is simulated
+    assert s.ph.ping(s.port, 1)[1:] == (COMM_SUCCESS, 0)
+    assert s.virtual.error is None
+
+
 def test_plant_is_told_the_control_registers_at_start(sdk):
     s = sdk(models="XL430-W250")
     assert s.virtual.plant.control[2]["Position P Gain"] == 640  # XL430's own default
@@ -439,12 +459,15 @@ def test_virtual_bus_command_serves_until_a_signal(signal_name):
         ph = PacketHandler(2.0)
         assert ph.ping(port, 5)[:2] == (1060, COMM_SUCCESS)
         assert ph.write1ByteTxRx(port, 5, TORQUE, 1) == (COMM_SUCCESS, 0)
+        assert ph.write4ByteTxRx(port, 5, PROFILE_VELOCITY, 50) == (COMM_SUCCESS, RESULT_FAIL)
+        assert ph.ping(port, 5)[1] == COMM_SUCCESS  # not simulated, refused; the bus lives on
         port.closePort()
     finally:
         proc.send_signal(getattr(signal, signal_name))
         out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
     assert "serving servos 4, 5, 6 (XL430-W250, XL430-W250, XL430-W250), real time" in err
+    assert "servo 5 refused a write (Result Fail): tilt: Profile Velocity 50" in err
     assert "stopped after" in err
 
 

@@ -48,7 +48,7 @@ import sys
 import threading
 import time
 import tty
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -208,6 +208,12 @@ class VirtualBus:
         constant on long streams).
     sim_step_s : float, optional
         Real time: the simulation thread's step (s).
+    unsupported : tuple of exception types, optional
+        What ``plant.set_control`` raises for register values the plant does
+        not simulate (a profile, another Operating Mode...): such a write is
+        undone and answered with Result Fail instead of stopping the bus.
+    on_refusal : callable (servo id, reason) -> None, optional
+        Told about each write refused that way (from the serving thread).
 
     Raises
     ------
@@ -254,6 +260,8 @@ class VirtualBus:
         registers: Mapping[int, Mapping[str, int]] | None = None,
         goal_log_size: int = 100_000,
         sim_step_s: float = 1e-3,
+        unsupported: tuple[type[Exception], ...] = (),
+        on_refusal: Callable[[int, str], None] | None = None,
     ) -> None:
         if not isinstance(plant, Plant):
             raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
@@ -280,6 +288,8 @@ class VirtualBus:
         self._joint = {i: j for j, i in enumerate(ids)}
         self.lockstep_dt_s = lockstep_dt_s
         self.sim_step_s = sim_step_s
+        self.unsupported = tuple(unsupported)
+        self.on_refusal = on_refusal
         self.timing = timing
         self.fast_sync_read = fast_sync_read
         self._faults = [[f, f.count] for f in faults]
@@ -437,12 +447,12 @@ class VirtualBus:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
         j = self._joint[servo_id]
         servo = self.servos[servo_id]
+        if names & set(CONTROL_REGISTERS):  # first: the plant may refuse them
+            self.plant.set_control(j, self._control(servo))
         if "ID" in names:
             self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
-        if names & set(CONTROL_REGISTERS):
-            self.plant.set_control(j, self._control(servo))
         if "Goal Position" in names:
             self._goal_rad[j] = self._goal_for_plant(servo)
             self._goal_written = True
@@ -662,10 +672,24 @@ class VirtualBus:
         )
 
     def _write_one(self, servo_id: int, address: int, data: bytes) -> int:
-        error, names = self.servos[servo_id].write(address, data)
-        if not error:
+        """WRITE to one servo: its status error (0: written and passed to the plant).
+
+        A write the plant does not simulate (it raises one of ``unsupported``)
+        is undone and refused with Result Fail; ``on_refusal`` hears why.
+        """
+        servo = self.servos[servo_id]
+        before = bytes(servo.memory)
+        error, names = servo.write(address, data)
+        if error:
+            return error
+        try:
             self._written(servo_id, names)
-        return error
+        except self.unsupported as e:
+            servo.memory[:] = before
+            if self.on_refusal is not None:
+                self.on_refusal(servo_id, str(e))
+            return StatusError.RESULT_FAIL
+        return 0
 
     def _write_instruction(self, packet_id: int, params: bytes) -> list:
         if len(params) < 3:
