@@ -96,6 +96,14 @@ def _poll_until_at(s, servo_id, goal, *, polls=200, threshold=20):
     raise AssertionError(f"servo {servo_id} never reached {goal}: at {s.position(servo_id)}")
 
 
+def _raw(s, servo_id, instruction, params):
+    """Send one instruction packet with ``params`` through the SDK: (result, status error)."""
+    packet = [0] * 8 + list(params) + [0, 0]
+    packet[4], packet[5], packet[7] = servo_id, len(params) + 3, instruction
+    _, result, error = s.ph.txRxPacket(s.port, packet)
+    return result, error
+
+
 # -- time ------------------------------------------------------------------------
 
 
@@ -113,6 +121,31 @@ def test_real_time_bus_answers_within_the_sdk_timeout_after_a_pause(sdk, monkeyp
     assert took_s < 0.034  # no catch-up on arrival: the simulation ran during the pause
     wall_s, sim_s = s.virtual.wall_time_s, s.virtual.sim_time_s
     assert sim_s == pytest.approx(wall_s, rel=0.05, abs=0.02)  # simulated time tracks wall time
+
+
+def test_every_instruction_is_answered_in_time_after_a_pause(sdk, monkeypatch):
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
+    s = sdk(sim_plant.GimbalPlant(record=False), lockstep_dt_s=None)
+    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 16)  # the SDK's own
+    bulk = GroupBulkRead(s.port, s.ph)
+    assert bulk.addParam(1, PRESENT_POSITION, 4) and bulk.addParam(2, TICK, 2)
+    calls = {
+        "PING": lambda: s.ph.ping(s.port, 1)[1:],
+        "READ": lambda: s.ph.read4ByteTxRx(s.port, 1, PRESENT_POSITION)[1:],
+        "WRITE": lambda: s.ph.write1ByteTxRx(s.port, 1, OPERATING_MODE, 4),
+        "REG_WRITE": lambda: s.ph.regWriteTxRx(s.port, 1, LED, 1, [1]),
+        # ACTION is broadcast (no status): its check is that the LED it lit reads 1.
+        "ACTION": lambda: (s.ph.action(s.port, BROADCAST_ID), s.read(1, LED, 1) - 1),
+        "BULK_READ": lambda: (bulk.txRxPacket(), 0),
+        "FAST_BULK_READ": lambda: (bulk.fastBulkRead(), 0),
+        "CLEAR": lambda: s.ph.clearMultiTurn(s.port, 1),
+        "REBOOT": lambda: s.ph.reboot(s.port, 1),
+        "FACTORY_RESET": lambda: s.ph.factoryReset(s.port, 1, 0x02),
+    }
+    for name, call in calls.items():
+        time.sleep(0.25)
+        assert call() == (COMM_SUCCESS, 0), name
+    assert s.read(1, LED, 1) == 0  # ACTION lit it, REBOOT put it out
 
 
 def test_realtime_tick_counts_milliseconds_in_real_time(sdk):
@@ -204,10 +237,7 @@ def test_refusals_carry_the_manuals_error_bits(sdk):
 
 def test_unknown_instruction_gets_the_instruction_error(sdk):
     s = sdk()
-    packet = [0] * 10
-    packet[4], packet[5], packet[7] = 1, 3, 0x7F  # id 1, length 3, instruction 0x7F
-    _, result, error = s.ph.txRxPacket(s.port, packet)
-    assert (result, error) == (COMM_SUCCESS, INSTRUCTION)
+    assert _raw(s, 1, 0x7F, []) == (COMM_SUCCESS, INSTRUCTION)
 
 
 def test_present_values_are_clamped_to_their_register_not_fatal(sdk):
@@ -321,6 +351,15 @@ def test_clear_resets_the_multi_turn_count(sdk):
     assert s.read(1, GOAL_POSITION, 4) == 2148  # the same angle: the servo stays put
     assert s.ph.clearMultiTurn(s.port, 1) == (COMM_SUCCESS, 0)
     assert s.position(1) == 2148
+
+
+def test_malformed_clear_and_read_are_refused(sdk):
+    s = sdk()
+    clear = [0x01, 0x44, 0x58, 0x4C, 0x22]
+    assert _raw(s, 1, 0x10, clear) == (COMM_SUCCESS, 0)  # at rest: accepted
+    assert _raw(s, 1, 0x10, clear[:4]) == (COMM_SUCCESS, DATA_LENGTH)
+    assert _raw(s, 1, 0x10, [0x02, *clear[1:]]) == (COMM_SUCCESS, DATA_RANGE)  # reserved option
+    assert _raw(s, 1, 0x02, [PRESENT_POSITION, 0, 4]) == (COMM_SUCCESS, DATA_LENGTH)  # READ
 
 
 # -- control table -------------------------------------------------------------------
