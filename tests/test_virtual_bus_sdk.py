@@ -510,6 +510,32 @@ def test_virtual_bus_command_serves_until_a_signal(signal_name):
     assert "stopped after" in err
 
 
+def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_path):
+    import signal
+
+    path = tmp_path / "k.toml"
+    path.write_text(
+        "[bus]\nids = [7, 8, 9]\n\n[stream]\nrate_hz = 100\n\n"
+        "[gimbal.tilt]\nposition_p_gain = 500\n\n"
+        "[[keyframes]]\nt = 0.0\npan = 0\n\n[[keyframes]]\nt = 1.0\npan = 10\n"
+    )
+    proc = _trajgen("virtual-bus", str(path), "--lockstep")
+    try:
+        port = PortHandler(proc.stdout.readline().strip())
+        assert port.openPort() and port.setBaudRate(57_600)
+        ph = PacketHandler(2.0)
+        assert ph.read2ByteTxRx(port, 8, P_GAIN) == (500, COMM_SUCCESS, 0)  # [gimbal.tilt]
+        assert ph.read2ByteTxRx(port, 7, P_GAIN) == (800, COMM_SUCCESS, 0)  # the default
+        assert ph.write4ByteTxRx(port, 9, GOAL_POSITION, 2048) == (COMM_SUCCESS, 0)
+        assert ph.read2ByteTxRx(port, 9, TICK) == (10, COMM_SUCCESS, 0)  # one 100 Hz period
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "serving servos 7, 8, 9 (XM430-W350, XM430-W350, XM430-W350), lock-step, 10 ms" in err
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [
