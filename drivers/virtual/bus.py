@@ -13,7 +13,8 @@ the e-Manual; per-servo control tables and register rules in
 ``drivers.virtual.servo``.
 
 Servo motion comes from a ``Plant``: one lock guards it, and every plant call
-is made holding it. Two clocks:
+is made holding it. A write of registers the plant does not simulate (it
+raises one of ``unsupported``) is undone and answered with Result Fail. Two clocks:
 
 - real time (``lockstep_dt_s=None``, the default): simulated time is the wall
   clock since ``start``, in whole steps of ``sim_step_s``. A simulation thread
