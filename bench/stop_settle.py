@@ -15,9 +15,10 @@ Two traces of that stop:
    after the stop as the example does, and printing what it answers;
 2. the plant alone (``GimbalPlant``, 1 ms steps, no bus): the same stop at
    full speed, Present Velocity every millisecond, for the default servo
-   model and, to show which parameter decides it, other values of the
-   reflected rotor inertia (armature) and the viscous damping. These are a
-   sensitivity study, not a fit: the defaults are not changed by it.
+   model and, to show what decides it, other ages of the goal (how old the
+   example's last read is) and other values of the reflected rotor inertia
+   (armature), the viscous damping and the friction. These are a sensitivity
+   study, not a fit: the defaults are not changed by it.
 
 With ``--port`` trace 1 runs on a real servo instead (ID 1 alone on the bus,
 a bare XM430-W350 as the example assumes, free to turn): the measurement
@@ -127,7 +128,7 @@ def stop_trace(joint: JointParams, goal_age_ms: int = 1) -> np.ndarray:
     plant = GimbalPlant(dataclasses.replace(config, joints=joints), record=False)
     plant.set_control(0, {"Operating Mode": EXTENDED_POSITION})
     plant.set_torque_enabled(0, True)
-    plant.set_goal([1e4, 0.0, 0.0])
+    plant.set_goal([float(servo_ticks_to_rad(FAR_GOAL)), 0.0, 0.0])
     positions = []
     for _ in range(int(SPIN_S / 1e-3)):
         positions.append(plant.read()[0][0])
@@ -157,7 +158,7 @@ def plant_alone() -> None:
         f"   armature {base.armature} kg m^2, damping {base.damping} N m s/rad, "
         f"frictionloss {base.frictionloss} N m, P {base.position_p_gain}"
     )
-    print(f"   full speed before the stop: {abs(int(velocity[0]))} units")
+    print(f"   speed 1 ms after the stop (full speed): {abs(int(velocity[0]))} units")
     print("   t after stop (ms)  Present Velocity (0.229 rpm units)")
     for k in range(0, 600, 25):
         print(f"   {k + 1:8d}            {int(velocity[k]):6d}")
