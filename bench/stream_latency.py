@@ -4,8 +4,10 @@ The built-in example's keyframes (lookaround.toml, 8 s) streamed at 1 kHz and
 2 kHz, with the default spline (``SmoothSpline``, evaluated one frame at a time
 in floats) and with the file's own spline (``BlendingSpline``, evaluated with
 numpy a block ahead; joint angles and rates per frame). Every ``next()`` is
-timed on its own (no sleeping between frames, so the figures are the stream's
-own compute, not the wait for the period). The peer, in the same run: the same
+timed on its own, the stream's own compute, not the wait for the period: back to
+back by default, or with ``--paced`` one ``next()`` per period as a streamer
+calls it (sleeping until the period's start; on a busy machine a process that
+sleeps between frames is preempted less often inside one). The peer, in the same run: the same
 frames computed the way ``stream_frames`` did before the per-frame path (a block
 of 32 frames evaluated, inverted and differentiated with numpy, one block ahead,
 in steps spread over the frames of the block before). Budget: 10% of the
@@ -14,8 +16,10 @@ above the others.
 
     python bench/stream_latency.py                   # numpy
     TRAJGEN_NUMBA=1 python bench/stream_latency.py   # with the compiled kernel loaded
+    python bench/stream_latency.py --paced           # one frame per period (8 s per row)
 """
 
+import argparse
 import gc
 import os
 import time
@@ -29,11 +33,18 @@ from trajgen.sampling import sample_times
 from trajgen.stream import BLOCK_FRAMES, JointFrame, _evaluation_steps, _Steps, stream_frames
 
 
-def timed(frames) -> np.ndarray:
-    """Seconds spent in each next() of an iterator."""
+def timed(frames, period_s: float | None = None) -> np.ndarray:
+    """Seconds spent in each next() of an iterator; with ``period_s``, each next() is
+    called at the start of its period (sleeping until then if it is ahead)."""
     out = []
     it = iter(frames)
+    due = time.perf_counter()
     while True:
+        if period_s is not None:
+            ahead = due - time.perf_counter()
+            if ahead > 0:
+                time.sleep(ahead)
+            due += period_s
         t0 = time.perf_counter()
         try:
             next(it)
@@ -81,6 +92,9 @@ def row(name, dt, period):
 
 
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--paced", action="store_true", help="one next() per period")
+    paced = parser.parse_args().paced
     kf = load_keyframe_file(BUILTIN_EXAMPLE)
     splines = {
         "smooth (default)": SmoothSpline(kf.quats, kf.times),
@@ -92,7 +106,8 @@ def main():
     print(
         f"built-in example's keyframes, {kf.times[-1] - kf.times[0]:g} s; blending evaluation: "
         f"{kernel}; load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} (2 cores); "
-        f"garbage collector {'on' if gc.isenabled() else 'off'}"
+        f"garbage collector {'on' if gc.isenabled() else 'off'}; "
+        f"{'paced: one next() per period' if paced else 'back to back'}"
     )
     print()
     print(
@@ -109,7 +124,7 @@ def main():
             ):
                 timed(make())  # warm-up
                 title = f"{rate:g} Hz (budget {100 * period * 1e3:.0f} us), {label}: {name}"
-                print(row(title, timed(make()), period))
+                print(row(title, timed(make(), period if paced else None), period), flush=True)
     print()
     print(f"load average after: {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}")
 

@@ -76,6 +76,17 @@ def test_smooth_frames_equal_the_spline_at_any_time(seed, n, spread, boundary):
             np.testing.assert_allclose(np.array([g[k] for g in got]), want, atol=1e-13 * scale)
 
 
+def test_smooth_frames_refuse_times_outside_an_open_spline():
+    spline = SmoothSpline(forward([[0.0, 0.0, 0.0], [1.0, 0.2, 0.0]]), [0.0, 2.0])
+    frames = SmoothFrames(spline)
+    np.testing.assert_allclose(frames(2.0 + 1e-13)[0], spline(2.0), atol=1e-15)
+    for t in (-1e-9, 2.001, math.nan):
+        with pytest.raises(ValueError, match=re.escape(f"Time {t!r} s is outside")):
+            frames(t)
+        with pytest.raises(ValueError):
+            spline.evaluate([t])
+
+
 def assert_same_stream(spline, rate_hz, kinematics=WIDE, start=None):
     """stream_frames equals plan_joint_trajectory frame by frame, or both refuse the
     path at the same frame with the same message."""

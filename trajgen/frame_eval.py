@@ -113,6 +113,7 @@ class SmoothFrames:
         self._quats = spline.quats
         self._t0, self._t1 = spline.t_start, spline.t_end
         self._periodic = spline.periodic
+        self._eps = 1e-12 * max(1.0, abs(self._t0), abs(self._t1))  # as OrientationPath
         self._lo, self._hi = math.inf, -math.inf  # the current segment's [lo, hi)
 
     def _enter(self, t: float) -> None:
@@ -129,12 +130,16 @@ class SmoothFrames:
         """Orientation ``(w, x, y, z)``, space-frame angular velocity (rad/s) and
         acceleration (rad/s^2) at time ``t`` (s), each a tuple of floats.
 
-        ``t`` is wrapped for a closed spline and clamped to ``[t_start, t_end]``
-        otherwise (the stream's times are in range by construction).
+        ``t`` is wrapped for a closed spline; otherwise a time outside
+        ``[t_start, t_end]`` raises ValueError (as ``evaluate``).
         """
         if self._periodic:
             t = self._t0 + (t - self._t0) % (self._t1 - self._t0)
-        else:
+        elif not self._t0 <= t <= self._t1:
+            if not self._t0 - self._eps <= t <= self._t1 + self._eps:
+                raise ValueError(
+                    f"Time {t!r} s is outside the path's range [{self._t0}, {self._t1}] s."
+                )
             t = min(max(t, self._t0), self._t1)
         if not self._lo <= t < self._hi:
             self._enter(t)
