@@ -5,9 +5,10 @@ The built-in example's keyframes (lookaround.toml, 8 s) streamed at 1 kHz and
 in floats) and with the file's own spline (``BlendingSpline``, evaluated with
 numpy a block ahead; joint angles and rates per frame). Every ``next()`` is
 timed on its own, the stream's own compute, not the wait for the period: back to
-back by default, or with ``--paced`` one ``next()`` per period as a streamer
-calls it (sleeping until the period's start; on a busy machine a process that
-sleeps between frames is preempted less often inside one). The peer, in the same run: the same
+back by default, or with ``--paced`` one ``next()`` per period, paced as the
+Dynamixel streamer paces its frames (``trajgen.drivers.clock.sleep_until``:
+sleep, then spin the last half millisecond), so each frame starts with whatever
+the wait left in the caches. The peer, in the same run: the same
 frames computed the way ``stream_frames`` did before the per-frame path (a block
 of 32 frames evaluated, inverted and differentiated with numpy, one block ahead,
 in steps spread over the frames of the block before). Budget: 10% of the
@@ -27,6 +28,7 @@ import time
 import numpy as np
 
 from trajgen import GimbalKinematics, SmoothSpline, fast, load_keyframe_file
+from trajgen.drivers.clock import sleep_until
 from trajgen.gimbal import joint_rates
 from trajgen.keyframes import BUILTIN_EXAMPLE
 from trajgen.sampling import sample_times
@@ -35,15 +37,13 @@ from trajgen.stream import BLOCK_FRAMES, JointFrame, _evaluation_steps, _Steps, 
 
 def timed(frames, period_s: float | None = None) -> np.ndarray:
     """Seconds spent in each next() of an iterator; with ``period_s``, each next() is
-    called at the start of its period (sleeping until then if it is ahead)."""
+    called at the start of its period (waiting until then if it is ahead)."""
     out = []
     it = iter(frames)
-    due = time.perf_counter()
+    due = time.monotonic()
     while True:
         if period_s is not None:
-            ahead = due - time.perf_counter()
-            if ahead > 0:
-                time.sleep(ahead)
+            sleep_until(due)
             due += period_s
         t0 = time.perf_counter()
         try:
