@@ -59,10 +59,12 @@ def random_keyframes(seed, n, spread, boundary):
     n=st.integers(2, 9),
     spread=st.floats(0.05, 1.5),
     boundary=st.sampled_from(["rest", "natural", "closed"]),
+    quintic=st.booleans(),
 )
-def test_smooth_frames_equal_the_spline_at_any_time(seed, n, spread, boundary):
+def test_smooth_frames_equal_the_spline_at_any_time(seed, n, spread, boundary, quintic):
     q, t = random_keyframes(seed, n, spread, boundary)
-    spline = SmoothSpline(q, t, boundary=boundary)
+    # Either knot choice (the default at rest is end-minimax): the frames read the table.
+    spline = SmoothSpline(q, t, boundary=boundary, knots="quintic" if quintic else None)
     rng = np.random.default_rng(seed)
     # Increasing times (the stream's case) with the keyframe times among them, then
     # the same times shuffled (every lookup leaves the segment).
@@ -127,12 +129,13 @@ def gimbal_keyframes(seed, n, boundary):
     seed=st.integers(0, 2**32 - 1),
     n=st.integers(2, 7),
     boundary=st.sampled_from(["rest", "natural", "closed"]),
+    quintic=st.booleans(),
     rate_hz=st.sampled_from([97.0, 250.0, 1000.0]),
     start=st.sampled_from([None, (-7.0, 0.0, 5.0), (20.0, 0.1, -13.0)]),
 )
-def test_stream_equals_the_plan_for_smooth_splines(seed, n, boundary, rate_hz, start):
+def test_stream_equals_the_plan_for_smooth_splines(seed, n, boundary, quintic, rate_hz, start):
     q, t = gimbal_keyframes(seed, max(n, 3) if boundary == "closed" else n, boundary)
-    spline = SmoothSpline(q, t, boundary=boundary)
+    spline = SmoothSpline(q, t, boundary=boundary, knots="quintic" if quintic else None)
     assert_same_stream(spline, rate_hz, start=None if start is None else np.array(start))
 
 
