@@ -443,6 +443,18 @@ class SmoothSpline(OrientationPath):
         coef = np.einsum("mis,mk->iks", hm * L, _H) + np.einsum("mis,mk->iks", hm * R, _H_RIGHT)
         return _with_time_derivatives(coef, h)
 
+    @property
+    def tangent_coefficients(self) -> np.ndarray:
+        """Power-basis coefficients of each segment's ``r_i(u)`` and of its time
+        derivatives, shape (n - 1, 12, 8): ``[i, 3 m + axis, k]`` multiplies ``u^k``,
+        ``u = (t - times[i]) / (times[i + 1] - times[i])``, in the m-th time derivative
+        (m = 0..3, already scaled by ``1 / h^m``). On segment i the path is
+        ``exp(r_i(u)) quats[i]``. Read-only; the per-frame stream
+        (:mod:`trajgen.frame_eval`) evaluates it one time at a time."""
+        view = self._poly.view()
+        view.flags.writeable = False
+        return view
+
     def _tangent(self, t, seg, max_order) -> np.ndarray:
         """``r_i(u)`` and its time derivatives 1..max_order at times ``t`` (M,) in
         segments ``seg`` (M,), shape (max_order + 1, 3, M)."""
