@@ -147,10 +147,8 @@ class Follower:
     def read(self, lines, *, echo=sys.stderr) -> None:
         """Feed every line of ``lines`` (an iterable of str), then close the plan.
 
-        Bad lines are reported to ``echo`` and skipped. Call it on a thread of its
-        own: it lowers that thread's scheduling priority (see :func:`yield_to_stream`).
+        Bad lines are reported to ``echo`` and skipped.
         """
-        yield_to_stream()
         try:
             for number, text in enumerate(lines, start=1):
                 if not text.strip():
@@ -444,7 +442,12 @@ def follow(args, lines):
     def stream(bus, args, p, setup, outcome):
         follower = made["follower"]
         source = lines(follower) if callable(lines) else lines
-        threading.Thread(target=follower.read, args=(source,), daemon=True).start()
+
+        def reader():
+            yield_to_stream()  # this thread only: the streaming thread comes first
+            follower.read(source)
+
+        threading.Thread(target=reader, daemon=True).start()
         try:
             stream_command.stream_plan(
                 bus,
