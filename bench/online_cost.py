@@ -165,7 +165,6 @@ def paced_stream(seconds, rate_hz, changes, rng):
     stop = threading.Event()
 
     def changer():
-        follow.yield_to_stream()  # as Follower.read does
         while not stop.wait(rng.uniform(0.3, 1.0)):
             pan, tilt = rng.uniform(-30.0, 30.0, 2)
             asked.append(time.monotonic())

@@ -206,19 +206,3 @@ def test_the_stream_takes_the_interpreter_back_within_a_fraction_of_a_period(fol
     for _ in frames:
         pass
     assert sys.getswitchinterval() == before
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice is Linux's")
-def test_the_reading_thread_yields_the_cpu_to_the_stream():
-    seen = {}
-    main_nice = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-
-    def reader():
-        follow.yield_to_stream()
-        seen["nice"] = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-
-    thread = threading.Thread(target=reader)
-    thread.start()
-    thread.join()
-    assert seen["nice"] >= follow.READER_NICE
-    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == main_nice  # its own

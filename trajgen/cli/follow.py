@@ -12,7 +12,6 @@ from __future__ import annotations
 import importlib
 import json
 import math
-import os
 import sys
 import threading
 import time
@@ -322,21 +321,6 @@ class Follower:
         )
 
 
-#: Nice value of the thread that reads lines and builds changes (Linux): when the two
-#: threads and other processes want the CPU, the streaming thread comes first.
-READER_NICE = 10
-
-
-def yield_to_stream() -> None:
-    """Lower the calling thread's scheduling priority to :data:`READER_NICE` (Linux,
-    where a thread has its own nice value; elsewhere nothing)."""
-    if sys.platform.startswith("linux"):
-        try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), READER_NICE)
-        except OSError:  # not allowed: the thread keeps its priority
-            pass
-
-
 def load_compiled_kernel() -> bool:
     """Load the blending spline's compiled kernel (:mod:`trajgen.fast`) now, where numba
     is installed and ``TRAJGEN_NUMBA`` is not 0; returns whether it is loaded.
@@ -443,11 +427,7 @@ def follow(args, lines):
         follower = made["follower"]
         source = lines(follower) if callable(lines) else lines
 
-        def reader():
-            yield_to_stream()  # this thread only: the streaming thread comes first
-            follower.read(source)
-
-        threading.Thread(target=reader, daemon=True).start()
+        threading.Thread(target=follower.read, args=(source,), daemon=True).start()
         try:
             stream_command.stream_plan(
                 bus,
