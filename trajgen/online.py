@@ -125,7 +125,7 @@ class _Splice(OrientationPath):
         r = [(powers[:, : len(c)] @ c).T for c in self._derivative_coefs[: max_order + 1]]
         cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
         e = [np.concatenate([ca[None], v]) for ca, v in zip(cos_a, D.product(sinc, r), strict=True)]
-        _, rates = space_rates(e)
+        _, rates = _rates_of(e)
         q = D.hamilton(e[0], self.q_a[:, None])
         return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
 
@@ -139,7 +139,7 @@ class _Splice(OrientationPath):
         return out
 
 
-def space_rates(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:
+def _rates_of(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:
     """Unit quaternions (M, 4) and space-frame rates of orders 1..K, each (M, 3), from the
     derivative list ``[Q, Q', ...]`` (each (4, M)) of a unit quaternion path, K <= 3:
     ``omega = 2 vec(Q' Q*)``, ``alpha = 2 vec(Q'' Q*)``, ``jerk = 2 vec(Q''' Q* + Q'' Q'*)``."""
