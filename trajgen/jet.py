@@ -257,12 +257,17 @@ def qexp(v: Jet) -> Jet:
     """``(cos |v|, sin|v| v/|v|)`` for a 3-vector jet (K + 1, 3, ...) -> (K + 1, 4, ...)."""
     x = dot(v, v)
     small = x.value < SERIES_BELOW
-    # Evaluate both branches on safe inputs, then pick per sample.
-    xs = Jet(np.where(small, 1.0, x.c))
-    a = sqrt(xs)
-    s, c = sin_cos(a)
-    cos_a = _where(small, polyval(_COS, x), c)
-    sinc = _where(small, polyval(_SINC, x), s / a)
+    if small.all():  # one branch only where every sample takes it (few samples, often)
+        cos_a, sinc = polyval(_COS, x), polyval(_SINC, x)
+    else:
+        # Evaluate both branches on safe inputs, then pick per sample.
+        xs = Jet(np.where(small, 1.0, x.c))
+        a = sqrt(xs)
+        s, c = sin_cos(a)
+        cos_a, sinc = c, s / a
+        if small.any():
+            cos_a = _where(small, polyval(_COS, x), cos_a)
+            sinc = _where(small, polyval(_SINC, x), sinc)
     return Jet(np.concatenate([cos_a.c[:, None], scale(sinc, v).c], axis=1))
 
 
@@ -277,9 +282,13 @@ def qlog(q: Jet) -> Jet:
     xyz = Jet(q.c[:, 1:])
     s2 = dot(xyz, xyz)
     small = (s2.value < SERIES_BELOW * w.value**2) & (w.value > 0)
-    w_safe = Jet(np.where(small | (np.abs(w.c) > 0), w.c, 1.0))
-    z2 = s2 / (w_safe * w_safe)
-    series = polyval(_ATANC, z2) / w_safe
+    # Each branch is evaluated (on safe inputs) only if some sample takes it.
+    if small.any():
+        w_safe = Jet(np.where(small | (np.abs(w.c) > 0), w.c, 1.0))
+        z2 = s2 / (w_safe * w_safe)
+        series = polyval(_ATANC, z2) / w_safe
+        if small.all():
+            return scale(series, xyz)
     s = sqrt(Jet(np.where(small, 1.0, s2.c)))
     general = arctan2(s, w) / s
-    return scale(_where(small, series, general), xyz)
+    return scale(_where(small, series, general) if small.any() else general, xyz)

@@ -224,21 +224,23 @@ def build_curves(qs: np.ndarray, ts: np.ndarray, *, k: int, local: str, reparam:
     q = p2.copy()
     A, B = np.zeros((C, 3)), np.zeros((C, 3))
     rise, power = np.zeros(C, dtype=int), np.zeros(C)
-    # GEODESIC (SPEC 2c): from the repeated keyframe to the other one, or back.
-    start = np.where(same12[:, None], p2, p1)
-    end = np.where(same12[:, None], p3, p2)
-    A[geodesic] = Q.log(Q.mul(end[geodesic], Q.conj(start[geodesic])))
-    q[geodesic] = start[geodesic]
-    rise[geodesic] = np.where(same12[geodesic], 1, -1)
-    power[geodesic] = k + 1
-    # PARABOLA (SPEC 2b): v(tau) = A tau + B tau^2 through (tm, Lm), (0, 0), (tp, Lp).
+    # Each kind's block runs only if the kind is present (a few keyframes, as an online
+    # change builds, pay for no empty quaternion products).
+    if geodesic.any():  # SPEC 2c: from the repeated keyframe to the other one, or back.
+        start = np.where(same12[:, None], p2, p1)
+        end = np.where(same12[:, None], p3, p2)
+        A[geodesic] = Q.log(Q.mul(end[geodesic], Q.conj(start[geodesic])))
+        q[geodesic] = start[geodesic]
+        rise[geodesic] = np.where(same12[geodesic], 1, -1)
+        power[geodesic] = k + 1
     m = parabola
-    tm, tp = (ts[m, 0] - ts[m, 1])[:, None], (ts[m, 2] - ts[m, 1])[:, None]
-    Lm = Q.log(Q.mul(p1[m], Q.conj(p2[m])))
-    Lp = Q.log(Q.mul(p3[m], Q.conj(p2[m])))
-    det = tm * tp * (tp - tm)
-    A[m] = (Lm * tp**2 - Lp * tm**2) / det
-    B[m] = (Lp * tm - Lm * tp) / det
+    if m.any():  # SPEC 2b: v(tau) = A tau + B tau^2 through (tm, Lm), (0, 0), (tp, Lp).
+        tm, tp = (ts[m, 0] - ts[m, 1])[:, None], (ts[m, 2] - ts[m, 1])[:, None]
+        Lm = Q.log(Q.mul(p1[m], Q.conj(p2[m])))
+        Lp = Q.log(Q.mul(p3[m], Q.conj(p2[m])))
+        det = tm * tp * (tp - tm)
+        A[m] = (Lm * tp**2 - Lp * tm**2) / det
+        B[m] = (Lp * tm - Lm * tp) / det
     # CIRCLE (SPEC 2a).
     centre, e1, e2 = np.zeros((C, 4)), np.zeros((C, 4)), np.zeros((C, 4))
     radius, a3 = np.zeros(C), np.zeros(C)
@@ -616,14 +618,16 @@ def _basis(c: LocalCurves) -> np.ndarray:
     basis[1, :, m] = (c.radius * c.e1)[:, m].T
     basis[2, :, m] = (c.radius * c.e2)[:, m].T
     m = c.kind == PARABOLA
-    pure[1:] = c.A
-    basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
-    pure[1:] = c.B
-    basis[2, :, m] = D.hamilton(pure, c.qT)[:, m].T
+    if m.any():
+        pure[1:] = c.A
+        basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
+        pure[1:] = c.B
+        basis[2, :, m] = D.hamilton(pure, c.qT)[:, m].T
     m = c.kind == GEODESIC
-    length = np.sqrt((c.A * c.A).sum(0))
-    pure[1:] = c.A / np.where(length > 0, length, 1.0)
-    basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
+    if m.any():
+        length = np.sqrt((c.A * c.A).sum(0))
+        pure[1:] = c.A / np.where(length > 0, length, 1.0)
+        basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
     return basis
 
 

@@ -613,7 +613,8 @@ class OnlineSpline:
             spline = self._spline(np.vstack([q_a, q]), np.concatenate([[s], t]))
             c1 = spline._curves.derivatives(np.array([0]), t[:1], k)  # (k + 1) x (4, 1)
             c1 = np.array(c1)[..., 0] / self._factorials[: k + 1, None]
-            r = J.qlog(J.qmul(J.Jet(c1[:, :, None]), Q.conj(q_a))).c[:, :, 0]  # (k + 1, 3)
+            # log(C_1 q_a*): the product with a constant is one Hamilton product of arrays.
+            r = J.qlog(J.Jet(D.hamilton(c1.T, Q.conj(q_a)[:, None]).T[:, :, None])).c[:, :, 0]
             q_end = spline.quats[-1]
         else:  # the rest point q_1, on the short way round (as the spline takes it)
             spline = None
