@@ -236,8 +236,7 @@ def build_curves(qs: np.ndarray, ts: np.ndarray, *, k: int, local: str, reparam:
     m = parabola
     if m.any():  # SPEC 2b: v(tau) = A tau + B tau^2 through (tm, Lm), (0, 0), (tp, Lp).
         tm, tp = (ts[m, 0] - ts[m, 1])[:, None], (ts[m, 2] - ts[m, 1])[:, None]
-        Lm = Q.log(Q.mul(p1[m], Q.conj(p2[m])))
-        Lp = Q.log(Q.mul(p3[m], Q.conj(p2[m])))
+        Lm, Lp = Q.log(Q.mul(np.stack([p1[m], p3[m]]), Q.conj(p2[m])))
         det = tm * tp * (tp - tm)
         A[m] = (Lm * tp**2 - Lp * tm**2) / det
         B[m] = (Lp * tm - Lm * tp) / det
@@ -618,11 +617,10 @@ def _basis(c: LocalCurves) -> np.ndarray:
     basis[1, :, m] = (c.radius * c.e1)[:, m].T
     basis[2, :, m] = (c.radius * c.e2)[:, m].T
     m = c.kind == PARABOLA
-    if m.any():
-        pure[1:] = c.A
-        basis[1, :, m] = D.hamilton(pure, c.qT)[:, m].T
-        pure[1:] = c.B
-        basis[2, :, m] = D.hamilton(pure, c.qT)[:, m].T
+    if m.any():  # A q and B q, in one product
+        pure_ab = np.zeros((4, 2, len(c.kind)))
+        pure_ab[1:, 0], pure_ab[1:, 1] = c.A, c.B
+        basis[1:, :, m] = D.hamilton(pure_ab, c.qT[:, None])[:, :, m].transpose(1, 0, 2)
     m = c.kind == GEODESIC
     if m.any():
         length = np.sqrt((c.A * c.A).sum(0))

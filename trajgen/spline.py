@@ -149,10 +149,8 @@ class BlendingSpline(OrientationPath):
 
         def windows(qe, te):
             """Triples (qe[i], qe[i+1], qe[i+2]) (C, 3, 4) and their times (C, 3)."""
-            if len(qe) < 3:
-                return np.empty((0, 3, 4)), np.empty((0, 3))
-            view = np.lib.stride_tricks.sliding_window_view
-            return view(qe, 3, axis=0).transpose(0, 2, 1), view(te, 3)
+            idx = np.arange(max(len(qe) - 2, 0))[:, None] + np.arange(3)
+            return qe[idx], te[idx]
 
         if self.boundary == "closed":
             # Extend by one keyframe each side, wrapped; sigma = +-1 matches the seam's sign.
