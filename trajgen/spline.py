@@ -9,7 +9,7 @@ orientations with circular blending quaternion curves", Computer-Aided Design
 
 from __future__ import annotations
 
-from math import comb
+from math import comb, perm
 
 import numpy as np
 
@@ -67,6 +67,16 @@ def blend_polynomial(m: int) -> np.ndarray:
         for ell in range(n - j + 1):
             coef[j + ell] += comb(n, j) * comb(n - j, ell) * (-1) ** ell
     return coef
+
+
+#: Row m: the coefficients of f_m, m = 0..MAX_K + 1 (row 0 unused), zero-padded to the
+#: largest degree, (MAX_K + 2, 2 MAX_K + 2). Built once: a spline takes its rows.
+_BLEND_TABLE = np.array(
+    [np.pad(blend_polynomial(m), (0, 2 * (MAX_K + 1 - m))) for m in range(MAX_K + 2)]
+)
+#: ``_FALLING[n][j] = j (j-1) ... (j-n+1)``, n = 0..3, each (2 MAX_K + 2, 1): the factor of
+#: ``u^(j-n)`` in the n-th derivative of ``u^j``.
+_FALLING = [np.array([[perm(j, n)] for j in range(2 * MAX_K + 2)], float) for n in range(4)]
 
 
 class BlendingSpline(OrientationPath):
@@ -194,18 +204,10 @@ class BlendingSpline(OrientationPath):
         self.local_kinds = np.array(KIND_NAMES)[kinds].tolist()
         # Blend polynomials f_m for each segment, padded to a common degree.
         deg = 2 * int(order.max())
-        self._blend = np.zeros((n - 1, deg))
-        for m in np.unique(order):
-            self._blend[order == m, : 2 * m] = blend_polynomial(int(m))
-
+        self._blend = _BLEND_TABLE[order, :deg]
         self._blend_T = self._blend.T.copy()
         self._inv_h = 1.0 / np.diff(self.times)
-        # _falling[n][j] = j (j-1) ... (j-n+1): the factor of u^(j-n) in the n-th derivative.
-        j = np.arange(deg, dtype=float)
-        falling = [np.ones(deg)]
-        for m in range(1, 4):
-            falling.append(falling[-1] * (j - m + 1))
-        self._falling = [x[:, None] for x in falling]
+        self._falling = [x[:deg] for x in _FALLING]
 
     def _space_rates(self, t, seg, max_order):
         if fast.use_compiled(len(t)):
