@@ -156,26 +156,22 @@ class BlendingSpline(OrientationPath):
 
     def _build_curves(self) -> None:
         q, t, n, k = self.quats, self.times, len(self.quats), self.k
-
-        def windows(qe, te):
-            """Triples (qe[i], qe[i+1], qe[i+2]) (C, 3, 4) and their times (C, 3)."""
-            idx = np.arange(max(len(qe) - 2, 0))[:, None] + np.arange(3)
-            return qe[idx], te[idx]
-
+        # Rows of keyframe indices: the triples (i, i + 1, i + 2).
+        idx = np.arange(n - 2)[:, None] + np.arange(3)
         if self.boundary == "closed":
             # Extend by one keyframe each side, wrapped; sigma = +-1 matches the seam's sign.
             sigma = 1.0 if q[-1] @ q[0] > 0 else -1.0
             period = t[-1] - t[0]
             qe = np.vstack([sigma * q[-2], q, sigma * q[1]])
             te = np.concatenate([[t[-2] - period], t, [t[-1] + t[1] - t[0]]])
-            triples, times = windows(qe, te)
+            idx = np.vstack([idx, idx[-1:] + 1, idx[-1:] + 2])  # n triples of the n + 2
+            triples, times = qe[idx], te[idx]
             left, right, order = np.arange(n - 1), np.arange(1, n), np.full(n - 1, k)
         else:
             # Curve ids: 0..n-3 interior curves C_1..C_{n-2}; then the two held ends, as
             # triples of one repeated keyframe.
-            triples, times = windows(q, t)
-            triples = np.concatenate([triples, np.repeat(q[[0, -1], None], 3, axis=1)])
-            times = np.concatenate([times, np.repeat(t[[0, -1], None], 3, axis=1)])
+            idx = np.vstack([idx, [[0, 0, 0], [n - 1, n - 1, n - 1]]])
+            triples, times = q[idx], t[idx]
             first, last = n - 2, n - 1
             left = np.concatenate([[first], np.arange(n - 2)])  # C_i on segment i
             right = np.concatenate([np.arange(n - 2), [last]])  # C_{i+1} on segment i
@@ -187,9 +183,7 @@ class BlendingSpline(OrientationPath):
             else:  # natural: the end curve alone
                 left[0], right[-1] = right[0], left[-1]
         try:
-            self._curves = build_curves(
-                triples, np.array(times), k=k, local=self.local, reparam=self.reparam
-            )
+            self._curves = build_curves(triples, times, k=k, local=self.local, reparam=self.reparam)
         except NoCircleError as e:
             ts = times[e.index]
             raise ValueError(
