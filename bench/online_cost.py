@@ -16,7 +16,7 @@
 4. Peaks after mid-motion retargets by lead time, relative to the old plan's
    (the lead-time table of the design notes, measured again).
 
-Run: .venv/bin/python bench/online_cost.py [--seconds 6] [--repeats 40]
+Run: .venv/bin/python bench/online_cost.py [--seconds 6] [--repeats 40] [--sections 1234]
 """
 
 from __future__ import annotations
@@ -260,19 +260,27 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=6.0, help="length of each paced stream")
     parser.add_argument("--repeats", type=int, default=40, help="random cases per figure")
+    parser.add_argument(
+        "--sections", default="1234", help="which sections to run, e.g. 1 (default: all)"
+    )
     args = parser.parse_args()
+    run = set(args.sections)
     print("# OnlineSpline: cost of a change, frames, latency, peaks\n")
     cpu = platform.processor() or platform.machine()
     print(f"{cpu}, {os.cpu_count()} cores, numba installed: {fast.ENABLED}")
     print(f"load average before: {os.getloadavg()}\n")
     # One seed per section: the paced stream draws on another thread at its own pace.
-    change_costs(np.random.default_rng(11), args.repeats, "numpy evaluation")
-    streaming(args.seconds, np.random.default_rng(13), "numpy evaluation")
-    if load_kernel():
-        change_costs(np.random.default_rng(11), args.repeats, "compiled kernel loaded")
-        streaming(args.seconds, np.random.default_rng(13), "compiled kernel loaded")
-    frame_costs(np.random.default_rng(12), 50)
-    lead_peaks(np.random.default_rng(14), 4 * args.repeats)
+    for label in ("numpy evaluation", "compiled kernel loaded"):
+        if label.startswith("compiled") and not ({"1", "3"} & run and load_kernel()):
+            break
+        if "1" in run:
+            change_costs(np.random.default_rng(11), args.repeats, label)
+        if "3" in run:
+            streaming(args.seconds, np.random.default_rng(13), label)
+    if "2" in run:
+        frame_costs(np.random.default_rng(12), 50)
+    if "4" in run:
+        lead_peaks(np.random.default_rng(14), 4 * args.repeats)
     print(f"load average after: {os.getloadavg()}")
 
 
