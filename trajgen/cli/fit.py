@@ -13,6 +13,7 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    check_module,
     check_output_path,
     load_checked,
     positive_float,
@@ -83,6 +84,7 @@ def run_fit(args) -> int:
 
     try:
         check_output_path("--out", args.out)
+        check_module("fit", "scipy", "scipy")  # its SLSQP optimises the durations jointly
         checked = load_checked(args.file)  # every table, [bus] included
         result = fit_timing(
             checked.keyframes,
