@@ -3,17 +3,25 @@
 The keyframes (orientations, order, spline options) stay; only their times
 move, one duration per segment. Two nested loops:
 
-1. Plan: for every stream sample, the largest local speed-up ``s`` the plan
-   allows, scaling speed by ``s``, acceleration by ``s^2``, jerk by ``s^3``,
-   and torque as ``tau(s) = tau_static + s tau_viscous + s^2 tau_inertial``
-   against ``torque_margin x tau_stall (1 - s |qd| / w0)``. First all
-   durations are scaled alike until the slowest sample is at its limit
-   (uniform scaling keeps the path's shape, so this is exact); then each
-   segment in turn is made as short as it can be *with every sample of the
-   whole plan still within its limits* (bisection), until no segment can be
-   made ``tolerance`` shorter on its own. The spline's knot rates depend on
-   all durations, so a shorter segment can push a neighbour over a limit:
-   such a segment reports the limit it hits "in segment k".
+1. Plan: for every sample, the largest local speed-up ``s`` the plan allows,
+   scaling speed by ``s``, acceleration by ``s^2``, jerk by ``s^3``, and torque
+   as ``tau(s) = tau_static + s tau_viscous + s^2 tau_inertial`` against
+   ``torque_margin x tau_stall (1 - s |qd| / w0)`` (two quadratics in ``s``,
+   solved in closed form). Then:
+
+   a. all durations scaled alike until the slowest stream sample is at its
+      limit (uniform scaling keeps the path's shape, so this is exact);
+   b. all durations at once (the spline is global: one segment's duration
+      moves its neighbours' curves): least total time subject to every sample
+      within its limits, by SLSQP (scipy) on the log-durations, the samples
+      taken at fixed fractions of each segment so that the constraints are
+      smooth in the durations; then (a) again on the stream's own samples;
+   c. each segment in turn made as short as it can be *with every sample of
+      the whole plan still within its limits* (bisection), until no segment
+      can be made ``tolerance`` shorter on its own. After (b) this rarely
+      moves anything; it finds each segment's binding limit. A segment held
+      by a limit a neighbour would break reports it "in segment k".
+
 2. Simulation: :func:`trajgen.sim.check.check_torque` on the fitted plan. A
    joint whose tracking error passes the limit in a segment gets a speed cap
    there (tracking lag grows with speed); a segment where a joint reaches the
