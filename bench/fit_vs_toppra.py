@@ -1,18 +1,25 @@
 """`fit_timing` against TOPP-RA on the same geometric path with the same torque model.
 
-For each motion (the torque race's three, then seeded random look-arounds;
-the file's default spline (``method = "smooth"``), rest boundary, 200 Hz,
-XM430-W350 x 3, 0.15 kg payload; tracking budget widened to 1 rad so that
-torque, which is all TOPP-RA knows, decides rather than the servo's 45 ms lag):
+For each motion (the torque race's three, one single segment, then seeded
+random look-arounds; the file's default spline (``method = "smooth"``), rest
+boundary, 200 Hz, XM430-W350 x 3, 0.15 kg payload; tracking budget widened to
+1 rad so that torque, which is all TOPP-RA knows, decides rather than the
+servo's 45 ms lag):
 
 1. ``trajgen.sim.fit_timing`` fits the keyframe times twice: with the full
    check (plan and simulated servo, "full check") and to the plan alone
    (``simulate=False``: the envelope, as TOPP-RA sees it, "plan only"). The
    plan-only fit's joint path is the geometric path given to TOPP-RA.
-2. TOPP-RA (``toppra``) re-times that same path (the stream's 200 Hz samples in
-   its cubic-spline path, parametrized by our normalised time; 801 gridpoints,
-   collocation) from rest to rest (``sd_start = sd_end = 0``), fed
-   our gimbal's inverse dynamics (``sim.dynamics.inverse_dynamics``) in two ways:
+2. The floor of the construction (:func:`construction_floor`): the shortest
+   plan-only time a global search over all segment durations finds
+   (differential evolution, then Nelder-Mead, on
+   ``trajgen.sim.fit.uniform_time_function``). No timing of this spline does
+   better, so ``floor / TOPP-RA`` is the part of the gap the spline itself
+   causes, and ``ours / floor`` the part the optimiser leaves.
+3. TOPP-RA (``toppra``) re-times that same path (the stream's 200 Hz samples in
+   its cubic-spline path; 801 gridpoints over the path, collocation) from rest
+   to rest (``sd_start = sd_end = 0``), fed our gimbal's inverse dynamics
+   (``sim.dynamics.inverse_dynamics``) in two ways:
 
    - "box": ``JointTorqueConstraint`` with ``|tau| <= margin tau_stall``
      (Coulomb friction through ``fs_coef``) plus ``JointVelocityConstraint``
@@ -33,12 +40,14 @@ use"); where it exceeds 1 (its constraint holds at gridpoints on its spline of
 our samples, not everywhere), it is slowed uniformly until it fits ("stretched
 into envelope"), and the ratio is taken against that.
 
-Parametrization: by our time the path's speed p'(s) goes to 0 at both ends
-(rest boundary, k = 2), and on some paths TOPP-RA's controllable set next to
-the end comes back empty (toppra returns None). Then the row is retried with
-the path parametrized by joint-space arc length (marked "(arc length)"), which
-is regular at the ends but turns a reversal into a cusp, so it is used only
-where the time parametrization fails.
+Reversals: where the joint path turns back (the pan sweep), every timing stops,
+so the path is split there (:func:`reversals`) and each reversal-free piece is
+re-timed rest to rest; durations add up. Parametrization: by our time the
+path's speed p'(s) goes to 0 at rest ends, and on some pieces TOPP-RA's
+controllable set next to the end comes back empty (toppra returns None). Then
+the piece is retried parametrized by joint-space arc length, regular at the
+ends (a piece has no reversal, so no cusp). The table says per motion how many
+pieces and which parametrization ("mixed": some of each).
 
 Neither TOPP-RA run simulates the servo (torque-limit steps, tracking), which
 our check does. Gridpoints: 801 vs 1601 changed the envelope optimum by about 1 %
@@ -46,7 +55,7 @@ on the look-around (1.578 vs 1.561 s; 3201: 1.564 s).
 
 Usage::
 
-    python bench/fit_vs_toppra.py [--random 3]
+    python bench/fit_vs_toppra.py [--random 3] [--only NAME]
 """
 
 from __future__ import annotations
@@ -322,9 +331,8 @@ def construction_floor(path, durations: np.ndarray, *, seed: int = 0) -> tuple[f
     Differential evolution (scipy) over the segment durations' ratios (log,
     within e^+-1.2 of ``durations``'s; the first segment fixed, since the
     uniformly scaled time does not depend on the overall scale), on the fast
-    probe evaluation, then Nelder-Mead from its best; the result is judged
-    exactly on the stream's samples, and the better of it and ``durations``
-    is returned.
+    probe evaluation (``durations`` is in its first population), then
+    Nelder-Mead from its best; both are judged exactly on the stream's samples.
 
     Returns
     -------
@@ -343,7 +351,7 @@ def construction_floor(path, durations: np.ndarray, *, seed: int = 0) -> tuple[f
         return np.exp(x0 + np.concatenate([[0.0], y]))
 
     n = len(durations) - 1
-    if n == 0:
+    if n == 0:  # nothing to search: the one duration only scales
         return exact(durations), time.monotonic() - start
     found = differential_evolution(
         lambda y: probe(shaped(y)),
@@ -362,7 +370,7 @@ def construction_floor(path, durations: np.ndarray, *, seed: int = 0) -> tuple[f
         method="Nelder-Mead",
         options={"xatol": 1e-4, "fatol": 1e-5, "maxfev": 800},
     )
-    floor = min(exact(shaped(found.x)), exact(shaped(polished.x)), exact(durations))
+    floor = min(exact(shaped(found.x)), exact(shaped(polished.x)))
     return floor, time.monotonic() - start
 
 

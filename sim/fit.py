@@ -655,7 +655,11 @@ class _Fitter:
         """
         durations = self.scale_uniform(np.asarray(durations, dtype=float))
         if len(durations) > 1:
-            joint = self.scale_uniform(self.optimise_jointly(durations))
+            joint = self.optimise_jointly(durations)
+            try:
+                joint = self.scale_uniform(joint) if np.isfinite(joint).all() else durations
+            except FitError:  # a shape whose path the stream cannot follow: keep the uniform one
+                joint = durations
             if joint.sum() < durations.sum():
                 durations = joint
         seg_factor, binding = self.evaluate(durations)
