@@ -33,8 +33,9 @@ limit, tracking within the limit) and the file's optional [limits] table:
   acceleration_rad_s2 = 30.0
   jerk_rad_s3 = 600.0
 
-Each segment gets its own duration: a segment far from every limit is not slowed
-for another's sake. Prints per segment the old and new duration and the limit that
+Each segment gets its own duration, all optimised jointly (scipy's SLSQP: pip
+install 'trajgen[fit]'): a segment far from every limit is not slowed for
+another's sake. Prints per segment the old and new duration and the limit that
 binds; checks that the same keyframes 10% faster fail. Writes the fitted file to
 --out, keeping every other table of the input (comments are not kept).
 
