@@ -64,6 +64,8 @@ _JOINT_ITERATIONS = 60
 _SWEEPS = 8
 _BISECTIONS = 7
 _SIM_ROUNDS = 12
+#: Simulated tries per segment held by a learned limit in another segment.
+_SIM_BISECTIONS = 4
 #: Tracking speed caps aim this far under the limit.
 _TRACKING_TARGET = 0.97
 _SIM_SLOW_STEP = 0.97
@@ -262,6 +264,8 @@ def fit_timing(
             f"no passing timing after {_SIM_ROUNDS} simulation rounds: " + report.reasons[0]
         )
     times, binding, report = best
+    if simulate:
+        times, report = fitter.shorten_by_simulation(times, binding, report)
     faster = old_times[0] + (times - old_times[0]) / _FASTER
     try:
         faster_trajectory = fitter.trajectory(faster)
@@ -697,6 +701,51 @@ class _Fitter:
             if durations[i] <= self.min_duration_s * (1 + 1e-9):
                 binding[i] = BINDINGS[_FLOOR]
         return durations, binding
+
+    def shorten_by_simulation(self, times, binding, report):
+        """Shorten, judged by the simulation itself, segments held by a learned limit elsewhere.
+
+        The limits learned from simulation (tracking speed caps, slow-downs at
+        the torque limit) stand in for the simulation in the plan loop, and they
+        are conservative: a segment whose plan is held only because a neighbour
+        would pass such a limit ("... in segment k") may in fact pass the check
+        shorter. Each such segment alone is made ``_FASTER`` shorter while that
+        passes the full check (and ``[limits]``), the step's log halved after
+        each failure, ``_SIM_BISECTIONS`` simulations per segment.
+
+        Returns
+        -------
+        times : ndarray, shape (N,)
+        report : TorqueReport
+            The check at ``times``.
+        """
+        from trajgen.sim.check import check_torque
+
+        learned = (BINDINGS[_TRACKING], BINDINGS[_SIM_LIMIT])
+        for i, b in enumerate(binding):
+            if " in segment " not in b or not b.startswith(learned):
+                continue
+            step = _FASTER
+            for _ in range(_SIM_BISECTIONS):
+                durations = np.diff(times)
+                durations[i] /= step
+                trial = _round_times(times[0], durations)
+                self.say(f"  segment {i + 1} alone x{step:.3f} faster: simulating")
+                try:
+                    trial_report = check_torque(self.trajectory(trial), config=self.config)
+                except FitError:
+                    trial_report = None
+                if (
+                    trial_report is not None
+                    and trial_report.ok
+                    and not check_limits(trial_report.trajectory, self.limits)
+                ):
+                    times, report = trial, trial_report  # and the same step again
+                else:
+                    step = float(np.sqrt(step))
+                if step < 1.0 + self.tolerance:
+                    break
+        return times, report
 
     def relax_caps(self, report, times) -> bool:
         """Raise speed caps where a passing run tracks well inside the limit; False if none."""
