@@ -1,10 +1,10 @@
 """`fit_timing` against TOPP-RA on the same geometric path with the same torque model.
 
 For each motion (the torque race's three, one single segment, then seeded
-random look-arounds; the file's default spline (``method = "smooth"``), rest
-boundary, 200 Hz, XM430-W350 x 3, 0.15 kg payload; tracking budget widened to
-1 rad so that torque, which is all TOPP-RA knows, decides rather than the
-servo's 45 ms lag):
+random look-arounds; the file's default spline (``method = "smooth"``, its
+default knots unless ``--knots``), rest boundary, 200 Hz, XM430-W350 x 3,
+0.15 kg payload; tracking budget widened to 1 rad so that torque, which is all
+TOPP-RA knows, decides rather than the servo's 45 ms lag):
 
 1. ``trajgen.sim.fit_timing`` fits the keyframe times twice: with the full
    check (plan and simulated servo, "full check") and to the plan alone
@@ -55,7 +55,7 @@ on the look-around (1.578 vs 1.561 s; 3201: 1.564 s).
 
 Usage::
 
-    python bench/fit_vs_toppra.py [--random 3] [--only NAME]
+    python bench/fit_vs_toppra.py [--random 3] [--only NAME] [--knots quintic]
 """
 
 from __future__ import annotations
@@ -75,8 +75,9 @@ RATE_HZ = 200.0
 TRACKING_BUDGET_RAD = 1.0
 
 
-def keyframe_text(angles_deg: np.ndarray, pace_s: float) -> str:
-    lines = ["[spline]", 'boundary = "rest"', "", "[stream]", f"rate_hz = {RATE_HZ:g}", ""]
+def keyframe_text(angles_deg: np.ndarray, pace_s: float, knots: str | None = None) -> str:
+    lines = ["[spline]", 'boundary = "rest"', *([f'knots = "{knots}"'] if knots else [])]
+    lines += ["", "[stream]", f"rate_hz = {RATE_HZ:g}", ""]
     # TOPP-RA knows torque, not servo lag: widen the tracking budget so torque decides.
     lines += ["[gimbal]", f"max_tracking_error_rad = {TRACKING_BUDGET_RAD}", ""]
     for i, (pan, tilt, roll) in enumerate(angles_deg):
@@ -379,14 +380,19 @@ def main(argv=None) -> int:
 
     from trajgen.sim import fit_timing
     from trajgen.sim.check import resolve_source
+    from trajgen.smooth import KNOTS
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--random", type=int, default=3, help="random motions (default 3)")
     parser.add_argument("--only", help="run only the motions whose name contains this")
+    parser.add_argument(
+        "--knots", choices=KNOTS, help="SmoothSpline's knot choice (default: the file default)"
+    )
     args = parser.parse_args(argv)
-    # One segment: the spline is then a single septic (35u^4 - 84u^5 + 70u^6 - 20u^7),
-    # peak acceleration 7.5 D/T^2 against bang-bang's 4: where inertia dominates the
-    # torque, its time is sqrt(7.5 / 4) = 1.37x the optimum whatever the timing.
+    # One segment: with knots = "quintic" the spline is then the septic 35u^4 - 84u^5 +
+    # 70u^6 - 20u^7, peak acceleration 7.5 D/T^2 against bang-bang's 4: where inertia
+    # dominates the torque, its time is sqrt(7.5 / 4) = 1.37x the optimum whatever the
+    # timing ("end-minimax" trades more acceleration for less jerk at the ends).
     single = {"one segment": np.array([[0.0, 0.0, 0.0], [60.0, 0.0, 0.0]])}
     cases = {**torque_race.motions(), **single, **random_motions(args.random)}
     if args.only:
@@ -406,7 +412,7 @@ def main(argv=None) -> int:
         for name, angles in cases.items():
             t0 = time.monotonic()
             path = Path(tmp) / "keys.toml"
-            path.write_text(keyframe_text(angles, 1.5))
+            path.write_text(keyframe_text(angles, 1.5, args.knots))
             full = fit_timing(path)
             fit_start = time.monotonic()
             fit = fit_timing(path, simulate=False)
