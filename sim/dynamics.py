@@ -39,6 +39,31 @@ def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:
     SimulationError
         If any pose puts two gimbal geoms in contact (the torque would be meaningless).
     """
+    return _inverse(model, q, qd, qdd, (coulomb,))[0]
+
+
+def inverse_dynamics_split(model, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`inverse_dynamics` with and without Coulomb friction, in one pass.
+
+    Equal, bit for bit, to ``inverse_dynamics(model, q, qd, qdd)`` and
+    ``inverse_dynamics(model, q, qd, qdd, coulomb=False)``; each sample is set
+    once for both.
+
+    Returns
+    -------
+    tau, tau_smooth : ndarray, shape (N, 3)
+        Torque per joint (N m) with and without Coulomb friction.
+
+    Raises
+    ------
+    ValueError, SimulationError
+        As :func:`inverse_dynamics`.
+    """
+    return _inverse(model, q, qd, qdd, (True, False))
+
+
+def _inverse(model, q, qd, qdd, coulomb: tuple[bool, ...]) -> list[np.ndarray]:
+    """``mj_inverse`` at every sample, once per entry of ``coulomb`` (:func:`inverse_dynamics`)."""
     import mujoco
 
     arrays = []
@@ -54,19 +79,27 @@ def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:
         raise ValueError(
             f"Expected `q`, `qd`, `qdd` of one shape, got {q.shape}, {qd.shape}, {qdd.shape}."
         )
-    if not coulomb:
-        model = copy.copy(model)
-        model.dof_frictionloss[:] = 0.0
+    models = [model if with_coulomb else _without_coulomb(model) for with_coulomb in coulomb]
     data = mujoco.MjData(model)
-    tau = np.empty_like(q)
+    # Views bound once: every attribute lookup on MjData makes a new array.
+    qpos, qvel, qacc, qfrc = data.qpos, data.qvel, data.qacc, data.qfrc_inverse
+    taus = [np.empty_like(q) for _ in models]
     for i in range(len(q)):
-        data.qpos[:] = q[i]
-        data.qvel[:] = qd[i]
-        data.qacc[:] = qdd[i]
-        mujoco.mj_inverse(model, data)
-        if data.ncon:
-            raise SimulationError(
-                f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q[i]} rad"
-            )
-        tau[i] = data.qfrc_inverse
-    return tau
+        qpos[:] = q[i]
+        qvel[:] = qd[i]
+        qacc[:] = qdd[i]
+        for m, tau in zip(models, taus, strict=True):
+            mujoco.mj_inverse(m, data)
+            if data.ncon:
+                raise SimulationError(
+                    f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q[i]} rad"
+                )
+            tau[i] = qfrc
+    return taus
+
+
+def _without_coulomb(model):
+    """A copy of ``model`` without Coulomb friction (``frictionloss`` 0)."""
+    model = copy.copy(model)
+    model.dof_frictionloss[:] = 0.0
+    return model
