@@ -258,7 +258,7 @@ def run_batch(
     qd = np.empty((n_runs, n_steps + 1, nv))
     torque = np.empty((n_runs, n_steps, nu))
     n_chunks = 1 if progress is None else round(1.0 / _PROGRESS_STEP)
-    edges = np.linspace(0, n_steps, n_chunks + 1).round().astype(int)
+    edges = np.unique(np.linspace(0, n_steps, n_chunks + 1).round().astype(int))
     when = mujoco.mjtState.mjSTATE_TIME
     number = 1  # a warning's (lastinfo, number), as mjWarningStat
     done = 0

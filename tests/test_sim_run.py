@@ -215,6 +215,13 @@ def test_progress_is_reported_up_to_one():
     assert seen[-1] == 1.0
     assert len(seen) >= 10
     assert seen == sorted(seen)
+    # Fewer steps than reports: one report per step.
+    seen.clear()
+    t = np.array([0.0, 0.005])
+    still = np.zeros((2, 3))
+    record = simulate(JointTrajectory(t, still, still, still, 200.0), progress=seen.append)
+    assert len(record.t) == 10
+    assert seen == [k / 10 for k in range(1, 11)]
 
 
 @pytest.mark.parametrize(
