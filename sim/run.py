@@ -170,13 +170,19 @@ def step_controls(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray
 def simulation_model(config: GimbalConfig):
     """The gimbal (:func:`~trajgen.sim.model.build_model`) without the stages nothing here uses.
 
-    Every geom of the gimbal is contact-free (``contype = conaffinity = 0``, no
-    explicit ``<pair>``), so collision detection can never find a contact; and
-    the torque is read from ``actuator_force``, not from the model's torque
-    sensors (whose acceleration stage costs MuJoCo a pass over the bodies each
-    step). Both stages are switched off (``mjDSBL_CONTACT``, ``mjDSBL_SENSOR``):
-    a physics step costs about a quarter less, an ``mj_inverse`` call about a
-    tenth, and no result changes (tests compare bit for bit).
+    Three of MuJoCo's stages are switched off, and no result changes (tests
+    compare bit for bit):
+
+    - collision detection (``mjDSBL_CONTACT``): every geom of the gimbal is
+      contact-free (``contype = conaffinity = 0``, no explicit ``<pair>``), so
+      it can never find a contact;
+    - sensors (``mjDSBL_SENSOR``): the torque is read from ``actuator_force``,
+      and the model's torque sensors cost an extra pass over the bodies each step;
+    - island discovery (``mjDSBL_ISLAND``): the gimbal is one kinematic chain,
+      so its constraints (the joints' Coulomb friction) always form one island.
+
+    A physics step then costs about a third less, an ``mj_inverse`` call
+    about a tenth.
 
     Raises
     ------
@@ -193,7 +199,7 @@ def simulation_model(config: GimbalConfig):
             'contype="0" conaffinity="0"'
         )
     off = mujoco.mjtDisableBit
-    model.opt.disableflags |= off.mjDSBL_CONTACT | off.mjDSBL_SENSOR
+    model.opt.disableflags |= off.mjDSBL_CONTACT | off.mjDSBL_SENSOR | off.mjDSBL_ISLAND
     return model
 
 
