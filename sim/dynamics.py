@@ -80,19 +80,22 @@ def _inverse(model, q, qd, qdd, coulomb: tuple[bool, ...]) -> list[np.ndarray]:
             f"Expected `q`, `qd`, `qdd` of one shape, got {q.shape}, {qd.shape}, {qdd.shape}."
         )
     models = [model if with_coulomb else _without_coulomb(model) for with_coulomb in coulomb]
-    data = mujoco.MjData(model)
-    # Views bound once: every attribute lookup on MjData makes a new array.
-    qpos, qvel, qacc, qfrc = data.qpos, data.qvel, data.qacc, data.qfrc_inverse
     taus = [np.empty_like(q) for _ in models]
-    for i in range(len(q)):
-        qpos[:] = q[i]
-        qvel[:] = qd[i]
-        qacc[:] = qdd[i]
-        for m, tau in zip(models, taus, strict=True):
-            mujoco.mj_inverse(m, data)
+    runs = list(zip(models, taus, strict=True))
+    data = mujoco.MjData(model)
+    # Views and the function bound once, rows iterated: the Python around each
+    # mj_inverse call costs about as much as the call.
+    qpos, qvel, qacc, qfrc = data.qpos, data.qvel, data.qacc, data.qfrc_inverse
+    inverse = mujoco.mj_inverse
+    for i, (q_i, qd_i, qdd_i) in enumerate(zip(q, qd, qdd, strict=True)):
+        qpos[:] = q_i
+        qvel[:] = qd_i
+        qacc[:] = qdd_i
+        for m, tau in runs:
+            inverse(m, data)
             if data.ncon:
                 raise SimulationError(
-                    f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q[i]} rad"
+                    f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q_i} rad"
                 )
             tau[i] = qfrc
     return taus
