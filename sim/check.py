@@ -248,7 +248,9 @@ def lag_time_s(config: GimbalConfig, joint: int) -> float:
     return (kd + config.joints[joint].damping) / kp
 
 
-def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
+def build_report(
+    trajectory, config: GimbalConfig, record: SimRecord, *, model=None
+) -> TorqueReport:
     """Judge a plan and its simulated run (see the module docstring).
 
     Parameters
@@ -258,6 +260,8 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
     config : GimbalConfig
     record : SimRecord
         The simulated run of ``trajectory``.
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it already.
 
     Returns
     -------
@@ -268,7 +272,8 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
     q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
     # Coulomb friction steps at every start and reversal whatever the plan;
     # the torque rate is taken without it (tau_smooth), so it measures the plan.
-    tau_plan, tau_smooth = inverse_dynamics_split(simulation_model(config), q, qd, qdd)
+    model = simulation_model(config) if model is None else model
+    tau_plan, tau_smooth = inverse_dynamics_split(model, q, qd, qdd)
     t = np.asarray(trajectory.t, dtype=float)
     qd_plan = np.asarray(qd, dtype=float)
     tau_rate = np.gradient(tau_smooth, t, axis=0)
@@ -423,8 +428,9 @@ def check_torque(
         If MuJoCo warns or a contact appears during the run.
     """
     trajectory, config = resolve_source(source, rate_hz=rate_hz, config=config)
-    record = simulate(trajectory, config, progress=progress)
-    return build_report(trajectory, config, record)
+    model = simulation_model(config)
+    record = simulate(trajectory, config, progress=progress, model=model)
+    return build_report(trajectory, config, record, model=model)
 
 
 def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> TorqueReport:

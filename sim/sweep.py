@@ -248,9 +248,10 @@ def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, thread
     from trajgen.sim.run import record_from_run, run_batch, simulation_model, step_controls
 
     configs = [v.config(base) for v in batch]
+    models = [simulation_model(c) for c in configs]
     step_t, ctrl = step_controls(trajectory, base.timestep_s)
     q, qd, torque = run_batch(
-        [simulation_model(c) for c in configs],
+        models,
         trajectory.q[0],
         step_t[0],
         step_t,
@@ -260,7 +261,10 @@ def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, thread
     )
     return [
         build_report(
-            trajectory, c, record_from_run(trajectory, c, step_t, ctrl, q[b], qd[b], torque[b])
+            trajectory,
+            c,
+            record_from_run(trajectory, c, step_t, ctrl, q[b], qd[b], torque[b]),
+            model=models[b],
         )
         for b, c in enumerate(configs)
     ]
