@@ -7,8 +7,10 @@ changed, and run against a fresh `trajgen virtual-bus` (two for
 multi_port.py); key presses are scripted on a pty standing in for the
 keyboard: "human" presses 0.5 s after each prompt, "instant" 0.05 s after.
 Two rounds of "press any key", then ESC; SPACE 1 s after clear_multi_turn's
-prompt. An example runs cleanly when it exits 0 within 60 s and prints no
-error ([TxRxResult], [RxPacketError], "failed", a traceback...).
+prompt. The examples' output is drained all the while, as a terminal does
+(an example that prints every poll blocks on a full pipe otherwise, and then
+stops its servo at a stale position). An example runs cleanly when it exits 0
+within 60 s and prints no error ([TxRxResult], [RxPacketError], "failed", a traceback...).
 
 Run: .venv/bin/python bench/robotis_examples.py DIR [human|instant] [NAME ...] [--lockstep]
 """
@@ -44,9 +46,9 @@ EXAMPLES = [
     "clear_multi_turn",
     "multi_port",
 ]
-PROMPTS = (
-    r"Press any key to continue|Press any key to reboot|Press SPACE key"
-    r"|Press any key to terminate"
+PROMPT_RE = re.compile(
+    rb"Press any key to continue|Press any key to reboot|Press SPACE key"
+    rb"|Press any key to terminate"
 )
 ERRORS = re.compile(
     r"\[TxRxResult\]|\[RxPacketError\]|Failed|failed|Traceback|no status packet|unavailable|Error"
@@ -80,34 +82,31 @@ def run(name):
     os.close(slave)
     out = b""
     presses = 0
-    seen = 0
+    scanned = 0  # prompts before this offset of `out` are answered
     limit = 60.0
     delay = 0.5 if MODE == "human" else 0.05
+    keys: list[tuple[float, bytes]] = []  # (when, key) presses due
+    # The example's output is read all the time, key presses included: a
+    # terminal never stops taking output, and an example blocked on a full
+    # pipe would act on a stale Present Position.
     while proc.poll() is None and time.monotonic() - start < limit:
-        ready, _, _ = select.select([proc.stdout], [], [], 0.1)
+        ready, _, _ = select.select([proc.stdout], [], [], 0.005)
         if ready:
-            chunk = os.read(proc.stdout.fileno(), 65536)
-            out += chunk
-        text = out.decode(errors="replace")
-        prompts = [
-            m.start()
-            for m in re.finditer(
-                PROMPTS,
-                text,
-            )
-        ]
-        while seen < len(prompts):
-            prompt = text[prompts[seen] : prompts[seen] + 30]
-            seen += 1
-            time.sleep(delay)
+            out += os.read(proc.stdout.fileno(), 65536)
+        for match in PROMPT_RE.finditer(out, scanned):
+            prompt = match.group().decode()
+            scanned = match.end()
+            when = (keys[-1][0] if keys else time.monotonic()) + delay
             if prompt.startswith("Press SPACE"):
-                time.sleep(1.0)
-                os.write(master, b" ")
+                keys.append((when + 1.0, b" "))
             elif prompt.startswith("Press any key to continue") and presses >= 2:
-                os.write(master, b"\x1b")
+                keys.append((when, b"\x1b"))
             else:
-                os.write(master, b"n")
+                keys.append((when, b"n"))
                 presses += 1
+        scanned = max(scanned, len(out) - 40)  # a prompt may be cut between reads
+        while keys and keys[0][0] <= time.monotonic():
+            os.write(master, keys.pop(0)[1])
     timed_out = proc.poll() is None
     if timed_out:
         proc.kill()

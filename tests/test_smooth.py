@@ -7,8 +7,10 @@ from hypothesis import strategies as st
 
 from trajgen import quat as Q
 from trajgen.smooth import (
+    END_SAMPLES,
     SmoothSpline,
     knot_system,
+    minimax_offset,
     solve_block_cyclic,
     solve_block_tridiagonal,
 )
@@ -147,7 +149,7 @@ def test_single_axis_is_the_flat_quintic_spline(rng):
     angles = np.concatenate([[0.0], np.cumsum(rng.uniform(-1.2, 1.2, n - 1))])
     axis = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.3, 2.5, n - 1))])
-    s = SmoothSpline(Q.from_axis_angle(axis, angles), t)
+    s = SmoothSpline(Q.from_axis_angle(axis, angles), t, knots="quintic")
     D, h = np.diff(angles) / 2, np.diff(t)
     v, a = dense_knot_rates(D, h)
     v, a = np.concatenate([[0], v, [0]]), np.concatenate([[0], a, [0]])
@@ -268,9 +270,10 @@ def test_unsorted_and_sparse_times_give_the_same_values(rng):
     seed=st.integers(0, 2**32 - 1),
     n=st.integers(2, 9),
     spread=st.floats(0.05, 1.5),
-    boundary=st.sampled_from(["rest", "natural", "closed"]),
+    boundary=st.sampled_from(["rest", "natural", "closed", "rest end-minimax"]),
 )
 def test_property_random_keyframes(seed, n, spread, boundary):
+    boundary, _, knots = boundary.partition(" ")
     rng = np.random.default_rng(seed)
     steps = Q.exp(rng.normal(scale=spread, size=(n, 3)))
     q = steps.copy()
@@ -280,9 +283,14 @@ def test_property_random_keyframes(seed, n, spread, boundary):
         n = max(n, 3)
         q = np.vstack([q[: n - 1], q[:1]])
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
-    s = SmoothSpline(q, t, boundary=boundary)
+    s = SmoothSpline(q, t, boundary=boundary, knots=knots or "quintic")
     S = s.evaluate(np.linspace(t[0], t[-1], 301), max_order=3)
     assert all(np.isfinite(x).all() for x in S[1:])
+    if knots:  # never a higher sampled peak jerk on an end segment, any axis
+        quintic = SmoothSpline(q, t, knots="quintic")
+        for i in (0, n - 2):
+            ours, theirs = end_segment_jerk(s, i).max(1), end_segment_jerk(quintic, i).max(1)
+            assert (ours <= theirs + 1e-9 * (1 + theirs)).all()
     assert Q.distance(s(t), q).max() < 1e-12
     np.testing.assert_allclose(np.linalg.norm(S.q, axis=-1), 1.0, atol=1e-14)
     if boundary == "rest":
@@ -301,6 +309,12 @@ def test_property_random_keyframes(seed, n, spread, boundary):
         (dict(times=[0.0, 1.0]), ValueError, r"`times` to have shape \(3,\)"),
         (dict(boundary="free"), ValueError, "`boundary` to be one of .* got 'free'"),
         (dict(boundary="closed"), ValueError, "last keyframe to repeat the first; they are 20 deg"),
+        (dict(knots="minimax"), ValueError, "`knots` to be one of .* got 'minimax'"),
+        (
+            dict(knots="end-minimax", boundary="natural"),
+            ValueError,
+            "knots='end-minimax' needs boundary='rest' .* got boundary='natural'",
+        ),
     ],
 )
 def test_bad_input_raises_with_a_message_naming_it(kwargs, exc, match):
@@ -342,6 +356,7 @@ tilt = 20.0
             "SmoothSpline",
             {"boundary": "natural"},
         ),
+        ("[spline]\nknots = 'end-minimax'\n", "SmoothSpline", {"knots": "end-minimax"}),
         ("[spline]\nmethod = 'blending'\n", "BlendingSpline", {}),
         ("[spline]\nk = 3\n", "BlendingSpline", {"k": 3}),  # written for the blending spline
     ],
@@ -362,6 +377,13 @@ def test_keyframe_file_selects_the_method(tmp_path, spline, cls, options):
         ("method = 'fast'", r"\[spline\] method: expected one of smooth, blending, got 'fast'"),
         ("method = 'smooth'\nk = 2", r"\[spline\] k: applies to method = 'blending' only"),
         ("method = 'smooth'\nreparam = 'paper'", r"\[spline\] reparam: applies to method"),
+        ("knots = 'lp'", r"\[spline\] knots: expected one of quintic, end-minimax, got 'lp'"),
+        ("method = 'blending'\nknots = 'quintic'", r"knots: applies to method = 'smooth' only"),
+        ("k = 2\nknots = 'quintic'", r"knots: applies to method = 'smooth' only"),
+        (
+            "boundary = 'closed'\nknots = 'end-minimax'",
+            r"knots: 'end-minimax' needs boundary = 'rest', got 'closed'",
+        ),
     ],
 )
 def test_keyframe_file_method_errors(tmp_path, spline, match):
@@ -371,3 +393,130 @@ def test_keyframe_file_method_errors(tmp_path, spline, match):
     path.write_text(f"[spline]\n{spline}\n" + KEYS)
     with pytest.raises(KeyframeFileError, match=match):
         load_keyframe_file(path)
+
+
+# --- knots = "end-minimax": the rest ends' jerk chosen minimax --------------------------
+
+
+def end_segment_jerk(s, i):
+    """|r'''| (3, S) of segment ``i`` at END_SAMPLES, from its exact coefficients."""
+    return np.abs(s._poly[i, 9:12] @ (END_SAMPLES[:, None] ** np.arange(8)).T)
+
+
+def test_minimax_offset_matches_a_brute_force_search(rng):
+    grid = np.linspace(-20, 20, 200001)
+    for _ in range(10):
+        S, k = int(rng.integers(2, 12)), 3
+        c, b = rng.normal(size=(S, k)), rng.normal(size=S)
+        x = minimax_offset(c, b, np.zeros(k))
+        for col in range(k):
+            peak = np.abs(c[:, col, None] + b[:, None] * grid).max(0)
+            best = np.abs(c[:, col] + b * x[col]).max()
+            assert best <= peak.min() + 1e-12
+            assert best >= peak.min() - 2e-4 * (1 + abs(b).max())  # the grid's step
+
+
+def test_minimax_offset_takes_the_optimum_nearest_the_preference():
+    # The peak 2 sits where b = 0, so every x in [-1, 1] is optimal (|1 + x| <= 2 and
+    # |1 - x| <= 2 there); the one nearest `prefer` is taken.
+    c = np.array([[2.0], [1.0], [1.0]])
+    b = np.array([0.0, 1.0, -1.0])
+    assert minimax_offset(c, b, np.array([0.3]))[0] == pytest.approx(0.3)
+    assert minimax_offset(c, b, np.array([5.0]))[0] == pytest.approx(1.0)
+
+
+def test_end_minimax_changes_only_the_end_jerks_and_end_segments(rng):
+    q, t = random_keys(rng, 8)
+    a, b = SmoothSpline(q, t, knots="quintic"), SmoothSpline(q, t, knots="end-minimax")
+    for x, y in zip(a.knot_rates[:2], b.knot_rates[:2], strict=True):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.knot_rates[2][1:-1], b.knot_rates[2][1:-1])
+    assert np.abs(a.knot_rates[2][[0, -1]] - b.knot_rates[2][[0, -1]]).max() > 1e-3
+    np.testing.assert_array_equal(a._poly[1:-1], b._poly[1:-1])
+    for i in (0, len(t) - 2):
+        assert (end_segment_jerk(b, i).max(1) <= end_segment_jerk(a, i).max(1) + 1e-12).all()
+        assert end_segment_jerk(b, i).max() < end_segment_jerk(a, i).max()
+
+
+def test_end_minimax_is_exact_c3_and_at_rest(rng):
+    q, t = random_keys(rng, 8)
+    s = SmoothSpline(q, t, knots="end-minimax")
+    assert Q.distance(s(t), q).max() < 1e-13
+    S = s.evaluate(np.linspace(t[0], t[-1], 5001), max_order=3)
+    np.testing.assert_allclose(np.linalg.norm(S.q, axis=1), 1.0, atol=1e-15)
+    for x in (S.omega, S.alpha):
+        assert np.abs(x[[0, -1]]).max() < 1e-12 * (1 + np.abs(x).max())
+    # At a rest end the space-frame jerk is the knot jerk it chose (r is half the
+    # rotation vector, hence the 2).
+    np.testing.assert_allclose(S.jerk[[0, -1]], 2 * s.knot_rates[2][[0, -1]], atol=1e-9)
+    for order in range(4):
+        before, after = one_sided(s, order)
+        assert np.abs(before - after).max() < 1e-11 * (1 + np.abs(before).max()), order
+
+
+def test_end_minimax_derivatives_match_finite_differences_and_sign_does_not_matter(rng):
+    q, t = random_keys(rng)
+    s = SmoothSpline(q, t, knots="end-minimax")
+    tt = np.linspace(t[0] + 1e-3, t[-1] - 1e-3, 301)
+    e = 1e-6
+    dq = (s(tt + e) - s(tt - e)) / (2 * e)
+    np.testing.assert_allclose(s(tt, 1), 2 * Q.mul(dq, Q.conj(s(tt)))[:, 1:], atol=1e-8)
+    for order in (2, 3):
+        fd = (s(tt + e, order - 1) - s(tt - e, order - 1)) / (2 * e)
+        np.testing.assert_allclose(s(tt, order), fd, atol=1e-7 * np.abs(fd).max())
+    flipped = q * np.where(rng.uniform(size=len(q)) < 0.5, -1.0, 1.0)[:, None]
+    other = SmoothSpline(flipped, t, knots="end-minimax")
+    assert Q.distance(s(tt), other(tt)).max() < 1e-14
+    np.testing.assert_allclose(s(tt, 3), other(tt, 3), atol=1e-10)
+
+
+def test_end_minimax_two_keyframes_reach_the_best_symmetric_septic():
+    # One axis, rest to rest in T: the quintic choice is the minimum-jerk quintic
+    # 10u^3 - 15u^4 + 6u^5, peak jerk 60 D / T^3 at the ends (bang-bang, the bound:
+    # 32; the septic with zero end jerk: 52.5). With the end jerks free, the best
+    # symmetric septic is found here by brute force over the end jerk x (units
+    # D / T^3): the least peak over u of |r'''| for
+    # r = D (-H0(1 - u)) + x (H3(u) - H3(1 - u)), both mirrored terms as _H_RIGHT holds them.
+    from numpy.polynomial import polynomial as P
+
+    from trajgen.smooth import _H, _H_RIGHT
+
+    D, T = np.radians(50.0), 2.0
+    q = ptr([0, 0, 0], [50, 0, 0])
+    quintic, best = (
+        SmoothSpline(q, [0.0, T], knots="quintic"),
+        SmoothSpline(q, [0.0, T], knots="end-minimax"),
+    )
+    tt = np.linspace(0, T, 20001)
+    peak = [np.abs(s(tt, 3)).max() * T**3 / D for s in (quintic, best)]
+    assert peak[0] == pytest.approx(60.0, rel=1e-6)
+    u = np.linspace(0, 1, 2001)
+    d3 = [P.polyval(u, P.polyder(c, 3)) for c in (_H_RIGHT[0], _H[3] + _H_RIGHT[3])]
+    x = np.linspace(0, 60, 3001)[:, None]
+    brute = np.abs(d3[0] + x * d3[1]).max(axis=1).min()
+    assert peak[1] == pytest.approx(brute, rel=2e-3)  # END_SAMPLES is 33 points of u
+    assert peak[1] / 32 < 1.25
+
+
+def test_end_minimax_coefficients_are_the_segment_formula_of_its_knot_data(rng):
+    # The end segments are patched by the linear terms; a rebuild from the knot data
+    # (what a per-frame evaluator does) must give the same coefficients.
+    for n in (2, 3, 7):
+        q, t = random_keys(rng, n)
+        s = SmoothSpline(q, t, knots="end-minimax")
+        D = Q.log(Q.mul(s.quats[1:], Q.conj(s.quats[:-1])))
+        rebuilt = s._segment_coefficients(D, np.diff(t), *s.knot_rates)
+        np.testing.assert_allclose(s._poly, rebuilt, rtol=1e-12, atol=1e-12 * np.abs(rebuilt).max())
+
+
+@pytest.mark.parametrize(
+    "boundary,knots", [("rest", "end-minimax"), ("natural", "quintic"), ("closed", "quintic")]
+)
+def test_default_knot_choice_is_end_minimax_at_rest_else_quintic(rng, boundary, knots):
+    q, t = closed_keys(rng) if boundary == "closed" else random_keys(rng)
+    default, named = (
+        SmoothSpline(q, t, boundary=boundary),
+        SmoothSpline(q, t, boundary=boundary, knots=knots),
+    )
+    assert default.knots == knots
+    np.testing.assert_array_equal(default._poly, named._poly)

@@ -96,6 +96,14 @@ def _poll_until_at(s, servo_id, goal, *, polls=200, threshold=20):
     raise AssertionError(f"servo {servo_id} never reached {goal}: at {s.position(servo_id)}")
 
 
+def _raw(s, servo_id, instruction, params):
+    """Send one instruction packet with ``params`` through the SDK: (result, status error)."""
+    packet = [0] * 8 + list(params) + [0, 0]
+    packet[4], packet[5], packet[7] = servo_id, len(params) + 3, instruction
+    _, result, error = s.ph.txRxPacket(s.port, packet)
+    return result, error
+
+
 # -- time ------------------------------------------------------------------------
 
 
@@ -113,6 +121,31 @@ def test_real_time_bus_answers_within_the_sdk_timeout_after_a_pause(sdk, monkeyp
     assert took_s < 0.034  # no catch-up on arrival: the simulation ran during the pause
     wall_s, sim_s = s.virtual.wall_time_s, s.virtual.sim_time_s
     assert sim_s == pytest.approx(wall_s, rel=0.05, abs=0.02)  # simulated time tracks wall time
+
+
+def test_every_instruction_is_answered_in_time_after_a_pause(sdk, monkeypatch):
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
+    s = sdk(sim_plant.GimbalPlant(record=False), lockstep_dt_s=None)
+    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 16)  # the SDK's own
+    bulk = GroupBulkRead(s.port, s.ph)
+    assert bulk.addParam(1, PRESENT_POSITION, 4) and bulk.addParam(2, TICK, 2)
+    calls = {
+        "PING": lambda: s.ph.ping(s.port, 1)[1:],
+        "READ": lambda: s.ph.read4ByteTxRx(s.port, 1, PRESENT_POSITION)[1:],
+        "WRITE": lambda: s.ph.write1ByteTxRx(s.port, 1, OPERATING_MODE, 4),
+        "REG_WRITE": lambda: s.ph.regWriteTxRx(s.port, 1, LED, 1, [1]),
+        # ACTION is broadcast (no status): its check is that the LED it lit reads 1.
+        "ACTION": lambda: (s.ph.action(s.port, BROADCAST_ID), s.read(1, LED, 1) - 1),
+        "BULK_READ": lambda: (bulk.txRxPacket(), 0),
+        "FAST_BULK_READ": lambda: (bulk.fastBulkRead(), 0),
+        "CLEAR": lambda: s.ph.clearMultiTurn(s.port, 1),
+        "REBOOT": lambda: s.ph.reboot(s.port, 1),
+        "FACTORY_RESET": lambda: s.ph.factoryReset(s.port, 1, 0x02),
+    }
+    for name, call in calls.items():
+        time.sleep(0.25)
+        assert call() == (COMM_SUCCESS, 0), name
+    assert s.read(1, LED, 1) == 0  # ACTION lit it, REBOOT put it out
 
 
 def test_realtime_tick_counts_milliseconds_in_real_time(sdk):
@@ -166,6 +199,22 @@ def test_goal_limits_follow_the_limit_registers(sdk):
     assert s.write(2, GOAL_POSITION, 2_000_000, 4) == DATA_RANGE  # beyond +-1,048,575
 
 
+def test_goal_held_is_clamped_when_the_limits_narrow(sdk):
+    s = sdk(FirstOrderPlant(time_constant_s=0.0))
+    assert s.write(1, GOAL_POSITION, 3000, 4) == 0  # torque off: goals are accepted
+    assert s.write(1, MAX_POSITION_LIMIT, 2500, 4) == 0
+    assert s.read(1, GOAL_POSITION, 4) == 3000  # the register keeps what was written
+    s.write(1, TORQUE, 1, 1)
+    _poll_until_at(s, 1, 2500, threshold=0)  # the servo goes no further than the limit
+    assert max(s.position(1) for _ in range(5)) == 2500
+    s.write(1, TORQUE, 0, 1)
+    s.write(1, OPERATING_MODE, 4, 1)  # extended position: no limits
+    s.write(1, GOAL_POSITION, 9000, 4)
+    s.write(1, OPERATING_MODE, 3, 1)  # back to position mode: the goal is clamped again
+    s.write(1, TORQUE, 1, 1)
+    _poll_until_at(s, 1, 2500, threshold=0)
+
+
 # -- what a real servo refuses ----------------------------------------------------------
 
 
@@ -188,10 +237,7 @@ def test_refusals_carry_the_manuals_error_bits(sdk):
 
 def test_unknown_instruction_gets_the_instruction_error(sdk):
     s = sdk()
-    packet = [0] * 10
-    packet[4], packet[5], packet[7] = 1, 3, 0x7F  # id 1, length 3, instruction 0x7F
-    _, result, error = s.ph.txRxPacket(s.port, packet)
-    assert (result, error) == (COMM_SUCCESS, INSTRUCTION)
+    assert _raw(s, 1, 0x7F, []) == (COMM_SUCCESS, INSTRUCTION)
 
 
 def test_present_values_are_clamped_to_their_register_not_fatal(sdk):
@@ -307,6 +353,15 @@ def test_clear_resets_the_multi_turn_count(sdk):
     assert s.position(1) == 2148
 
 
+def test_malformed_clear_and_read_are_refused(sdk):
+    s = sdk()
+    clear = [0x01, 0x44, 0x58, 0x4C, 0x22]
+    assert _raw(s, 1, 0x10, clear) == (COMM_SUCCESS, 0)  # at rest: accepted
+    assert _raw(s, 1, 0x10, clear[:4]) == (COMM_SUCCESS, DATA_LENGTH)
+    assert _raw(s, 1, 0x10, [0x02, *clear[1:]]) == (COMM_SUCCESS, DATA_RANGE)  # reserved option
+    assert _raw(s, 1, 0x02, [PRESENT_POSITION, 0, 4]) == (COMM_SUCCESS, DATA_LENGTH)  # READ
+
+
 # -- control table -------------------------------------------------------------------
 
 
@@ -363,6 +418,38 @@ def test_present_pwm_is_the_p_loop_on_the_error(sdk):
     assert s.virtual.plant.control[0]["Goal PWM"] == 300
 
 
+def test_changing_operating_mode_resets_goal_pwm_gains_and_profile(sdk):
+    s = sdk()
+    for address, value, size in [(GOAL_PWM, 300, 2), (P_GAIN, 500, 2), (PROFILE_VELOCITY, 50, 4)]:
+        assert s.write(1, address, value, size) == 0
+    assert s.write(1, OPERATING_MODE, 4, 1) == 0
+    assert s.read(1, GOAL_PWM, 2) == 885  # back to PWM Limit (e-Manual, Operating Mode)
+    assert s.read(1, P_GAIN, 2) == 800
+    assert s.read(1, PROFILE_VELOCITY, 4) == 0
+    assert s.virtual.plant.control[0]["Goal PWM"] == 885  # the plant was told
+    assert s.virtual.plant.control[0]["Operating Mode"] == 4
+
+
+def test_what_the_plant_does_not_simulate_is_refused_and_the_bus_lives_on(sdk):
+    sim_firmware = pytest.importorskip("trajgen.sim.firmware")
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
+    told = []
+    s = sdk(
+        sim_plant.GimbalPlant(record=False),
+        unsupported=(sim_firmware.UnsupportedServoSetting,),
+        on_refusal=lambda servo_id, reason: told.append((servo_id, reason)),
+    )
+    assert s.write(1, PROFILE_VELOCITY, 100, 4) == RESULT_FAIL
+    assert s.read(1, PROFILE_VELOCITY, 4) == 0  # undone
+    assert s.write(2, OPERATING_MODE, 1, 1) == RESULT_FAIL  # velocity mode
+    assert s.read(2, OPERATING_MODE, 1) == 3
+    assert [i for i, _ in told] == [1, 2]
+    assert "Profile Velocity 100" in told[0][1] and "Operating Mode 1" in told[1][1]
+    assert s.write(2, OPERATING_MODE, 4, 1) == 0  # extended position is simulated
+    assert s.ph.ping(s.port, 1)[1:] == (COMM_SUCCESS, 0)
+    assert s.virtual.error is None
+
+
 def test_plant_is_told_the_control_registers_at_start(sdk):
     s = sdk(models="XL430-W250")
     assert s.virtual.plant.control[2]["Position P Gain"] == 640  # XL430's own default
@@ -411,13 +498,42 @@ def test_virtual_bus_command_serves_until_a_signal(signal_name):
         ph = PacketHandler(2.0)
         assert ph.ping(port, 5)[:2] == (1060, COMM_SUCCESS)
         assert ph.write1ByteTxRx(port, 5, TORQUE, 1) == (COMM_SUCCESS, 0)
+        assert ph.write4ByteTxRx(port, 5, PROFILE_VELOCITY, 50) == (COMM_SUCCESS, RESULT_FAIL)
+        assert ph.ping(port, 5)[1] == COMM_SUCCESS  # not simulated, refused; the bus lives on
         port.closePort()
     finally:
         proc.send_signal(getattr(signal, signal_name))
         out, err = proc.communicate(timeout=10)
     assert proc.returncode == 0, err
     assert "serving servos 4, 5, 6 (XL430-W250, XL430-W250, XL430-W250), real time" in err
+    assert "servo 5 refused a write (Result Fail): tilt: Profile Velocity 50" in err
     assert "stopped after" in err
+
+
+def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_path):
+    import signal
+
+    path = tmp_path / "k.toml"
+    path.write_text(
+        "[bus]\nids = [7, 8, 9]\n\n[stream]\nrate_hz = 100\n\n"
+        "[gimbal.tilt]\nposition_p_gain = 500\n\n"
+        "[[keyframes]]\nt = 0.0\npan = 0\n\n[[keyframes]]\nt = 1.0\npan = 10\n"
+    )
+    proc = _trajgen("virtual-bus", str(path), "--lockstep")
+    try:
+        port = PortHandler(proc.stdout.readline().strip())
+        assert port.openPort() and port.setBaudRate(57_600)
+        ph = PacketHandler(2.0)
+        assert ph.read2ByteTxRx(port, 8, P_GAIN) == (500, COMM_SUCCESS, 0)  # [gimbal.tilt]
+        assert ph.read2ByteTxRx(port, 7, P_GAIN) == (800, COMM_SUCCESS, 0)  # the default
+        assert ph.write4ByteTxRx(port, 9, GOAL_POSITION, 2048) == (COMM_SUCCESS, 0)
+        assert ph.read2ByteTxRx(port, 9, TICK) == (10, COMM_SUCCESS, 0)  # one 100 Hz period
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "serving servos 7, 8, 9 (XM430-W350, XM430-W350, XM430-W350), lock-step, 10 ms" in err
 
 
 @pytest.mark.parametrize(

@@ -148,6 +148,23 @@ def _solve(cp, sp, ct, st, wx, wy, wz):
     return wz + st * roll_rate, tilt_rate, roll_rate
 
 
+def rates_of(cp, sp, ct, st, omega, alpha):
+    """Joint velocities and accelerations ``(vp, vt, vr), (ap, at, ar)`` from the cos/sin of
+    pan and tilt and the components of omega and alpha: plain arithmetic, shared by
+    :func:`joint_rates` (arrays) and the per-frame stream (floats, :mod:`trajgen.frame_eval`).
+    """
+    vp, vt, vr = _solve(cp, sp, ct, st, *omega)
+    # Jdot qd = vp vt (z x y1) + vr (vp z + vt y1) x x2 with the joint axes
+    # z, y1, x2 of `jacobian`: the tilt axis y1 turns with pan, the roll axis x2
+    # with both. z x y1 = (-cp, -sp, 0), z x x2 = (-sp ct, cp ct, 0) and
+    # y1 x x2 = -(cp st, sp st, ct).
+    jx = -vp * vt * cp - vr * (vp * sp * ct + vt * cp * st)
+    jy = -vp * vt * sp + vr * (vp * cp * ct - vt * sp * st)
+    jz = -vr * vt * ct
+    ax, ay, az = alpha
+    return (vp, vt, vr), _solve(cp, sp, ct, st, ax - jx, ay - jy, az - jz)
+
+
 def joint_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
     """Joint velocities and accelerations, exactly, from the angular motion.
 
@@ -195,15 +212,9 @@ def joint_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
         )
     cp, sp = np.cos(a[..., 0]), np.sin(a[..., 0])
     ct, st = np.cos(a[..., 1]), np.sin(a[..., 1])
-    vp, vt, vr = _solve(cp, sp, ct, st, w[..., 0], w[..., 1], w[..., 2])
-    # Jdot qd = vp vt (z x y1) + vr (vp z + vt y1) x x2 with the joint axes
-    # z, y1, x2 of `jacobian`: the tilt axis y1 turns with pan, the roll axis x2
-    # with both. z x y1 = (-cp, -sp, 0), z x x2 = (-sp ct, cp ct, 0) and
-    # y1 x x2 = -(cp st, sp st, ct).
-    jx = -vp * vt * cp - vr * (vp * sp * ct + vt * cp * st)
-    jy = -vp * vt * sp + vr * (vp * cp * ct - vt * sp * st)
-    jz = -vr * vt * ct
-    ap, at, ar = _solve(cp, sp, ct, st, dw[..., 0] - jx, dw[..., 1] - jy, dw[..., 2] - jz)
+    (vp, vt, vr), (ap, at, ar) = rates_of(
+        cp, sp, ct, st, np.moveaxis(w, -1, 0), np.moveaxis(dw, -1, 0)
+    )
     qd = np.stack([vp, vt, vr], axis=-1)
     qdd = np.stack([ap, at, ar], axis=-1)
     return qd, qdd
@@ -374,12 +385,20 @@ def _closed_form(q: np.ndarray) -> np.ndarray:
     ``-q`` agree.
     """
     w, x, y, z = q.T
+    return np.stack(angles_of(w, x, y, z, np.arctan2, np.hypot), axis=-1)
+
+
+def angles_of(w, x, y, z, atan2, hypot) -> tuple:
+    """``(pan, tilt, roll)`` of a unit quaternion's components; pan, roll in (-pi, pi].
+
+    Plain arithmetic on the rotation-matrix entries (quadratic in ``q``, so ``q``
+    and ``-q`` agree), with ``atan2`` and ``hypot`` given: ``np.arctan2``,
+    ``np.hypot`` for arrays (:func:`_closed_form`), ``math.atan2``, ``math.hypot``
+    for the floats of one frame (:mod:`trajgen.frame_eval`).
+    """
     r00 = 1.0 - 2.0 * (y * y + z * z)
     r10 = 2.0 * (x * y + w * z)
     r20 = 2.0 * (x * z - w * y)
     r21 = 2.0 * (y * z + w * x)
     r22 = 1.0 - 2.0 * (x * x + y * y)
-    pan = np.arctan2(r10, r00)
-    tilt = np.arctan2(-r20, np.hypot(r21, r22))
-    roll = np.arctan2(r21, r22)
-    return np.stack([pan, tilt, roll], axis=-1)
+    return atan2(r10, r00), atan2(-r20, hypot(r21, r22)), atan2(r21, r22)

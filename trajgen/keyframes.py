@@ -4,6 +4,7 @@
 [spline]            # optional
 method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
 boundary = "rest"   # "rest", "natural" or "closed" (both methods)
+knots = "quintic"   # SmoothSpline's knots: "end-minimax" (default at rest) or "quintic"
                     # k, local, reparam are the blending spline's keywords; a file
                     # giving them without `method` gets method = "blending"
 
@@ -49,7 +50,7 @@ import numpy as np
 from . import quat as Q
 from .errors import KeyframeFileError
 from .gimbal import JOINT_NAMES
-from .smooth import SmoothSpline
+from .smooth import KNOTS, SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .validate import check_choice, check_keys, check_number
 
@@ -60,7 +61,7 @@ BUILTIN_EXAMPLE = Path(__file__).with_name("data") / "lookaround.toml"
 #: the file's ``[stream] rate_hz`` gives one.
 DEFAULT_RATE_HZ = 200.0
 
-SPLINE_KEYS = ("method", "k", "boundary", "local", "reparam")
+SPLINE_KEYS = ("method", "k", "boundary", "local", "reparam", "knots")
 #: ``[spline] method`` -> spline class. The default is chosen by the torque race
 #: (README, "The torque race, part 2").
 METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
@@ -300,10 +301,17 @@ def _spline_options(table, path: Path) -> dict:
             "k", table["k"], integer=True, low=1, high=MAX_K, error=_error(path, "[spline] k")
         )
     choices = (("method", tuple(METHODS)), ("boundary", BOUNDARIES), ("local", LOCALS))
-    for key, allowed in (*choices, ("reparam", REPARAMS)):
+    for key, allowed in (*choices, ("reparam", REPARAMS), ("knots", KNOTS)):
         if key in table:
             check_choice(key, table[key], allowed, error=_error(path, f"[spline] {key}"))
     blending_only = [k for k in BLENDING_ONLY if k in table]
+    if "knots" in table and (table.get("method") == "blending" or blending_only):
+        raise KeyframeFileError(f"{path}: [spline] knots: applies to method = 'smooth' only")
+    if table.get("knots") == "end-minimax" and table.get("boundary", "rest") != "rest":
+        raise KeyframeFileError(
+            f"{path}: [spline] knots: 'end-minimax' needs boundary = 'rest', "
+            f"got {table['boundary']!r}"
+        )
     if blending_only and table.get("method") == "smooth":
         raise KeyframeFileError(
             f"{path}: [spline] {blending_only[0]}: applies to method = 'blending' only"

@@ -7,6 +7,10 @@ once, from the knot conditions of the flat C4 quintic spline (a block-tridiagona
 system solved in O(n)), then joins the knots with septic Hermite curves in the
 tangent space of each segment's first keyframe, which makes the path C3 for any
 knot data and the flat quintic spline when all keyframes share one axis.
+Because any knot data give a C3 path, the knot choice is an option: ``knots =
+"end-minimax"`` keeps the quintic's knot data but for the jerk at the two rest
+ends, chosen to lower the peak jerk of the end segments, where the quintic choice
+puts it (the torque race in the README measures both).
 
 Evaluation is closed form and vectorised: ``r(u)`` is a degree-7 polynomial per
 segment and axis, and the derivatives of ``exp(r)`` follow from those of
@@ -19,6 +23,7 @@ from fractions import Fraction
 from math import comb
 
 import numpy as np
+from numpy.polynomial import polynomial as P
 
 from . import derivatives as dv
 from . import jet as J
@@ -28,6 +33,10 @@ from .spline import check_closed
 from .validate import check_choice
 
 BOUNDARIES = ("rest", "natural", "closed")
+#: Knot choices: "quintic", the knot conditions of the flat C4 quintic spline (SPEC
+#: 8.2); "end-minimax", the same with the jerk at each rest end chosen to minimise
+#: the peak jerk of its end segment.
+KNOTS = ("quintic", "end-minimax")
 
 # Septic Hermite basis in the power basis (columns u^0..u^7): H_m^(k)(0) = delta_mk,
 # H_m^(k)(1) = 0 for k = 0..3. Exact fractions, so that H_m(1 - u) expands exactly.
@@ -51,6 +60,70 @@ def _mirrored(h: list) -> np.ndarray:
 
 _H = np.array(_H_EXACT, dtype=float)
 _H_RIGHT = _mirrored(_H_EXACT)
+
+#: Where (u in [0, 1]) an end segment's jerk is sampled for ``knots="end-minimax"``.
+END_SAMPLES = np.linspace(0.0, 1.0, 33)
+
+
+def _third_derivative_at(coefficients: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Third u-derivative of the power-basis polynomial ``coefficients`` at ``u``."""
+    return P.polyval(u, P.polyder(coefficients, 3))
+
+
+#: d^3/du^3 of H_3(u) and of -H_3(1 - u) at END_SAMPLES: how the end jerk enters.
+_START_JERK = _third_derivative_at(_H[3], END_SAMPLES)
+_STOP_JERK = _third_derivative_at(_H_RIGHT[3], END_SAMPLES)
+
+
+def minimax_offset(c: np.ndarray, b: np.ndarray, prefer: np.ndarray) -> np.ndarray:
+    """The ``x`` minimising ``max_s |c_s + b_s x|``, exactly, per column.
+
+    The objective is convex and piecewise linear in ``x``; its minimum sits where two
+    of the lines ``+-(c_s + b_s x)`` cross, so the crossings are the only candidates
+    (O(S^2) of them). Where a whole interval is optimal (when the peak sits at a
+    sample with ``b_s = 0``), the optimum nearest ``prefer`` is taken.
+
+    Parameters
+    ----------
+    c : ndarray, shape (S, k)
+        Values at the samples at ``x = 0``, one column per independent problem.
+    b : ndarray, shape (S,)
+        How each sample moves with ``x``.
+    prefer : ndarray, shape (k,)
+        Tie-break: among minimisers, the one nearest this.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+    """
+    s, t = np.triu_indices(len(b))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # c_s + b_s x = -(c_t + b_t x) and c_s + b_s x = c_t + b_t x.
+        meet = -(c[s] + c[t]) / (b[s] + b[t])[:, None]
+        cross = (c[t] - c[s]) / (b[s] - b[t])[:, None]
+    candidates = np.concatenate([meet, cross, prefer[None]])  # (C, k)
+    out = np.empty(c.shape[1])
+    for col in range(c.shape[1]):
+        x = candidates[:, col]
+        x = x[np.isfinite(x)]
+        peak = np.abs(c[:, col, None] + b[:, None] * x).max(axis=0)
+        best = peak <= peak.min() * (1 + 1e-12)
+        x = x[best]
+        out[col] = x[np.argmin(np.abs(x - prefer[col]))]
+    return out
+
+
+def _with_time_derivatives(coef: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Segment coefficients of ``r_i(u)`` (n, 8, 3), ``[i, k, axis]`` multiplying
+    ``u^k``, with those of its first three time derivatives (``d/dt = (1/h) d/du``),
+    shape (n, 12, 8): ``[i, 3 m + axis, k]`` for the m-th derivative."""
+    out = np.empty((4, *coef.shape))
+    out[0] = coef
+    power = np.arange(8.0)
+    for m in range(1, 4):
+        out[m, :, :-1] = out[m - 1, :, 1:] * power[1:, None] / h[:, None, None]
+        out[m, :, -1] = 0.0
+    return np.ascontiguousarray(out.transpose(1, 0, 3, 2).reshape(len(h), 12, 8))
 
 
 def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
@@ -215,6 +288,17 @@ class SmoothSpline(OrientationPath):
         jerk and snap vanish at the ends (it starts moving); ``"closed"``: a loop
         whose last keyframe repeats the first, C3 all the way round (the knot
         solve is cyclic; times outside the range wrap). Default "rest".
+    knots : {"quintic", "end-minimax"}, optional
+        How the knot data are chosen. ``"quintic"``: the knot conditions of the
+        flat C4 quintic spline (SPEC 8.2). ``"end-minimax"`` (``boundary="rest"``
+        only): the same rates and accelerations everywhere and the same jerk at
+        the interior knots, but the jerk at each rest end chosen, per axis of the
+        space frame, to minimise the peak of that axis' tangent-space jerk over its
+        end segment (sampled at :data:`END_SAMPLES`; exact, see
+        :func:`minimax_offset`). It moves only the two end segments and never
+        raises their sampled peak; it depends on the space frame's axes (the
+        gimbal's: z is the pan axis). Default: "end-minimax" when ``boundary`` is
+        "rest" (the torque race chose it, see the README), else "quintic".
 
     Raises
     ------
@@ -232,13 +316,22 @@ class SmoothSpline(OrientationPath):
     ``SPEC.md`` section 8 in the project's shared notes states the construction.
     """
 
-    def __init__(self, quats, times, *, boundary="rest"):
+    def __init__(self, quats, times, *, boundary="rest", knots=None):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
             raise ValueError(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
+        if knots is None:
+            knots = "end-minimax" if boundary == "rest" else "quintic"
+        #: The knot choice, "quintic" or "end-minimax".
+        self.knots = check_choice("knots", knots, KNOTS)
+        if knots == "end-minimax" and boundary != "rest":
+            raise ValueError(
+                f"knots='end-minimax' needs boundary='rest' (the ends it chooses the jerk "
+                f"at), got boundary={boundary!r}."
+            )
         if boundary == "closed":
             check_closed(q)
         self.periodic = boundary == "closed"
@@ -250,10 +343,13 @@ class SmoothSpline(OrientationPath):
         h = np.diff(self.times)
         D = Q.log(Q.mul(q[1:], Q.conj(q[:-1])))
         v, a, j = self._knot_rates(D, h)
+        poly = self._segment_coefficients(D, h, v, a, j)
+        if knots == "end-minimax":
+            j, poly = self._end_minimax(h, j, poly)
         #: Knot angular rate, acceleration and jerk of the tangent-space jets (N, 3).
         self.knot_rates = (v, a, j)
         self._h = h
-        self._poly = self._segment_coefficients(D, h, v, a, j)
+        self._poly = poly
 
     def _knot_rates(self, D, h):
         n = len(D) + 1
@@ -280,29 +376,84 @@ class SmoothSpline(OrientationPath):
         ) / h[-1] ** 3
         return v, a, j
 
+    def _end_minimax(self, h, j, poly):
+        """Knot jerks (N, 3) and segment coefficients with each rest end's jerk chosen
+        minimax (``knots="end-minimax"``), from the quintic choice's ``j`` and ``poly``.
+
+        ``r_i(u)`` is linear in the knot data ``L`` and ``R``. First segment: ``L_3 =
+        j_0`` (``v = a = 0`` there), so ``r'''(u) = base(u) + j_0 H_3'''(u)``: one
+        minimax in one variable per axis (:func:`minimax_offset`). Last segment: the
+        end jerk enters only through ``R_3``, the third derivative of
+        ``log(exp(j tau^3 / 6) exp(D))`` at ``tau = 0``, which is linear, ``R_3 = M j``:
+        the minimax is taken over ``R_3``, then ``j = M^-1 R_3``. Neither choice can
+        raise the sampled peak it minimises; the two end segments' coefficients change
+        by the linear terms, all others stay. ``j`` and ``poly`` are updated in place.
+
+        With two keyframes both ends share one segment, and choosing one end with
+        the other held would stall (each end's peak sits at the other end). There
+        ``j_0 = R_3`` is chosen as one unknown, the symmetric choice the flat optimum
+        takes: peak jerk 38.6 D / T^3 against 60 for the quintic choice and 32 for
+        the bang-bang bound.
+        """
+        step = Q.mul(self.quats[-1], Q.conj(self.quats[-2]))[:, None]  # (4, 1) = exp(D)
+        none = np.zeros((3, 3))
+        M = self._right_data(np.repeat(step, 3, axis=1), none, none, np.eye(3))[3].T
+        powers = END_SAMPLES[:, None] ** np.arange(8)  # (S, 8)
+        first, last = (poly[i, 9:12] @ powers.T for i in (0, -1))  # r''' (3, S)
+        j0, r3 = j[0].copy(), M @ j[-1]
+        if len(h) == 1:
+            base = first.T - _START_JERK[:, None] * j0 - _STOP_JERK[:, None] * r3
+            j[0] = new_r3 = minimax_offset(base, _START_JERK + _STOP_JERK, (j0 + r3) / 2)
+        else:
+            j[0] = minimax_offset(first.T - _START_JERK[:, None] * j0, _START_JERK, j0)
+            base = last.T - _STOP_JERK[:, None] * r3
+            new_r3 = minimax_offset(base, _STOP_JERK, r3)
+        j[-1] = np.linalg.solve(M, new_r3)
+        # r gains h^3 (L_3 change) H_3(u) and h^3 (R_3 change) (-H_3(1 - u)).
+        for i, change, basis in ((0, j[0] - j0, _H[3]), (-1, new_r3 - r3, _H_RIGHT[3])):
+            coef = h[i] ** 3 * basis[None, :, None] * change[None, None, :]  # (1, 8, 3)
+            poly[i] += _with_time_derivatives(coef, h[[i]])[0]
+        return j, poly
+
+    @staticmethod
+    def _right_data(step, v, a, j) -> np.ndarray:
+        """``R_m``, m = 0..3, shape (4, k, 3): the time derivatives at ``tau = 0`` of
+        ``log(exp(v tau + a tau^2 / 2 + j tau^3 / 6) step)``, by jets in ``tau``.
+
+        ``step`` (4, k) is each segment's ``exp(D_i)``; ``v``, ``a``, ``j`` (k, 3) the
+        knot data at its right end.
+        """
+        c = np.zeros((4, 3, len(v)))
+        c[1], c[2], c[3] = v.T, a.T / 2, j.T / 6
+        with np.errstate(over="ignore", invalid="ignore"):  # qlog's unused branch at w = 0
+            R = J.qlog(J.qmul(J.qexp(J.Jet(c)), step))
+        return np.stack([R.derivative(m).T for m in range(4)])
+
     def _segment_coefficients(self, D, h, v, a, j) -> np.ndarray:
         """Power-basis coefficients of ``r_i(u)`` and of its first three time
         derivatives, shape (n - 1, 12, 8): ``[i, 3 m + axis, k]`` multiplies ``u^k``
         in the m-th derivative."""
         q = self.quats
-        # R_m: time derivatives at t_{i+1} of log(K_{i+1}(t) q_i*), by jets in tau.
-        c = np.zeros((4, 3, len(D)))
-        c[1], c[2], c[3] = v[1:].T, a[1:].T / 2, j[1:].T / 6
+        # R_m: time derivatives at t_{i+1} of log(K_{i+1}(t) q_i*).
         step = Q.mul(q[1:], Q.conj(q[:-1])).T  # (4, n - 1) = exp(D_i)
-        with np.errstate(over="ignore", invalid="ignore"):  # qlog's unused branch at w = 0
-            R = J.qlog(J.qmul(J.qexp(J.Jet(c)), step))
-        R = np.stack([R.derivative(m).T for m in range(4)])  # (4, n - 1, 3)
+        R = self._right_data(step, v[1:], a[1:], j[1:])  # (4, n - 1, 3)
         R[0] = D  # the same value; keep the exact increment
         L = np.stack([np.zeros_like(v[:-1]), v[:-1], a[:-1], j[:-1]])
         hm = h[None, :, None] ** np.arange(4)[:, None, None]  # (4, n - 1, 1)
         coef = np.einsum("mis,mk->iks", hm * L, _H) + np.einsum("mis,mk->iks", hm * R, _H_RIGHT)
-        out = np.empty((4, *coef.shape))
-        out[0] = coef
-        power = np.arange(8.0)
-        for m in range(1, 4):  # d/dt = (1/h) d/du
-            out[m, :, :-1] = out[m - 1, :, 1:] * power[1:, None] / h[:, None, None]
-            out[m, :, -1] = 0.0
-        return np.ascontiguousarray(out.transpose(1, 0, 3, 2).reshape(len(h), 12, 8))
+        return _with_time_derivatives(coef, h)
+
+    @property
+    def tangent_coefficients(self) -> np.ndarray:
+        """Power-basis coefficients of each segment's ``r_i(u)`` and of its time
+        derivatives, shape (n - 1, 12, 8): ``[i, 3 m + axis, k]`` multiplies ``u^k``,
+        ``u = (t - times[i]) / (times[i + 1] - times[i])``, in the m-th time derivative
+        (m = 0..3, already scaled by ``1 / h^m``). On segment i the path is
+        ``exp(r_i(u)) quats[i]``. Read-only; the per-frame stream
+        (:mod:`trajgen.frame_eval`) evaluates it one time at a time."""
+        view = self._poly.view()
+        view.flags.writeable = False
+        return view
 
     def _tangent(self, t, seg, max_order) -> np.ndarray:
         """``r_i(u)`` and its time derivatives 1..max_order at times ``t`` (M,) in

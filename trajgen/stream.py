@@ -15,8 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen.errors import KinematicsError
+from trajgen.frame_eval import FrameKinematics, SmoothFrames
 from trajgen.gimbal import JOINT_NAMES, GimbalKinematics, as_angles, joint_rates  # noqa: F401 (JOINT_NAMES re-exported)
 from trajgen.sampling import sample_times
+from trajgen.smooth import SmoothSpline
 
 
 @dataclass(frozen=True)
@@ -127,14 +129,25 @@ def stream_frames(
 ) -> Iterator[JointFrame]:
     """The joint stream produced online: one frame per ``next()``.
 
-    The path is evaluated ``BLOCK_FRAMES`` frames at a time, as they are
-    needed, so the first frame is ready at once however long the path and the
-    spline's fixed cost per call is shared. Frame ``i`` equals frame ``i`` of
-    :func:`plan_joint_trajectory` with the same arguments (pan and roll are
-    unwrapped from each block to the next, with the same integer turn counts).
-    Arguments are checked at the call; a path that nears gimbal lock or leaves
-    a limit raises at the first offending frame, after the frames before it
-    have been yielded.
+    Each frame's joint angles (pan and roll unwrapped from the frame before, with
+    the same integer turn counts as :meth:`GimbalKinematics.inverse`), limit and
+    lock guard and joint rates are computed for that frame alone, in Python floats
+    (:class:`~trajgen.frame_eval.FrameKinematics`), so each ``next()`` costs about
+    the same. The path itself is evaluated
+
+    - for a :class:`~trajgen.smooth.SmoothSpline` (the default spline), one frame
+      at a time in floats as well (:class:`~trajgen.frame_eval.SmoothFrames`);
+    - for any other spline (a :class:`~trajgen.spline.BlendingSpline`, a
+      ``trajgen.compare`` method, anything with the spline protocol),
+      ``BLOCK_FRAMES`` frames at a time with numpy, one block ahead, the next
+      block's evaluation spread in steps over the frames of the one before
+      (:meth:`~trajgen.path.OrientationPath.evaluation_steps`); only the first
+      block is evaluated at once.
+
+    Frame ``i`` equals frame ``i`` of :func:`plan_joint_trajectory` with the same
+    arguments (to rounding, ~1e-15 rad). Arguments are checked at the call; a path
+    that nears gimbal lock or leaves a limit raises at the first offending frame,
+    after the frames before it have been yielded.
 
     An online source (an :class:`~trajgen.online.OnlineSpline`, or anything with
     its ``snapshot``, ``commit``, ``closed`` and ``t_end``) may change while it
@@ -142,7 +155,8 @@ def stream_frames(
     a change made by another thread between two frames takes effect from the
     next one (the frames evaluated ahead are dropped and evaluated again). Its
     frames run from ``t_start`` until the source is closed and ``t_end`` is
-    reached, holding at rest meanwhile.
+    reached, holding at rest meanwhile. It is evaluated with numpy, a block of
+    ``ONLINE_BLOCK_FRAMES`` at a time.
 
     Parameters
     ----------
@@ -167,39 +181,50 @@ def stream_frames(
     if all(hasattr(spline, name) for name in ("snapshot", "commit", "closed")):
         kin, _, start = _prepare(spline, rate_hz, kinematics, start, online=True)
         return _online_frames(spline, kin, float(rate_hz), start)
-    return _frames(spline, *_prepare(spline, rate_hz, kinematics, start))
+    kin, t, start = _prepare(spline, rate_hz, kinematics, start)
+    if isinstance(spline, SmoothSpline):
+        return _scalar_frames(SmoothFrames(spline), FrameKinematics(kin, start), t)
+    return _frames(spline, FrameKinematics(kin, start), t)
 
 
-#: Frames per block of the online stream: the path, the inverse kinematics and the joint
-#: rates are computed a block at a time, one block ahead, in steps spread over the
-#: frames of the block before (at most one block of look-ahead).
+def _frame(i: int, t: float, angles, qd, qdd) -> JointFrame:
+    """Frame ``i`` at time ``t`` (s) from three triples of floats (rad, rad/s, rad/s^2)."""
+    return JointFrame(i, t, np.array(angles), np.array(qd), np.array(qdd))
+
+
+def _scalar_frames(path, kin: FrameKinematics, t: np.ndarray) -> Iterator[JointFrame]:
+    """Generator behind :func:`stream_frames` for a path evaluated per frame."""
+    for i in range(len(t)):
+        ti = t.item(i)
+        yield _frame(i, ti, *kin(ti, *path(ti)))
+
+
+#: Frames per block when a spline is evaluated with numpy: a block is evaluated one
+#: block ahead, in steps spread over the frames of the block before.
 BLOCK_FRAMES = 32
 
 
-def _frames(spline, kin: GimbalKinematics, t: np.ndarray, start) -> Iterator[JointFrame]:
-    """Generator behind :func:`stream_frames`.
+def _frames(spline, kin: FrameKinematics, t: np.ndarray) -> Iterator[JointFrame]:
+    """Generator behind :func:`stream_frames` for a spline evaluated a block at a time.
 
-    Each ``next()`` hands out a frame of the current block and then does one step
-    of the next block's work (a part of the path's evaluation, see
-    :meth:`~trajgen.path.OrientationPath.evaluation_steps`, then its inverse
-    kinematics, then its joint rates), so the cost per frame is even: no frame
-    pays for a whole block. Only the first block is computed at once.
+    Each ``next()`` hands out a frame of the current block (its kinematics done
+    then) and then does one step of the next block's evaluation (see
+    :meth:`~trajgen.path.OrientationPath.evaluation_steps`), so no frame pays for
+    a whole block. Only the first block is evaluated at once.
     """
-    blocks = [t[a : a + BLOCK_FRAMES] for a in range(0, len(t), BLOCK_FRAMES)]
-    last = [start]  # the frame before the block being worked (pan and roll unwrap from it)
-    frames = _Steps(_block_steps(spline, kin, blocks[0], last)).finish()
-    first = 0
-    for b, tb in enumerate(blocks):
-        work = (
-            _Steps(_block_steps(spline, kin, blocks[b + 1], last)) if b + 1 < len(blocks) else None
-        )
-        for frame in frames(first):
-            yield frame
+    samples = _Steps(_evaluation_steps(spline, t[:BLOCK_FRAMES])).finish()
+    for a in range(0, len(t), BLOCK_FRAMES):
+        tb = t[a : a + BLOCK_FRAMES]
+        b = a + BLOCK_FRAMES
+        work = _Steps(_evaluation_steps(spline, t[b : b + BLOCK_FRAMES])) if b < len(t) else None
+        for j in range(len(tb)):
+            tj = tb.item(j)
+            q, w, dw = samples.q[j].tolist(), samples.omega[j].tolist(), samples.alpha[j].tolist()
+            yield _frame(a + j, tj, *kin(tj, q, w, dw))
             if work is not None:
                 work.step()
-        first += len(tb)
         if work is not None:
-            frames = work.finish()
+            samples = work.finish()
 
 
 class _Steps:
@@ -223,43 +248,13 @@ class _Steps:
         return self.result
 
 
-def _block_steps(spline, kin, tb, last):
-    """The work for the frames at times ``tb``, in steps: the evaluation (in the path's
-    own steps), inverse kinematics, joint rates. Returns ``frames(first)``, which yields
-    the block's frames numbered from ``first``.
-
-    ``last[0]`` holds the frame before the block (``start`` for the first); it is
-    read at the inverse-kinematics step and set to the block's last frame.
-    """
+def _evaluation_steps(spline, tb):
+    """The spline's evaluation at times ``tb`` in steps (its own, if it has
+    ``evaluation_steps``; else one); returns the Samples."""
     steps = getattr(spline, "evaluation_steps", None)
     if steps is None:  # any object with the spline protocol's evaluate()
-        samples = spline.evaluate(tb, max_order=2)
-    else:
-        samples = yield from steps(tb, max_order=2)
-    yield
-    previous = last[0]
-    try:
-        q = kin.inverse(samples.q, tb, start=previous)
-    except KinematicsError:
-
-        def one_by_one(first):
-            # The good frames one by one; the offending one raises when it is reached.
-            q = previous
-            for j in range(len(tb)):
-                q = kin.inverse(samples.q[j : j + 1], tb[j : j + 1], start=q)[0]
-                qd, qdd = joint_rates(q, samples.omega[j], samples.alpha[j])
-                yield JointFrame(first + j, float(tb[j]), q, qd, qdd)
-
-        return one_by_one
-    last[0] = q[-1]
-    yield
-    qd, qdd = joint_rates(q, samples.omega, samples.alpha)
-
-    def frames(first):
-        for j in range(len(tb)):
-            yield JointFrame(first + j, float(tb[j]), q[j], qd[j], qdd[j])
-
-    return frames
+        return spline.evaluate(tb, max_order=2)
+    return (yield from steps(tb, max_order=2))
 
 
 #: Frames evaluated ahead from an online source (dropped if it changes first).

@@ -13,7 +13,8 @@ the e-Manual; per-servo control tables and register rules in
 ``drivers.virtual.servo``.
 
 Servo motion comes from a ``Plant``: one lock guards it, and every plant call
-is made holding it. Two clocks:
+is made holding it. A write of registers the plant does not simulate (it
+raises one of ``unsupported``) is undone and answered with Result Fail. Two clocks:
 
 - real time (``lockstep_dt_s=None``, the default): simulated time is the wall
   clock since ``start``, in whole steps of ``sim_step_s``. A simulation thread
@@ -48,7 +49,7 @@ import sys
 import threading
 import time
 import tty
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -81,6 +82,8 @@ _SIM_WAKE_S = 0.005
 _MAX_STEPS_PER_HOLD = 2
 # The first and last of the registers the plant fills (addresses 120..146).
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
+# Registers that decide how Goal Position is clamped (the limits, in Position Mode).
+_GOAL_CLAMP = {"Min Position Limit", "Max Position Limit", "Operating Mode"}
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
 _CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
@@ -206,6 +209,12 @@ class VirtualBus:
         constant on long streams).
     sim_step_s : float, optional
         Real time: the simulation thread's step (s).
+    unsupported : tuple of exception types, optional
+        What ``plant.set_control`` raises for register values the plant does
+        not simulate (a profile, another Operating Mode...): such a write is
+        undone and answered with Result Fail instead of stopping the bus.
+    on_refusal : callable (servo id, reason) -> None, optional
+        Told about each write refused that way (from the serving thread).
 
     Raises
     ------
@@ -252,6 +261,8 @@ class VirtualBus:
         registers: Mapping[int, Mapping[str, int]] | None = None,
         goal_log_size: int = 100_000,
         sim_step_s: float = 1e-3,
+        unsupported: tuple[type[Exception], ...] = (),
+        on_refusal: Callable[[int, str], None] | None = None,
     ) -> None:
         if not isinstance(plant, Plant):
             raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
@@ -278,6 +289,8 @@ class VirtualBus:
         self._joint = {i: j for j, i in enumerate(ids)}
         self.lockstep_dt_s = lockstep_dt_s
         self.sim_step_s = sim_step_s
+        self.unsupported = tuple(unsupported)
+        self.on_refusal = on_refusal
         self.timing = timing
         self.fast_sync_read = fast_sync_read
         self._faults = [[f, f.count] for f in faults]
@@ -435,15 +448,20 @@ class VirtualBus:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
         j = self._joint[servo_id]
         servo = self.servos[servo_id]
+        if names & set(CONTROL_REGISTERS):  # first: the plant may refuse them
+            self.plant.set_control(j, self._control(servo))
         if "ID" in names:
             self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
-        if names & set(CONTROL_REGISTERS):
-            self.plant.set_control(j, self._control(servo))
         if "Goal Position" in names:
             self._goal_rad[j] = self._goal_for_plant(servo)
             self._goal_written = True
+        elif names & _GOAL_CLAMP:  # the goal held, clamped to the new limits or mode
+            goal = self._goal_for_plant(servo)
+            if goal != self._goal_rad[j]:
+                self._goal_rad[j] = goal
+                self.plant.set_goal(self._goal_rad.copy())
 
     def _commit_goals(self) -> None:
         """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
@@ -655,10 +673,24 @@ class VirtualBus:
         )
 
     def _write_one(self, servo_id: int, address: int, data: bytes) -> int:
-        error, names = self.servos[servo_id].write(address, data)
-        if not error:
+        """WRITE to one servo: its status error (0: written and passed to the plant).
+
+        A write the plant does not simulate (it raises one of ``unsupported``)
+        is undone and refused with Result Fail; ``on_refusal`` hears why.
+        """
+        servo = self.servos[servo_id]
+        before = bytes(servo.memory)
+        error, names = servo.write(address, data)
+        if error:
+            return error
+        try:
             self._written(servo_id, names)
-        return error
+        except self.unsupported as e:
+            servo.memory[:] = before
+            if self.on_refusal is not None:
+                self.on_refusal(servo_id, str(e))
+            return StatusError.RESULT_FAIL
+        return 0
 
     def _write_instruction(self, packet_id: int, params: bytes) -> list:
         if len(params) < 3:

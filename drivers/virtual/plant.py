@@ -31,7 +31,10 @@ class Plant(Protocol):
       "PWM Limit", "Goal PWM", "Profile Velocity", "Profile Acceleration",
       "Operating Mode"; the virtual bus calls it for every joint at start and
       whenever one of those registers is written (and after
-      REBOOT/FACTORY_RESET);
+      REBOOT/FACTORY_RESET). A plant that does not simulate what the
+      registers ask for raises, before changing anything; the bus's
+      ``unsupported`` names which exceptions mean that, and refuses the
+      write;
     - ``present_pwm() -> ndarray (n_joints,)`` — the drive's output as a
       fraction of the supply in [-1, 1] (the bus turns it into Present PWM,
       885 = 100%).

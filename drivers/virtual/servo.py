@@ -16,7 +16,8 @@ SDK's model files, access, initial values and ranges from the e-Manual, see
 - torque cannot be enabled while a hardware error that Shutdown covers is
   latched (result fail); such an error turns torque off;
 - Indirect Data n reads and writes the byte Indirect Address n points at;
-- changing Operating Mode resets the gains and the profile;
+- changing Operating Mode resets the gains and the profile, and Goal PWM /
+  Goal Current to PWM Limit / Current Limit;
 - REBOOT resets the RAM area (address >= 64) to its initial values, keeping
   the EEPROM; FACTORY_RESET resets both (keeping ID, or ID and Baud Rate).
 
@@ -44,8 +45,12 @@ from trajgen.drivers.units import TICKS_PER_REV
 #: Goal registers a tripped Bus Watchdog locks.
 _GOALS = ("Goal PWM", "Goal Current", "Goal Velocity", "Goal Position")
 
-#: What changing Operating Mode resets (DYNAMIXEL.md, e-Manual "Operating Mode").
+#: What changing Operating Mode resets (e-Manual "Operating Mode": gains and
+#: profile to their initial values, Goal PWM / Goal Current to PWM / Current
+#: Limit; models without Goal Current skip it).
 _MODE_RESETS = (
+    "Goal PWM",
+    "Goal Current",
     "Velocity I Gain",
     "Velocity P Gain",
     "Position D Gain",
@@ -288,8 +293,9 @@ class VirtualServo:
         for a, byte in bytes_.items():
             self.memory[a] = byte
         if "Operating Mode" in names and self.get("Operating Mode") != old_mode:
-            self._load(_MODE_RESETS, {})
-            names |= set(_MODE_RESETS)
+            resets = [n for n in _MODE_RESETS if n in self.items]
+            self._load(resets, {})
+            names |= set(resets)
         return 0, names
 
     # -- what the servo does by itself -------------------------------------------

@@ -318,6 +318,7 @@ def online_spline(kf) -> OnlineSpline:
         closer than 0.2 s to the first.
     """
     options = dict(kf.spline_options)
+    options.pop("knots", None)  # the smooth spline's knot choice; follow plans the blending one
     if options.pop("boundary", "rest") != "rest":
         raise ValueError(f"{kf.path}: [spline] boundary: follow needs 'rest'")
     if options.get("k", 2) > 3:

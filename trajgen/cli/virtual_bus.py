@@ -36,6 +36,11 @@ default: the simulation runs on the wall clock whether packets arrive or not.
 [stream] rate (200 Hz by default) per packet that writes Goal Position, and
 per poll of the present values with no goal written since the previous one.
 
+The simulated servos run the firmware's position loop in Position and
+Extended Position Mode with no profile. A write that asks for anything else
+(another Operating Mode, a non-zero Profile Velocity or Acceleration) is
+refused with Result Fail, and the reason is printed on stderr.
+
 exit status: 0 stopped by a signal, 1 the simulation failed, 2 bad input."""
 
 
@@ -77,8 +82,14 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_virtual_bus)
 
 
+def _tell_refusal(servo_id: int, reason: str) -> None:
+    """Say on stderr why a servo answered a write with Result Fail."""
+    print(f"trajgen: servo {servo_id} refused a write (Result Fail): {reason}", file=sys.stderr)
+
+
 def run_virtual_bus(args) -> int:
     """Run ``trajgen virtual-bus``; returns the exit status."""
+    from trajgen.sim.firmware import UnsupportedServoSetting
     from trajgen.sim.plant import GimbalPlant
 
     try:
@@ -101,6 +112,8 @@ def run_virtual_bus(args) -> int:
         models=models,
         lockstep_dt_s=period_s,
         registers=dict(zip(ids, plant.initial_registers(), strict=True)),  # the file's gains
+        unsupported=(UnsupportedServoSetting,),
+        on_refusal=_tell_refusal,
     ).start()
     try:
         print(virtual.port, flush=True)

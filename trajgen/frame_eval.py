@@ -1,0 +1,262 @@
+"""One stream frame at a time, in Python floats: the per-frame path of the online stream.
+
+:func:`trajgen.stream.stream_frames` hands out one frame per control cycle. Doing
+that with numpy, a block of frames at a time, costs a fixed ~0.1 ms per block
+whatever its length (call overhead of a few dozen small array operations), which
+is over a 2 kHz budget of 50 us in whichever frame pays it. Here one frame is a
+few hundred float operations with the :mod:`math` module, about the same cost in
+every frame:
+
+- :class:`FrameKinematics`: the inverse kinematics (pan and roll unwrapped), the
+  lock and limit guard and the joint rates of one frame; the scalar counterpart
+  of :meth:`trajgen.gimbal.GimbalKinematics.inverse` and
+  :func:`trajgen.gimbal.joint_rates`, sharing their formulas
+  (:func:`~trajgen.gimbal.angles_of`, :func:`~trajgen.gimbal.rates_of`).
+- :class:`SmoothFrames`: a :class:`~trajgen.smooth.SmoothSpline`'s orientation,
+  angular velocity and acceleration at one time, from its coefficient table
+  (:attr:`~trajgen.smooth.SmoothSpline.tangent_coefficients`); the scalar
+  counterpart of ``SmoothSpline._space_rates``.
+
+The spline's closed forms are those of :mod:`trajgen.derivatives` and
+``SmoothSpline._space_rates`` written out for one sample (a chain of calls on
+lists of floats would cost more than the arithmetic); ``tests/test_frame_eval.py``
+checks them against the numpy versions on both branches of the series.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import quat as Q
+from .gimbal import TWO_PI, GimbalKinematics, angles_of, joint_rates, rates_of
+from .jet import _COS, _SINC, SERIES_BELOW
+
+
+def _series_rows(coef: np.ndarray) -> tuple:
+    """Coefficients of a power series in ``x`` and of its first two x-derivatives, each
+    padded to the series' length (as :func:`trajgen.derivatives._series` builds them)."""
+    n = len(coef)
+    rows = [np.polynomial.polynomial.polyder(coef, k) for k in range(3)]
+    return tuple(tuple(np.pad(r, (0, n - len(r))).tolist()) for r in rows)
+
+
+_COS_ROWS = _series_rows(_COS)
+_SINC_ROWS = _series_rows(_SINC)
+
+
+def _series(rows: tuple, x: float) -> tuple[float, float, float]:
+    """A 6-term power series (``rows`` from :func:`_series_rows`) and its first two
+    x-derivatives at ``x``, by Horner."""
+    (a0, a1, a2, a3, a4, a5), (b0, b1, b2, b3, b4, _), (c0, c1, c2, c3, _, _) = rows
+    return (
+        a0 + x * (a1 + x * (a2 + x * (a3 + x * (a4 + x * a5)))),
+        b0 + x * (b1 + x * (b2 + x * (b3 + x * b4))),
+        c0 + x * (c1 + x * (c2 + x * c3)),
+    )
+
+
+def cos_sinc_sqrt(x: float) -> tuple[float, float, float, float, float, float]:
+    """``C = cos sqrt(x)``, ``S = sin sqrt(x) / sqrt(x)`` and their first two derivatives in x.
+
+    The scalar form of :func:`trajgen.derivatives.cos_sinc_sqrt` (before the chain
+    rule): a series below ``SERIES_BELOW``, else ``S' = (C - S) / 2x``,
+    ``C' = -S / 2``, ``S'' = (C' - 3 S') / 2x``, ``C'' = -S' / 2``.
+
+    Parameters
+    ----------
+    x : float
+        A squared angle (rad^2), >= 0.
+
+    Returns
+    -------
+    tuple of float
+        ``(C, C', C'', S, S', S'')``.
+    """
+    if x < SERIES_BELOW:
+        return _series(_COS_ROWS, x) + _series(_SINC_ROWS, x)
+    a = math.sqrt(x)
+    c0 = math.cos(a)
+    s0 = math.sin(a) / a
+    inv2x = 0.5 / x
+    s1 = (c0 - s0) * inv2x
+    c1 = -0.5 * s0
+    s2 = (c1 - 3 * s1) * inv2x
+    c2 = -0.5 * s1
+    return c0, c1, c2, s0, s1, s2
+
+
+def _poly7(c: list, u: float) -> float:
+    """A degree-7 polynomial with coefficients ``c[0..7]`` (of ``u^0..u^7``) at ``u``."""
+    c0, c1, c2, c3, c4, c5, c6, c7 = c
+    return c0 + u * (c1 + u * (c2 + u * (c3 + u * (c4 + u * (c5 + u * (c6 + u * c7))))))
+
+
+class SmoothFrames:
+    """A :class:`~trajgen.smooth.SmoothSpline` at one time per call, in floats.
+
+    On segment i the path is ``q = E q_i``, ``E = exp(r_i(u)) = (C(x), S(x) r)``,
+    ``x = r . r``; ``omega = 2 vec(E' E*)`` and ``alpha = 2 vec(E'' E*)`` (SPEC
+    section 8). Times are expected mostly increasing, as in a stream: the segment
+    is looked up only when the time leaves the current one, and its row of the
+    coefficient table is converted to floats then.
+
+    Parameters
+    ----------
+    spline : SmoothSpline
+    """
+
+    def __init__(self, spline):
+        self._times = spline.times
+        self._table = spline.tangent_coefficients
+        self._quats = spline.quats
+        self._t0, self._t1 = spline.t_start, spline.t_end
+        self._periodic = spline.periodic
+        self._eps = 1e-12 * max(1.0, abs(self._t0), abs(self._t1))  # as OrientationPath
+        self._lo, self._hi = math.inf, -math.inf  # the current segment's [lo, hi)
+
+    def _enter(self, t: float) -> None:
+        """Make the segment holding ``t`` the current one (as ``OrientationPath._segment``)."""
+        last = len(self._times) - 2
+        seg = min(max(int(np.searchsorted(self._times, t, side="right")) - 1, 0), last)
+        self._lo = float(self._times[seg])
+        self._h = float(self._times[seg + 1]) - self._lo
+        self._hi = float(self._times[seg + 1]) if seg < last else math.inf
+        self._rows = self._table[seg, :9].tolist()  # r, r', r'' per axis
+        self._base = self._quats[seg].tolist()
+
+    def __call__(self, t: float) -> tuple[tuple, tuple, tuple]:
+        """Orientation ``(w, x, y, z)``, space-frame angular velocity (rad/s) and
+        acceleration (rad/s^2) at time ``t`` (s), each a tuple of floats.
+
+        ``t`` is wrapped for a closed spline; otherwise a time outside
+        ``[t_start, t_end]`` raises ValueError (as ``evaluate``).
+        """
+        if self._periodic:
+            t = self._t0 + (t - self._t0) % (self._t1 - self._t0)
+        elif not self._t0 <= t <= self._t1:
+            if not self._t0 - self._eps <= t <= self._t1 + self._eps:
+                raise ValueError(
+                    f"Time {t!r} s is outside the path's range [{self._t0}, {self._t1}] s."
+                )
+            t = min(max(t, self._t0), self._t1)
+        if not self._lo <= t < self._hi:
+            self._enter(t)
+        u = (t - self._lo) / self._h
+        rx, ry, rz, vx, vy, vz, ax, ay, az = [_poly7(c, u) for c in self._rows]
+        # x = r . r and its time derivatives (derivatives.vdot).
+        x0 = rx * rx + ry * ry + rz * rz
+        x1 = 2.0 * (rx * vx + ry * vy + rz * vz)
+        x2 = 2.0 * (vx * vx + vy * vy + vz * vz) + 2.0 * (rx * ax + ry * ay + rz * az)
+        c0, c1, c2, s0, s1, s2 = cos_sinc_sqrt(x0)
+        # Their time derivatives (Faa di Bruno, derivatives.chain).
+        x11 = x1 * x1
+        C1, C2 = c1 * x1, c1 * x2 + c2 * x11
+        S1, S2 = s1 * x1, s1 * x2 + s2 * x11
+        # E = (C, S r) and its time derivatives (Leibniz, derivatives.product).
+        ew, ex, ey, ez = c0, s0 * rx, s0 * ry, s0 * rz
+        dw, dx, dy, dz = C1, s0 * vx + S1 * rx, s0 * vy + S1 * ry, s0 * vz + S1 * rz
+        S1x2 = 2.0 * S1
+        fw = C2
+        fx = s0 * ax + S2 * rx + S1x2 * vx
+        fy = s0 * ay + S2 * ry + S1x2 * vy
+        fz = s0 * az + S2 * rz + S1x2 * vz
+        qw, qx, qy, qz = self._base
+        q = (
+            ew * qw - ex * qx - ey * qy - ez * qz,
+            ew * qx + ex * qw + ey * qz - ez * qy,
+            ew * qy - ex * qz + ey * qw + ez * qx,
+            ew * qz + ex * qy - ey * qx + ez * qw,
+        )
+        # 2 vec(P E*) with E* = (ew, -ex, -ey, -ez) (derivatives.hamilton_vec).
+        omega = (
+            2.0 * (-dw * ex + dx * ew - dy * ez + dz * ey),
+            2.0 * (-dw * ey + dx * ez + dy * ew - dz * ex),
+            2.0 * (-dw * ez - dx * ey + dy * ex + dz * ew),
+        )
+        alpha = (
+            2.0 * (-fw * ex + fx * ew - fy * ez + fz * ey),
+            2.0 * (-fw * ey + fx * ez + fy * ew - fz * ex),
+            2.0 * (-fw * ez - fx * ey + fy * ex + fz * ew),
+        )
+        return q, omega, alpha
+
+
+class FrameKinematics:
+    """Joint angles and rates of one frame at a time, in floats, unwrapped from the last.
+
+    The scalar counterpart of :meth:`GimbalKinematics.inverse` followed by
+    :func:`~trajgen.gimbal.joint_rates`: the same formulas, the same integer turn
+    counts for pan and roll (so frame i equals row i of the arrays), the same
+    guard. A frame near gimbal lock or outside a limit raises the same
+    :class:`~trajgen.errors.KinematicsError`, with the same message (it is built
+    by the numpy code from that one frame).
+
+    Parameters
+    ----------
+    kinematics : GimbalKinematics
+    start : ndarray, shape (3,), or None
+        The angles (rad) whose 2 pi branch the first frame's pan and roll take.
+    """
+
+    def __init__(self, kinematics: GimbalKinematics, start=None):
+        self._kin = kinematics
+        lock = math.pi / 2 - kinematics.lock_margin_rad
+        (p_lo, p_hi), (t_lo, t_hi), (r_lo, r_hi) = kinematics.limits_rad
+        # |tilt| <= lock and t_lo <= tilt <= t_hi, as one interval (NaN fails it).
+        self._bounds = (p_lo, p_hi, max(t_lo, -lock), min(t_hi, lock), r_lo, r_hi)
+        self._start = None if start is None else (float(start[0]), float(start[2]))
+        self._last = None  # the last frame's wrapped pan and roll (rad)
+        self._pan_turns = self._roll_turns = 0  # whole turns added to pan and roll
+
+    def __call__(self, t: float, q, omega, alpha) -> tuple[tuple, tuple, tuple]:
+        """Joint angles (rad), velocities (rad/s) and accelerations (rad/s^2) of one frame.
+
+        Parameters
+        ----------
+        t : float
+            The frame's time (s), for the error message.
+        q : sequence of 4 floats
+            Orientation ``(w, x, y, z)``, any non-zero norm.
+        omega, alpha : sequence of 3 floats
+            Space-frame angular velocity (rad/s) and acceleration (rad/s^2).
+
+        Returns
+        -------
+        tuple of three tuples of 3 floats
+            ``(pan, tilt, roll)``, their velocities and their accelerations.
+
+        Raises
+        ------
+        KinematicsError
+            Near gimbal lock or outside a joint limit (as ``GimbalKinematics.check``).
+        ValueError
+            If a value is not finite or ``q`` has zero norm.
+        """
+        w, x, y, z = q
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if not 1e-12 <= norm < math.inf:
+            Q.as_quats([q])  # raises, naming what is wrong
+        pan, tilt, roll = angles_of(w / norm, x / norm, y / norm, z / norm, math.atan2, math.hypot)
+        # Integer turn counts, as GimbalKinematics.inverse (np.round and round both
+        # round half to even).
+        if self._last is not None:
+            self._pan_turns += round((self._last[0] - pan) / TWO_PI)
+            self._roll_turns += round((self._last[1] - roll) / TWO_PI)
+        elif self._start is not None:
+            self._pan_turns = round((self._start[0] - pan) / TWO_PI)
+            self._roll_turns = round((self._start[1] - roll) / TWO_PI)
+        self._last = (pan, roll)
+        pan += TWO_PI * self._pan_turns
+        roll += TWO_PI * self._roll_turns
+        angles = (pan, tilt, roll)
+        p_lo, p_hi, t_lo, t_hi, r_lo, r_hi = self._bounds
+        if not (p_lo <= pan <= p_hi and t_lo <= tilt <= t_hi and r_lo <= roll <= r_hi):
+            self._kin.check(np.array([angles]), np.array([t]))  # raises with the message
+        cp, sp, ct, st = math.cos(pan), math.sin(pan), math.cos(tilt), math.sin(tilt)
+        qd, qdd = rates_of(cp, sp, ct, st, omega, alpha)
+        total = sum(qd) + sum(qdd)
+        if total - total != 0.0:  # inf or NaN: a rate of the path was not finite
+            joint_rates(angles, omega, alpha)  # raises, naming it
+        return angles, qd, qdd
