@@ -194,6 +194,10 @@ def test_inverse_dynamics_split_equals_two_passes_bit_for_bit():
     np.testing.assert_array_equal(tau, inverse_dynamics(*args))
     np.testing.assert_array_equal(smooth, inverse_dynamics(*args, coulomb=False))
     assert np.abs(tau - smooth).max() > 0.01  # the Coulomb friction is there
+    # The stages the simulation model skips change nothing here either.
+    lean = inverse_dynamics_split(simulation_model(GimbalConfig()), *args[1:])
+    np.testing.assert_array_equal(lean[0], tau)
+    np.testing.assert_array_equal(lean[1], smooth)
 
 
 def test_contacts_inside_the_gimbal_are_refused():
