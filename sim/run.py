@@ -220,8 +220,8 @@ def run_batch(
     and takes one ``mj_step`` per row of its controls, all inside MuJoCo
     (``mujoco.batch.Batch.rollout`` on ``threads`` threads: no Python per
     step). The results equal a plain ``mj_step`` loop's bit for bit. Runs whose
-    models lay ``MjData`` out alike (the same sizes: e.g. with and without a
-    payload differ) share one batch.
+    models give ``MjData`` the same layout share one batch (the gimbal with a
+    payload has one geom more than without).
 
     Parameters
     ----------
