@@ -1,26 +1,30 @@
 """What changing the plan while moving costs: OnlineSpline changes, frames, latency, peaks.
 
-1. Cost of one change (extend at a kept keyframe, mid-motion retarget, from
-   rest) against the 1 ms period of a 1 kHz stream and against building the
-   offline BlendingSpline through the same keyframes (the peer), same run.
+1. Cost of one change (mid-motion retarget, in a blended segment and inside a
+   splice, from rest, extend at a kept keyframe; one new keyframe as ``follow``
+   sends, and two) against the 1 ms period of a 1 kHz stream and against
+   building a BlendingSpline through (q(at), the new keyframes) (the peer), same
+   run; and the joint-limit / lock-guard check ``follow`` adds.
 2. Cost of one online frame block against the same block of a BlendingSpline.
-3. A 1 kHz stream of ``stream_frames(OnlineSpline)`` paced on the monotonic
-   clock, with a second thread changing the plan every 0.3-1 s at
-   ``at = committed + margin``: latency from the change request to the first
-   frame that reflects it, and frame lateness, against the same stream without
-   changes (peer).
+3. A 1 kHz stream of ``trajgen follow``'s frames (its ``Follower``) paced on the
+   monotonic clock, a second thread feeding it a keyframe line every 0.3-1 s
+   (a retarget 0.65 s ahead, checked against the joint limits as ``follow``
+   does): latency from the line to the first frame that reflects it, the cost
+   of each change, and frame lateness against the same stream of the same
+   moving plan without the lines (peer); with numpy evaluation, and with the
+   compiled kernel loaded as ``trajgen follow`` does where numba is installed.
 4. Peaks after mid-motion retargets by lead time, relative to the old plan's
    (the lead-time table of the design notes, measured again).
 
-Run: .venv/bin/python bench/online_cost.py [--seconds 6]
+Run: .venv/bin/python bench/online_cost.py [--seconds 6] [--repeats 40]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
-import sys
 import threading
 import time
 
@@ -28,10 +32,11 @@ import numpy as np
 
 from trajgen import fast
 from trajgen import quat as Q
+from trajgen.cli import follow
+from trajgen.cli.follow import Follower, load_compiled_kernel
 from trajgen.drivers.clock import sleep_until
-from trajgen.online import ChangeTooLate, OnlineSpline
+from trajgen.online import OnlineSpline
 from trajgen.spline import BlendingSpline
-from trajgen.stream import stream_frames
 
 DEG = np.pi / 180
 
@@ -53,42 +58,69 @@ def ms(x):
     return " / ".join(f"{1e3 * v:.2f}" for v in q)
 
 
-def change_costs(rng, n):
+def one_change(rng, kind, n_keys):
+    """A spline, the change to make (method, keyframes, times, at) and the peer's keyframes."""
+    s, at = moving_spline(rng)
+    q = random_quats(rng, n_keys)
+    lead = 0.5 + 0.5 * np.arange(n_keys)
+    if kind == "extend at a kept keyframe":
+        at = float(s.times[1]) - 0.05
+        method, t = s.extend, s.t_end + lead
+    elif kind == "retarget from rest":
+        at = s.t_end + 0.5
+        method, t = s.retarget, at + lead
+    else:
+        if kind == "retarget inside a splice":  # the usual case in `follow`: a change
+            s.retarget(random_quats(rng, 1), [at + 0.6], at=at)  # before the last one ended
+            at += float(rng.uniform(0.05, 0.5))
+        method, t = s.retarget, at + lead
+    return s, (method, q, t, at), (np.vstack([s(at), q]), np.r_[at, t])
+
+
+CHANGES = (
+    ("retarget mid-motion", 1),
+    ("retarget inside a splice", 1),
+    ("retarget from rest", 1),
+    ("extend at a kept keyframe", 1),
+    ("retarget mid-motion", 2),
+    ("retarget from rest", 2),
+)
+
+
+def change_costs(rng, n, label):
     rows = []
-    for kind in ("extend at a kept keyframe", "retarget mid-motion", "retarget from rest"):
+    for kind, n_keys in CHANGES:
         cost, peer = [], []
         for _ in range(n):
-            s, at = moving_spline(rng)
-            q = random_quats(rng, 2)
-            if kind.startswith("extend"):
-                at = float(s.times[1]) - 0.05
-                t = s.t_end + np.array([0.5, 1.0])
-                method = s.extend
-            elif kind.endswith("rest"):
-                at = s.t_end + 0.5
-                t = at + np.array([0.5, 1.0])
-                method = s.retarget
-            else:
-                t = at + np.array([0.5, 1.0])
-                method = s.retarget
-            keys_q, keys_t = np.vstack([s(at), q]), np.r_[at, t]
+            s, (method, q, t, at), keys = one_change(rng, kind, n_keys)
             start = time.perf_counter()
             method(q, t, at=at)
             cost.append(time.perf_counter() - start)
             start = time.perf_counter()
-            BlendingSpline(keys_q, keys_t)
+            BlendingSpline(*keys)
             peer.append(time.perf_counter() - start)
-        rows.append((kind, cost, peer))
-    print("## 1. Cost of one change (k = 2)\n")
+        rows.append((f"{kind}, {n_keys} keyframe{'s' if n_keys > 1 else ''}", cost, peer))
+    # What `trajgen follow` adds: the joint-limit and lock-guard check of the new path.
+    check = []
+    for _ in range(n):
+        s, (_, q, t, at), _ = one_change(rng, "retarget inside a splice", 1)
+        follower = Follower(s, 1000.0)
+        follower._last_q = np.zeros(3)
+        s.retarget(q, t, at=at)
+        _, path = s.snapshot()
+        limits = follower._limits(at)
+        start = time.perf_counter()
+        limits(path)
+        check.append(time.perf_counter() - start)
+    print(f"## 1. Cost of one change (k = 2), {label}\n")
+    print(f"load average: {os.getloadavg()}\n")
     print("| change | cost ms min / p50 / p90 / max | peer: BlendingSpline build, ms | p50 ratio |")
     print("|---|---|---|---|")
     for kind, cost, peer in rows:
-        print(f"| {kind} | {ms(cost)} | {ms(peer)} | {np.median(cost) / np.median(peer):.1f}x |")
+        print(f"| {kind} | {ms(cost)} | {ms(peer)} | {np.median(cost) / np.median(peer):.2f}x |")
+    print(f"| `follow`'s check of a new path (joint limits, lock guard) | {ms(check)} | | |")
     worst = max(np.median(c) for _, c, _ in rows)
-    print(
-        f"\nWorst median change: {1e3 * worst:.2f} ms = {worst / 1e-3:.1f} periods at 1 kHz: "
-        "changes are built off the streaming thread and swapped in at a frame boundary.\n"
-    )
+    print(f"\nWorst median change: {1e3 * worst:.2f} ms, {worst / 1e-3:.2f} periods at 1 kHz.\n")
 
 
 def frame_costs(rng, n):
@@ -110,67 +142,88 @@ def frame_costs(rng, n):
     print()
 
 
-def paced_stream(seconds, rate_hz, changes, rng, margin_s):
-    """Stream for ``seconds`` at ``rate_hz``; return lateness (s) per frame and latencies."""
+#: Frames after a line arrives (s) that its change may delay: building and checking it,
+#: and the stream evaluating its block again.
+WINDOW_S = 0.01
+
+
+def paced_stream(seconds, rate_hz, changes, rng):
+    """Stream ``trajgen follow``'s frames for ``seconds`` at ``rate_hz`` on the monotonic
+    clock, from a plan that moves all the way, a second thread feeding it a line every
+    0.3-1 s (``changes``) or only noting when it would have (the peer); returns the
+    deadlines and lateness (s) per frame, the times the lines were due, and the
+    follower (its latencies and change costs)."""
+    # The same moving plan in every run (keyframes every 0.6 s to the end): the peer
+    # streams as much motion as the runs whose lines change it.
+    keys = np.random.default_rng(3)
     s = OnlineSpline([1.0, 0, 0, 0])
-    s.extend(random_quats(rng, 1), [0.5], at=0.0)
-    frames = stream_frames(s, rate_hz)
-    lateness, latency, pending = [], [], []
+    times = np.arange(0.6, seconds + 1.0, 0.6)
+    s.extend(random_quats(keys, len(times), 30.0), times, at=0.0)
+    follower = Follower(s, rate_hz)
+    frames = follower.frames()
+    deadlines, lateness, asked = [], [], []
     stop = threading.Event()
-    lock = threading.Lock()
 
     def changer():
         while not stop.wait(rng.uniform(0.3, 1.0)):
-            asked = time.perf_counter()
-            q = random_quats(rng, 1, 30.0)
-            while True:
-                at = s.committed + margin_s
-                try:
-                    s.retarget(q, [at + 0.6], at=at)
-                    break
-                except ChangeTooLate:
-                    continue
-            with lock:
-                pending.append((asked, at))
+            pan, tilt = rng.uniform(-30.0, 30.0, 2)
+            asked.append(time.monotonic())
+            if changes:
+                follower.feed(json.dumps({"in": 0.65, "pan": pan, "tilt": tilt}))
 
     thread = threading.Thread(target=changer, daemon=True)
-    if changes:
-        thread.start()
+    thread.start()
     start = time.monotonic() + 0.01
     for frame in frames:
         deadline = start + frame.t
         sleep_until(deadline)
+        deadlines.append(deadline)
         lateness.append(time.monotonic() - deadline)
-        with lock:
-            seen = [p for p in pending if frame.t > p[1]]
-            latency += [time.perf_counter() - asked for asked, _ in seen]
-            pending[:] = [p for p in pending if p not in seen]
         if frame.t >= seconds:
             break
     stop.set()
-    return np.array(lateness), np.array(latency)
+    thread.join()
+    return np.array(deadlines), np.array(lateness), np.array(asked), follower
 
 
-def streaming(seconds, rng, margin_s):
-    print(f"## 3. A 1 kHz stream with changes every 0.3-1 s from another thread ({seconds:g} s)\n")
-    print(f"Change at `at = committed + {1e3 * margin_s:g} ms`; latency: request to first frame.\n")
-    print("| run | frames | lateness ms p50 / p99 / max | late > 1 period | latency ms |")
-    print("|---|---|---|---|---|")
-    default = sys.getswitchinterval()
-    runs = (
-        ("peer: no changes", False, default),
-        (f"changes, GIL switch interval {1e3 * default:g} ms", True, default),
-        ("changes, GIL switch interval 0.5 ms", True, 5e-4),
+def streaming(seconds, rng, label):
+    print(f"## 3. `trajgen follow` at 1 kHz, a line every 0.3-1 s from another thread, {label}\n")
+    print(f"{seconds:g} s per run; load average: {os.getloadavg()}\n")
+    print(
+        "Late: more than one period (1 ms) late; *near a line*: due within "
+        f"{1e3 * WINDOW_S:g} ms after a line arrived (for the peer, after the time a "
+        "line would have arrived), which is what a change can delay; the rest is the "
+        "machine.\n"
     )
-    for label, changes, switch in runs:
-        sys.setswitchinterval(switch)
+    print(
+        "| run | frames | lateness ms p50 / p99 / max | late | late near a line "
+        "| change cost ms | latency ms |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    runs = (
+        ("peer: no changes", False, None),
+        (f"changes (switch interval {1e3 * follow.SWITCH_INTERVAL_S:g} ms)", True, None),
+        ("changes, Python's default switch interval 5 ms", True, 5e-3),
+    )
+    default = follow.SWITCH_INTERVAL_S
+    for name, changes, switch in runs:
+        follow.SWITCH_INTERVAL_S = default if switch is None else switch
         try:
-            late, lat = paced_stream(seconds, 1000.0, changes, rng, margin_s)
+            due, late, asked, follower = paced_stream(seconds, 1000.0, changes, rng)
         finally:
-            sys.setswitchinterval(default)
-        latency = f"{ms(lat)} (n = {len(lat)})" if len(lat) else "-"
+            follow.SWITCH_INTERVAL_S = default
+        near = np.zeros(len(due), bool)
+        for a in asked:
+            near |= (due >= a) & (due < a + WINDOW_S)
+        cost, lat = follower.change_costs_s, follower.latencies_s
+        cost = f"{ms(cost)} (n = {len(cost)})" if cost else "-"
+        lat = ms(lat) if lat else "-"
         tail = " / ".join(f"{1e3 * v:.2f}" for v in np.percentile(late, [50, 99, 100]))
-        print(f"| {label} | {len(late)} | {tail} | {int((late > 1e-3).sum())} | {latency} |")
+        late_near = f"{int((late[near] > 1e-3).sum())} of {int(near.sum())}"
+        print(
+            f"| {name} | {len(late)} | {tail} | {int((late > 1e-3).sum())} | {late_near} "
+            f"| {cost} | {lat} |"
+        )
     print()
 
 
@@ -194,6 +247,15 @@ def lead_peaks(rng, n):
     print()
 
 
+def load_kernel() -> bool:
+    """Load the compiled kernel (as `trajgen follow` does where numba is installed)."""
+    start = time.perf_counter()
+    if not load_compiled_kernel():
+        return False
+    print(f"(compiled kernel loaded in {time.perf_counter() - start:.1f} s)\n")
+    return True
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=6.0, help="length of each paced stream")
@@ -201,12 +263,15 @@ def main():
     args = parser.parse_args()
     print("# OnlineSpline: cost of a change, frames, latency, peaks\n")
     cpu = platform.processor() or platform.machine()
-    print(f"{cpu}, {os.cpu_count()} cores, numba kernel for blended segments: {fast.ENABLED}")
+    print(f"{cpu}, {os.cpu_count()} cores, numba installed: {fast.ENABLED}")
     print(f"load average before: {os.getloadavg()}\n")
     # One seed per section: the paced stream draws on another thread at its own pace.
-    change_costs(np.random.default_rng(11), args.repeats)
+    change_costs(np.random.default_rng(11), args.repeats, "numpy evaluation")
+    streaming(args.seconds, np.random.default_rng(13), "numpy evaluation")
+    if load_kernel():
+        change_costs(np.random.default_rng(11), args.repeats, "compiled kernel loaded")
+        streaming(args.seconds, np.random.default_rng(13), "compiled kernel loaded")
     frame_costs(np.random.default_rng(12), 50)
-    streaming(args.seconds, np.random.default_rng(13), margin_s=0.05)
     lead_peaks(np.random.default_rng(14), 4 * args.repeats)
     print(f"load average after: {os.getloadavg()}")
 

@@ -193,3 +193,16 @@ def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, mon
     assert main(["follow", str(keys), "--virtual", "--max-delay", "60"]) == 0
     err = capsys.readouterr().err
     assert "follow plans with the blending spline" in err and "method = 'smooth'" in err
+
+
+def test_the_stream_takes_the_interpreter_back_within_a_fraction_of_a_period(follower):
+    """While following, a change built on the reading thread yields the interpreter to
+    the streaming thread every SWITCH_INTERVAL_S; the setting is restored after."""
+    before = sys.getswitchinterval()
+    follower.spline.close()
+    frames = follower.frames()
+    next(frames)
+    assert sys.getswitchinterval() == pytest.approx(min(before, follow.SWITCH_INTERVAL_S))
+    for _ in frames:
+        pass
+    assert sys.getswitchinterval() == before

@@ -76,14 +76,14 @@ def apply_and_check(s, model, mode, quats, times, at, rng):
     left, right = one_sided_jets(before, after, splice, k)
     scale = 1.0 + np.abs(left).max(axis=1, keepdims=True)
     np.testing.assert_allclose(right / scale, left / scale, rtol=0, atol=1e-9)
-    # ... and where a splice hands over to the spline's blends (its first keyframe).
+    # ... and where a splice hands over to the spline's blends or to rest (its keyframe).
     piece = after.pieces[-1]
     if piece.splice is not None:
-        t1 = piece.spline.times[1:2]
+        t1 = piece.splice.times[1:2]
         left = piece.splice._jet(t1, None, k).c[..., 0]
-        right = piece.spline._jet(t1, np.array([min(1, len(piece.spline.times) - 2)]), k)
+        right = piece.jet(t1, k).c[..., 0]  # the blends' segment 1, or the hold
         scale = 1.0 + np.abs(left).max(axis=1, keepdims=True)
-        np.testing.assert_allclose(right.c[..., 0] / scale, left / scale, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(right / scale, left / scale, rtol=0, atol=1e-9)
     # ... and through the public API: no jump in derivatives 0..k.
     for order in range(k + 1 if splice - 1e-6 > s.t_start else 0):
         size = 1.0 + np.linalg.norm(s(splice, order))
@@ -369,3 +369,36 @@ def test_stream_frames_with_changes_from_another_thread(rng):
     kept = [f for f in got if f.t > s.t_start]
     for f in kept:
         assert Q.distance(_frame_quat(f), s(f.t)) < 1e-12
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_splice_closed_form_matches_its_jet(rng, k):
+    """The spliced segment's closed-form rates (what a stream evaluates) equal those
+    of its jet (the exact reference), orders 0..3."""
+    from trajgen.path import OrientationPath
+
+    s = OnlineSpline(random_quats(rng, 1)[0], k=k)
+    s.extend(random_quats(rng, 3), [0.6, 1.3, 2.0], at=0.0)
+    for n in (1, 2):  # to one keyframe (then rest), and to two (then blends)
+        s.retarget(random_quats(rng, n), 0.9 + 0.3 * n + np.arange(n), at=0.7 + 0.1 * n)
+        splice = s._plan.pieces[-1].splice
+        t = np.linspace(*splice.times, 9)
+        q, rates = splice._space_rates(t, None, 3)
+        q_ref, ref = OrientationPath._space_rates(splice, t, None, 3)
+        np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-13)
+        for order, (a, b) in enumerate(zip(rates, ref, strict=True), start=1):
+            np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * 10**order)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_one_keyframe_from_rest_is_the_offline_spline(rng, k):
+    """From rest to one keyframe (no spline built): the offline rest spline's segment."""
+    from trajgen.spline import BlendingSpline
+
+    q = random_quats(rng, 2)
+    s = OnlineSpline(q[0], 0.5, k=k)
+    s.extend(q[1:], [1.7], at=0.5)
+    offline = BlendingSpline(q, [0.5, 1.7], k=k)
+    t = np.linspace(0.5, 1.7, 41)[:-1]  # order k + 1 jumps at the end (rest holds there)
+    for order in range(min(k + 1, 3) + 1):
+        np.testing.assert_allclose(s(t, order), offline(t, order), rtol=0, atol=1e-11)

@@ -28,10 +28,22 @@ optionally with its first segment replaced by a splice:
   ``h = T_1 - s``, where ``r`` is the polynomial of degree 2k + 2 with Taylor
   coefficients ``h^j P_j`` at ``u = 0`` and ``h^j R_j`` at ``u = 1``. That is
   C^(k+1) at ``s`` (one order more than promised: matching only k lets repeated
-  splices drift), C^k at ``T_1``, and the rest spline's blends after it.
+  splices drift), C^k at ``T_1``, and the rest spline's blends after it (with
+  one new keyframe, rest at ``T_1``: no spline is built).
 - From rest (``at`` after the last keyframe, or an extend whose only keyframe
   ahead is closer than the minimum lead): a plain rest spline from the resting
   orientation; both sides have zero rates up to order k there, so it is C^k.
+  With one new keyframe, its one segment ``exp(f_(k+1)(u) log(q_1 q_0*)) q_0``
+  is kept as a splice (``r`` = the blend polynomial times a constant).
+
+Cost: a change is small fixed-size arithmetic, so what counts is the number of
+numpy calls. The old path's jet at ``s`` comes from its closed-form rates
+(``omega, alpha, jerk``: ``d' = omega d / 2`` differentiated) or, inside a
+splice, from one series of ``exp``; ``log`` near the identity is two terms of
+a series; the polynomial's top coefficients take a (k + 1)-square matrix inverted
+once per spline. A rest spline is built only for two or more new keyframes (or
+an extend with two ahead).
+Measured in ``bench/online_cost.py``.
 
 Changes are safe to make from another thread while a stream evaluates the path:
 a change builds its new piece list aside and swaps it in whole; a streamer that
@@ -48,15 +60,17 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from math import comb
+from functools import cached_property
+from math import comb, factorial
 
 import numpy as np
 
+from . import derivatives as D
 from . import jet as J
 from . import quat as Q
 from .errors import TrajgenError
 from .path import OrientationPath, check_times
-from .spline import LOCALS, REPARAMS, BlendingSpline
+from .spline import CONJ, LOCALS, REPARAMS, BlendingSpline, blend_polynomial
 from .validate import check_choice, check_number
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
@@ -68,13 +82,16 @@ MIN_LEAD_S = 0.2
 
 MODES = ("extend", "retarget")
 
+#: ``C(j, n)`` for the Taylor shift of a splice's polynomial (degree 2k + 2 <= 8), (9, 9).
+_BINOMIAL = np.array([[comb(j, n) for j in range(9)] for n in range(9)], float)
+
 
 class ChangeTooLate(TrajgenError):
     """A change at a time that a stream has already used (see :meth:`OnlineSpline.commit`)."""
 
 
 class _Splice(OrientationPath):
-    """The first segment of a spliced piece: ``exp(r(u)) q_a``, ``u = (t - s) / h``."""
+    """A spliced segment: ``exp(r(u)) q_a``, ``u = (t - s) / h``, ``r`` a polynomial in ``u``."""
 
     def __init__(self, s: float, h: float, q_a: np.ndarray, coef: np.ndarray):
         self.s, self.h = s, h
@@ -87,13 +104,91 @@ class _Splice(OrientationPath):
         r = J.Jet(np.stack([J.polyval(self.coef[:, i], u).c for i in range(3)], axis=1))
         return J.qmul(J.qexp(r), self.q_a)
 
+    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``:
+        ``r`` shifted to ``t`` and ``exp`` as one series (no array of samples)."""
+        # r^(n)(t) / n! = h^-n sum_j C(j, n) u^(j - n) coef_j: the polynomial shifted to u.
+        u = (t - self.s) / self.h
+        n, j = np.ogrid[: order + 1, : len(self.coef)]
+        shift = _BINOMIAL[: order + 1, : len(self.coef)] * u ** np.maximum(j - n, 0)
+        r = (shift @ self.coef) * (1.0 / self.h) ** n  # (order + 1, 3)
+        e = _qexp_series(J.Jet(r))  # (order + 1, 4)
+        e0 = e[:1].T  # (4, 1)
+        return D.hamilton(e0, self.q_a[:, None])[:, 0], D.hamilton(e.T, e0 * CONJ).T
+
+    def _space_rates(self, t, seg, max_order):
+        """The same path as :meth:`_jet`, in closed form (as the spline's blends): ``r`` and
+        its time derivatives from the powers of ``u``, ``exp`` by the rules of
+        :mod:`trajgen.derivatives`; the rates are those of ``exp(r)`` (``q_a`` is fixed)."""
+        u = (t - self.s) * (1.0 / self.h)
+        powers = u[:, None] ** np.arange(len(self.coef))  # (M, 2k + 3)
+        r = [(powers[:, : len(c)] @ c).T for c in self._derivative_coefs[: max_order + 1]]
+        cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
+        e = [np.concatenate([ca[None], v]) for ca, v in zip(cos_a, D.product(sinc, r), strict=True)]
+        _, rates = _rates_of(e)
+        q = D.hamilton(e[0], self.q_a[:, None])
+        return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
+
+    @cached_property
+    def _derivative_coefs(self) -> list[np.ndarray]:
+        """Power-basis coefficients in ``u`` of ``d^n r / dt^n``, n = 0..3, each (D - n, 3)."""
+        out, c = [self.coef], self.coef
+        for _ in range(3):
+            c = c[1:] * (np.arange(1.0, len(c))[:, None] / self.h)
+            out.append(c)
+        return out
+
+
+def _rates_of(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Unit quaternions (M, 4) and space-frame rates of orders 1..K, each (M, 3), from the
+    derivative list ``[Q, Q', ...]`` (each (4, M)) of a unit quaternion path, K <= 3:
+    ``omega = 2 vec(Q' Q*)``, ``alpha = 2 vec(Q'' Q*)``, ``jerk = 2 vec(Q''' Q* + Q'' Q'*)``."""
+    q = derivs[0] / np.sqrt(D.vdot(derivs[:1], derivs[:1])[0])
+    q_conj = q * CONJ
+    rates = [2.0 * D.hamilton_vec(d, q_conj) for d in derivs[1:]]
+    if len(rates) >= 3:
+        rates[2] += 2.0 * D.hamilton_vec(derivs[2], derivs[1] * CONJ)
+    return q.T, [x.T for x in rates]
+
+
+def _taylor_from_rates(rates: list) -> np.ndarray:
+    """Taylor coefficients (K + 1, 4) of ``d(tau) = q(t + tau) q(t)*`` from the space-frame
+    rates ``omega, alpha, jerk`` at ``t`` (each (3,), K = len(rates) <= 3), using
+    ``d' = omega d / 2`` (``omega`` as a pure quaternion) differentiated: ``d(0) = 1``,
+    ``d^(n+1) = 1/2 sum_j C(n, j) omega^(j) d^(n-j)``. Plain floats: a handful of
+    quaternion products, each far cheaper than a numpy call."""
+    w = [(0.0, *map(float, x)) for x in rates]
+    d = [(1.0, 0.0, 0.0, 0.0)]
+    for n in range(len(rates)):
+        acc = [0.0, 0.0, 0.0, 0.0]
+        for j in range(n + 1):
+            c = 0.5 * comb(n, j)
+            for i, x in enumerate(_hamilton_floats(w[j], d[n - j])):
+                acc[i] += c * x
+        d.append(tuple(acc))
+    return np.array(d) / np.array([factorial(n) for n in range(len(d))])[:, None]
+
+
+def _hamilton_floats(p: tuple, q: tuple) -> tuple:
+    """Hamilton product of two quaternions given as 4 floats (w, x, y, z)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
 
 @dataclass(frozen=True)
 class _Piece:
     """One piece of the plan, used on ``(start, next piece's start]``.
 
-    ``spline`` is a rest BlendingSpline (None: hold ``q_end`` from ``start``);
-    ``splice`` replaces its first segment. After ``t_end`` the piece holds ``q_end``.
+    ``spline`` is a rest BlendingSpline, ``splice`` a spliced segment that replaces
+    its first segment (or, without a spline, leads to ``q_end`` on its own); with
+    neither, the piece holds ``q_end`` from ``start``. After ``t_end`` the piece
+    holds ``q_end``.
     """
 
     start: float
@@ -102,23 +197,29 @@ class _Piece:
     q_end: np.ndarray  # (4,)
 
     @property
-    def t_end(self) -> float:
-        return self.start if self.spline is None else float(self.spline.times[-1])
-
-    @property
     def key_times(self) -> np.ndarray:
-        return np.array([self.start]) if self.spline is None else self.spline.times
+        if self.spline is not None:
+            return self.spline.times
+        return self.splice.times if self.splice is not None else np.array([self.start])
 
     @property
     def key_quats(self) -> np.ndarray:
-        return self.q_end[None] if self.spline is None else self.spline.quats
+        if self.spline is not None:
+            return self.spline.quats
+        if self.splice is not None:
+            return np.stack([self.splice.q_a, self.q_end])
+        return self.q_end[None]
+
+    @property
+    def t_end(self) -> float:
+        return float(self.key_times[-1])
 
     def _parts(self, t: np.ndarray):
         """Masks (M,) of the held, spliced and blended times; the blended ones' segments."""
         hold = t >= self.t_end
         spliced = np.zeros(len(t), bool)
         if self.splice is not None:
-            spliced = ~hold & (t < self.spline.times[1])
+            spliced = ~hold & (t < self.splice.times[1])
         blended = ~hold & ~spliced
         times = self.spline.times if self.spline is not None else t[:0]
         seg = np.clip(np.searchsorted(times, t[blended], side="right") - 1, 0, len(times) - 2)
@@ -134,6 +235,25 @@ class _Piece:
         if blended.any():
             out[:, :, blended] = self.spline._jet(t[blended], seg, order).c
         return J.Jet(out)
+
+    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``
+        (``d(0) = 1``), order <= 4: what a splice at ``t`` starts from."""
+        hold, spliced, blended, seg = self._parts(np.array([t]))
+        if hold[0]:
+            d = np.zeros((order + 1, 4))
+            d[0, 0] = 1.0
+            return self.q_end, d
+        if spliced[0]:
+            return self.splice.taylor(t, order)
+        if order <= 3:  # the closed-form rates (the compiled kernel where it is loaded)
+            q, rates = self.spline._space_rates(np.array([t]), seg, order)
+            return q[0], _taylor_from_rates([x[0] for x in rates])
+        old = self.spline._jet(np.array([t]), seg, order)  # order 4: only the jets go that far
+        q = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
+        d = J.qmul(old, Q.conj(q)).c[:, :, 0]
+        d[0] = (1.0, 0.0, 0.0, 0.0)
+        return q, d
 
     def space_rates(self, t: np.ndarray, max_order: int):
         """Unit quaternions (M, 4) and space-frame rates of orders 1..max_order (M, 3),
@@ -194,6 +314,32 @@ class _Plan(OrientationPath):
         return q, rates
 
 
+def _qexp_series(r: J.Jet) -> np.ndarray:
+    """:func:`trajgen.jet.qexp` for one vector series ``r`` (K + 1, 3), K <= 4: Taylor
+    coefficients (K + 1, 4) of ``(cos |r|, sin|r| r / |r|)``, with only the branch
+    (series or closed form in ``x = |r|^2``) that its value needs."""
+    x = J.dot(r, r)
+    K = x.order
+    x0 = np.atleast_1d(x.value)
+    both = (D._cos_sinc_series if x0[0] < J.SERIES_BELOW else D._cos_sinc_closed)([x0], K)
+    cos_a = J.compose(x, [v[0] for v in both[: K + 1]])
+    sinc = J.compose(x, [v[0] for v in both[K + 1 :]])
+    return np.concatenate([cos_a.c[:, None], J.scale(sinc, r).c], axis=1)
+
+
+def _log_near_identity(d: np.ndarray) -> np.ndarray:
+    """Taylor coefficients (K + 1, 3) of ``log d(tau)`` from those (K + 1, 4) of a unit
+    quaternion ``d`` with ``d(0) = 1``, K <= 4.
+
+    ``log d = atan(|y|) y / |y|`` with ``y = vec(d) / w(d)``, and ``atan(x) / x =
+    1 - x^2 / 3 + O(x^4)``: as ``y = O(tau)``, the ``x^4`` term is ``O(tau^5)``.
+    """
+    if len(d) > 5:
+        raise ValueError(f"Expected at most 5 Taylor coefficients, got {len(d)}.")
+    y = J.scale(J.reciprocal(J.Jet(d[:, 0])), J.Jet(d[:, 1:]))
+    return (y - J.scale(J.dot(y, y), y) * (1.0 / 3.0)).c
+
+
 def _hermite_matrix(k: int) -> np.ndarray:
     """Inverse of the map from the top coefficients ``a_{k+2..2k+2}`` of ``r(u)`` to its
     Taylor coefficients of orders 0..k at ``u = 1``."""
@@ -235,7 +381,7 @@ class OnlineSpline:
     -----
     Thread safety: :meth:`extend`, :meth:`retarget`, :meth:`close` and the
     evaluation methods may be called from different threads. A change is built
-    aside (a few ms) and swapped in whole; an evaluation sees the path either
+    aside and swapped in whole; an evaluation sees the path either
     before or after it, never a mix. :attr:`version` counts the changes.
 
     References
@@ -256,6 +402,11 @@ class OnlineSpline:
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         self.min_lead_s = check_number("min_lead_s", min_lead_s, low=MIN_LEAD_S)
         self._hermite = _hermite_matrix(self.k)
+        # Taylor coefficients at u = 1 of the terms u^0..u^(k+1).
+        self._low = np.array(
+            [[comb(i, j) for i in range(self.k + 2)] for j in range(self.k + 1)], float
+        )
+        self._factorials = np.array([factorial(n) for n in range(self.k + 2)], float)
         self._plan = _Plan((_Piece(t0, None, None, q[0]),))
         self._version = 0
         self._committed = -np.inf
@@ -418,8 +569,8 @@ class OnlineSpline:
                 f"extend: the first new keyframe (t = {t[0]} s) must come after the last "
                 f"keyframe kept (t = {kt[-1]} s)."
             )
-        if at >= plan.t_end:  # at rest: start a rest spline from where it rests
-            return self._rest_piece(np.vstack([last.q_end, q]), np.concatenate([[at], t]))
+        if at >= plan.t_end:  # at rest: start from where it rests
+            return self._rest_piece(last.q_end, at, q, t)
         if mode == "extend":
             ahead = int((kt > at).sum())
             if ahead >= 2:  # splice at the second-to-last keyframe: the offline spline
@@ -428,7 +579,7 @@ class OnlineSpline:
                 spline = self._spline(np.vstack([kq[j:], q]), np.concatenate([kt[j:], t]))
                 return _Piece(float(kt[i]), spline, None, spline.quats[-1])
             if kt[-1] - at < self.min_lead_s:  # too close to splice: go on from its rest
-                return self._rest_piece(np.vstack([kq[-1:], q]), np.concatenate([kt[-1:], t]))
+                return self._rest_piece(kq[-1], float(kt[-1]), q, t)
             q, t = np.vstack([kq[-1:], q]), np.concatenate([kt[-1:], t])
         return self._splice_piece(plan, q, t, at)
 
@@ -437,31 +588,41 @@ class OnlineSpline:
             q, t, k=self.k, boundary="rest", local=self.local, reparam=self.reparam
         )
 
-    def _rest_piece(self, q, t) -> _Piece:
-        spline = self._spline(q, t)
-        return _Piece(float(t[0]), spline, None, spline.quats[-1])
+    def _rest_piece(self, q0: np.ndarray, t0: float, q, t) -> _Piece:
+        """From rest at ``q0`` (4,) at ``t0`` through keyframes ``q`` (N, 4) at ``t`` (N,)."""
+        if len(t) == 1:  # the rest spline's one segment, exp(f_(k+1)(u) log(q_1 q0*)) q0
+            q1 = q[0] if q[0] @ q0 >= 0 else -q[0]  # the short way round, as the spline goes
+            coef = blend_polynomial(self.k + 1)[:, None] * Q.log(Q.mul(q1, Q.conj(q0)))
+            return _Piece(t0, None, _Splice(t0, float(t[0]) - t0, q0, coef), q1)
+        spline = self._spline(np.vstack([q0, q]), np.concatenate([[t0], t]))
+        return _Piece(t0, spline, None, spline.quats[-1])
 
     def _splice_piece(self, plan: _Plan, q, t, at: float) -> _Piece:
+        """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,)."""
+        piece = plan.pieces[int(plan._segment(np.array([at]))[0][0])]
+        q_a, d = piece.taylor(at, self.k + 1)
+        return self._spliced(at, q_a, _log_near_identity(d), q, t)
+
+    def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t) -> _Piece:
+        """The piece that leaves ``q_a`` (4,) at ``s`` with Taylor coefficients ``p``
+        (k + 2, 3) of ``log(q(s + tau) q_a*)`` and goes through ``q`` (N, 4) at ``t`` (N,):
+        the splice on ``[s, t[0]]``, then the rest spline's blends (none if N = 1)."""
         k = self.k
-        ta = np.array([at])
-        old = plan._jet(ta, plan._segment(ta)[0], k + 1)
-        q_a = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
-        spline = self._spline(np.vstack([q_a, q]), np.concatenate([[at], t]))
-        t1 = float(spline.times[1])
-        h = t1 - at
-        p = J.qlog(J.qmul(old, Q.conj(q_a))).c[:, :, 0]  # (k + 2, 3)
-        p[0] = 0.0
+        h = float(t[0]) - s
         if len(t) >= 2:  # C_1 through (q_a, q_1, q_2): curve 0 of the spline
-            c1 = spline._curves.evaluate(np.array([0]), np.array([t1]), k)
-            r = J.qlog(J.qmul(c1, Q.conj(q_a))).c[:, :, 0]  # (k + 1, 3)
-        else:  # the rest point q_1
+            spline = self._spline(np.vstack([q_a, q]), np.concatenate([[s], t]))
+            c1 = spline._curves.derivatives(np.array([0]), t[:1], k)  # (k + 1) x (4, 1)
+            c1 = np.array(c1)[..., 0] / self._factorials[: k + 1, None]
+            r = J.qlog(J.qmul(J.Jet(c1[:, :, None]), Q.conj(q_a))).c[:, :, 0]  # (k + 1, 3)
+            q_end = spline.quats[-1]
+        else:  # the rest point q_1, on the short way round (as the spline takes it)
+            spline = None
+            q_end = q[0] if q[0] @ q_a >= 0 else -q[0]
             r = np.zeros((k + 1, 3))
-            r[0] = Q.log(Q.mul(spline.quats[1], Q.conj(q_a)))
+            r[0] = Q.log(Q.mul(q_end, Q.conj(q_a)))
         powers = h ** np.arange(2 * k + 3)[:, None]
         coef = np.zeros((2 * k + 3, 3))
         coef[: k + 2] = powers[: k + 2] * p
         # Taylor coefficients at u = 1 of the known low part, then solve for the top.
-        low = np.array([[comb(i, j) for i in range(k + 2)] for j in range(k + 1)], float)
-        coef[k + 2 :] = self._hermite @ (powers[: k + 1] * r - low @ coef[: k + 2])
-        splice = _Splice(at, h, q_a, coef)
-        return _Piece(at, spline, splice, spline.quats[-1])
+        coef[k + 2 :] = self._hermite @ (powers[: k + 1] * r - self._low @ coef[: k + 2])
+        return _Piece(s, spline, _Splice(s, h, q_a, coef), q_end)

@@ -9,6 +9,7 @@ and what it cost. ``run_follow`` adds the bus, the servos and the report, as
 
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import sys
@@ -18,6 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from trajgen import fast
 from trajgen.cli import stream as stream_command
 from trajgen.cli.common import EXIT_FAILED
 from trajgen.errors import KeyframeFileError, KinematicsError
@@ -25,12 +27,18 @@ from trajgen.gimbal import GimbalKinematics
 from trajgen.keyframes import check_keyframes
 from trajgen.online import MODES, ChangeTooLate, OnlineSpline
 from trajgen.sampling import sample_times
+from trajgen.spline import BlendingSpline
 from trajgen.stream import JointTrajectory, stream_frames
 
 #: Time (s) from the frame being streamed when a line arrives to the change it
-#: makes: room to build and check the new path off the streaming thread (a
-#: change costs 1-15 ms on a busy two-core machine, see bench/online_cost.py).
+#: makes: room to build and check the new path off the streaming thread (on the
+#: busy two-core machine a change and its check took 0.4-3 ms, up to 10 ms when
+#: the host stalls; see bench/online_cost.py).
 CHANGE_MARGIN_S = 0.05
+
+#: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
+#: how long the streaming thread may wait for a change being built on another thread.
+SWITCH_INTERVAL_S = 1e-4
 
 LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
 
@@ -223,10 +231,11 @@ class Follower:
         return self.spline.t_start if committed == -math.inf else committed
 
     def _limits(self, at: float):
-        """The check of a new path: joint limits and gimbal lock from ``at`` to its end."""
+        """The check of a new path: joint limits and gimbal lock at the stream's frame times
+        after ``at`` to its end (the frame at ``at`` is the old path's, checked already)."""
 
         def check(path) -> None:
-            t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)
+            t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)[1:]
             self.kinematics.inverse(path.evaluate(t, max_order=0).q, t, start=self._last_q)
 
         return check
@@ -242,25 +251,32 @@ class Follower:
             Joint angles whose 2 pi branch the first frame's pan and roll take.
         """
         frames = stream_frames(self.spline, self.rate_hz, self.kinematics, start=start)
-        while True:
-            try:
-                frame = next(frames)
-            except StopIteration:
-                return
-            except KinematicsError as e:
-                # Every change was checked on the stream's grid, so this is a path that
-                # passed its check between samples: end here, the servos hold the last goal.
-                self.fault = str(e)
-                return
-            with self._lock:
-                self._last_q = frame.q
-                if self._pending:
-                    now = time.monotonic()
-                    seen = [p for p in self._pending if frame.t > p[1]]
-                    self.latencies_s += [now - arrival for arrival, _ in seen]
-                    self._pending = [p for p in self._pending if p not in seen]
-            self._frames.append(frame)
-            yield frame
+        # A change is built on the reading thread and holds the interpreter meanwhile: let
+        # the streaming thread take it back within a fraction of a period.
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
+        try:
+            while True:
+                try:
+                    frame = next(frames)
+                except StopIteration:
+                    return
+                except KinematicsError as e:
+                    # Every change was checked on the stream's grid, so this is a path that
+                    # passed its check between samples: end here, the servos hold the last goal.
+                    self.fault = str(e)
+                    return
+                with self._lock:
+                    self._last_q = frame.q
+                    if self._pending:
+                        now = time.monotonic()
+                        seen = [p for p in self._pending if frame.t > p[1]]
+                        self.latencies_s += [now - arrival for arrival, _ in seen]
+                        self._pending = [p for p in self._pending if p not in seen]
+                self._frames.append(frame)
+                yield frame
+        finally:
+            sys.setswitchinterval(switch)
 
     def trajectory(self) -> JointTrajectory:
         """What :meth:`frames` yielded, as arrays."""
@@ -303,6 +319,26 @@ class Follower:
             f"follow: {s['accepted']} keyframes accepted, {s['skipped']} lines skipped; "
             f"line to frame {ms(s['latency_s'])}; change cost {ms(s['change_cost_s'])}"
         )
+
+
+def load_compiled_kernel() -> bool:
+    """Load the blending spline's compiled kernel (:mod:`trajgen.fast`) now, where numba
+    is installed and ``TRAJGEN_NUMBA`` is not 0; returns whether it is loaded.
+
+    Then every later evaluation runs compiled, those of the stream's frames and of the
+    old path where a change splices onto it: both run while the stream waits (a change
+    holds the interpreter), and compiled they cost a few microseconds per sample
+    instead of about 0.5 ms per call (bench/online_cost.py). Loading costs a second or
+    so (longer the first time, while numba fills its cache).
+    """
+    if not fast.ENABLED:
+        return False
+    try:
+        importlib.import_module("trajgen.fast_kernel")
+    except ImportError:  # a broken numba install: numpy evaluates, as without numba
+        return False
+    BlendingSpline([[1.0, 0, 0, 0], [0, 1.0, 0, 0], [1.0, 0, 0, 0]], [0.0, 1.0, 2.0]).evaluate(0.5)
+    return True
 
 
 def online_spline(kf) -> OnlineSpline:
@@ -366,6 +402,7 @@ def follow(args, lines):
     def make_plan(args):
         p = stream_command.plan(args)
         made["follower"] = Follower(online_spline(p.kf), p.rate_hz)
+        load_compiled_kernel()  # before the stream starts: evaluations then run compiled
         if p.kf.method != "blending":
             print(
                 f"trajgen: note: {p.kf.path}: follow plans with the blending spline (changes "
@@ -389,6 +426,7 @@ def follow(args, lines):
     def stream(bus, args, p, setup, outcome):
         follower = made["follower"]
         source = lines(follower) if callable(lines) else lines
+
         threading.Thread(target=follower.read, args=(source,), daemon=True).start()
         try:
             stream_command.stream_plan(
