@@ -453,13 +453,13 @@ class _Fitter:
         factor : ndarray, shape (M, 3)
         code : ndarray of int, shape (M, 3)
         """
-        from trajgen.sim.dynamics import inverse_dynamics
+        from trajgen.sim.dynamics import inverse_dynamics, inverse_dynamics_split
 
         q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
         zero = np.zeros_like(q)
         static = inverse_dynamics(self.model, q, zero, zero, coulomb=False)
-        smooth = inverse_dynamics(self.model, q, qd, qdd, coulomb=False)
-        coulomb = inverse_dynamics(self.model, q, qd, qdd) - smooth
+        full, smooth = inverse_dynamics_split(self.model, q, qd, qdd)
+        coulomb = full - smooth
         viscous = self.damping * qd
         inertial = smooth - static - viscous
         speed = np.abs(qd)
