@@ -1,18 +1,25 @@
 """`fit_timing` against TOPP-RA on the same geometric path with the same torque model.
 
-For each motion (the torque race's three, then seeded random look-arounds;
-the file's default spline (``method = "smooth"``), rest boundary, 200 Hz,
-XM430-W350 x 3, 0.15 kg payload; tracking budget widened to 1 rad so that
-torque, which is all TOPP-RA knows, decides rather than the servo's 45 ms lag):
+For each motion (the torque race's three, one single segment, then seeded
+random look-arounds; the file's default spline (``method = "smooth"``, its
+default knots unless ``--knots``), rest boundary, 200 Hz, XM430-W350 x 3,
+0.15 kg payload; tracking budget widened to 1 rad so that torque, which is all
+TOPP-RA knows, decides rather than the servo's 45 ms lag):
 
 1. ``trajgen.sim.fit_timing`` fits the keyframe times twice: with the full
    check (plan and simulated servo, "full check") and to the plan alone
    (``simulate=False``: the envelope, as TOPP-RA sees it, "plan only"). The
    plan-only fit's joint path is the geometric path given to TOPP-RA.
-2. TOPP-RA (``toppra``) re-times that same path (the stream's 200 Hz samples in
-   its cubic-spline path, parametrized by our normalised time; 801 gridpoints,
-   collocation) from rest to rest (``sd_start = sd_end = 0``), fed
-   our gimbal's inverse dynamics (``sim.dynamics.inverse_dynamics``) in two ways:
+2. The floor of the construction (:func:`construction_floor`): the shortest
+   plan-only time a global search over all segment durations finds
+   (differential evolution, then Nelder-Mead, on
+   ``trajgen.sim.fit.uniform_time_function``). No timing of this spline does
+   better, so ``floor / TOPP-RA`` is the part of the gap the spline itself
+   causes, and ``ours / floor`` the part the optimiser leaves.
+3. TOPP-RA (``toppra``) re-times that same path (the stream's 200 Hz samples in
+   its cubic-spline path; 801 gridpoints over the path, collocation) from rest
+   to rest (``sd_start = sd_end = 0``), fed our gimbal's inverse dynamics
+   (``sim.dynamics.inverse_dynamics``) in two ways:
 
    - "box": ``JointTorqueConstraint`` with ``|tau| <= margin tau_stall``
      (Coulomb friction through ``fs_coef``) plus ``JointVelocityConstraint``
@@ -33,12 +40,14 @@ use"); where it exceeds 1 (its constraint holds at gridpoints on its spline of
 our samples, not everywhere), it is slowed uniformly until it fits ("stretched
 into envelope"), and the ratio is taken against that.
 
-Parametrization: by our time the path's speed p'(s) goes to 0 at both ends
-(rest boundary, k = 2), and on some paths TOPP-RA's controllable set next to
-the end comes back empty (toppra returns None). Then the row is retried with
-the path parametrized by joint-space arc length (marked "(arc length)"), which
-is regular at the ends but turns a reversal into a cusp, so it is used only
-where the time parametrization fails.
+Reversals: where the joint path turns back (the pan sweep), every timing stops,
+so the path is split there (:func:`reversals`) and each reversal-free piece is
+re-timed rest to rest; durations add up. Parametrization: by our time the
+path's speed p'(s) goes to 0 at rest ends, and on some pieces TOPP-RA's
+controllable set next to the end comes back empty (toppra returns None). Then
+the piece is retried parametrized by joint-space arc length, regular at the
+ends (a piece has no reversal, so no cusp). The table says per motion how many
+pieces and which parametrization ("mixed": some of each).
 
 Neither TOPP-RA run simulates the servo (torque-limit steps, tracking), which
 our check does. Gridpoints: 801 vs 1601 changed the envelope optimum by about 1 %
@@ -46,7 +55,7 @@ on the look-around (1.578 vs 1.561 s; 3201: 1.564 s).
 
 Usage::
 
-    python bench/fit_vs_toppra.py [--random 3]
+    python bench/fit_vs_toppra.py [--random 3] [--only NAME] [--knots quintic]
 """
 
 from __future__ import annotations
@@ -66,8 +75,9 @@ RATE_HZ = 200.0
 TRACKING_BUDGET_RAD = 1.0
 
 
-def keyframe_text(angles_deg: np.ndarray, pace_s: float) -> str:
-    lines = ["[spline]", 'boundary = "rest"', "", "[stream]", f"rate_hz = {RATE_HZ:g}", ""]
+def keyframe_text(angles_deg: np.ndarray, pace_s: float, knots: str | None = None) -> str:
+    lines = ["[spline]", 'boundary = "rest"', *([f'knots = "{knots}"'] if knots else [])]
+    lines += ["", "[stream]", f"rate_hz = {RATE_HZ:g}", ""]
     # TOPP-RA knows torque, not servo lag: widen the tracking budget so torque decides.
     lines += ["[gimbal]", f"max_tracking_error_rad = {TRACKING_BUDGET_RAD}", ""]
     for i, (pan, tilt, roll) in enumerate(angles_deg):
@@ -170,10 +180,10 @@ def envelope_constraint(config, x0):
     return Envelope()
 
 
-def toppra_retime(
+def _toppra_piece(
     trajectory, config, *, envelope: bool, arc_length: bool = False, grid: int = 801, cuts: int = 3
 ):
-    """TOPP-RA on the planned joint path, rest to rest.
+    """TOPP-RA on one reversal-free piece of the planned joint path, rest to rest.
 
     ``envelope=False``: the torque box ``margin tau_stall`` plus ``|w| <= w0``.
     ``envelope=True``: our torque-speed envelope by ``cuts`` rounds of tangent
@@ -228,6 +238,60 @@ def toppra_retime(
     return jnt.duration, t, jnt(t), jnt(t, 1), jnt(t, 2)
 
 
+def reversals(trajectory) -> list[int]:
+    """Samples where the joint path reverses: its velocity vector turns by over 90 degrees.
+
+    There the path speed passes through zero (all joints stop at once), so any
+    timing of the path comes to rest there. Returns the sample nearest each
+    reversal (smallest joint-space speed), interior samples only.
+    """
+    qd = np.asarray(trajectory.qd)
+    speed = np.linalg.norm(qd, axis=1)
+    turning = np.flatnonzero(np.einsum("ij,ij->i", qd[:-2], qd[2:]) < 0) + 1
+    cuts = sorted({k - 1 + int(np.argmin(speed[k - 1 : k + 2])) for k in turning})
+    return [k for k in cuts if 0 < k < len(qd) - 1]
+
+
+def toppra_retime(trajectory, config, *, envelope: bool):
+    """TOPP-RA on the planned joint path, split at its reversals, each piece rest to rest.
+
+    Each piece is parametrized by our time, or, where TOPP-RA finds no
+    parametrization that way, by joint-space arc length (no cusp inside a
+    reversal-free piece).
+
+    Returns
+    -------
+    pieces : list of (duration (s), t, q, qd, qdd), one per piece
+    parametrization : str
+        "time", "arc length" or "mixed".
+    """
+    from trajgen.stream import JointTrajectory
+
+    bounds = [0, *reversals(trajectory), len(trajectory.t) - 1]
+    pieces, used = [], set()
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        piece = JointTrajectory(
+            trajectory.t[a : b + 1],
+            trajectory.q[a : b + 1],
+            trajectory.qd[a : b + 1],
+            trajectory.qdd[a : b + 1],
+            trajectory.rate_hz,
+        )
+        # Gridpoints shared out by samples: about 801 over the whole path.
+        grid = max(101, round(800 * (b - a) / (len(trajectory.t) - 1)) + 1)
+        for arc in (False, True):
+            try:
+                pieces.append(
+                    _toppra_piece(piece, config, envelope=envelope, arc_length=arc, grid=grid)
+                )
+                used.add("arc length" if arc else "time")
+                break
+            except RuntimeError:
+                if arc:
+                    raise
+    return pieces, used.pop() if len(used) == 1 else "mixed"
+
+
 def envelope_usage(config, q, qd, qdd) -> float:
     """Largest ``|tau| / (margin x envelope)`` of a profile (our full inverse dynamics)."""
     from trajgen.sim.dynamics import inverse_dynamics
@@ -262,74 +326,156 @@ def stretch_into_envelope(config, q, qd, qdd) -> float:
     return hi
 
 
+def construction_floor(path, durations: np.ndarray, *, seed: int = 0) -> tuple[float, float]:
+    """The best plan-only time any per-segment timing of this spline reaches, by global search.
+
+    Differential evolution (scipy) over the segment durations' ratios (log,
+    within e^+-1.2 of ``durations``'s; the first segment fixed, since the
+    uniformly scaled time does not depend on the overall scale), on the fast
+    probe evaluation (``durations`` is in its first population), then
+    Nelder-Mead from its best; both are judged exactly on the stream's samples.
+
+    Returns
+    -------
+    floor (s), and the search's wall time (s)
+    """
+    from scipy.optimize import differential_evolution, minimize
+
+    from trajgen.sim.fit import uniform_time_function
+
+    start = time.monotonic()
+    probe = uniform_time_function(path, probe=True)
+    exact = uniform_time_function(path)
+    x0 = np.log(durations)
+
+    def shaped(y):
+        return np.exp(x0 + np.concatenate([[0.0], y]))
+
+    n = len(durations) - 1
+    if n == 0:  # nothing to search: the one duration only scales
+        return exact(durations), time.monotonic() - start
+    found = differential_evolution(
+        lambda y: probe(shaped(y)),
+        [(-1.2, 1.2)] * n,
+        x0=np.zeros(n),
+        seed=seed,
+        popsize=15,
+        maxiter=60,
+        tol=1e-5,
+        polish=False,
+        init="sobol",
+    )
+    polished = minimize(
+        lambda y: probe(shaped(y)),
+        found.x,
+        method="Nelder-Mead",
+        options={"xatol": 1e-4, "fatol": 1e-5, "maxfev": 800},
+    )
+    floor = min(exact(shaped(found.x)), exact(shaped(polished.x)))
+    return floor, time.monotonic() - start
+
+
 def main(argv=None) -> int:
     import torque_race
 
     from trajgen.sim import fit_timing
     from trajgen.sim.check import resolve_source
+    from trajgen.smooth import KNOTS
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--random", type=int, default=3, help="random motions (default 3)")
+    parser.add_argument("--only", help="run only the motions whose name contains this")
+    parser.add_argument(
+        "--knots", choices=KNOTS, help="SmoothSpline's knot choice (default: the file default)"
+    )
     args = parser.parse_args(argv)
-    cases = {**torque_race.motions(), **random_motions(args.random)}
+    # One segment: with knots = "quintic" the spline is then the septic 35u^4 - 84u^5 +
+    # 70u^6 - 20u^7, peak acceleration 7.5 D/T^2 against bang-bang's 4: where inertia
+    # dominates the torque, its time is sqrt(7.5 / 4) = 1.37x the optimum whatever the
+    # timing ("end-minimax" trades more acceleration for less jerk at the ends).
+    single = {"one segment": np.array([[0.0, 0.0, 0.0], [60.0, 0.0, 0.0]])}
+    cases = {**torque_race.motions(), **single, **random_motions(args.random)}
+    if args.only:
+        cases = {k: v for k, v in cases.items() if args.only in k}
     print(f"load average before: {os.getloadavg()[0]:.2f} (2 cores)")
     print()
     print(
-        "| motion | keys | ours, plan only (s) | ours, full check (s) | TOPP-RA envelope (s) "
-        "| its envelope use | TOPP-RA stretched into envelope (s) "
-        "| ours plan only / TOPP-RA stretched | TOPP-RA box (s) | TOPP-RA envelope path "
+        "| motion | keys | ours, plan only (s) | fit time (s) | ours, full check (s) "
+        "| floor (s) | TOPP-RA envelope (s) | its envelope use "
+        "| TOPP-RA stretched into envelope (s) | ours plan only / TOPP-RA "
+        "| floor / TOPP-RA | TOPP-RA box (s) | TOPP-RA pieces, path "
         "| TOPP-RA max qdd step (rad/s^2) | TOPP-RA qdd at ends (rad/s^2) |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
-    ratios = []
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|")
+    ratios, floor_ratios, shares = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for name, angles in cases.items():
             t0 = time.monotonic()
             path = Path(tmp) / "keys.toml"
-            path.write_text(keyframe_text(angles, 1.5))
+            path.write_text(keyframe_text(angles, 1.5, args.knots))
             full = fit_timing(path)
+            fit_start = time.monotonic()
             fit = fit_timing(path, simulate=False)
+            fit_s = time.monotonic() - fit_start
+            floor, floor_s = construction_floor(path, np.diff(fit.times))
             fitted = Path(tmp) / "fitted.toml"
             fitted.write_text(fit.toml())
             trajectory, config = resolve_source(fitted)
             row, params = {}, {}
             for feed in ("envelope", "box"):
-                for arc in (False, True):
-                    try:
-                        row[feed] = toppra_retime(
-                            trajectory, config, envelope=feed == "envelope", arc_length=arc
-                        )
-                        params[feed] = "arc length" if arc else "time"
-                        break
-                    except RuntimeError as e:
-                        row[feed] = str(e)
+                try:
+                    row[feed], params[feed] = toppra_retime(
+                        trajectory, config, envelope=feed == "envelope"
+                    )
+                except RuntimeError as e:
+                    row[feed] = str(e)
             env, box = row["envelope"], row["box"]
-            box_cell = box if isinstance(box, str) else f"{box[0]:.3f}"
+            box_cell = box if isinstance(box, str) else f"{sum(p[0] for p in box):.3f}"
             if isinstance(env, str):
-                cells = [f"failed: {env}", "-", "-", "-"]
+                cells = [f"failed: {env}", "-", "-", "-", "-"]
                 jump = ends = "-"
             else:
-                duration, _, q, qd, qdd = env
-                use = envelope_usage(config, q, qd, qdd)
-                stretched = duration * stretch_into_envelope(config, q, qd, qdd)
-                ratio = fit.duration_s / stretched
+                duration = sum(p[0] for p in env)
+                use = max(envelope_usage(config, *p[2:]) for p in env)
+                stretched = sum(p[0] * stretch_into_envelope(config, *p[2:]) for p in env)
+                ratio, floor_ratio = fit.duration_s / stretched, floor / stretched
                 ratios.append(ratio)
-                cells = [f"{duration:.3f}", f"{use:.2f}", f"{stretched:.3f}", f"{ratio:.3f}"]
+                floor_ratios.append(floor_ratio)
+                if ratio > 1:
+                    shares.append((floor_ratio - 1) / (ratio - 1))
+                cells = [
+                    f"{duration:.3f}",
+                    f"{use:.2f}",
+                    f"{stretched:.3f}",
+                    f"{ratio:.3f}",
+                    f"{floor_ratio:.3f}",
+                ]
+                qdd = np.concatenate([p[4] for p in env])
                 jump = f"{np.abs(np.diff(qdd, axis=0)).max():.1f}"
                 ends = f"{max(np.abs(qdd[0]).max(), np.abs(qdd[-1]).max()):.1f}"
+            pieces = f"{len(env)}, {params['envelope']}" if "envelope" in params else "-"
             print(
-                f"| {name} | {len(angles)} | {fit.duration_s:.3f} | {full.duration_s:.3f} "
-                f"| {' | '.join(cells)} | {box_cell} | {params.get('envelope', '-')} | {jump} "
-                f"| {ends} |",
+                f"| {name} | {len(angles)} | {fit.duration_s:.3f} | {fit_s:.1f} "
+                f"| {full.duration_s:.3f} | {floor:.3f} | {' | '.join(cells)} | {box_cell} "
+                f"| {pieces} | {jump} | {ends} |",
                 flush=True,
             )
-            print(f"  {name}: {time.monotonic() - t0:.1f} s", file=sys.stderr)
+            print(
+                f"  {name}: {time.monotonic() - t0:.1f} s (floor search {floor_s:.1f} s), "
+                f"load {os.getloadavg()[0]:.2f}",
+                file=sys.stderr,
+            )
     print()
     if ratios:
         print(
             f"ours (plan only) / TOPP-RA (envelope, stretched into it): median "
             f"{np.median(ratios):.3f}, range {np.min(ratios):.3f} .. {np.max(ratios):.3f} "
             "(goal <= 1.15)"
+        )
+        print(
+            f"floor / TOPP-RA: median {np.median(floor_ratios):.3f}, range "
+            f"{np.min(floor_ratios):.3f} .. {np.max(floor_ratios):.3f}; share of the gap the "
+            f"floor explains: median {np.median(shares):.0%}"
         )
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0

@@ -31,7 +31,7 @@ import numpy as np
 from trajgen.keyframes import DEFAULT_RATE_HZ
 from trajgen.sim.errors import TorqueLimitExceeded
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
-from trajgen.sim.run import SimRecord, check_trajectory, simulate
+from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
 
 
 @dataclass(frozen=True)
@@ -219,10 +219,9 @@ def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
         One reason per joint that leaves it, as in :class:`TorqueReport`.
     """
     from trajgen.sim.dynamics import inverse_dynamics
-    from trajgen.sim.model import build_model
 
     check_trajectory(trajectory)
-    tau = inverse_dynamics(build_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
+    tau = inverse_dynamics(simulation_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
     t = np.asarray(trajectory.t, dtype=float)
     qd = np.asarray(trajectory.qd, dtype=float)
     reasons = []
@@ -249,7 +248,9 @@ def lag_time_s(config: GimbalConfig, joint: int) -> float:
     return (kd + config.joints[joint].damping) / kp
 
 
-def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueReport:
+def build_report(
+    trajectory, config: GimbalConfig, record: SimRecord, *, model=None
+) -> TorqueReport:
     """Judge a plan and its simulated run (see the module docstring).
 
     Parameters
@@ -259,20 +260,20 @@ def build_report(trajectory, config: GimbalConfig, record: SimRecord) -> TorqueR
     config : GimbalConfig
     record : SimRecord
         The simulated run of ``trajectory``.
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it already.
 
     Returns
     -------
     TorqueReport
     """
-    from trajgen.sim.dynamics import inverse_dynamics
-    from trajgen.sim.model import build_model
+    from trajgen.sim.dynamics import inverse_dynamics_split
 
-    model = build_model(config)
     q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
-    tau_plan = inverse_dynamics(model, q, qd, qdd)
     # Coulomb friction steps at every start and reversal whatever the plan;
-    # the torque rate is taken without it, so it measures the plan.
-    tau_smooth = inverse_dynamics(model, q, qd, qdd, coulomb=False)
+    # the torque rate is taken without it (tau_smooth), so it measures the plan.
+    model = simulation_model(config) if model is None else model
+    tau_plan, tau_smooth = inverse_dynamics_split(model, q, qd, qdd)
     t = np.asarray(trajectory.t, dtype=float)
     qd_plan = np.asarray(qd, dtype=float)
     tau_rate = np.gradient(tau_smooth, t, axis=0)
@@ -427,8 +428,9 @@ def check_torque(
         If MuJoCo warns or a contact appears during the run.
     """
     trajectory, config = resolve_source(source, rate_hz=rate_hz, config=config)
-    record = simulate(trajectory, config, progress=progress)
-    return build_report(trajectory, config, record)
+    model = simulation_model(config)
+    record = simulate(trajectory, config, progress=progress, model=model)
+    return build_report(trajectory, config, record, model=model)
 
 
 def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> TorqueReport:

@@ -39,6 +39,31 @@ def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:
     SimulationError
         If any pose puts two gimbal geoms in contact (the torque would be meaningless).
     """
+    return _inverse(model, q, qd, qdd, (coulomb,))[0]
+
+
+def inverse_dynamics_split(model, q, qd, qdd) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`inverse_dynamics` with and without Coulomb friction, in one pass.
+
+    Equal, bit for bit, to ``inverse_dynamics(model, q, qd, qdd)`` and
+    ``inverse_dynamics(model, q, qd, qdd, coulomb=False)``; each sample is set
+    once for both.
+
+    Returns
+    -------
+    tau, tau_smooth : ndarray, shape (N, 3)
+        Torque per joint (N m) with and without Coulomb friction.
+
+    Raises
+    ------
+    ValueError, SimulationError
+        As :func:`inverse_dynamics`.
+    """
+    return _inverse(model, q, qd, qdd, (True, False))
+
+
+def _inverse(model, q, qd, qdd, coulomb: tuple[bool, ...]) -> list[np.ndarray]:
+    """``mj_inverse`` at every sample, once per entry of ``coulomb`` (:func:`inverse_dynamics`)."""
     import mujoco
 
     arrays = []
@@ -54,19 +79,30 @@ def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:
         raise ValueError(
             f"Expected `q`, `qd`, `qdd` of one shape, got {q.shape}, {qd.shape}, {qdd.shape}."
         )
-    if not coulomb:
-        model = copy.copy(model)
-        model.dof_frictionloss[:] = 0.0
+    models = [model if with_coulomb else _without_coulomb(model) for with_coulomb in coulomb]
+    taus = [np.empty_like(q) for _ in models]
+    runs = list(zip(models, taus, strict=True))
     data = mujoco.MjData(model)
-    tau = np.empty_like(q)
-    for i in range(len(q)):
-        data.qpos[:] = q[i]
-        data.qvel[:] = qd[i]
-        data.qacc[:] = qdd[i]
-        mujoco.mj_inverse(model, data)
-        if data.ncon:
-            raise SimulationError(
-                f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q[i]} rad"
-            )
-        tau[i] = data.qfrc_inverse
-    return tau
+    # Views and the function bound once, rows iterated: the Python around each
+    # mj_inverse call costs about as much as the call.
+    qpos, qvel, qacc, qfrc = data.qpos, data.qvel, data.qacc, data.qfrc_inverse
+    inverse = mujoco.mj_inverse
+    for i, (q_i, qd_i, qdd_i) in enumerate(zip(q, qd, qdd, strict=True)):
+        qpos[:] = q_i
+        qvel[:] = qd_i
+        qacc[:] = qdd_i
+        for m, tau in runs:
+            inverse(m, data)
+            if data.ncon:
+                raise SimulationError(
+                    f"{data.ncon} contact(s) inside the gimbal at sample {i}, q = {q_i} rad"
+                )
+            tau[i] = qfrc
+    return taus
+
+
+def _without_coulomb(model):
+    """A copy of ``model`` without Coulomb friction (``frictionloss`` 0)."""
+    model = copy.copy(model)
+    model.dof_frictionloss[:] = 0.0
+    return model

@@ -3,17 +3,25 @@
 The keyframes (orientations, order, spline options) stay; only their times
 move, one duration per segment. Two nested loops:
 
-1. Plan: for every stream sample, the largest local speed-up ``s`` the plan
-   allows, scaling speed by ``s``, acceleration by ``s^2``, jerk by ``s^3``,
-   and torque as ``tau(s) = tau_static + s tau_viscous + s^2 tau_inertial``
-   against ``torque_margin x tau_stall (1 - s |qd| / w0)``. First all
-   durations are scaled alike until the slowest sample is at its limit
-   (uniform scaling keeps the path's shape, so this is exact); then each
-   segment in turn is made as short as it can be *with every sample of the
-   whole plan still within its limits* (bisection), until no segment can be
-   made ``tolerance`` shorter on its own. The spline's knot rates depend on
-   all durations, so a shorter segment can push a neighbour over a limit:
-   such a segment reports the limit it hits "in segment k".
+1. Plan: for every sample, the largest local speed-up ``s`` the plan allows,
+   scaling speed by ``s``, acceleration by ``s^2``, jerk by ``s^3``, and torque
+   as ``tau(s) = tau_static + s tau_viscous + s^2 tau_inertial`` against
+   ``torque_margin x tau_stall (1 - s |qd| / w0)`` (two quadratics in ``s``,
+   solved in closed form). Then:
+
+   a. all durations scaled alike until the slowest stream sample is at its
+      limit (uniform scaling keeps the path's shape, so this is exact);
+   b. all durations at once (the spline is global: one segment's duration
+      moves its neighbours' curves): least total time subject to every sample
+      within its limits, by SLSQP (scipy) on the log-durations, the samples
+      taken at fixed fractions of each segment so that the constraints are
+      smooth in the durations; then (a) again on the stream's own samples;
+   c. each segment in turn made as short as it can be *with every sample of
+      the whole plan still within its limits* (bisection), until no segment
+      can be made ``tolerance`` shorter on its own. After (b) this rarely
+      moves anything; it finds each segment's binding limit. A segment held
+      by a limit a neighbour would break reports it "in segment k".
+
 2. Simulation: :func:`trajgen.sim.check.check_torque` on the fitted plan. A
    joint whose tracking error passes the limit in a segment gets a speed cap
    there (tracking lag grows with speed); a segment where a joint reaches the
@@ -41,16 +49,23 @@ from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.validate import check_number
 
-#: Speed-up per sample is searched on this grid, then refined by bisection.
-_S_GRID = np.geomspace(1.0 / 16.0, 16.0, 97)
 #: Largest change of the durations per uniform-scaling iteration or bisection start.
 _MAX_STEP = 4.0
 _TIME_DECIMALS = 6
 _FASTER = 1.1
 _PLAN_ITERATIONS = 60
+#: The joint optimiser samples each segment at these fractions of its duration.
+_PROBE_U = np.arange(32) / 32.0
+#: Speed-ups above this do not steer the joint optimiser.
+_FACTOR_CAP = 4.0
+#: Forward-difference step on the log-durations.
+_DIFF_STEP = 1e-4
+_JOINT_ITERATIONS = 60
 _SWEEPS = 8
 _BISECTIONS = 7
 _SIM_ROUNDS = 12
+#: Simulated tries per segment held by a learned limit in another segment.
+_SIM_BISECTIONS = 4
 #: Tracking speed caps aim this far under the limit.
 _TRACKING_TARGET = 0.97
 _SIM_SLOW_STEP = 0.97
@@ -216,27 +231,11 @@ def fit_timing(
     TypeError, ValueError
         For bad arguments.
     """
-    from trajgen.keyframes import load_keyframe_file
-    from trajgen.sim.check import DEFAULT_RATE_HZ, check_torque
-    from trajgen.sim.limits import limits_from_tables
-    from trajgen.sim.model import build_model, gimbal_config_from_tables
+    from trajgen.sim.check import check_torque
 
-    if isinstance(source, (str, os.PathLike)):
-        source = load_keyframe_file(source)
-    if not (hasattr(source, "quats") and hasattr(source, "tables")):
-        raise TypeError(
-            f"Expected `source` to be a keyframe file path or KeyframeFile, got "
-            f"{type(source).__name__}."
-        )
-    tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
-    if config is None:
-        config = gimbal_config_from_tables(source.tables, source.path)
-    if limits is None:
-        limits = limits_from_tables(source.tables, source.path)
-    rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
-    say = progress or (lambda _: None)
-
-    fitter = _Fitter(source, config, limits, rate, build_model(config), tolerance, say)
+    fitter = _make_fitter(source, config, limits, rate_hz, tolerance, progress)
+    source, config, limits = fitter.source, fitter.config, fitter.limits
+    say = fitter.say
     fitter.check_static()
     old_times = np.asarray(source.times, dtype=float)
     durations = np.diff(old_times)
@@ -265,6 +264,8 @@ def fit_timing(
             f"no passing timing after {_SIM_ROUNDS} simulation rounds: " + report.reasons[0]
         )
     times, binding, report = best
+    if simulate:
+        times, report = fitter.shorten_by_simulation(times, binding, report)
     faster = old_times[0] + (times - old_times[0]) / _FASTER
     try:
         faster_trajectory = fitter.trajectory(faster)
@@ -287,6 +288,72 @@ def fit_timing(
         document=_retimed_document(source.path, times),
         iterations=fitter.iterations,
     )
+
+
+def uniform_time_function(
+    source,
+    *,
+    config: GimbalConfig | None = None,
+    limits: JointLimits | None = None,
+    rate_hz: float | None = None,
+    probe: bool = False,
+) -> Callable[[np.ndarray], float]:
+    """The plan's shortest total time for a given shape of durations, for global searches.
+
+    ``f(durations)`` scales all segment durations alike until the slowest
+    sample is at its limit (torque envelope and ``[limits]``, as
+    ``fit_timing(..., simulate=False)`` fits) and returns that total time (s);
+    ``inf`` where the path cannot be planned. It depends on the ratios of the
+    durations only, so minimising it over them gives the best timing this
+    spline construction allows (e.g. ``bench/fit_vs_toppra.py``'s floor).
+
+    Parameters
+    ----------
+    source, config, limits, rate_hz
+        As for :func:`fit_timing`.
+    probe : bool
+        Judge each segment at 32 fixed fractions of its duration (fast, smooth)
+        instead of at the stream's samples (exact, default).
+
+    Returns
+    -------
+    callable
+        ``durations`` (S,) in s -> total time (s).
+    """
+    fitter = _make_fitter(source, config, limits, rate_hz, 0.005, None)
+
+    def total_time(durations) -> float:
+        durations = np.asarray(durations, dtype=float)
+        result = fitter.factors(durations, probe=probe)
+        if result is None:
+            return np.inf
+        return float(durations.sum() / result[0].min())
+
+    return total_time
+
+
+def _make_fitter(source, config, limits, rate_hz, tolerance, progress) -> _Fitter:
+    """Check :func:`fit_timing`'s arguments and fill in the file's defaults."""
+    from trajgen.keyframes import load_keyframe_file
+    from trajgen.sim.check import DEFAULT_RATE_HZ
+    from trajgen.sim.limits import limits_from_tables
+    from trajgen.sim.model import build_model, gimbal_config_from_tables
+
+    if isinstance(source, (str, os.PathLike)):
+        source = load_keyframe_file(source)
+    if not (hasattr(source, "quats") and hasattr(source, "tables")):
+        raise TypeError(
+            f"Expected `source` to be a keyframe file path or KeyframeFile, got "
+            f"{type(source).__name__}."
+        )
+    tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
+    if config is None:
+        config = gimbal_config_from_tables(source.tables, source.path)
+    if limits is None:
+        limits = limits_from_tables(source.tables, source.path)
+    rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
+    say = progress or (lambda _: None)
+    return _Fitter(source, config, limits, rate, build_model(config), tolerance, say)
 
 
 def _round_times(t0: float, durations: np.ndarray) -> np.ndarray:
@@ -326,17 +393,35 @@ class _Fitter:
         self.no_load = np.array([s.no_load_speed_rad_s for s in servos])
         self.damping = np.array(model.dof_damping)
 
-    def trajectory(self, times):
-        """The planned stream at keyframe ``times``; FitError if the gimbal cannot follow it."""
-        from trajgen.gimbal import KinematicsError
-        from trajgen.stream import plan_joint_trajectory
+    def trajectory(self, times, at=None):
+        """The planned joint path at keyframe ``times``; FitError if the gimbal cannot follow it.
+
+        Parameters
+        ----------
+        times : ndarray, shape (N,)
+            Keyframe times (s).
+        at : ndarray, shape (M,), optional
+            Sample times (s), increasing, from ``times[0]`` to ``times[-1]``.
+            Default: the stream's samples at ``rate_hz`` (what the check runs).
+
+        Returns
+        -------
+        JointTrajectory
+        """
+        from trajgen.gimbal import GimbalKinematics, KinematicsError, joint_rates
+        from trajgen.stream import JointTrajectory, plan_joint_trajectory
 
         source = self.source
         spline = source.spline_class(source.quats, times, **source.spline_options)
         try:
-            return plan_joint_trajectory(spline, self.rate_hz)
+            if at is None:
+                return plan_joint_trajectory(spline, self.rate_hz)
+            samples = spline.evaluate(at, max_order=2)
+            q = GimbalKinematics().inverse(samples.q, at)
+            qd, qdd = joint_rates(q, samples.omega, samples.alpha)
         except KinematicsError as e:
             raise FitError(f"no timing can help: the path {e}") from e
+        return JointTrajectory(at, q, qd, qdd, self.rate_hz)
 
     def check_static(self) -> None:
         """Refuse keyframes the gimbal cannot hold still against gravity."""
@@ -368,13 +453,13 @@ class _Fitter:
         factor : ndarray, shape (M, 3)
         code : ndarray of int, shape (M, 3)
         """
-        from trajgen.sim.dynamics import inverse_dynamics
+        from trajgen.sim.dynamics import inverse_dynamics, inverse_dynamics_split
 
         q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
         zero = np.zeros_like(q)
         static = inverse_dynamics(self.model, q, zero, zero, coulomb=False)
-        smooth = inverse_dynamics(self.model, q, qd, qdd, coulomb=False)
-        coulomb = inverse_dynamics(self.model, q, qd, qdd) - smooth
+        full, smooth = inverse_dynamics_split(self.model, q, qd, qdd)
+        coulomb = full - smooth
         viscous = self.damping * qd
         inertial = smooth - static - viscous
         speed = np.abs(qd)
@@ -387,13 +472,13 @@ class _Fitter:
                 f"{JOINT_NAMES[j]} servo cannot hold against gravity: it needs "
                 f"{abs(static[k, j]):.3f} N m, the budget is {budget[j]:.3f} N m"
             )
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # Torque: the first grid speed-up where the envelope is left, refined.
-            def slack(s):
-                tau = static + coulomb + s * viscous + s * s * inertial
-                return budget * (1.0 - s * speed / self.no_load) - np.abs(tau)
-
-            torque = _largest_feasible(slack)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            # Torque: |c + s v + s^2 i| <= budget (1 - s a), one quadratic per sign.
+            constant, slope = static + coulomb, budget * speed / self.no_load
+            torque = np.minimum(
+                _first_negative_root(budget - constant, -slope - viscous, -inertial),
+                _first_negative_root(budget + constant, viscous - slope, inertial),
+            )
             no_load = np.where(speed > 0, self.no_load / speed, np.inf)
             bounds = self.limits.as_array()
             speed_cap = np.minimum(bounds[0], self.speed_cap[segment])
@@ -418,27 +503,58 @@ class _Fitter:
         code = np.take_along_axis(codes, k[None], 0)[0]
         return np.nan_to_num(factor, nan=np.inf), code
 
+    def factors(self, durations: np.ndarray, *, probe: bool = False):
+        """Per-sample speed-ups at ``durations``, or None if the path cannot be planned.
+
+        Parameters
+        ----------
+        durations : ndarray, shape (S,)
+            Segment durations (s).
+        probe : bool
+            Sample each segment at ``_PROBES`` fixed fractions of its duration
+            (fast, and smooth in ``durations``: for the joint optimiser) instead
+            of at the stream's samples (exact: what the check sees).
+
+        Returns
+        -------
+        factor : ndarray, shape (M, 3)
+            Largest speed-up per sample and joint, the segment's learned
+            simulation slow-down included; >= 1 keeps every limit.
+        code : ndarray of int, shape (M, 3)
+            The limit behind each factor (index into ``BINDINGS``).
+        segment : ndarray of int, shape (M,)
+            The segment each sample lies in.
+        """
+        self.iterations += 1
+        n_seg = len(durations)
+        times = float(self.source.times[0]) + np.concatenate([[0.0], np.cumsum(durations)])
+        at = None
+        if probe:
+            at = np.append((times[:-1, None] + np.outer(durations, _PROBE_U)).ravel(), times[-1])
+        try:
+            trajectory = self.trajectory(times, at)
+        except FitError:
+            return None
+        segment = np.clip(np.searchsorted(times, trajectory.t, side="right") - 1, 0, n_seg - 1)
+        factor, code = self.sample_factors(trajectory, segment)
+        return factor * self.slow[segment, None], code, segment
+
     def evaluate(self, durations: np.ndarray):
         """Plan at ``durations``: per-segment factor and binding, or None if unplannable.
 
         Returns
         -------
         seg_factor : ndarray, shape (S,)
-            Smallest speed-up over each segment's samples, times its learned
-            simulation slow-down; >= 1 means the plan keeps every limit there.
+            Smallest speed-up over each segment's stream samples, times its
+            learned simulation slow-down; >= 1 means the plan keeps every limit there.
         binding : list of str
             The limit behind each segment's factor, e.g. ``"torque envelope (pan)"``.
         """
-        self.iterations += 1
-        t0 = float(self.source.times[0])
-        n_seg = len(durations)
-        times = t0 + np.concatenate([[0.0], np.cumsum(durations)])
-        try:
-            trajectory = self.trajectory(times)
-        except FitError:
+        result = self.factors(durations)
+        if result is None:
             return None
-        segment = np.clip(np.searchsorted(times, trajectory.t, side="right") - 1, 0, n_seg - 1)
-        factor, code = self.sample_factors(trajectory, segment)
+        factor, code, segment = result
+        n_seg = len(durations)
         flat = factor.min(axis=1)
         joint = factor.argmin(axis=1)
         seg_factor = np.full(n_seg, np.inf)
@@ -448,42 +564,109 @@ class _Fitter:
             if len(rows) == 0:
                 continue
             r = rows[np.argmin(flat[rows])]
-            seg_factor[i] = flat[r] * self.slow[i]
+            seg_factor[i] = flat[r]
             binding[i] = f"{BINDINGS[code[r, joint[r]]]} ({JOINT_NAMES[joint[r]]})"
-            if self.slow[i] < 1.0 and flat[r] >= 1.0 + self.tolerance:
+            if self.slow[i] < 1.0 and flat[r] >= self.slow[i] * (1.0 + self.tolerance):
                 # The plan alone would allow more: the simulation's slow-down binds.
                 binding[i] = f"{BINDINGS[_SIM_LIMIT]} ({self.slow_joint[i]})"
         return seg_factor, binding
 
-    def fit_plan(self, durations: np.ndarray):
-        """Loop 1: uniform scaling to the limits, then each segment alone as short as it goes.
+    def scale_uniform(self, durations: np.ndarray) -> np.ndarray:
+        """All durations scaled alike until the slowest stream sample is at its limit.
 
         Uniform time scaling keeps the path's shape, so the per-sample factors
-        are exact for it and it settles in a few iterations. Then, segment by
-        segment, a shorter duration is kept only if the whole plan still keeps
-        every limit (the spline's curves reach across segments, so a short
-        segment can push a neighbour over): at the end no segment can be made
-        ``tolerance`` shorter on its own.
+        are exact for it and this settles in a few iterations.
         """
-        durations = np.asarray(durations, dtype=float)
         for _ in range(_PLAN_ITERATIONS):
             result = self.evaluate(durations)
             if result is None:
                 raise FitError("the path cannot be planned at a uniformly scaled timing")
-            seg_factor, binding = result
-            worst = float(seg_factor.min())
+            worst = float(result[0].min())
             self.say(f"  plan {self.iterations}: {durations.sum():.3f} s, uniform x{1 / worst:.3f}")
-            if not np.isfinite(worst):
-                break
-            if 1.0 <= worst <= 1.0 + self.tolerance / 4:
-                break
+            if not np.isfinite(worst) or 1.0 <= worst <= 1.0 + self.tolerance / 4:
+                return durations
             durations = (
                 durations / np.clip(worst, 1.0 / _MAX_STEP, _MAX_STEP) * (1.0 + self.tolerance / 8)
             )
             if durations.sum() > 1e4 * float(np.diff(self.source.times).sum()):
                 raise FitError("the motion needs ever longer durations: the limits cannot be met")
-        else:
-            raise FitError(f"uniform scaling did not settle in {_PLAN_ITERATIONS} iterations")
+        raise FitError(f"uniform scaling did not settle in {_PLAN_ITERATIONS} iterations")
+
+    def optimise_jointly(self, durations: np.ndarray) -> np.ndarray:
+        """All durations at once: least total time with every probe sample within its limits.
+
+        SLSQP on the log-durations, one constraint ``log factor >= 0`` per probe
+        sample and joint (see :meth:`factors`), capped at ``log _FACTOR_CAP`` so
+        that samples far from their limits do not steer. Its Jacobian is taken by
+        forward differences (one plan per segment). The probes sit between the
+        stream's samples, so the result may leave a limit slightly between
+        probes: the caller rescales it on the stream.
+        """
+        try:
+            from scipy.optimize import minimize
+        except ImportError as e:
+            raise ImportError("fit_timing needs scipy: pip install 'trajgen[fit]'") from e
+
+        n_seg = len(durations)
+        size = 3 * (n_seg * len(_PROBE_U) + 1)
+        cache = {}
+
+        def constraints(x):
+            key = x.tobytes()
+            if key not in cache:
+                result = self.factors(np.exp(x), probe=True)
+                if result is None:
+                    cache[key] = np.full(size, -1.0)  # unplannable: far outside
+                else:
+                    cache[key] = np.log(np.clip(result[0], 1e-6, _FACTOR_CAP)).ravel()
+            return cache[key]
+
+        def jacobian(x):
+            base = constraints(x)
+            columns = []
+            for i in range(n_seg):
+                step = x.copy()
+                step[i] += _DIFF_STEP
+                columns.append((constraints(step) - base) / _DIFF_STEP)
+            return np.stack(columns, axis=1)
+
+        def report(x):
+            self.say(f"  joint {self.iterations}: {np.exp(x).sum():.3f} s")
+
+        bound = np.log(self.min_duration_s)
+        result = minimize(
+            lambda x: np.exp(x).sum(),
+            np.log(durations),
+            jac=np.exp,
+            method="SLSQP",
+            bounds=[(bound, None)] * n_seg,
+            constraints=[{"type": "ineq", "fun": constraints, "jac": jacobian}],
+            callback=report,
+            options={"maxiter": _JOINT_ITERATIONS, "ftol": 1e-4 * self.tolerance},
+        )
+        return np.exp(result.x)
+
+    def fit_plan(self, durations: np.ndarray):
+        """Loop 1: the shortest durations that keep every limit, and what binds each segment.
+
+        Uniform scaling to the limits first (:meth:`scale_uniform`), then all
+        durations at once (:meth:`optimise_jointly`, rescaled on the stream),
+        kept if shorter. Then, segment by segment, a shorter duration is kept
+        only if the whole plan still keeps every limit (the spline's curves reach
+        across segments, so a short segment can push a neighbour over): at the
+        end no segment can be made ``tolerance`` shorter on its own, and each
+        knows the limit that stops it.
+        """
+        durations = self.scale_uniform(np.asarray(durations, dtype=float))
+        if len(durations) > 1:
+            joint = self.optimise_jointly(durations)
+            try:
+                joint = self.scale_uniform(joint) if np.isfinite(joint).all() else durations
+            except FitError:  # a shape whose path the stream cannot follow: keep the uniform one
+                joint = durations
+            if joint.sum() < durations.sum():
+                durations = joint
+        seg_factor, binding = self.evaluate(durations)
         shrink_tol = 1.0 + self.tolerance
         for sweep in range(1, _SWEEPS + 1):
             moved = False
@@ -518,6 +701,51 @@ class _Fitter:
             if durations[i] <= self.min_duration_s * (1 + 1e-9):
                 binding[i] = BINDINGS[_FLOOR]
         return durations, binding
+
+    def shorten_by_simulation(self, times, binding, report):
+        """Shorten, judged by the simulation itself, segments held by a learned limit elsewhere.
+
+        The limits learned from simulation (tracking speed caps, slow-downs at
+        the torque limit) stand in for the simulation in the plan loop, and they
+        are conservative: a segment whose plan is held only because a neighbour
+        would pass such a limit ("... in segment k") may in fact pass the check
+        shorter. Each such segment alone is made ``_FASTER`` shorter while that
+        passes the full check (and ``[limits]``), the step's log halved after
+        each failure, ``_SIM_BISECTIONS`` simulations per segment.
+
+        Returns
+        -------
+        times : ndarray, shape (N,)
+        report : TorqueReport
+            The check at ``times``.
+        """
+        from trajgen.sim.check import check_torque
+
+        learned = (BINDINGS[_TRACKING], BINDINGS[_SIM_LIMIT])
+        for i, b in enumerate(binding):
+            if " in segment " not in b or not b.startswith(learned):
+                continue
+            step = _FASTER
+            for _ in range(_SIM_BISECTIONS):
+                durations = np.diff(times)
+                durations[i] /= step
+                trial = _round_times(times[0], durations)
+                self.say(f"  segment {i + 1} alone x{step:.3f} faster: simulating")
+                try:
+                    trial_report = check_torque(self.trajectory(trial), config=self.config)
+                except FitError:
+                    trial_report = None
+                if (
+                    trial_report is not None
+                    and trial_report.ok
+                    and not check_limits(trial_report.trajectory, self.limits)
+                ):
+                    times, report = trial, trial_report  # and the same step again
+                else:
+                    step = float(np.sqrt(step))
+                if step < 1.0 + self.tolerance:
+                    break
+        return times, report
 
     def relax_caps(self, report, times) -> bool:
         """Raise speed caps where a passing run tracks well inside the limit; False if none."""
@@ -568,22 +796,17 @@ class _Fitter:
         return learned
 
 
-def _largest_feasible(slack) -> np.ndarray:
-    """Per element, the largest speed-up on ``_S_GRID`` before ``slack(s)`` first goes negative.
+def _first_negative_root(a, b, c) -> np.ndarray:
+    """Per element, the smallest ``s > 0`` where ``a + b s + c s^2`` turns negative.
 
-    ``slack`` maps a scalar ``s`` to an array; the crossing is refined by 30
-    bisection steps. Elements never negative on the grid get ``inf``; elements
-    negative at the grid's first point get that point.
+    ``inf`` where it never does; ``0`` where ``a < 0`` already. Roots by the
+    cancellation-free form ``q = -(b + sign(b) sqrt(b^2 - 4ac)) / 2``,
+    ``s = q / c`` and ``a / q``.
     """
-    values = np.stack([slack(s) for s in _S_GRID])  # (G, ...)
-    bad = values < 0
-    first = np.where(bad.any(axis=0), np.argmax(bad, axis=0), len(_S_GRID))
-    lo = np.where(first > 0, _S_GRID[np.maximum(first - 1, 0)], _S_GRID[0])
-    hi = np.where(first < len(_S_GRID), _S_GRID[np.minimum(first, len(_S_GRID) - 1)], np.inf)
-    refine = (first > 0) & (first < len(_S_GRID))
-    for _ in range(30):
-        mid = np.where(refine, 0.5 * (lo + hi), lo)
-        ok = slack(mid) >= 0
-        lo = np.where(refine & ok, mid, lo)
-        hi = np.where(refine & ~ok, mid, hi)
-    return np.where(first == len(_S_GRID), np.inf, lo)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        disc = b * b - 4.0 * a * c
+        q = -0.5 * (b + np.copysign(np.sqrt(np.maximum(disc, 0.0)), b))
+        roots = np.stack([q / c, a / q])
+        roots = np.where((roots > 0) & (disc >= 0), roots, np.inf)
+    first = np.nan_to_num(roots.min(axis=0), nan=np.inf)
+    return np.where(a < 0, 0.0, first)

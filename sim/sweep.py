@@ -2,12 +2,10 @@
 
 Every variant (payload mass and offset, servo per joint, time scale) is the
 same keyframe file run through :func:`trajgen.sim.check.build_report`, the
-judge of ``trajgen sim``. The runs go through ``mujoco.rollout`` (batched, one
-thread per ``MjData``), which records state and sensors only, so the model gets
-an ``<actuatorfrc>`` sensor per actuator for the torques (``sim.model`` has
-them). The controls are the ones :func:`trajgen.sim.run.simulate` sends (each
-frame's goal positions in whole ticks, held for one stream period), so a
-variant's figures equal ``check_torque``'s bit for bit (a test holds both to it).
+judge of ``trajgen sim``. The runs go through :func:`trajgen.sim.run.run_batch`,
+as ``trajgen sim``'s single run does, here with many runs per call on several
+threads, so a variant's figures equal ``check_torque``'s bit for bit (a test
+holds both to it).
 
 :func:`sweep_on_dask` runs the same chunks on a Dask cluster.
 """
@@ -22,8 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.sim.errors import SimulationError
-from trajgen.sim.model import GimbalConfig, gimbal_mjcf
+from trajgen.sim.model import GimbalConfig
 from trajgen.validate import check_number
 
 _FAILED_PARTS = {"x envelope": "envelope", "torque limit": "limit", "tracking error": "tracking"}
@@ -140,96 +137,6 @@ def variants(
     ]
 
 
-def sensor_mjcf(config: GimbalConfig) -> str:
-    """The gimbal's MJCF (:func:`gimbal_mjcf`), which has an ``<actuatorfrc>`` sensor per joint.
-
-    Sensors change nothing in the dynamics; ``mujoco.rollout`` records them.
-    """
-    return gimbal_mjcf(config)
-
-
-def step_controls(trajectory, config: GimbalConfig, model) -> tuple[np.ndarray, np.ndarray]:
-    """What :func:`trajgen.sim.run.simulate` sends, one row per physics step.
-
-    Returns
-    -------
-    step_t : ndarray, shape (K,)
-        Step start times (s).
-    ctrl : ndarray, shape (K, nu)
-        Goal position per actuator (rad, whole ticks).
-    """
-    from trajgen.sim.run import goal_ticks_rad, step_frames
-
-    step_t, frame = step_frames(trajectory, config.timestep_s)
-    return step_t, goal_ticks_rad(trajectory.q)[frame]
-
-
-def initial_state(model, trajectory) -> tuple[np.ndarray, np.ndarray]:
-    """Full physics state and warm start of the gimbal at rest at the first frame."""
-    import mujoco
-
-    data = mujoco.MjData(model)
-    data.qpos[:] = trajectory.q[0]
-    data.time = trajectory.t[0]
-    mujoco.mj_forward(model, data)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    state = np.empty(mujoco.mj_stateSize(model, spec))
-    mujoco.mj_getState(model, data, state, spec)
-    return state, data.qacc_warmstart.copy()
-
-
-def rollout_batch(models, states, warmstarts, controls, *, threads: int = 2):
-    """``mujoco.rollout`` over a batch: returns ``(qpos, qvel, sensordata)`` after each step.
-
-    Parameters
-    ----------
-    models : list of MjModel
-        Same size signature.
-    states : ndarray, shape (B, nstate)
-    warmstarts : ndarray, shape (B, nv)
-    controls : ndarray, shape (B, K, nu)
-    threads : int
-        Worker threads (one ``MjData`` each).
-
-    Returns
-    -------
-    qpos, qvel : ndarray, shape (B, K, nq)
-    sensordata : ndarray, shape (B, K, nsensordata)
-    """
-    import mujoco
-    from mujoco import rollout
-
-    datas = [mujoco.MjData(models[0]) for _ in range(max(1, int(threads)))]
-    state, sensordata = rollout.rollout(
-        list(models), datas, states, controls, initial_warmstart=warmstarts
-    )
-    nq, nv = models[0].nq, models[0].nv
-    # Full physics state: time, qpos, qvel, act, ...
-    return state[..., 1 : 1 + nq], state[..., 1 + nq : 1 + nq + nv], sensordata
-
-
-def judge(trajectory, config, q0, qpos, qvel, torque, step_t, ctrl):
-    """The torque check's report of a rolled-out run (``q`` and ``qd`` at each step's start)."""
-    from trajgen.sim.check import build_report
-    from trajgen.sim.run import SimRecord, at_torque_limit, planned_path
-
-    q = np.vstack([q0[None], qpos[:-1]])
-    qd = np.vstack([np.zeros((1, qvel.shape[1])), qvel[:-1]])
-    if not (np.isfinite(q).all() and np.isfinite(torque).all()):
-        raise SimulationError("the simulation diverged (non-finite state)")
-    record = SimRecord(
-        t=step_t,
-        q=q,
-        qd=qd,
-        torque_nm=torque,
-        setpoint=ctrl,
-        planned=planned_path(trajectory, step_t),
-        at_limit=at_torque_limit(config, qd, torque),
-        timestep_s=config.timestep_s,
-    )
-    return build_report(trajectory, config, record)
-
-
 def _summary(variant: Variant, report) -> VariantResult:
     joints = list(report.joints.values())
     worst = min(joints, key=lambda j: j.worst_planned_margin_nm)
@@ -258,7 +165,7 @@ def run_sweep(
     batch: int = 32,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[VariantResult]:
-    """Run the torque check on every variant on this machine (``mujoco.rollout``, threads).
+    """Run the torque check on every variant on this machine (``mujoco.batch``, threads).
 
     Parameters
     ----------
@@ -288,7 +195,7 @@ def run_sweep(
     KeyframeFileError, KinematicsError, ValueError, TypeError
         For bad input (the path is checked once per time scale).
     SimulationError
-        If a run diverges.
+        If MuJoCo warns in a run (the message names the variant).
     """
     from trajgen.keyframes import load_keyframe_file
     from trajgen.sim.check import DEFAULT_RATE_HZ
@@ -334,25 +241,32 @@ def scaled_trajectory(source, scale: float, rate_hz: float):
 def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, threads: int):
     """Full torque reports (:class:`TorqueReport`) of one trajectory under several variants.
 
-    The variants' runs go through one ``mujoco.rollout`` call on ``threads`` threads.
+    The variants' runs go through one :func:`trajgen.sim.run.run_batch` call on
+    ``threads`` threads; each report is :func:`trajgen.sim.check.build_report`'s.
     """
-    import mujoco
+    from trajgen.sim.check import build_report
+    from trajgen.sim.run import record_from_run, run_batch, simulation_model, step_controls
 
     configs = [v.config(base) for v in batch]
-    models = [mujoco.MjModel.from_xml_string(sensor_mjcf(c)) for c in configs]
-    prepared = [step_controls(trajectory, c, m) for c, m in zip(configs, models, strict=True)]
-    starts = [initial_state(m, trajectory) for m in models]
-    controls = np.stack([ctrl for _, ctrl in prepared])
-    qpos, qvel, torque = rollout_batch(
+    models = [simulation_model(c) for c in configs]
+    step_t, ctrl = step_controls(trajectory, base.timestep_s)
+    q, qd, torque = run_batch(
         models,
-        np.stack([s for s, _ in starts]),
-        np.stack([w for _, w in starts]),
-        controls,
+        trajectory.q[0],
+        step_t[0],
+        step_t,
+        np.broadcast_to(ctrl, (len(configs), *ctrl.shape)),
         threads=threads,
+        labels=[v.label() for v in batch],
     )
     return [
-        judge(trajectory, c, trajectory.q[0], qpos[b], qvel[b], torque[b], step_t, ctrl)
-        for b, (c, (step_t, ctrl)) in enumerate(zip(configs, prepared, strict=True))
+        build_report(
+            trajectory,
+            c,
+            record_from_run(trajectory, c, step_t, ctrl, q[b], qd[b], torque[b]),
+            model=models[b],
+        )
+        for b, c in enumerate(configs)
     ]
 
 

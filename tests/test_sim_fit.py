@@ -252,3 +252,85 @@ def test_too_fast_motion_is_slowed_to_what_the_servos_track(tmp_path):
     )
     assert not faster.ok
     assert any("tracking" in s.binding for s in result.segments)
+
+
+# The same keyframes on the default spline: global, so one segment's duration moves all.
+SMOOTH_KEYS = KEYS.replace('method = "blending"', 'method = "smooth"')
+
+
+@pytest.fixture(scope="module")
+def fitted_smooth(tmp_path_factory):
+    tmp_path = tmp_path_factory.mktemp("fit_smooth")
+    path = _write(tmp_path, SMOOTH_KEYS)
+    result = fit_timing(path)
+    return path, result, _write(tmp_path, result.toml(), "fitted.toml")
+
+
+def test_smooth_spline_fit_is_tight_segment_by_segment(fitted_smooth, tmp_path):
+    """On the global spline too, any one segment 10 % faster alone fails the check."""
+    _, result, out = fitted_smooth
+    assert result.report.ok and result.tight
+    document = tomllib.loads(out.read_text())
+    durations = np.diff(result.times)
+    for i in range(len(durations)):
+        d = durations.copy()
+        d[i] /= 1.1
+        times = np.concatenate([[0.0], np.cumsum(d)])
+        report = check_torque(_retimed(tmp_path, document, times, f"seg{i}.toml"))
+        assert not report.ok, f"segment {i + 1} could go 10% faster alone\n{result.format()}"
+
+
+def test_plan_only_fit_reaches_its_splines_floor(fitted_smooth):
+    """The joint fit is as short as a global search over the durations finds (within 1 %).
+
+    Nelder-Mead over the durations' ratios on :func:`uniform_time_function`
+    (each shape scaled until its slowest sample is at its limit). A fit that
+    moves one segment at a time stops about 20 % above it here, where
+    shortening any one segment pushes a neighbour over its limit.
+    """
+    from scipy.optimize import minimize
+
+    from trajgen.sim.fit import uniform_time_function
+
+    path, _, _ = fitted_smooth
+    plan_only = fit_timing(path, simulate=False)
+    probe, exact = uniform_time_function(path, probe=True), uniform_time_function(path)
+    search = minimize(
+        lambda x: probe(np.exp(x)), np.zeros(3), method="Nelder-Mead", options={"xatol": 1e-3}
+    )
+    floor = exact(np.exp(search.x))
+    assert plan_only.duration_s <= 1.01 * floor
+    # At the fit's own durations the plan is at its limit (within the tolerance).
+    assert exact(np.diff(plan_only.times)) == pytest.approx(plan_only.duration_s, rel=0.01)
+    # The uniformly scaled time depends on the durations' ratios only.
+    assert exact(np.array([2.0, 1.0, 3.0])) == pytest.approx(exact([4.0, 2.0, 6.0]), rel=0.01)
+
+
+def test_first_negative_root_matches_a_fine_grid(rng):
+    from trajgen.sim.fit import _first_negative_root
+
+    a = rng.uniform(-0.2, 1.0, 400)
+    b, c = rng.normal(size=400), rng.normal(size=400)
+    c[:20] = 0.0  # linear
+    root = _first_negative_root(a, b, c)
+    s = np.linspace(0.0, 10.0, 20_001)[:, None]
+    negative = a + b * s + c * s * s < 0
+    grid = np.where(negative.any(axis=0), s[np.argmax(negative, axis=0), 0], np.inf)
+    inside = np.isfinite(grid) & (root < 9.9)
+    np.testing.assert_allclose(root[inside], grid[inside], atol=1e-3)
+    never = root[~np.isfinite(grid) & (a >= 0)]
+    assert np.all(never > 9.99)
+    assert np.all(root[a < 0] == 0.0)
+
+
+def test_cli_without_scipy_is_bad_input(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "scipy" else real(name, *a)
+    )
+    from trajgen.cli import main
+
+    assert main(["fit", str(_write(tmp_path)), "--out", str(tmp_path / "o.toml")]) == 2
+    assert "fit needs the scipy package: pip install scipy" in capsys.readouterr().err

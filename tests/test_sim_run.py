@@ -1,14 +1,27 @@
 """Running a joint stream: zero-order hold, start at rest, torque vs inverse dynamics, faults."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import quintic_trajectory
 
-from trajgen.sim.dynamics import inverse_dynamics
+from trajgen.sim.dynamics import inverse_dynamics, inverse_dynamics_split
 from trajgen.sim.errors import SimulationError
 from trajgen.sim.model import GimbalConfig, build_model, gimbal_mjcf
-from trajgen.sim.run import goal_ticks_rad, planned_path, simulate
+from trajgen.sim.run import (
+    goal_ticks_rad,
+    planned_path,
+    run_batch,
+    simulate,
+    simulation_model,
+    step_and_record,
+    step_controls,
+    step_frames,
+)
 from trajgen.stream import JointTrajectory
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def test_setpoints_are_held_for_one_stream_period():
@@ -92,10 +105,99 @@ def test_a_mujoco_warning_fails_the_run(tmp_path, monkeypatch):
     q = trajectory.q.copy()
     q[5:, 0] = 1e20  # finite, but MuJoCo flags it as a huge control
     bad = JointTrajectory(trajectory.t, q, trajectory.qd, trajectory.qdd, trajectory.rate_hz)
+    # The 5 ms frame from t = 0.025 s holds the bad goal; its first step warns.
     with pytest.raises(
-        SimulationError, match=r"MuJoCo warning between t = 0\.0250 and 0\.0300 s: mjWARN_BADCTRL"
+        SimulationError, match=r"MuJoCo warning in the step at t = 0\.0250 s: mjWARN_BADCTRL"
     ):
         simulate(bad)
+    # The same with progress reports (the run in 20 calls).
+    with pytest.raises(SimulationError, match=r"at t = 0\.0250 s: mjWARN_BADCTRL"):
+        simulate(bad, progress=lambda fraction: None)
+
+
+def test_a_warning_in_the_last_step_of_one_run_of_a_batch_is_named(tmp_path, monkeypatch):
+    # MuJoCo stops a run that warns; in the last step nothing follows to show it
+    # stopped, so the warning counters alone must catch it, in the right run.
+    monkeypatch.chdir(tmp_path)
+    config = GimbalConfig()
+    trajectory = quintic_trajectory([0.1, 0.0, 0.0], 0.1)
+    step_t, ctrl = step_controls(trajectory, config.timestep_s)
+    controls = np.stack([ctrl, ctrl, ctrl])
+    controls[1, -1, 2] = 1e20
+    models = [simulation_model(config)] * 3
+    labels = ["first", "second", "third"]
+    at = f"{step_t[-1]:.4f}"
+    with pytest.raises(
+        SimulationError, match=rf"^second: MuJoCo warning in the step at t = {at} s"
+    ):
+        run_batch(models, trajectory.q[0], step_t[0], step_t, controls, labels=labels)
+
+
+def _per_step_loop(trajectory, config):
+    """The per-frame ``mj_step`` loop ``simulate`` ran before it used ``run_batch``."""
+    import mujoco
+
+    model = build_model(config)  # with MuJoCo's collision stage, as it was
+    data = mujoco.MjData(model)
+    step_t, frame = step_frames(trajectory, config.timestep_s)
+    goals = goal_ticks_rad(trajectory.q)
+    data.qpos[:] = trajectory.q[0]
+    data.time = step_t[0]
+    mujoco.mj_forward(model, data)
+    q, qd, torque = (np.empty((len(step_t), 3)) for _ in range(3))
+    bounds = np.append(np.flatnonzero(np.diff(frame, prepend=-1)), len(step_t))
+    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+        data.ctrl[:] = goals[frame[a]]
+        step_and_record(model, data, q[a:b], qd[a:b], torque[a:b])
+    return q, qd, torque
+
+
+@pytest.mark.parametrize("example", ["builtin", "sim_too_fast.toml"])
+def test_simulate_equals_the_per_step_loop_bit_for_bit(example):
+    from trajgen import BUILTIN_EXAMPLE
+    from trajgen.sim.check import check_torque, resolve_source
+
+    path = BUILTIN_EXAMPLE if example == "builtin" else EXAMPLES / example
+    trajectory, config = resolve_source(str(path))
+    q, qd, torque = _per_step_loop(trajectory, config)
+    seen = []
+    for record in (
+        simulate(trajectory, config),
+        simulate(trajectory, config, progress=seen.append),
+    ):
+        np.testing.assert_array_equal(record.q, q)
+        np.testing.assert_array_equal(record.qd, qd)
+        np.testing.assert_array_equal(record.torque_nm, torque)
+    assert len(seen) == 20 and seen[-1] == 1.0
+    # The built-in example passes, the other fails (at the torque limit).
+    assert check_torque(str(path)).ok == (example == "builtin")
+
+
+def test_the_simulation_model_refuses_geoms_that_collide(monkeypatch):
+    import mujoco
+
+    import trajgen.sim.run as run
+
+    colliding = gimbal_mjcf().replace('contype="0" conaffinity="0"', "")
+    monkeypatch.setattr(
+        run, "build_model", lambda config: mujoco.MjModel.from_xml_string(colliding)
+    )
+    with pytest.raises(SimulationError, match="the gimbal model has geoms that can collide"):
+        simulate(quintic_trajectory([0.1, 0.0, 0.0], 0.1))
+
+
+def test_inverse_dynamics_split_equals_two_passes_bit_for_bit():
+    trajectory = quintic_trajectory([1.0, -0.4, 0.6], 0.8, rate_hz=200.0)
+    model = build_model()
+    args = (model, trajectory.q, trajectory.qd, trajectory.qdd)
+    tau, smooth = inverse_dynamics_split(*args)
+    np.testing.assert_array_equal(tau, inverse_dynamics(*args))
+    np.testing.assert_array_equal(smooth, inverse_dynamics(*args, coulomb=False))
+    assert np.abs(tau - smooth).max() > 0.01  # the Coulomb friction is there
+    # The stages the simulation model skips change nothing here either.
+    lean = inverse_dynamics_split(simulation_model(GimbalConfig()), *args[1:])
+    np.testing.assert_array_equal(lean[0], tau)
+    np.testing.assert_array_equal(lean[1], smooth)
 
 
 def test_contacts_inside_the_gimbal_are_refused():
@@ -117,6 +219,13 @@ def test_progress_is_reported_up_to_one():
     assert seen[-1] == 1.0
     assert len(seen) >= 10
     assert seen == sorted(seen)
+    # Fewer steps than reports: one report per step.
+    seen.clear()
+    t = np.array([0.0, 0.005])
+    still = np.zeros((2, 3))
+    record = simulate(JointTrajectory(t, still, still, still, 200.0), progress=seen.append)
+    assert len(record.t) == 10
+    assert seen == [k / 10 for k in range(1, 11)]
 
 
 @pytest.mark.parametrize(

@@ -1,4 +1,4 @@
-"""`trajgen sweep` on mujoco.rollout: the same verdicts, bit for bit, as `trajgen sim`."""
+"""`trajgen sweep` on mujoco.batch: the same verdicts, bit for bit, as `trajgen sim`."""
 
 import argparse
 import json
@@ -9,15 +9,12 @@ import pytest
 
 from trajgen.keyframes import load_keyframe_file
 from trajgen.sim import GimbalConfig, check_torque
+from trajgen.sim.run import run_batch, simulation_model, step_controls
 from trajgen.sim.sweep import (
     Variant,
     check_batch,
-    initial_state,
-    rollout_batch,
     run_sweep,
     scaled_trajectory,
-    sensor_mjcf,
-    step_controls,
     variants,
 )
 
@@ -74,30 +71,30 @@ def test_rollout_equals_check_torque_bit_for_bit(keys):
             assert got.ok == want.ok and got.reasons == want.reasons
 
 
-def test_rollout_equals_python_loop_bit_for_bit(keys):
-    """mujoco.rollout on 2 threads and a plain mj_step loop give identical arrays."""
+def test_batch_on_two_threads_equals_python_loop_bit_for_bit(keys):
+    """run_batch on 2 threads and a plain mj_step loop give identical arrays.
+
+    The first variant has no payload (one geom fewer), so it runs in a batch of its own.
+    """
     trajectory = scaled_trajectory(keys, 0.5, 100.0)
-    configs = [v.config(GimbalConfig()) for v in SMALL[:4]]
-    models = [mujoco.MjModel.from_xml_string(sensor_mjcf(c)) for c in configs]
-    ctrls = [step_controls(trajectory, c, m)[1] for c, m in zip(configs, models, strict=True)]
-    starts = [initial_state(m, trajectory) for m in models]
-    qpos, qvel, torque = rollout_batch(
-        models,
-        np.stack([s for s, _ in starts]),
-        np.stack([w for _, w in starts]),
-        np.stack(ctrls),
-        threads=2,
+    base = GimbalConfig()
+    payloads = variants([0.0, 0.15, 2.5], [(0.03, 0.0, 0.0)], [SMALL[0].servos], [1.0])
+    configs = [v.config(base) for v in payloads]
+    models = [simulation_model(c) for c in configs]
+    step_t, ctrl = step_controls(trajectory, base.timestep_s)
+    q, qd, torque = run_batch(
+        models, trajectory.q[0], step_t[0], step_t, np.stack([ctrl] * len(models)), threads=2
     )
-    for b, (model, ctrl) in enumerate(zip(models, ctrls, strict=True)):
+    for b, model in enumerate(models):
         data = mujoco.MjData(model)
         data.qpos[:] = trajectory.q[0]
         data.time = trajectory.t[0]
         mujoco.mj_forward(model, data)
         for k in range(len(ctrl)):
+            assert np.array_equal(data.qpos, q[b, k]) and np.array_equal(data.qvel, qd[b, k])
             data.ctrl[:] = ctrl[k]
             mujoco.mj_step(model, data)
-            assert np.array_equal(data.qpos, qpos[b, k]) and np.array_equal(data.qvel, qvel[b, k])
-            assert np.array_equal(data.sensordata, torque[b, k])
+            assert np.array_equal(data.actuator_force, torque[b, k])
 
 
 def test_sweep_finds_the_failing_variants(keys):

@@ -13,6 +13,7 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     bad_input,
+    check_module,
     check_output_path,
     load_checked,
     positive_float,
@@ -32,8 +33,9 @@ limit, tracking within the limit) and the file's optional [limits] table:
   acceleration_rad_s2 = 30.0
   jerk_rad_s3 = 600.0
 
-Each segment gets its own duration: a segment far from every limit is not slowed
-for another's sake. Prints per segment the old and new duration and the limit that
+Each segment gets its own duration, all optimised jointly (scipy's SLSQP: pip
+install 'trajgen[fit]'): a segment far from every limit is not slowed for
+another's sake. Prints per segment the old and new duration and the limit that
 binds; checks that the same keyframes 10% faster fail. Writes the fitted file to
 --out, keeping every other table of the input (comments are not kept).
 
@@ -83,6 +85,7 @@ def run_fit(args) -> int:
 
     try:
         check_output_path("--out", args.out)
+        check_module("fit", "scipy", "scipy")  # its SLSQP optimises the durations jointly
         checked = load_checked(args.file)  # every table, [bus] included
         result = fit_timing(
             checked.keyframes,

@@ -26,7 +26,7 @@ from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 DESCRIPTION = """\
 Run `trajgen sim`'s torque check on every combination of payload mass, payload
-offset, servo model per joint and time scale, on mujoco.rollout threads (or on a
+offset, servo model per joint and time scale, on MuJoCo batch threads (or on a
 Dask cluster with --dask), and print pass/fail with the worst planned margin
 (margin x envelope - |planned torque|, N m) per variant. Unset axes keep the file's
 [gimbal] values; the time scale multiplies the keyframe times (0.5 = twice as fast).
