@@ -161,19 +161,20 @@ def _series(coef: np.ndarray, x: np.ndarray, K: int) -> list:
 
     One Horner pass for all K + 1 of them over the rows of :func:`_series_rows` (few
     samples take the series, so the number of array operations is what counts). One
-    sample runs the same operations, in the same order, on Python floats (the same bits
-    at a fraction of the cost of ~20 array operations).
+    sample (``x`` a float, or an array (1,)) runs the same operations, in the same order,
+    on Python floats: the same bits at a fraction of the cost of ~20 array operations.
     """
     d, backwards = _series_rows(coef, K)
-    if len(x) == 1:
-        xf = float(x[0])
+    if np.ndim(x) == 0:  # one sample as a float (see _floats): floats out
         out = []
         for row in backwards:
             acc = row[0]
             for c in row[1:]:
-                acc = acc * xf + c
-            out.append(np.array([acc]))
+                acc = acc * x + c
+            out.append(acc)
         return out
+    if len(x) == 1:
+        return [np.array([v]) for v in _series(coef, float(x[0]), K)]
     acc = np.repeat(d[:, -1:], len(x), axis=1)
     for j in range(len(coef) - 2, -1, -1):
         acc *= x
@@ -210,6 +211,23 @@ def _split_steps(small, fn_small, fn_large, args, K):
     return out
 
 
+def _floats(x: list) -> list:
+    """A derivative list of one sample, arrays (1,), as Python floats.
+
+    A change to an online path evaluates the old path at one time: a few hundred
+    operations on one sample, each ~1 us of fixed cost as an array operation. The
+    scalar parts run on floats instead: the same operations in the same order give the
+    same bits (IEEE arithmetic; numpy's functions run the same loop on a float as on an
+    array), ``tests/test_evaluation.py`` checks one sample against its row of a batch.
+    """
+    return [float(v[0]) for v in x]
+
+
+def _arrays(x: list) -> list:
+    """The inverse of :func:`_floats`: arrays (1,)."""
+    return [np.array([v], dtype=float) for v in x]
+
+
 def _cos_sinc_series(x, K):
     return _series(_COS, x[0], K) + _series(_SINC, x[0], K)
 
@@ -238,6 +256,10 @@ def cos_sinc_sqrt(x: list) -> tuple[list, list]:
     if K == 0:  # values alone are accurate down to 0 without the series
         a = np.sqrt(x[0])
         return [np.cos(a)], [np.sin(a) / np.where(a > 0, a, 1.0) + (a == 0)]
+    if len(x[0]) == 1:  # one sample: on floats
+        x = _floats(x)
+        d = (_cos_sinc_series if x[0] < SERIES_BELOW else _cos_sinc_closed)(x[:1], K)
+        return _arrays(chain(d[: K + 1], x)), _arrays(chain(d[K + 1 :], x))
     d = _split(x[0] < SERIES_BELOW, _cos_sinc_series, _cos_sinc_closed, [x[:1]], K)
     return chain(d[: K + 1], x), chain(d[K + 1 :], x)
 
@@ -289,9 +311,14 @@ def slerp_steps(p: list, q: list, f: list):
         wa = np.where(at_knot, 1.0 - f[0], np.sin((1.0 - f[0]) * phi) * inv)
         wb = np.where(at_knot, f[0], np.sin(f[0] * phi) * inv)
         return [wa[None] * p[0] + wb[None] * q[0]]
-    w = yield from _split_steps(
-        z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K
-    )
+    if len(z[0]) == 1:  # one sample: the weights on floats
+        z, f = _floats(z), _floats(f)
+        w = _slerp_weights_series if z[0] < SERIES_BELOW else _slerp_weights_closed
+        w = yield from w(z, f, K)
+    else:
+        w = yield from _split_steps(
+            z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K
+        )
     return [x + y for x, y in zip(product(w[: K + 1], p), product(w[K + 1 :], q), strict=True)]
 
 
