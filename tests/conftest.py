@@ -31,3 +31,20 @@ def quintic_trajectory(amplitude_rad, duration_s, rate_hz=200.0, start_rad=(0.0,
     qd = a * (30 * s**2 - 60 * s**3 + 30 * s**4) / duration_s
     qdd = a * (60 * s - 180 * s**2 + 120 * s**3) / duration_s**2
     return JointTrajectory(t, q, qd, qdd, float(rate_hz))
+
+
+def random_walk_keyframes(seed, n, spread, boundary):
+    """Keyframes (n, 4) a random walk of rotations apart (``spread`` rad per step), at
+    random increasing times shifted by up to 5 s; closed loops repeat the first."""
+    from trajgen import quat as Q
+
+    rng = np.random.default_rng(seed)
+    steps = Q.exp(rng.normal(scale=spread, size=(n, 3)))
+    q = steps.copy()
+    for i in range(1, n):
+        q[i] = Q.mul(steps[i], q[i - 1])
+    if boundary == "closed":
+        n = max(n, 3)
+        q = np.vstack([q[: n - 1], q[:1]])
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
+    return q, t + rng.uniform(-5.0, 5.0)

@@ -5,12 +5,12 @@ import re
 
 import numpy as np
 import pytest
+from conftest import random_walk_keyframes
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trajgen import SmoothSpline, load_keyframe_file
 from trajgen import derivatives as dv
-from trajgen import quat as Q
 from trajgen.errors import KinematicsError
 from trajgen.frame_eval import FrameKinematics, SmoothFrames, cos_sinc_sqrt
 from trajgen.gimbal import GimbalKinematics, forward, joint_rates
@@ -39,20 +39,6 @@ def test_cos_sinc_matches_the_numpy_closed_forms_on_both_branches():
     np.testing.assert_allclose(scalar[:, 3:], np.array(S).T, rtol=1e-13, atol=1e-15)
 
 
-def random_keyframes(seed, n, spread, boundary):
-    """Keyframes a random walk of rotations apart, at random times."""
-    rng = np.random.default_rng(seed)
-    steps = Q.exp(rng.normal(scale=spread, size=(n, 3)))
-    q = steps.copy()
-    for i in range(1, n):
-        q[i] = Q.mul(steps[i], q[i - 1])
-    if boundary == "closed":
-        n = max(n, 3)
-        q = np.vstack([q[: n - 1], q[:1]])
-    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
-    return q, t + rng.uniform(-5.0, 5.0)
-
-
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(
     seed=st.integers(0, 2**32 - 1),
@@ -62,7 +48,7 @@ def random_keyframes(seed, n, spread, boundary):
     quintic=st.booleans(),
 )
 def test_smooth_frames_equal_the_spline_at_any_time(seed, n, spread, boundary, quintic):
-    q, t = random_keyframes(seed, n, spread, boundary)
+    q, t = random_walk_keyframes(seed, n, spread, boundary)
     # Either knot choice (the default at rest is end-minimax): the frames read the table.
     spline = SmoothSpline(q, t, boundary=boundary, knots="quintic" if quintic else None)
     rng = np.random.default_rng(seed)

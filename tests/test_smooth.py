@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from conftest import random_walk_keyframes
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -274,15 +275,7 @@ def test_unsorted_and_sparse_times_give_the_same_values(rng):
 )
 def test_property_random_keyframes(seed, n, spread, boundary):
     boundary, _, knots = boundary.partition(" ")
-    rng = np.random.default_rng(seed)
-    steps = Q.exp(rng.normal(scale=spread, size=(n, 3)))
-    q = steps.copy()
-    for i in range(1, n):
-        q[i] = Q.mul(steps[i], q[i - 1])
-    if boundary == "closed":
-        n = max(n, 3)
-        q = np.vstack([q[: n - 1], q[:1]])
-    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
+    q, t = random_walk_keyframes(seed, n, spread, boundary)
     s = SmoothSpline(q, t, boundary=boundary, knots=knots or "quintic")
     S = s.evaluate(np.linspace(t[0], t[-1], 301), max_order=3)
     assert all(np.isfinite(x).all() for x in S[1:])
