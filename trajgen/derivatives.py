@@ -314,8 +314,8 @@ def slerp_steps(p: list, q: list, f: list):
         return [wa[None] * p[0] + wb[None] * q[0]]
     if len(z[0]) == 1:  # one sample: the weights on floats
         z, f = _floats(z), _floats(f)
-        w = _slerp_weights_series if z[0] < SERIES_BELOW else _slerp_weights_closed
-        w = yield from w(z, f, K)
+        branch = _slerp_weights_series if z[0] < SERIES_BELOW else _slerp_weights_closed
+        w = yield from branch(z, f, K)
     else:
         w = yield from _split_steps(
             z[0] < SERIES_BELOW, _slerp_weights_series, _slerp_weights_closed, [z, f], K
