@@ -75,6 +75,21 @@ def test_blocks_do_not_change_results(monkeypatch, rng):
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("local", ["auto", "circle", "parabola"])
+def test_one_sample_gives_its_row_of_a_batch(local, rng):
+    # The single-sample paths (floats in place of arrays) must give the same bits as the
+    # batch, on both sides of every series threshold (times at and next to the knots).
+    s = BlendingSpline(random_walk(rng, 7, 0.5), np.arange(7.0), local=local)
+    tt = np.concatenate([rng.uniform(0, 6, 40), np.arange(7.0), np.arange(1.0, 6.0) + 1e-3])
+    seg, tt = s._segment(tt)
+    q, rates = s._space_rates(tt, seg, 3)
+    for i in range(len(tt)):
+        q1, rates1 = s._space_rates(tt[i : i + 1], seg[i : i + 1], 3)
+        np.testing.assert_array_equal(q1[0], q[i])
+        for a, b in zip(rates1, rates, strict=True):
+            np.testing.assert_array_equal(a[0], b[i])
+
+
 @pytest.mark.parametrize("f", [0.0, 0.3, 1.0])
 def test_slerp_weight_branches_agree_at_the_threshold(f):
     from trajgen.path import run_steps
