@@ -235,7 +235,7 @@ def solve_block_tridiagonal(diag, upper, rhs) -> np.ndarray:
 def solve_block_cyclic(diag, upper, rhs) -> np.ndarray:
     """Solve a symmetric block-tridiagonal system with the corner blocks of a loop, O(m).
 
-    ``A = T + E G E^T``: ``T`` the system without the corners (block Thomas), ``E``
+    ``A = T + E G E^T``: ``T`` the system without the corners (the block solve above), ``E``
     picks knots 0 and m - 1, ``G = [[0, W^T], [W, 0]]`` with ``W = upper[-1]`` (row
     knot m - 1, column knot 0). Woodbury: ``x = y - Z (I + G E^T Z)^-1 G E^T y``
     with ``T y = b``, ``T Z = E``, both from one block solve.
