@@ -3,24 +3,40 @@
 16 random keyframes (seeded), 1,000 samples per segment, two ways of asking:
 one ``evaluate(t, max_order=2)``, and ``s(t), s(t, 1), s(t, 2)`` as a scipy user
 writes it. scipy does the same work in the same run (interleaved, median of 9).
-Target (issue 10): at least 1x scipy on both patterns on a plain numpy install.
-Then construction alone for 16 to 10,000 keyframes (no target; for the record).
+Targets (issue 10): at least 1x scipy on both patterns on a plain numpy install;
+with the fast extra (``TRAJGEN_NUMBA=1``, the compiled kernel) at least 8x on
+large evaluations (``--large`` adds 150,001 and 1,500,001 samples, median of 3).
+Then construction alone for 16 to 100,000 keyframes (target: 2x at 10,000).
 
-    python bench/smooth_speed.py
+    TRAJGEN_NUMBA=0 python bench/smooth_speed.py
+    TRAJGEN_NUMBA=1 python bench/smooth_speed.py --large
 """
 
+import argparse
 import os
 
 import numpy as np
 from scipy.spatial.transform import Rotation, RotationSpline
 from timing import interleaved_medians, random_keyframes
 
+from trajgen import fast
 from trajgen.smooth import SmoothSpline
 
 
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--large", action="store_true", help="also 150,001 and 1,500,001 samples")
+    sizes = (15_001, 150_001, 1_500_001) if parser.parse_args().large else (15_001,)
+    for samples in sizes:
+        evaluation(samples, repeats=9 if samples < 100_000 else 3)
+    construction()
+
+
+def evaluation(samples: int, repeats: int) -> None:
+    """Construct + q, omega, alpha at ``samples`` samples: SmoothSpline against scipy."""
     quats, times = random_keyframes(16)
-    t = np.linspace(times[0], times[-1], 15 * 1000 + 1)
+    t = np.linspace(times[0], times[-1], samples)
+    kernel = "numba kernel" if fast.use_compiled(samples) else "numpy"
 
     def scipy_spline():
         s = RotationSpline(times, Rotation.from_quat(quats, scalar_first=True))
@@ -40,12 +56,12 @@ def main():
         "SmoothSpline, s(t), s(t, 1), s(t, 2)": smooth_calls,
     }
     load = os.getloadavg()
-    med = interleaved_medians(contenders, repeats=9)
+    med = interleaved_medians(contenders, repeats=repeats)
     load_after = os.getloadavg()
     base = med["scipy RotationSpline, s(t), s(t, 1), s(t, 2)"]
     print(
-        f"{len(t)} samples, 16 random keyframes, construct + q + omega + alpha, "
-        f"median of 9 (interleaved); numpy {np.__version__}"
+        f"\n{len(t)} samples, 16 random keyframes, construct + q + omega + alpha, "
+        f"median of {repeats} (interleaved); evaluation: {kernel}; numpy {np.__version__}"
     )
     print(
         f"machine load (1, 5, 15 min): before {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}, "
@@ -56,6 +72,9 @@ def main():
     for name, sec in med.items():
         print(f"| {name} | {sec * 1e3:.2f} | {len(t) / sec / 1e6:.2f} | {base / sec:.2f}x |")
 
+
+def construction() -> None:
+    """Construction alone, SmoothSpline against scipy, 16 to 100,000 keyframes."""
     print("\nConstruction alone, random keyframes 1 s apart (median of 3, interleaved):\n")
     print("| keyframes | SmoothSpline (ms) | scipy RotationSpline (ms) | speed vs scipy |")
     print("|---|---|---|---|")

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from trajgen import BlendingSpline, fast
+from trajgen import BlendingSpline, SmoothSpline, fast
 from trajgen import quat as Q
 
 pytest.importorskip("numba")
@@ -39,6 +39,33 @@ def test_compiled_path_matches_numpy(local, reparam, boundary, monkeypatch):
         np.testing.assert_array_equal(a, b)
     for a, b in zip(compiled[1:], reference[1:], strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * (1 + np.abs(b).max()))
+
+
+@pytest.mark.parametrize("boundary", ["rest", "natural", "closed"])
+def test_compiled_smooth_spline_matches_numpy(boundary, monkeypatch):
+    """SmoothSpline's kernel against its numpy closed form, both series branches
+    (the keyframes themselves, where r = 0, take the series)."""
+    rng = np.random.default_rng(11)
+    steps = Q.exp(rng.normal(scale=0.6, size=(7, 3)))
+    q = steps.copy()
+    for i in range(1, len(q)):
+        q[i] = Q.mul(steps[i], q[i - 1])
+    if boundary == "closed":
+        q[-1] = q[0]
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.4, 1.6, len(q) - 1))])
+    s = SmoothSpline(q, t, boundary=boundary)
+    tt = np.concatenate([np.linspace(t[0], t[-1], 999), t, t[:-1] + 1e-4])
+    monkeypatch.setattr(fast, "ENABLED", True)
+    monkeypatch.setattr(fast, "MODE", "always")
+    compiled = s.evaluate(tt, max_order=3)
+    monkeypatch.setattr(fast, "PARALLEL_SAMPLES", 1)  # the multi-threaded kernel too
+    parallel = s.evaluate(tt, max_order=3)
+    monkeypatch.setattr(fast, "ENABLED", False)
+    reference = s.evaluate(tt, max_order=3)
+    for a, b in zip(compiled, parallel, strict=True):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(compiled, reference, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * (1 + np.abs(b).max()))
 
 
 def test_degenerate_keys_match(monkeypatch):

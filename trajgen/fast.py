@@ -1,8 +1,8 @@
-"""Optional compiled evaluation of the blending spline (numba): the same arithmetic as numpy.
+"""Optional compiled evaluation of the splines (numba): the same arithmetic as numpy.
 
-The numpy path (:meth:`trajgen.spline.BlendingSpline._blend_derivatives`) is the
-reference; :mod:`trajgen.fast_kernel` restates it per sample for numba. Tests
-check that both agree.
+The numpy paths (:meth:`trajgen.spline.BlendingSpline._blend_derivatives`,
+``SmoothSpline._space_rates``) are the reference; :mod:`trajgen.fast_kernel`
+restates them per sample for numba. Tests check that both agree.
 
 Loading numba and its cached kernel costs a second or more of start-up, which
 only large evaluations win back, so by default (``TRAJGEN_NUMBA`` unset or
@@ -48,18 +48,15 @@ def use_compiled(samples: int) -> bool:
 
 
 def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Compiled evaluation at times ``t`` (M,) in segments ``seg`` (M,).
+    """Compiled evaluation of a BlendingSpline at times ``t`` (M,) in segments ``seg`` (M,).
 
     Returns ``q`` (M, 4) and the space-frame ``omega, alpha, jerk`` stacked (3, M, 3).
     """
     from . import fast_kernel
 
-    out_q = np.empty((len(t), 4))
-    out_w = np.empty((3, len(t), 3))
-    kernel = (
-        fast_kernel.evaluate_parallel if len(t) >= PARALLEL_SAMPLES else fast_kernel.evaluate_serial
-    )
-    kernel(
+    return _run(
+        fast_kernel.evaluate_parallel,
+        fast_kernel.evaluate_serial,
         t,
         seg,
         spline.times,
@@ -68,7 +65,27 @@ def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.nda
         spline._right,
         spline._blend,
         spline._curves.kernel_table,
-        out_q,
-        out_w,
     )
+
+
+def evaluate_smooth(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled evaluation of a SmoothSpline, as :func:`evaluate` (same returns)."""
+    from . import fast_kernel
+
+    return _run(
+        fast_kernel.smooth_parallel,
+        fast_kernel.smooth_serial,
+        t,
+        seg,
+        spline.times,
+        spline.tangent_coefficients,
+        spline.quats,
+    )
+
+
+def _run(parallel, serial, t, seg, *arrays) -> tuple[np.ndarray, np.ndarray]:
+    """One of a kernel pair on ``len(t)`` samples (threads from ``PARALLEL_SAMPLES``)."""
+    out_q = np.empty((len(t), 4))
+    out_w = np.empty((3, len(t), 3))
+    (parallel if len(t) >= PARALLEL_SAMPLES else serial)(t, seg, *arrays, out_q, out_w)
     return out_q, out_w

@@ -292,3 +292,72 @@ def evaluate_parallel(t, seg, times, inv_h, left, right, blend, tab, out_q, out_
     for k in numba.prange(parts):
         a, b = k * n // parts, (k + 1) * n // parts
         evaluate_range(a, b, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w)
+
+
+# SmoothSpline (trajgen.smooth): q = E q_i, E = exp(r_i(u)) = (C(x), S(x) r), x = r . r,
+# the arithmetic of SmoothSpline._space_rates one sample at a time.
+
+
+@njit
+def horner7(poly, i, row, u):
+    """Row ``row`` of segment ``i``'s coefficient table (powers u^0..u^7) at ``u``."""
+    p = poly[i, row, 7]
+    for k in range(6, -1, -1):
+        p = p * u + poly[i, row, k]
+    return p
+
+
+@njit
+def tangent(poly, i, axis, u):
+    """``r_i``'s component ``axis`` and its first three time derivatives at ``u``."""
+    return (
+        horner7(poly, i, axis, u),
+        horner7(poly, i, 3 + axis, u),
+        horner7(poly, i, 6 + axis, u),
+        horner7(poly, i, 9 + axis, u),
+    )
+
+
+@inline
+def smooth_sample(m, t, seg, times, poly, quats, out_q, out_w):
+    """Sample m: unit quaternion into out_q[m], omega, alpha, jerk into out_w[:, m]."""
+    i = seg[m]
+    u = (t[m] - times[i]) / (times[i + 1] - times[i])
+    rx, ry, rz = tangent(poly, i, 0, u), tangent(poly, i, 1, u), tangent(poly, i, 2, u)
+    C, S = cos_sinc_sqrt(add(add(prod(rx, rx), prod(ry, ry)), prod(rz, rz)))
+    E = (C, prod(S, rx), prod(S, ry), prod(S, rz))
+    ew, ex, ey, ez = E[0][0], E[1][0], E[2][0], E[3][0]
+    qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
+    out_q[m, 0] = ew * qw - ex * qx - ey * qy - ez * qz
+    out_q[m, 1] = ew * qx + ex * qw + ey * qz - ez * qy
+    out_q[m, 2] = ew * qy - ex * qz + ey * qw + ez * qx
+    out_q[m, 3] = ew * qz + ex * qy - ey * qx + ez * qw
+    # omega = 2 vec(E' E*), alpha = 2 vec(E" E*), jerk = 2 vec(E"' E* + E" E'*).
+    for n in range(1, 4):
+        x, y, w = vec_mul_conj(E, n, 0)
+        out_w[n - 1, m, 0] = 2.0 * x
+        out_w[n - 1, m, 1] = 2.0 * y
+        out_w[n - 1, m, 2] = 2.0 * w
+    x, y, w = vec_mul_conj(E, 2, 1)
+    out_w[2, m, 0] += 2.0 * x
+    out_w[2, m, 1] += 2.0 * y
+    out_w[2, m, 2] += 2.0 * w
+
+
+@njit
+def smooth_range(a, b, t, seg, times, poly, quats, out_q, out_w):
+    """Samples a..b-1 of a SmoothSpline."""
+    for m in range(a, b):
+        smooth_sample(m, t, seg, times, poly, quats, out_q, out_w)
+
+
+@njit
+def smooth_serial(t, seg, times, poly, quats, out_q, out_w):
+    smooth_range(0, len(t), t, seg, times, poly, quats, out_q, out_w)
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def smooth_parallel(t, seg, times, poly, quats, out_q, out_w):
+    n, parts = len(t), 64
+    for k in numba.prange(parts):
+        smooth_range(k * n // parts, (k + 1) * n // parts, t, seg, times, poly, quats, out_q, out_w)

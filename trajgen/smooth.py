@@ -26,6 +26,7 @@ import numpy as np
 from numpy.polynomial import polynomial as P
 
 from . import derivatives as dv
+from . import fast
 from . import jet as J
 from . import quat as Q
 from .path import OrientationPath, check_times
@@ -487,6 +488,9 @@ class SmoothSpline(OrientationPath):
         ``omega = 2 vec(E' E*)``, ``alpha = 2 vec(E'' E*)`` (``E' E'*`` is a scalar)
         and ``jerk = 2 vec(E''' E* + E'' E'*)``.
         """
+        if fast.use_compiled(len(t)):
+            q, rates = fast.evaluate_smooth(self, t, seg)
+            return q, list(rates[:max_order])
         r = list(self._tangent(t, seg, max_order))
         C, S = dv.cos_sinc_sqrt(dv.vdot(r, r))
         E = [np.concatenate([c[None], v]) for c, v in zip(C, dv.product(S, r), strict=True)]
