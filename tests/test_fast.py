@@ -28,17 +28,23 @@ def test_compiled_path_matches_numpy(local, reparam, boundary, monkeypatch):
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.4, 1.6, len(q) - 1))])
     s = BlendingSpline(q, t, k=3, local=local, reparam=reparam, boundary=boundary)
     tt = np.concatenate([np.linspace(t[0], t[-1], 999), t])
-    monkeypatch.setattr(fast, "ENABLED", True)
-    monkeypatch.setattr(fast, "MODE", "always")
-    compiled = s.evaluate(tt, max_order=3)
-    monkeypatch.setattr(fast, "PARALLEL_SAMPLES", 1)  # the multi-threaded kernel too
-    parallel = s.evaluate(tt, max_order=3)
-    monkeypatch.setattr(fast, "ENABLED", False)
-    reference = s.evaluate(tt, max_order=3)
-    for a, b in zip(compiled, parallel, strict=True):
-        np.testing.assert_array_equal(a, b)
+    compiled, reference = compiled_and_reference(s, tt, monkeypatch)
     for a, b in zip(compiled[1:], reference[1:], strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * (1 + np.abs(b).max()))
+
+
+def compiled_and_reference(spline, t, monkeypatch):
+    """``spline.evaluate(t, max_order=3)`` compiled (after checking that one and many
+    threads agree bit for bit) and with numpy."""
+    monkeypatch.setattr(fast, "ENABLED", True)
+    monkeypatch.setattr(fast, "MODE", "always")
+    compiled = spline.evaluate(t, max_order=3)
+    monkeypatch.setattr(fast, "PARALLEL_SAMPLES", 1)  # the multi-threaded kernel too
+    parallel = spline.evaluate(t, max_order=3)
+    monkeypatch.setattr(fast, "ENABLED", False)
+    for a, b in zip(compiled, parallel, strict=True):
+        np.testing.assert_array_equal(a, b)
+    return compiled, spline.evaluate(t, max_order=3)
 
 
 @pytest.mark.parametrize("boundary", ["rest", "natural", "closed"])
@@ -55,15 +61,7 @@ def test_compiled_smooth_spline_matches_numpy(boundary, monkeypatch):
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.4, 1.6, len(q) - 1))])
     s = SmoothSpline(q, t, boundary=boundary)
     tt = np.concatenate([np.linspace(t[0], t[-1], 999), t, t[:-1] + 1e-4])
-    monkeypatch.setattr(fast, "ENABLED", True)
-    monkeypatch.setattr(fast, "MODE", "always")
-    compiled = s.evaluate(tt, max_order=3)
-    monkeypatch.setattr(fast, "PARALLEL_SAMPLES", 1)  # the multi-threaded kernel too
-    parallel = s.evaluate(tt, max_order=3)
-    monkeypatch.setattr(fast, "ENABLED", False)
-    reference = s.evaluate(tt, max_order=3)
-    for a, b in zip(compiled, parallel, strict=True):
-        np.testing.assert_array_equal(a, b)
+    compiled, reference = compiled_and_reference(s, tt, monkeypatch)
     for a, b in zip(compiled, reference, strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * (1 + np.abs(b).max()))
 

@@ -244,7 +244,18 @@ def sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
     norm = math.sqrt(Q[0][0] ** 2 + Q[1][0] ** 2 + Q[2][0] ** 2 + Q[3][0] ** 2)
     for c in range(4):
         out_q[m, c] = Q[c][0] / norm
-    # omega = 2 vec(Q' Q*), alpha = 2 vec(Q" Q*), jerk = 2 vec(Q"' Q* + Q" Q'*).
+    space_rates(Q, m, out_w)
+
+
+@njit
+def add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
+
+
+@inline
+def space_rates(Q, m, out_w):
+    """omega = 2 vec(Q' Q*), alpha = 2 vec(Q" Q*), jerk = 2 vec(Q"' Q* + Q" Q'*) of a
+    unit quaternion's derivative lists ``Q``, into ``out_w[:, m]``."""
     for n in range(1, 4):
         x, y, w = vec_mul_conj(Q, n, 0)
         out_w[n - 1, m, 0] = 2.0 * x
@@ -254,11 +265,6 @@ def sample(m, t, seg, times, inv_h, left, right, blend, tab, out_q, out_w):
     out_w[2, m, 0] += 2.0 * x
     out_w[2, m, 1] += 2.0 * y
     out_w[2, m, 2] += 2.0 * w
-
-
-@njit
-def add(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
 
 
 @njit
@@ -332,16 +338,7 @@ def smooth_sample(m, t, seg, times, poly, quats, out_q, out_w):
     out_q[m, 1] = ew * qx + ex * qw + ey * qz - ez * qy
     out_q[m, 2] = ew * qy - ex * qz + ey * qw + ez * qx
     out_q[m, 3] = ew * qz + ex * qy - ey * qx + ez * qw
-    # omega = 2 vec(E' E*), alpha = 2 vec(E" E*), jerk = 2 vec(E"' E* + E" E'*).
-    for n in range(1, 4):
-        x, y, w = vec_mul_conj(E, n, 0)
-        out_w[n - 1, m, 0] = 2.0 * x
-        out_w[n - 1, m, 1] = 2.0 * y
-        out_w[n - 1, m, 2] = 2.0 * w
-    x, y, w = vec_mul_conj(E, 2, 1)
-    out_w[2, m, 0] += 2.0 * x
-    out_w[2, m, 1] += 2.0 * y
-    out_w[2, m, 2] += 2.0 * w
+    space_rates(E, m, out_w)
 
 
 @njit
