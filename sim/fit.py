@@ -356,6 +356,12 @@ def _make_fitter(source, config, limits, rate_hz, tolerance, progress) -> _Fitte
     return _Fitter(source, config, limits, rate, build_model(config), tolerance, say)
 
 
+def _segment_of(times: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Index (M,) of the segment of keyframe ``times`` (N,) holding each of ``t`` (M,), s;
+    the last segment holds the end time."""
+    return np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
+
+
 def _round_times(t0: float, durations: np.ndarray) -> np.ndarray:
     return np.round(t0 + np.concatenate([[0.0], np.cumsum(durations)]), _TIME_DECIMALS)
 
@@ -526,7 +532,6 @@ class _Fitter:
             The segment each sample lies in.
         """
         self.iterations += 1
-        n_seg = len(durations)
         times = float(self.source.times[0]) + np.concatenate([[0.0], np.cumsum(durations)])
         at = None
         if probe:
@@ -535,7 +540,7 @@ class _Fitter:
             trajectory = self.trajectory(times, at)
         except FitError:
             return None
-        segment = np.clip(np.searchsorted(times, trajectory.t, side="right") - 1, 0, n_seg - 1)
+        segment = _segment_of(times, trajectory.t)
         factor, code = self.sample_factors(trajectory, segment)
         return factor * self.slow[segment, None], code, segment
 
@@ -750,8 +755,7 @@ class _Fitter:
     def relax_caps(self, report, times) -> bool:
         """Raise speed caps where a passing run tracks well inside the limit; False if none."""
         record = report.record
-        n_seg = len(times) - 1
-        seg = np.clip(np.searchsorted(times, record.t, side="right") - 1, 0, n_seg - 1)
+        seg = _segment_of(times, record.t)
         limit = report.max_tracking_error_rad
         error = np.abs(record.tracking_error_rad)
         relaxed = False
@@ -769,12 +773,12 @@ class _Fitter:
         """Turn the simulation's failures into per-segment caps; False if nothing to learn."""
         record = report.record
         n_seg = len(times) - 1
-        seg = np.clip(np.searchsorted(times, record.t, side="right") - 1, 0, n_seg - 1)
+        seg = _segment_of(times, record.t)
         limit = report.max_tracking_error_rad
         error = np.abs(record.tracking_error_rad)
         at_limit = np.asarray(record.at_limit, dtype=bool)
         plan = report.trajectory
-        plan_seg = np.clip(np.searchsorted(times, plan.t, side="right") - 1, 0, n_seg - 1)
+        plan_seg = _segment_of(times, plan.t)
         learned = False
         for i in range(n_seg):
             rows, plan_rows = seg == i, plan_seg == i
