@@ -5,7 +5,8 @@
    sends, and two) against the 1 ms period of a 1 kHz stream and against
    building a BlendingSpline through (q(at), the new keyframes) (the peer), same
    run; and the joint-limit / lock-guard check ``follow`` adds.
-2. Cost of one online frame block against the same block of a BlendingSpline.
+2. Cost per stream frame of an OnlineSpline (blended and spliced segments)
+   against the offline BlendingSpline's stream (peer).
 3. A 1 kHz stream of ``trajgen follow``'s frames (its ``Follower``) paced on the
    monotonic clock, a second thread feeding it a keyframe line every 0.3-1 s
    (a retarget 0.65 s ahead, checked against the joint limits as ``follow``
@@ -37,6 +38,7 @@ from trajgen.cli.follow import Follower, load_compiled_kernel
 from trajgen.drivers.clock import sleep_until
 from trajgen.online import OnlineSpline
 from trajgen.spline import BlendingSpline
+from trajgen.stream import stream_frames
 
 DEG = np.pi / 180
 
@@ -108,9 +110,9 @@ def change_costs(rng, n, label):
         follower._last_q = np.zeros(3)
         s.retarget(q, t, at=at)
         _, path = s.snapshot()
-        limits = follower._limits(at)
         start = time.perf_counter()
-        limits(path)
+        for _ in follower._check_steps(path, at):
+            pass
         check.append(time.perf_counter() - start)
     print(f"## 1. Cost of one change (k = 2), {label}\n")
     print(f"load average: {os.getloadavg()}\n")
@@ -124,21 +126,29 @@ def change_costs(rng, n, label):
 
 
 def frame_costs(rng, n):
+    """Per-frame cost of ``stream_frames`` on an OnlineSpline, back to back."""
     s, _ = moving_spline(rng)
     offline = BlendingSpline(s._plan.pieces[-1].spline.quats, s._plan.pieces[-1].spline.times)
-    print("## 2. Evaluating frames (orientation, rate, acceleration)\n")
-    print("| frames per call | OnlineSpline ms | peer: BlendingSpline ms | ratio |")
-    print("|---|---|---|---|")
-    for m in (1, 16):
-        t = np.linspace(offline.t_start + 0.1, offline.t_end - 0.1, m)
-        times = []
-        for path in (s, offline):
-            path.evaluate(t)
+    spliced = OnlineSpline(random_quats(rng, 1)[0])  # what `follow` streams after a line
+    spliced.retarget(random_quats(rng, 1), [offline.t_end], at=0.0)
+    print("## 2. Stream frames (joint angles, rates, accelerations), back to back\n")
+    print(f"{n} frames at 1 kHz per row; load average: {os.getloadavg()}\n")
+    print("| stream | us per frame p50 / p99 / max |")
+    print("|---|---|")
+    rows = (
+        ("OnlineSpline, blended segments (numpy, 16 frames at a time)", s),
+        ("OnlineSpline, a spliced segment (Python floats)", spliced),
+        ("peer: the same BlendingSpline offline (numpy, blocks spread in steps)", offline),
+    )
+    for name, path in rows:
+        frames = stream_frames(path, 1000.0)
+        cost = []
+        for _ in range(n):
             start = time.perf_counter()
-            for _ in range(n):
-                path.evaluate(t, max_order=2)
-            times.append((time.perf_counter() - start) / n)
-        print(f"| {m} | {1e3 * times[0]:.3f} | {1e3 * times[1]:.3f} | {times[0] / times[1]:.2f}x |")
+            next(frames)
+            cost.append(time.perf_counter() - start)
+        tail = " / ".join(f"{1e6 * v:.1f}" for v in np.percentile(cost, [50, 99, 100]))
+        print(f"| {name} | {tail} |")
     print()
 
 
@@ -197,9 +207,9 @@ def streaming(seconds, rng, label):
     )
     print(
         "| run | frames | lateness ms p50 / p99 / max | late | late near a line "
-        "| change cost ms | latency ms |"
+        "| change cost ms (all steps) | longest step ms | latency ms |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     runs = (
         ("peer: no changes", False, None),
         (f"changes (switch interval {1e3 * follow.SWITCH_INTERVAL_S:g} ms)", True, None),
@@ -216,13 +226,14 @@ def streaming(seconds, rng, label):
         for a in asked:
             near |= (due >= a) & (due < a + WINDOW_S)
         cost, lat = follower.change_costs_s, follower.latencies_s
+        step = ms(follower.change_steps_s) if cost else "-"
         cost = f"{ms(cost)} (n = {len(cost)})" if cost else "-"
         lat = ms(lat) if lat else "-"
         tail = " / ".join(f"{1e3 * v:.2f}" for v in np.percentile(late, [50, 99, 100]))
         late_near = f"{int((late[near] > 1e-3).sum())} of {int(near.sum())}"
         print(
             f"| {name} | {len(late)} | {tail} | {int((late > 1e-3).sum())} | {late_near} "
-            f"| {cost} | {lat} |"
+            f"| {cost} | {step} | {lat} |"
         )
     print()
 
@@ -278,7 +289,7 @@ def main():
         if "3" in run:
             streaming(args.seconds, np.random.default_rng(13), label)
     if "2" in run:
-        frame_costs(np.random.default_rng(12), 50)
+        frame_costs(np.random.default_rng(12), 1500)
     if "4" in run:
         lead_peaks(np.random.default_rng(14), 4 * args.repeats)
     print(f"load average after: {os.getloadavg()}")

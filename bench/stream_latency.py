@@ -31,8 +31,9 @@ from trajgen import GimbalKinematics, SmoothSpline, fast, load_keyframe_file
 from trajgen.drivers.clock import sleep_until
 from trajgen.gimbal import joint_rates
 from trajgen.keyframes import BUILTIN_EXAMPLE
+from trajgen.path import Steps
 from trajgen.sampling import sample_times
-from trajgen.stream import BLOCK_FRAMES, JointFrame, _evaluation_steps, _Steps, stream_frames
+from trajgen.stream import BLOCK_FRAMES, JointFrame, _evaluation_steps, stream_frames
 
 
 def timed(frames, period_s: float | None = None) -> np.ndarray:
@@ -68,10 +69,10 @@ def spread_blocks(spline, rate_hz):
         qd, qdd = joint_rates(q, s.omega, s.alpha)
         return list(zip(tb.tolist(), q, qd, qdd, strict=True))
 
-    frames = _Steps(block(t[:BLOCK_FRAMES])).finish()
+    frames = Steps(block(t[:BLOCK_FRAMES])).finish()
     for a in range(0, len(t), BLOCK_FRAMES):
         b = a + BLOCK_FRAMES
-        work = _Steps(block(t[b : b + BLOCK_FRAMES])) if b < len(t) else None
+        work = Steps(block(t[b : b + BLOCK_FRAMES])) if b < len(t) else None
         for j, (tj, q, qd, qdd) in enumerate(frames):
             yield JointFrame(a + j, tj, q, qd, qdd)
             if work is not None:

@@ -206,3 +206,52 @@ def test_the_stream_takes_the_interpreter_back_within_a_fraction_of_a_period(fol
     for _ in frames:
         pass
     assert sys.getswitchinterval() == before
+
+
+def queued(follower, timeout_s=10.0):
+    """Wait until a line fed on another thread waits for the stream to build it."""
+    deadline = time.monotonic() + timeout_s
+    while not follower._jobs:
+        assert time.monotonic() < deadline
+        time.sleep(0.001)
+
+
+def test_a_line_is_built_between_frames_by_the_streaming_thread(follower):
+    """While the stream runs, feed() parses the line and waits: the change is built
+    and checked in steps, one per frame, by the thread that takes the frames."""
+    frames = follower.frames()
+    next(frames)
+    fed = threading.Thread(target=follower.feed, args=('{"in": 0.6, "pan": 10}', 1))
+    fed.start()
+    queued(follower)
+    time.sleep(0.2)  # a change costs a few ms: were it built here, it would be done
+    assert fed.is_alive() and not follower.keyframes
+    taken = 0
+    while follower._jobs:  # until the streaming thread has run the change's last step
+        next(frames)
+        taken += 1
+        assert taken < 50
+    fed.join()
+    assert taken >= 3  # the old path's jet, the new piece, the check (and the swap)
+    assert len(follower.keyframes) == 1 and follower.spline.version == 2
+    assert follower.change_steps_s[0] < follower.change_costs_s[0]  # more than one step
+
+
+def test_at_low_rates_a_change_starts_late_enough_for_its_steps():
+    kf = load_keyframe_file(BUILTIN_EXAMPLE)
+    slow = follow.Follower(follow.online_spline(kf), 20.0)  # 50 ms per step
+    with pytest.raises(ValueError, match=r"must be at least 0\.4 s ahead"):
+        slow.feed('{"in": 0.3, "pan": 1}', 1)
+    frames = slow.frames()
+    next(frames)
+    fed = threading.Thread(target=slow.feed, args=('{"in": 0.8, "pan": 1}', 2))
+    fed.start()
+    queued(slow)  # frames are taken unpaced here: not before the line waits for them
+    while slow._jobs:
+        next(frames)
+    fed.join()
+    assert [k["line"] for k in slow.keyframes] == [2]  # made before the stream reached it
+    # Four periods (two steps to build, one to check, one spare) after the frame
+    # streamed when its build started, a frame or two after the line arrived.
+    lead = slow.keyframes[0]["at"] - slow.keyframes[0]["now"]
+    assert 4 / 20.0 - 1e-9 <= lead <= 6 / 20.0 + 1e-9

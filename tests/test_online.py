@@ -89,11 +89,31 @@ def apply_and_check(s, model, mode, quats, times, at, rng):
         size = 1.0 + np.linalg.norm(s(splice, order))
         assert jump_estimate(s, splice, order) < 1e-6 * size, (mode, order)
 
+    check_frames(after)
+
     # Every keyframe ahead is passed at its time.
     ahead = [(t, q) for t, q in model.keys if t > at]
     for t, q in ahead:
         assert Q.distance(s(t), q) < 1e-9
     assert s.t_end == pytest.approx(ahead[-1][0] if ahead else s.t_end)
+
+
+def check_frames(path, rate_hz=97.0):
+    """Per stream frame (what ``stream_frames`` evaluates, ``path.frames``) the path equals
+    its vectorised evaluation, on a stream grid and at every boundary exactly."""
+    t0 = path.t_start
+    grid = t0 + np.arange(int((path.t_end + 0.3 - t0) * rate_hz)) / rate_hz
+    bounds = [path.starts, path.times]
+    bounds += [p.splice.times for p in path.pieces if p.splice is not None]
+    bounds += [p.spline.times for p in path.pieces if p.spline is not None]
+    bounds = np.concatenate(bounds)
+    t = np.sort(np.concatenate([grid, bounds[bounds >= t0]]))
+    frames = path.frames(t0, rate_hz)
+    got = [frames(x) for x in t.tolist()]
+    ref = path.evaluate(t, max_order=2)
+    for i, want in enumerate((ref.q, ref.omega, ref.alpha)):
+        values = np.array([g[i] for g in got])
+        np.testing.assert_allclose(values, want, rtol=0, atol=1e-11 * (1 + np.abs(want).max()))
 
 
 def check_rest_at_the_end(s, model):
@@ -402,3 +422,46 @@ def test_one_keyframe_from_rest_is_the_offline_spline(rng, k):
     t = np.linspace(0.5, 1.7, 41)[:-1]  # order k + 1 jumps at the end (rest holds there)
     for order in range(min(k + 1, 3) + 1):
         np.testing.assert_allclose(s(t, order), offline(t, order), rtol=0, atol=1e-11)
+
+
+def _moving(rng):
+    s = OnlineSpline(random_quats(rng, 1)[0])
+    s.extend(random_quats(rng, 3), [0.5, 1.0, 1.6], at=0.0)
+    return s
+
+
+def test_prepare_then_apply_is_the_change(rng):
+    q, t = random_quats(rng, 2), [1.2, 1.9]
+    s, twin = _moving(np.random.default_rng(5)), _moving(np.random.default_rng(5))
+    s.retarget(q, t, at=0.7)
+    steps = twin.prepare_steps("retarget", q, t, at=0.7)
+    n = 0
+    try:
+        while True:
+            next(steps)
+            n += 1
+    except StopIteration as done:
+        change = done.value
+    assert n >= 1  # the old path's jet, then the new piece
+    assert twin.version == 1  # prepared, not made
+    twin.apply(change)
+    grid = np.linspace(0.0, 3.0, 301)
+    assert twin.version == s.version
+    for order in range(3):
+        np.testing.assert_array_equal(twin(grid, order), s(grid, order))
+
+
+def test_apply_refuses_a_change_prepared_on_an_older_path_or_before_a_streamed_time(rng):
+    s = _moving(rng)
+    first = s.prepare("retarget", random_quats(rng, 1), [1.2], at=0.7)
+    second = s.prepare("retarget", random_quats(rng, 1), [1.3], at=0.7)
+    s.apply(first)
+    with pytest.raises(ChangeTooLate, match="changed since this change was prepared"):
+        s.apply(second)
+    late = s.prepare("retarget", random_quats(rng, 1), [1.5], at=0.8)
+    assert s.commit(0.85, s.version)
+    with pytest.raises(ChangeTooLate, match="before the streamed time"):
+        s.apply(late)
+    s.close()
+    with pytest.raises(ValueError, match="closed"):
+        s.prepare("extend", random_quats(rng, 1), [3.0], at=0.9)

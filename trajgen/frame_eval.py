@@ -93,6 +93,62 @@ def _poly7(c: list, u: float) -> float:
     return c0 + u * (c1 + u * (c2 + u * (c3 + u * (c4 + u * (c5 + u * (c6 + u * c7))))))
 
 
+def exp_frame(rx, ry, rz, vx, vy, vz, ax, ay, az, base) -> tuple[tuple, tuple, tuple]:
+    """Orientation, angular velocity and acceleration of ``q = exp(r) q_b`` at one time.
+
+    ``E = exp(r) = (C(x), S(x) r)``, ``x = r . r``; ``omega = 2 vec(E' E*)`` and
+    ``alpha = 2 vec(E'' E*)``, as ``SmoothSpline._space_rates`` (SPEC section 8).
+
+    Parameters
+    ----------
+    rx, ry, rz, vx, vy, vz, ax, ay, az : float
+        ``r`` (rad) and its first two time derivatives (rad/s, rad/s^2).
+    base : sequence of 4 floats
+        The fixed quaternion ``q_b`` (w, x, y, z).
+
+    Returns
+    -------
+    tuple of three tuples of floats
+        ``q`` (4), ``omega`` (3, rad/s), ``alpha`` (3, rad/s^2), space frame.
+    """
+    # x = r . r and its time derivatives (derivatives.vdot).
+    x0 = rx * rx + ry * ry + rz * rz
+    x1 = 2.0 * (rx * vx + ry * vy + rz * vz)
+    x2 = 2.0 * (vx * vx + vy * vy + vz * vz) + 2.0 * (rx * ax + ry * ay + rz * az)
+    c0, c1, c2, s0, s1, s2 = cos_sinc_sqrt(x0)
+    # Their time derivatives (Faa di Bruno, derivatives.chain).
+    x11 = x1 * x1
+    C1, C2 = c1 * x1, c1 * x2 + c2 * x11
+    S1, S2 = s1 * x1, s1 * x2 + s2 * x11
+    # E = (C, S r) and its time derivatives (Leibniz, derivatives.product).
+    ew, ex, ey, ez = c0, s0 * rx, s0 * ry, s0 * rz
+    dw, dx, dy, dz = C1, s0 * vx + S1 * rx, s0 * vy + S1 * ry, s0 * vz + S1 * rz
+    S1x2 = 2.0 * S1
+    fw = C2
+    fx = s0 * ax + S2 * rx + S1x2 * vx
+    fy = s0 * ay + S2 * ry + S1x2 * vy
+    fz = s0 * az + S2 * rz + S1x2 * vz
+    qw, qx, qy, qz = base
+    q = (
+        ew * qw - ex * qx - ey * qy - ez * qz,
+        ew * qx + ex * qw + ey * qz - ez * qy,
+        ew * qy - ex * qz + ey * qw + ez * qx,
+        ew * qz + ex * qy - ey * qx + ez * qw,
+    )
+    # 2 vec(P E*) with E* = (ew, -ex, -ey, -ez) (derivatives.hamilton_vec).
+    omega = (
+        2.0 * (-dw * ex + dx * ew - dy * ez + dz * ey),
+        2.0 * (-dw * ey + dx * ez + dy * ew - dz * ex),
+        2.0 * (-dw * ez - dx * ey + dy * ex + dz * ew),
+    )
+    alpha = (
+        2.0 * (-fw * ex + fx * ew - fy * ez + fz * ey),
+        2.0 * (-fw * ey + fx * ez + fy * ew - fz * ex),
+        2.0 * (-fw * ez - fx * ey + fy * ex + fz * ew),
+    )
+    return q, omega, alpha
+
+
 class SmoothFrames:
     """A :class:`~trajgen.smooth.SmoothSpline` at one time per call, in floats.
 
@@ -144,43 +200,7 @@ class SmoothFrames:
         if not self._lo <= t < self._hi:
             self._enter(t)
         u = (t - self._lo) / self._h
-        rx, ry, rz, vx, vy, vz, ax, ay, az = [_poly7(c, u) for c in self._rows]
-        # x = r . r and its time derivatives (derivatives.vdot).
-        x0 = rx * rx + ry * ry + rz * rz
-        x1 = 2.0 * (rx * vx + ry * vy + rz * vz)
-        x2 = 2.0 * (vx * vx + vy * vy + vz * vz) + 2.0 * (rx * ax + ry * ay + rz * az)
-        c0, c1, c2, s0, s1, s2 = cos_sinc_sqrt(x0)
-        # Their time derivatives (Faa di Bruno, derivatives.chain).
-        x11 = x1 * x1
-        C1, C2 = c1 * x1, c1 * x2 + c2 * x11
-        S1, S2 = s1 * x1, s1 * x2 + s2 * x11
-        # E = (C, S r) and its time derivatives (Leibniz, derivatives.product).
-        ew, ex, ey, ez = c0, s0 * rx, s0 * ry, s0 * rz
-        dw, dx, dy, dz = C1, s0 * vx + S1 * rx, s0 * vy + S1 * ry, s0 * vz + S1 * rz
-        S1x2 = 2.0 * S1
-        fw = C2
-        fx = s0 * ax + S2 * rx + S1x2 * vx
-        fy = s0 * ay + S2 * ry + S1x2 * vy
-        fz = s0 * az + S2 * rz + S1x2 * vz
-        qw, qx, qy, qz = self._base
-        q = (
-            ew * qw - ex * qx - ey * qy - ez * qz,
-            ew * qx + ex * qw + ey * qz - ez * qy,
-            ew * qy - ex * qz + ey * qw + ez * qx,
-            ew * qz + ex * qy - ey * qx + ez * qw,
-        )
-        # 2 vec(P E*) with E* = (ew, -ex, -ey, -ez) (derivatives.hamilton_vec).
-        omega = (
-            2.0 * (-dw * ex + dx * ew - dy * ez + dz * ey),
-            2.0 * (-dw * ey + dx * ez + dy * ew - dz * ex),
-            2.0 * (-dw * ez - dx * ey + dy * ex + dz * ew),
-        )
-        alpha = (
-            2.0 * (-fw * ex + fx * ew - fy * ez + fz * ey),
-            2.0 * (-fw * ey + fx * ez + fy * ew - fz * ex),
-            2.0 * (-fw * ez - fx * ey + fy * ex + fz * ew),
-        )
-        return q, omega, alpha
+        return exp_frame(*[_poly7(c, u) for c in self._rows], self._base)
 
 
 class FrameKinematics:
@@ -209,6 +229,15 @@ class FrameKinematics:
         self._start = None if start is None else (float(start[0]), float(start[2]))
         self._last = None  # the last frame's wrapped pan and roll (rad)
         self._pan_turns = self._roll_turns = 0  # whole turns added to pan and roll
+
+    @property
+    def state(self) -> tuple:
+        """What the next frame is unwrapped against: set it back to evaluate a frame again."""
+        return self._last, self._pan_turns, self._roll_turns
+
+    @state.setter
+    def state(self, value: tuple) -> None:
+        self._last, self._pan_turns, self._roll_turns = value
 
     def __call__(self, t: float, q, omega, alpha) -> tuple[tuple, tuple, tuple]:
         """Joint angles (rad), velocities (rad/s) and accelerations (rad/s^2) of one frame.

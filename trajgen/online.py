@@ -49,6 +49,11 @@ Changes are safe to make from another thread while a stream evaluates the path:
 a change builds its new piece list aside and swaps it in whole; a streamer that
 reports the frames it has used (:meth:`OnlineSpline.commit`) makes changes
 before them fail with :class:`ChangeTooLate` instead of rewriting sent frames.
+A change may also be built in steps (:meth:`OnlineSpline.prepare_steps`), checked,
+then made (:meth:`OnlineSpline.apply`): ``trajgen follow`` runs those steps on the
+streaming thread between frames, so that no other thread competes with the stream
+for the interpreter. A stream evaluates each frame on its own
+(:class:`PlanFrames`): spliced segments in Python floats, blended ones with numpy.
 
 References
 ----------
@@ -58,6 +63,7 @@ quaternion curves", Computer-Aided Design 27(5), 1995 (the blending spline).
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 from functools import cached_property
@@ -69,7 +75,8 @@ from . import derivatives as D
 from . import jet as J
 from . import quat as Q
 from .errors import TrajgenError
-from .path import OrientationPath, check_times
+from .frame_eval import exp_frame
+from .path import OrientationPath, Steps, check_times, run_steps
 from .spline import CONJ, LOCALS, REPARAMS, BlendingSpline, blend_polynomial
 from .validate import check_choice, check_number
 
@@ -128,6 +135,28 @@ class _Splice(OrientationPath):
         _, rates = _rates_of(e)
         q = D.hamilton(e[0], self.q_a[:, None])
         return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
+
+    def frame(self, t: float) -> tuple[tuple, tuple, tuple]:
+        """Orientation, angular velocity (rad/s) and acceleration (rad/s^2) at one time
+        ``t`` (s), in floats (:func:`~trajgen.frame_eval.exp_frame`): the per-frame
+        counterpart of :meth:`_space_rates`."""
+        u = (t - self.s) * (1.0 / self.h)
+        values = []
+        for row in self._frame_rows:  # r, r', r'' per axis, by Horner
+            acc = 0.0
+            for c in row:
+                acc = acc * u + c
+            values.append(acc)
+        return exp_frame(*values, self._q_a_floats)
+
+    @cached_property
+    def _frame_rows(self) -> list[list[float]]:
+        """Coefficients of ``r, r', r''`` per axis (9 rows), highest power first."""
+        return [c[::-1, i].tolist() for c in self._derivative_coefs[:3] for i in range(3)]
+
+    @cached_property
+    def _q_a_floats(self) -> list[float]:
+        return self.q_a.tolist()
 
     @cached_property
     def _derivative_coefs(self) -> list[np.ndarray]:
@@ -296,6 +325,10 @@ class _Plan(OrientationPath):
         piece = np.searchsorted(self.starts, t, side="left") - 1
         return np.clip(piece, 0, len(self.pieces) - 1), np.maximum(t, t0)
 
+    def frames(self, t0: float, rate_hz: float) -> PlanFrames:
+        """This path at one stream time per call, in floats (see :class:`PlanFrames`)."""
+        return PlanFrames(self, t0, rate_hz)
+
     def _jet(self, t, seg, order):
         out = np.empty((order + 1, 4, len(t)))
         for j in np.unique(seg):
@@ -312,6 +345,92 @@ class _Plan(OrientationPath):
             for r, p in zip(rates, part, strict=True):
                 r[m] = p
         return q, rates
+
+
+class PlanFrames:
+    """One snapshot of an :class:`OnlineSpline` at one stream time per call, in floats.
+
+    What :func:`trajgen.stream.stream_frames` evaluates per frame: a spliced segment
+    in floats (:meth:`_Splice.frame`, a few microseconds), a hold as its constant,
+    and a blended segment (a BlendingSpline's, which has no per-frame form) with
+    numpy, ``BLOCK_FRAMES`` stream times at a time, the next block's evaluation
+    spread in steps over the frames of the one before (as ``stream_frames`` does
+    for an offline BlendingSpline). The part holding a time is
+    looked up with the numpy evaluation's own rules, only when the time leaves the
+    current part (or lies on its boundary), so every frame equals ``evaluate``'s.
+
+    Parameters
+    ----------
+    plan : the path from :meth:`OnlineSpline.snapshot`
+    t0 : float
+        The stream's first time (s); its times are ``t0 + i / rate_hz``.
+    rate_hz : float
+        The stream's rate (Hz), > 0.
+    """
+
+    #: Stream times evaluated at once in a blended segment.
+    BLOCK_FRAMES = 16
+
+    def __init__(self, plan: _Plan, t0: float, rate_hz: float):
+        self._plan, self._t0, self._rate = plan, t0, rate_hz
+        self._lo, self._hi = math.inf, -math.inf  # the current part's open interval
+        self._part = None
+        self._block = None  # (piece, first frame index, times (B,), q (B, 4), omega, alpha)
+        self._ahead = None  # (piece, first frame index, Steps evaluating that block)
+
+    def __call__(self, t: float) -> tuple[tuple, tuple, tuple]:
+        """Orientation (w, x, y, z), space-frame angular velocity (rad/s) and
+        acceleration (rad/s^2) at stream time ``t`` (s), each a tuple of floats."""
+        if not self._lo < t < self._hi:
+            self._enter(t)
+        return self._part(t)
+
+    def _enter(self, t: float) -> None:
+        plan = self._plan
+        j = int(plan._segment(np.array([t]))[0][0])  # raises before the kept range
+        piece = plan.pieces[j]
+        lo = float(plan.starts[j]) if j else plan.t_start
+        hi = float(plan.starts[j + 1]) if j + 1 < len(plan.pieces) else math.inf
+        hold, spliced, _, seg = piece._parts(np.array([t]))
+        if hold[0]:
+            q, zero = tuple(piece.q_end.tolist()), (0.0, 0.0, 0.0)
+            lo, self._part = max(lo, piece.t_end), lambda _: (q, zero, zero)
+        elif spliced[0]:
+            hi, self._part = min(hi, float(piece.splice.times[1])), piece.splice.frame
+        else:
+            times = piece.spline.times
+            lo = max(lo, float(times[seg[0]]))
+            hi = min(hi, float(times[seg[0] + 1]))
+            self._part = lambda x: self._blended(piece, x)
+        self._lo, self._hi = lo, hi
+
+    def _blended(self, piece: _Piece, t: float) -> tuple[tuple, tuple, tuple]:
+        i = round((t - self._t0) * self._rate)
+        block = self._block
+        if block is None or block[0] is not piece or not 0 <= i - block[1] < self.BLOCK_FRAMES:
+            ahead = self._ahead
+            if ahead is not None and ahead[0] is piece and ahead[1] == i:
+                samples = ahead[2].finish()
+                q, omega, alpha = samples.q, samples.omega, samples.alpha
+            else:  # the first block of this segment: at once
+                q, (omega, alpha) = piece.space_rates(self._block_times(i), 2)
+            block = self._block = (piece, i, self._block_times(i), q, omega, alpha)
+            # The next block, a step per frame of this one.
+            times = np.clip(self._block_times(i + self.BLOCK_FRAMES), *piece.spline.times[[0, -1]])
+            steps = piece.spline.evaluation_steps(times, max_order=2)
+            self._ahead = (piece, i + self.BLOCK_FRAMES, Steps(steps))
+        else:
+            self._ahead[2].step()
+        _, first, times, q, omega, alpha = block
+        k = i - first
+        if times[k] != t:  # not on the stream's grid: this time alone
+            q1, (w1, a1) = piece.space_rates(np.array([t]), 2)
+            return tuple(q1[0].tolist()), tuple(w1[0].tolist()), tuple(a1[0].tolist())
+        return tuple(q[k].tolist()), tuple(omega[k].tolist()), tuple(alpha[k].tolist())
+
+    def _block_times(self, i: int) -> np.ndarray:
+        """Stream times (s) of frames ``i .. i + BLOCK_FRAMES - 1``."""
+        return self._t0 + np.arange(i, i + self.BLOCK_FRAMES) / self._rate
 
 
 def _qexp_series(r: J.Jet) -> np.ndarray:
@@ -345,6 +464,25 @@ def _hermite_matrix(k: int) -> np.ndarray:
     Taylor coefficients of orders 0..k at ``u = 1``."""
     m = np.array([[comb(k + 2 + i, j) for i in range(k + 1)] for j in range(k + 1)], float)
     return np.linalg.inv(m)
+
+
+@dataclass(frozen=True)
+class Change:
+    """A change built by :meth:`OnlineSpline.prepare`, not made yet.
+
+    Attributes
+    ----------
+    version : int
+        The spline's :attr:`~OnlineSpline.version` it was built on.
+    at : float
+        Time (s) of the change.
+    path : OrientationPath
+        The path it makes, from the oldest time it keeps (at or before ``at``).
+    """
+
+    version: int
+    at: float
+    path: _Plan
 
 
 class OnlineSpline:
@@ -523,45 +661,98 @@ class OnlineSpline:
         """
         self._change_plan("retarget", quats, times, at, check)
 
-    def _change_plan(self, mode, quats, times, at, check) -> None:
+    def prepare(self, mode, quats, times, *, at) -> Change:
+        """Build a change without making it: ``extend`` or ``retarget`` in two steps.
+
+        What :meth:`extend` and :meth:`retarget` do, split where their ``check``
+        is called, so that a caller can check the new path (:attr:`Change.path`)
+        in its own time, for example in steps between the frames of a stream,
+        then make it with :meth:`apply`.
+
+        Parameters
+        ----------
+        mode : {"extend", "retarget"}
+        quats, times, at
+            As for :meth:`extend` and :meth:`retarget`.
+
+        Returns
+        -------
+        Change
+
+        Raises
+        ------
+        ValueError, TypeError, ChangeTooLate
+            As :meth:`extend` and :meth:`retarget`.
+        """
+        return run_steps(self.prepare_steps(mode, quats, times, at=at))
+
+    def prepare_steps(self, mode, quats, times, *, at):
+        """:meth:`prepare` as a generator of two steps of about equal cost (the old
+        path's jet at ``at``, then the new piece), for a caller that runs one step
+        per stream frame; the generator's return value is the :class:`Change`."""
+        mode = check_choice("mode", mode, MODES)
         q = Q.as_quats(quats, "quats")
         t = check_times(times, len(q))
         at = check_number("at", at)
-        with self._change:
+        with self._swap:
+            version, plan = self._version, self._plan
+        if self._closed:
+            raise ValueError("The spline is closed: no more changes.")
+        if at < self._last_at:
+            raise ValueError(f"`at` = {at} s is before the previous change at {self._last_at} s.")
+        self._check_not_streamed(at)
+        lead = t[0] - at
+        if lead < self.min_lead_s - 1e-9:
+            raise ValueError(
+                f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
+                f"it must be at least {self.min_lead_s} s after it."
+            )
+        piece = yield from self._new_piece(plan, mode, q, t, at)
+        kept = [p for p in plan.pieces if p.start < piece.start]
+        # Drop what lies wholly before `at` (before the streamed time, if earlier: a
+        # stream still needs the path from there).
+        drop = min(at, self._committed) if self._committed > -np.inf else at
+        first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
+        return Change(version, at, _Plan((*kept[first:], piece)))
+
+    def apply(self, change: Change) -> None:
+        """Make a change built by :meth:`prepare`, if the path is still the one it was
+        built on.
+
+        Raises
+        ------
+        ChangeTooLate
+            If another change came after it was prepared (prepare it again), or a
+            stream has committed a time after its ``at``.
+        ValueError
+            After :meth:`close`.
+        """
+        with self._swap:
             if self._closed:
                 raise ValueError("The spline is closed: no more changes.")
-            if at < self._last_at:
-                raise ValueError(
-                    f"`at` = {at} s is before the previous change at {self._last_at} s."
+            if change.version != self._version:
+                raise ChangeTooLate(
+                    f"The path changed since this change was prepared (version "
+                    f"{change.version}, now {self._version}): prepare it again."
                 )
-            self._check_not_streamed(at)
-            lead = t[0] - at
-            if lead < self.min_lead_s - 1e-9:
-                raise ValueError(
-                    f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
-                    f"it must be at least {self.min_lead_s} s after it."
-                )
-            plan = self._plan
-            piece = self._new_piece(plan, mode, q, t, at)
-            kept = [p for p in plan.pieces if p.start < piece.start]
-            # Drop what lies wholly before `at` (before the streamed time, if earlier:
-            # a stream still needs the path from there).
-            drop = min(at, self._committed) if self._committed > -np.inf else at
-            first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
-            new_plan = _Plan((*kept[first:], piece))
+            self._check_not_streamed(change.at)
+            self._plan = change.path
+            self._version += 1
+            self._last_at = change.at
+
+    def _change_plan(self, mode, quats, times, at, check) -> None:
+        with self._change:  # one at a time: concurrent callers wait, not fail
+            change = self.prepare(mode, quats, times, at=at)
             if check is not None:
-                check(new_plan)
-            with self._swap:
-                self._check_not_streamed(at)
-                self._plan = new_plan
-                self._version += 1
-                self._last_at = at
+                check(change.path)
+            self.apply(change)
 
     def _check_not_streamed(self, at: float) -> None:
         if at < self._committed:
             raise ChangeTooLate(f"`at` = {at} s is before the streamed time {self._committed} s.")
 
-    def _new_piece(self, plan: _Plan, mode: str, q, t, at: float) -> _Piece:
+    def _new_piece(self, plan: _Plan, mode: str, q, t, at: float):
+        """The change's piece, in steps (a generator; its return value is the piece)."""
         last = plan.pieces[-1]
         kt, kq = last.key_times, last.key_quats
         if mode == "extend" and t[0] <= kt[-1]:
@@ -581,7 +772,7 @@ class OnlineSpline:
             if kt[-1] - at < self.min_lead_s:  # too close to splice: go on from its rest
                 return self._rest_piece(kq[-1], float(kt[-1]), q, t)
             q, t = np.vstack([kq[-1:], q]), np.concatenate([kt[-1:], t])
-        return self._splice_piece(plan, q, t, at)
+        return (yield from self._splice_piece(plan, q, t, at))
 
     def _spline(self, q, t) -> BlendingSpline:
         return BlendingSpline(
@@ -597,10 +788,12 @@ class OnlineSpline:
         spline = self._spline(np.vstack([q0, q]), np.concatenate([[t0], t]))
         return _Piece(t0, spline, None, spline.quats[-1])
 
-    def _splice_piece(self, plan: _Plan, q, t, at: float) -> _Piece:
-        """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,)."""
+    def _splice_piece(self, plan: _Plan, q, t, at: float):
+        """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,), in
+        two steps (a generator; its return value is the piece)."""
         piece = plan.pieces[int(plan._segment(np.array([at]))[0][0])]
         q_a, d = piece.taylor(at, self.k + 1)
+        yield
         return self._spliced(at, q_a, _log_near_identity(d), q, t)
 
     def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t) -> _Piece:

@@ -230,14 +230,32 @@ class OrientationPath:
         return self.evaluate(t, max_order=max_order, frame=frame)
 
 
+class Steps:
+    """A generator of work steps (see :meth:`OrientationPath.evaluation_steps`) run one
+    step at a time, and its return value once it has ended."""
+
+    def __init__(self, steps):
+        self._steps, self.done, self.result = steps, False, None
+
+    def step(self) -> bool:
+        """Do one step (nothing once done); True once done."""
+        if not self.done:
+            try:
+                next(self._steps)
+            except StopIteration as end:
+                self.done, self.result = True, end.value
+        return self.done
+
+    def finish(self):
+        """Do the remaining steps; the return value."""
+        while not self.step():
+            pass
+        return self.result
+
+
 def run_steps(steps):
-    """Run a generator of work steps (see :meth:`OrientationPath.evaluation_steps`) to its
-    end; its return value."""
-    while True:
-        try:
-            next(steps)
-        except StopIteration as done:
-            return done.value
+    """Run a generator of work steps to its end; its return value."""
+    return Steps(steps).finish()
 
 
 def _as_times(t) -> np.ndarray:

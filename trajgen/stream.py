@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.errors import KinematicsError
 from trajgen.frame_eval import FrameKinematics, SmoothFrames
 from trajgen.gimbal import JOINT_NAMES, GimbalKinematics, as_angles, joint_rates  # noqa: F401 (JOINT_NAMES re-exported)
+from trajgen.path import Steps
 from trajgen.sampling import sample_times
 from trajgen.smooth import SmoothSpline
 
@@ -153,10 +153,11 @@ def stream_frames(
     its ``snapshot``, ``commit``, ``closed`` and ``t_end``) may change while it
     is streamed: each frame is committed to the source before it is yielded, and
     a change made by another thread between two frames takes effect from the
-    next one (the frames evaluated ahead are dropped and evaluated again). Its
-    frames run from ``t_start`` until the source is closed and ``t_end`` is
-    reached, holding at rest meanwhile. It is evaluated with numpy, a block of
-    ``ONLINE_BLOCK_FRAMES`` at a time.
+    next one. Its frames run from ``t_start`` until the source is closed and
+    ``t_end`` is reached, holding at rest meanwhile. Each frame is evaluated on
+    its own from the source's snapshot (``snapshot()`` returns a path with
+    ``frames(t0, rate_hz)``, see :class:`~trajgen.online.PlanFrames`): a change's
+    spliced segments in floats, blended ones with numpy a block at a time.
 
     Parameters
     ----------
@@ -180,7 +181,7 @@ def stream_frames(
     """
     if all(hasattr(spline, name) for name in ("snapshot", "commit", "closed")):
         kin, _, start = _prepare(spline, rate_hz, kinematics, start, online=True)
-        return _online_frames(spline, kin, float(rate_hz), start)
+        return _online_frames(spline, FrameKinematics(kin, start), float(rate_hz))
     kin, t, start = _prepare(spline, rate_hz, kinematics, start)
     if isinstance(spline, SmoothSpline):
         return _scalar_frames(SmoothFrames(spline), FrameKinematics(kin, start), t)
@@ -212,11 +213,11 @@ def _frames(spline, kin: FrameKinematics, t: np.ndarray) -> Iterator[JointFrame]
     :meth:`~trajgen.path.OrientationPath.evaluation_steps`), so no frame pays for
     a whole block. Only the first block is evaluated at once.
     """
-    samples = _Steps(_evaluation_steps(spline, t[:BLOCK_FRAMES])).finish()
+    samples = Steps(_evaluation_steps(spline, t[:BLOCK_FRAMES])).finish()
     for a in range(0, len(t), BLOCK_FRAMES):
         tb = t[a : a + BLOCK_FRAMES]
         b = a + BLOCK_FRAMES
-        work = _Steps(_evaluation_steps(spline, t[b : b + BLOCK_FRAMES])) if b < len(t) else None
+        work = Steps(_evaluation_steps(spline, t[b : b + BLOCK_FRAMES])) if b < len(t) else None
         for j in range(len(tb)):
             tj = tb.item(j)
             q, w, dw = samples.q[j].tolist(), samples.omega[j].tolist(), samples.alpha[j].tolist()
@@ -225,27 +226,6 @@ def _frames(spline, kin: FrameKinematics, t: np.ndarray) -> Iterator[JointFrame]
                 work.step()
         if work is not None:
             samples = work.finish()
-
-
-class _Steps:
-    """A generator of work steps and, once it has ended, its return value."""
-
-    def __init__(self, steps):
-        self._steps, self.done, self.result = steps, False, None
-
-    def step(self) -> None:
-        """Do one step (nothing once done)."""
-        if not self.done:
-            try:
-                next(self._steps)
-            except StopIteration as end:
-                self.done, self.result = True, end.value
-
-    def finish(self):
-        """Do the remaining steps; the result."""
-        while not self.done:
-            self.step()
-        return self.result
 
 
 def _evaluation_steps(spline, tb):
@@ -257,34 +237,24 @@ def _evaluation_steps(spline, tb):
     return (yield from steps(tb, max_order=2))
 
 
-#: Frames evaluated ahead from an online source (dropped if it changes first).
-ONLINE_BLOCK_FRAMES = 16
-
-
-def _online_frames(source, kin: GimbalKinematics, rate_hz: float, start) -> Iterator[JointFrame]:
-    """Generator behind :func:`stream_frames` for an online source."""
-    t0, previous, i, block = source.t_start, start, 0, ONLINE_BLOCK_FRAMES
+def _online_frames(source, kin: FrameKinematics, rate_hz: float) -> Iterator[JointFrame]:
+    """Generator behind :func:`stream_frames` for an online source: each frame from the
+    snapshot current when it is due, committed before it is yielded."""
+    t0, i, version, frames = source.t_start, 0, None, None
     while True:
-        version, path = source.snapshot()
-        tb = t0 + np.arange(i, i + block) / rate_hz
-        samples = path.evaluate(tb, max_order=2)
-        try:
-            q = kin.inverse(samples.q, tb, start=previous)
-        except KinematicsError:
-            if block == 1:
-                raise
-            block = 1  # frame by frame up to the offending one, which raises
+        t = t0 + i / rate_hz
+        latest, path = source.snapshot()
+        if latest != version:
+            version, frames = latest, path.frames(t0, rate_hz)
+        unwrapped = kin.state
+        joints = kin(t, *frames(t))
+        if not source.commit(t, version):  # changed meanwhile: this frame again
+            kin.state = unwrapped
             continue
-        qd, qdd = joint_rates(q, samples.omega, samples.alpha)
-        for j in range(len(tb)):
-            if not source.commit(tb[j], version):
-                block = ONLINE_BLOCK_FRAMES
-                break  # changed since evaluated: evaluate again from frame i
-            previous = q[j]
-            yield JointFrame(i, float(tb[j]), q[j], qd[j], qdd[j])
-            i += 1
-            if source.closed and tb[j] >= source.t_end:
-                return
+        yield _frame(i, t, *joints)
+        i += 1
+        if source.closed and t >= source.t_end:
+            return
 
 
 def _prepare(spline, rate_hz, kinematics, start, *, online=False):

@@ -3,7 +3,10 @@
 :class:`Follower` is the part that does not touch hardware: it turns JSON lines
 into checked changes of an :class:`~trajgen.online.OnlineSpline` and wraps its
 joint stream, recording what was streamed, when each change reached the stream
-and what it cost. ``run_follow`` adds the bus, the servos and the report, as
+and what it cost. A thread reads and parses the lines; the streaming thread
+builds, checks and makes each change in steps between its frames (each step a
+fraction of a millisecond), so that no thread competes with the stream for the
+interpreter. ``run_follow`` adds the bus, the servos and the report, as
 ``trajgen stream`` does.
 """
 
@@ -15,6 +18,7 @@ import math
 import sys
 import threading
 import time
+from collections import deque
 from types import SimpleNamespace
 
 import numpy as np
@@ -26,19 +30,22 @@ from trajgen.errors import KeyframeFileError, KinematicsError
 from trajgen.gimbal import GimbalKinematics
 from trajgen.keyframes import check_keyframes
 from trajgen.online import MODES, ChangeTooLate, OnlineSpline
+from trajgen.path import Steps
 from trajgen.sampling import sample_times
 from trajgen.spline import BlendingSpline
 from trajgen.stream import JointTrajectory, stream_frames
 
 #: Time (s) from the frame being streamed when a line arrives to the change it
-#: makes: room to build and check the new path off the streaming thread (on the
-#: busy two-core machine a change and its check took 0.4-3 ms, up to 10 ms when
-#: the host stalls; see bench/online_cost.py).
+#: makes: room to build and check the new path, in two steps between frames of the
+#: stream (two periods; more when the host stalls; see bench/online_cost.py).
 CHANGE_MARGIN_S = 0.05
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
-#: how long the streaming thread may wait for a change being built on another thread.
+#: how long the streaming thread may wait for the thread that parses the lines.
 SWITCH_INTERVAL_S = 1e-4
+
+#: Frames of a new path checked per step of a change (about 0.3 ms of numpy work).
+CHECK_STEP_FRAMES = 200
 
 LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
 
@@ -53,7 +60,7 @@ runs from JSON lines on stdin, one keyframe per line:
 "mode": "retarget" (the default) drops the keyframes still ahead and goes
 through the new one instead; "extend" keeps them and adds the new one after
 them. A change starts {CHANGE_MARGIN_S:g} s after the frame being streamed when its
-line arrives (time to build and check it off the streaming thread), and its
+line arrives (time to build and check it, between frames of the stream), and its
 keyframe must lie at least 0.2 s after that. Each line is checked as a keyframe
 file checks a keyframe, and the new path against the gimbal's joint limits and
 gimbal-lock margin; a bad line is reported on stderr and skipped, and the
@@ -85,6 +92,34 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_follow)
 
 
+class _Job(Steps):
+    """A line's change as a generator of steps, run by whichever thread gets to it;
+    a refused line's error is kept for the reading thread."""
+
+    def __init__(self, steps):
+        super().__init__(steps)
+        self.finished = threading.Event()
+        self.error: Exception | None = None
+        self.busy_s = 0.0  # time (s) spent in its steps
+        self.longest_s = 0.0  # its longest step (s)
+
+    def step(self) -> bool:
+        started = time.perf_counter()
+        try:
+            return super().step()
+        except Exception as e:
+            self.error, self.done = e, True
+            if not isinstance(e, (ValueError, TypeError)):
+                raise  # not a refused line but a fault: it ends the stream too
+            return True
+        finally:
+            spent = time.perf_counter() - started
+            self.busy_s += spent
+            self.longest_s = max(self.longest_s, spent)
+            if self.done:
+                self.finished.set()
+
+
 class Follower:
     """An online plan fed with keyframes as JSON lines, streamed as joint frames.
 
@@ -108,7 +143,10 @@ class Follower:
         that reflects it leaving :meth:`frames` (the servo gets it within one
         period after).
     change_costs_s : list of float
-        Per accepted line: time (s) to build and check the change.
+        Per accepted line: time (s) to build and check the change (both steps).
+    change_steps_s : list of float
+        Per accepted line: its longer step (s), what the streaming thread paid
+        between two frames.
     keyframes : list of dict
         Accepted keyframes: line number, mode, ``t``, ``quat``, ``at`` (the
         change time) and ``now`` (stream time when the line arrived).
@@ -132,11 +170,14 @@ class Follower:
         self.source = source
         self.latencies_s: list[float] = []
         self.change_costs_s: list[float] = []
+        self.change_steps_s: list[float] = []
         self.keyframes: list[dict] = []
         self.skipped: list[str] = []
         self._frames: list = []
         self._pending: list[tuple[float, float]] = []  # (arrival, at) of changes not yet seen
         self._lock = threading.Lock()
+        self._jobs: deque[_Job] = deque()  # changes for the streaming thread to build
+        self._streaming = False
         self._last_q = None
         #: Why the stream ended early ("" if it did not).
         self.fault = ""
@@ -161,7 +202,11 @@ class Follower:
             self.spline.close()
 
     def feed(self, text: str, number: int = 1) -> None:
-        """Apply one JSON line to the plan.
+        """Apply one JSON line to the plan; returns once the change is made.
+
+        The line is parsed here; the change is built and checked in two steps by
+        :meth:`frames`, each between two frames of the stream, while it streams
+        (else here).
 
         Raises
         ------
@@ -176,32 +221,63 @@ class Follower:
         mode, q, t, relative = self._parse(text, where)
         now = self._now()
         t = now + t if relative else t
+        self._change_time(t, now, where)  # now, so that a line too late fails fast
+        job = _Job(self._change_steps(mode, q, t, where, arrival, now, number))
+        with self._lock:
+            streaming = self._streaming
+            if streaming:
+                self._jobs.append(job)
+        if not streaming:
+            job.finish()
+        job.finished.wait()
+        if job.error is not None:
+            raise job.error
+        self.change_costs_s.append(job.busy_s)
+        self.change_steps_s.append(job.longest_s)
+
+    def _change_time(self, t: float, now: float, where: str) -> float:
+        """The change time ``at`` (s) for a keyframe at ``t`` (s): ``margin_s`` after
+        the last frame streamed, or more where the change's steps need longer; raises
+        if the keyframe is too close to it."""
+        steps = 2 + math.ceil((t - now) * self.rate_hz / CHECK_STEP_FRAMES)
+        at = max(self.spline.committed, self.spline.t_start)
+        at += max(self.margin_s, (steps + 1) / self.rate_hz)
+        if t - at < self.spline.min_lead_s:
+            raise self._error(
+                where,
+                f"keyframe at t = {t:.4g} s is {t - now:.3g} s ahead of the stream "
+                f"(t = {now:.4g} s): it must be at least "
+                f"{self.spline.min_lead_s + at - now:.3g} s ahead",
+            )
+        return at
+
+    def _change_steps(self, mode, q, t, where, arrival, now, number):
+        """A line's change as a generator of steps, each of which the streaming thread
+        runs between two frames: build it (:meth:`OnlineSpline.prepare_steps`); check
+        it, ``CHECK_STEP_FRAMES`` frames of the new path per step; make it."""
         for _ in range(3):
-            at = max(self.spline.committed, self.spline.t_start) + self.margin_s
-            if t - at < self.spline.min_lead_s:
-                raise self._error(
-                    where,
-                    f"keyframe at t = {t:.4g} s is {t - now:.3g} s ahead of the stream "
-                    f"(t = {now:.4g} s): it must be at least "
-                    f"{self.spline.min_lead_s + self.margin_s:g} s ahead",
-                )
-            started = time.perf_counter()
+            at = self._change_time(t, self._now(), where)
             try:
-                getattr(self.spline, mode)(q[None], [t], at=at, check=self._limits(at))
+                change = yield from self.spline.prepare_steps(mode, q[None], [t], at=at)
             except ChangeTooLate:
-                continue  # the stream passed `at` while the change was built: again, later
-            except ValueError as e:  # KinematicsError, or a keyframe the plan refuses
+                continue
+            except ValueError as e:  # a keyframe the plan refuses
                 raise self._error(where, str(e)) from None
-            cost = time.perf_counter() - started
+            yield
+            try:
+                yield from self._check_steps(change.path, at)
+                self.spline.apply(change)
+            except ChangeTooLate:
+                continue  # the stream passed `at`, or another change came: again, later
+            except ValueError as e:  # KinematicsError
+                raise self._error(where, str(e)) from None
             with self._lock:
                 self._pending.append((arrival, at))
-            break
-        else:
-            raise self._error(where, "the stream ran past three attempts to change it (busy?)")
-        self.change_costs_s.append(cost)
-        self.keyframes.append(
-            {"line": number, "mode": mode, "t": t, "quat": q.tolist(), "at": at, "now": now}
-        )
+            self.keyframes.append(
+                {"line": number, "mode": mode, "t": t, "quat": q.tolist(), "at": at, "now": now}
+            )
+            return
+        raise self._error(where, "the stream ran past three attempts to change it (busy?)")
 
     def _parse(self, text: str, where: str):
         try:
@@ -230,15 +306,24 @@ class Follower:
         committed = self.spline.committed
         return self.spline.t_start if committed == -math.inf else committed
 
-    def _limits(self, at: float):
-        """The check of a new path: joint limits and gimbal lock at the stream's frame times
-        after ``at`` to its end (the frame at ``at`` is the old path's, checked already)."""
+    def _check_steps(self, path, at: float):
+        """The check of a new path, in steps: joint limits and gimbal lock at the stream's
+        frame times after ``at`` to its end (the frame at ``at`` is the old path's,
+        checked already), ``CHECK_STEP_FRAMES`` frames per step.
 
-        def check(path) -> None:
-            t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)[1:]
-            self.kinematics.inverse(path.evaluate(t, max_order=0).q, t, start=self._last_q)
-
-        return check
+        Raises
+        ------
+        KinematicsError
+            At the first frame near gimbal lock or outside a limit.
+        """
+        t = sample_times(at, max(path.t_end, at + 1.0 / self.rate_hz), self.rate_hz)[1:]
+        start = self._last_q
+        for i in range(0, len(t), CHECK_STEP_FRAMES):
+            chunk = t[i : i + CHECK_STEP_FRAMES]
+            q = path.evaluate(chunk, max_order=0).q
+            start = self.kinematics.inverse(q, chunk, start=start)[-1]
+            if i + CHECK_STEP_FRAMES < len(t):
+                yield
 
     # -- frames ------------------------------------------------------------
 
@@ -251,12 +336,15 @@ class Follower:
             Joint angles whose 2 pi branch the first frame's pan and roll take.
         """
         frames = stream_frames(self.spline, self.rate_hz, self.kinematics, start=start)
-        # A change is built on the reading thread and holds the interpreter meanwhile: let
-        # the streaming thread take it back within a fraction of a period.
+        # Lines are parsed on the reading thread, which holds the interpreter meanwhile:
+        # let the streaming thread take it back within a fraction of a period.
         switch = sys.getswitchinterval()
         sys.setswitchinterval(min(switch, SWITCH_INTERVAL_S))
+        with self._lock:
+            self._streaming = True
         try:
             while True:
+                self._step()
                 try:
                     frame = next(frames)
                 except StopIteration:
@@ -277,6 +365,19 @@ class Follower:
                 yield frame
         finally:
             sys.setswitchinterval(switch)
+            with self._lock:
+                self._streaming, jobs = False, list(self._jobs)
+                self._jobs.clear()
+            for job in jobs:  # the stream ended: finish them here
+                job.finish()
+
+    def _step(self) -> None:
+        """One step of the oldest line's change, if any; its cost once it is done."""
+        with self._lock:
+            job = self._jobs[0] if self._jobs else None
+        if job is not None and job.step():
+            with self._lock:
+                self._jobs.popleft()
 
     def trajectory(self) -> JointTrajectory:
         """What :meth:`frames` yielded, as arrays."""
@@ -325,9 +426,9 @@ def load_compiled_kernel() -> bool:
     """Load the blending spline's compiled kernel (:mod:`trajgen.fast`) now, where numba
     is installed and ``TRAJGEN_NUMBA`` is not 0; returns whether it is loaded.
 
-    Then every later evaluation runs compiled, those of the stream's frames and of the
-    old path where a change splices onto it: both run while the stream waits (a change
-    holds the interpreter), and compiled they cost a few microseconds per sample
+    Then every later evaluation of the blending spline runs compiled, those of the
+    stream's blended frames and of the old path where a change splices onto it (a step
+    the streaming thread runs between two frames): a few microseconds per sample
     instead of about 0.5 ms per call (bench/online_cost.py). Loading costs a second or
     so (longer the first time, while numba fills its cache).
     """
