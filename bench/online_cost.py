@@ -23,6 +23,7 @@ Run: .venv/bin/python bench/online_cost.py [--seconds 6] [--repeats 40] [--secti
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import os
 import platform
@@ -34,6 +35,7 @@ import numpy as np
 from trajgen import fast
 from trajgen import quat as Q
 from trajgen.cli import follow
+from trajgen.cli.follow import CHECK_STEP_FRAMES as CHECK_FRAMES
 from trajgen.cli.follow import Follower, load_compiled_kernel
 from trajgen.drivers.clock import sleep_until
 from trajgen.online import OnlineSpline
@@ -89,40 +91,69 @@ CHANGES = (
 )
 
 
+def timed_steps(steps) -> list[float]:
+    """Run a generator of steps to its end; the time (s) of each ``next()``."""
+    spans = []
+    while True:
+        start = time.perf_counter()
+        try:
+            next(steps)
+        except StopIteration:
+            spans.append(time.perf_counter() - start)
+            return spans
+        spans.append(time.perf_counter() - start)
+
+
 def change_costs(rng, n, label):
     rows = []
     for kind, n_keys in CHANGES:
-        cost, peer = [], []
+        cost, longest, peer = [], [], []
         for _ in range(n):
+            twin = copy.deepcopy(rng)
             s, (method, q, t, at), keys = one_change(rng, kind, n_keys)
             start = time.perf_counter()
             method(q, t, at=at)
             cost.append(time.perf_counter() - start)
+            # The same change in steps (prepare_steps, then apply), as `follow` makes it.
+            s, (method, q, t, at), _ = one_change(twin, kind, n_keys)
+            spans = timed_steps(s.prepare_steps(method.__name__, q, t, at=at))
+            longest.append(max(spans))
             start = time.perf_counter()
             BlendingSpline(*keys)
             peer.append(time.perf_counter() - start)
-        rows.append((f"{kind}, {n_keys} keyframe{'s' if n_keys > 1 else ''}", cost, peer))
+        name = f"{kind}, {n_keys} keyframe{'s' if n_keys > 1 else ''}"
+        rows.append((name, cost, longest, peer))
     # What `trajgen follow` adds: the joint-limit and lock-guard check of the new path.
-    check = []
+    check, check_step = [], []
     for _ in range(n):
         s, (_, q, t, at), _ = one_change(rng, "retarget inside a splice", 1)
         follower = Follower(s, 1000.0)
         follower._last_q = np.zeros(3)
         s.retarget(q, t, at=at)
         _, path = s.snapshot()
-        start = time.perf_counter()
-        for _ in follower._check_steps(path, at):
-            pass
-        check.append(time.perf_counter() - start)
+        spans = timed_steps(follower._check_steps(path, at))
+        check.append(sum(spans))
+        check_step.append(max(spans))
     print(f"## 1. Cost of one change (k = 2), {label}\n")
     print(f"load average: {os.getloadavg()}\n")
-    print("| change | cost ms min / p50 / p90 / max | peer: BlendingSpline build, ms | p50 ratio |")
-    print("|---|---|---|---|")
-    for kind, cost, peer in rows:
-        print(f"| {kind} | {ms(cost)} | {ms(peer)} | {np.median(cost) / np.median(peer):.2f}x |")
-    print(f"| `follow`'s check of a new path (joint limits, lock guard) | {ms(check)} | | |")
-    worst = max(np.median(c) for _, c, _ in rows)
-    print(f"\nWorst median change: {1e3 * worst:.2f} ms, {worst / 1e-3:.2f} periods at 1 kHz.\n")
+    print(
+        "| change | cost ms min / p50 / p90 / max | longest step of `prepare_steps`, ms "
+        "| peer: BlendingSpline build, ms | p50 ratio |"
+    )
+    print("|---|---|---|---|---|")
+    for kind, cost, longest, peer in rows:
+        ratio = np.median(cost) / np.median(peer)
+        print(f"| {kind} | {ms(cost)} | {ms(longest)} | {ms(peer)} | {ratio:.2f}x |")
+    print(
+        f"| `follow`'s check of a new path (joint limits, lock guard), {CHECK_FRAMES} frames "
+        f"a step | {ms(check)} | {ms(check_step)} | | |"
+    )
+    worst = max(np.median(c) for _, c, _, _ in rows)
+    step = max(np.median(x) for _, _, x, _ in rows)
+    print(
+        f"\nWorst median change: {1e3 * worst:.2f} ms, {worst / 1e-3:.2f} periods at 1 kHz; "
+        f"worst median longest step: {1e3 * step:.2f} ms.\n"
+    )
 
 
 def frame_costs(rng, n):

@@ -265,9 +265,11 @@ class _Piece:
             out[:, :, blended] = self.spline._jet(t[blended], seg, order).c
         return J.Jet(out)
 
-    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+    def taylor_steps(self, t: float, order: int):
         """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``
-        (``d(0) = 1``), order <= 4: what a splice at ``t`` starts from."""
+        (``d(0) = 1``), order <= 4: what a splice at ``t`` starts from. A generator of
+        steps (those of the spline's evaluation, in a blended segment); its return
+        value is the pair."""
         hold, spliced, blended, seg = self._parts(np.array([t]))
         if hold[0]:
             d = np.zeros((order + 1, 4))
@@ -276,7 +278,7 @@ class _Piece:
         if spliced[0]:
             return self.splice.taylor(t, order)
         if order <= 3:  # the closed-form rates (the compiled kernel where it is loaded)
-            q, rates = self.spline._space_rates(np.array([t]), seg, order)
+            q, rates = yield from self.spline._space_rate_steps(np.array([t]), seg, order)
             return q[0], _taylor_from_rates([x[0] for x in rates])
         old = self.spline._jet(np.array([t]), seg, order)  # order 4: only the jets go that far
         q = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
@@ -687,9 +689,10 @@ class OnlineSpline:
         return run_steps(self.prepare_steps(mode, quats, times, at=at))
 
     def prepare_steps(self, mode, quats, times, *, at):
-        """:meth:`prepare` as a generator of two steps of about equal cost (the old
-        path's jet at ``at``, then the new piece), for a caller that runs one step
-        per stream frame; the generator's return value is the :class:`Change`."""
+        """:meth:`prepare` as a generator of steps (the old path's jet at ``at``; the
+        new spline, where the change has two or more keyframes; the rest), for a
+        caller that runs one step per stream frame; the generator's return value is
+        the :class:`Change`."""
         mode = check_choice("mode", mode, MODES)
         q = Q.as_quats(quats, "quats")
         t = check_times(times, len(q))
@@ -792,18 +795,20 @@ class OnlineSpline:
         """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,), in
         two steps (a generator; its return value is the piece)."""
         piece = plan.pieces[int(plan._segment(np.array([at]))[0][0])]
-        q_a, d = piece.taylor(at, self.k + 1)
+        q_a, d = yield from piece.taylor_steps(at, self.k + 1)
         yield
-        return self._spliced(at, q_a, _log_near_identity(d), q, t)
+        return (yield from self._spliced(at, q_a, _log_near_identity(d), q, t))
 
-    def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t) -> _Piece:
+    def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t):
         """The piece that leaves ``q_a`` (4,) at ``s`` with Taylor coefficients ``p``
         (k + 2, 3) of ``log(q(s + tau) q_a*)`` and goes through ``q`` (N, 4) at ``t`` (N,):
-        the splice on ``[s, t[0]]``, then the rest spline's blends (none if N = 1)."""
+        the splice on ``[s, t[0]]``, then the rest spline's blends (none if N = 1). A
+        generator (a step after building the spline); its return value is the piece."""
         k = self.k
         h = float(t[0]) - s
         if len(t) >= 2:  # C_1 through (q_a, q_1, q_2): curve 0 of the spline
             spline = self._spline(np.vstack([q_a, q]), np.concatenate([[s], t]))
+            yield
             c1 = spline._curves.derivatives(np.array([0]), t[:1], k)  # (k + 1) x (4, 1)
             c1 = np.array(c1)[..., 0] / self._factorials[: k + 1, None]
             # log(C_1 q_a*): the product with a constant is one Hamilton product of arrays.
