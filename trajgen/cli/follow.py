@@ -393,7 +393,7 @@ class Follower:
     # -- summary -----------------------------------------------------------
 
     def summary(self) -> dict:
-        """Counts, latency and change cost (s; p50 and max), accepted keyframes."""
+        """Counts, latency, change cost and longest step (s; p50 and max), accepted keyframes."""
 
         def stats(x):
             return {"p50": float(np.median(x)), "max": float(np.max(x)), "n": len(x)} if x else None
@@ -403,6 +403,7 @@ class Follower:
             "skipped": len(self.skipped),
             "latency_s": stats(self.latencies_s),
             "change_cost_s": stats(self.change_costs_s),
+            "change_step_s": stats(self.change_steps_s),
             "keyframes": self.keyframes,
             "skipped_lines": self.skipped,
         }
@@ -418,7 +419,8 @@ class Follower:
 
         return (
             f"follow: {s['accepted']} keyframes accepted, {s['skipped']} lines skipped; "
-            f"line to frame {ms(s['latency_s'])}; change cost {ms(s['change_cost_s'])}"
+            f"line to frame {ms(s['latency_s'])}; change cost {ms(s['change_cost_s'])} "
+            f"in steps between frames, the longest {ms(s['change_step_s'])}"
         )
 
 
