@@ -465,3 +465,24 @@ def test_apply_refuses_a_change_prepared_on_an_older_path_or_before_a_streamed_t
     s.close()
     with pytest.raises(ValueError, match="closed"):
         s.prepare("extend", random_quats(rng, 1), [3.0], at=0.9)
+
+
+def test_a_change_ahead_keeps_the_block_the_stream_evaluated(monkeypatch, rng):
+    from trajgen import online
+    from trajgen.stream import stream_frames
+
+    s = _moving(rng)  # blended from t = 0
+    frames = stream_frames(s, 100.0)
+    got = [next(frames) for _ in range(3)]  # frames of the first 16-frame block
+    calls = []
+    space_rates = online._Piece.space_rates
+
+    def counted(piece, t, max_order):
+        calls.append(len(t))
+        return space_rates(piece, t, max_order)
+
+    monkeypatch.setattr(online._Piece, "space_rates", counted)
+    s.retarget(random_quats(rng, 1), [1.3], at=got[-1].t + 0.1)
+    nxt = next(frames)
+    assert nxt.index == 3 and calls == []  # the block evaluated before the change is kept
+    assert Q.distance(_frame_quat(nxt), s(nxt.t)) < 1e-12

@@ -327,9 +327,9 @@ class _Plan(OrientationPath):
         piece = np.searchsorted(self.starts, t, side="left") - 1
         return np.clip(piece, 0, len(self.pieces) - 1), np.maximum(t, t0)
 
-    def frames(self, t0: float, rate_hz: float) -> PlanFrames:
+    def frames(self, t0: float, rate_hz: float, previous=None) -> PlanFrames:
         """This path at one stream time per call, in floats (see :class:`PlanFrames`)."""
-        return PlanFrames(self, t0, rate_hz)
+        return PlanFrames(self, t0, rate_hz, previous)
 
     def _jet(self, t, seg, order):
         out = np.empty((order + 1, 4, len(t)))
@@ -368,17 +368,24 @@ class PlanFrames:
         The stream's first time (s); its times are ``t0 + i / rate_hz``.
     rate_hz : float
         The stream's rate (Hz), > 0.
+    previous : PlanFrames, optional
+        The same stream's evaluator of an earlier snapshot: its blocks of the pieces
+        this plan keeps are used, not evaluated again.
     """
 
     #: Stream times evaluated at once in a blended segment.
     BLOCK_FRAMES = 16
 
-    def __init__(self, plan: _Plan, t0: float, rate_hz: float):
+    def __init__(self, plan: _Plan, t0: float, rate_hz: float, previous: PlanFrames | None = None):
         self._plan, self._t0, self._rate = plan, t0, rate_hz
         self._lo, self._hi = math.inf, -math.inf  # the current part's open interval
         self._part = None
-        self._block = None  # (piece, first frame index, times (B,), q (B, 4), omega, alpha)
-        self._ahead = None  # (piece, first frame index, Steps evaluating that block)
+        # The current block, (piece, first frame, times (B,), q (B, 4), omega, alpha), and
+        # the next, (piece, first frame, Steps evaluating it). Blocks are a piece's, and
+        # pieces are immutable and shared by the plans before and after a change: an
+        # earlier snapshot's blocks stay valid where their piece is kept.
+        self._block = previous._block if previous else None
+        self._ahead = previous._ahead if previous else None
 
     def __call__(self, t: float) -> tuple[tuple, tuple, tuple]:
         """Orientation (w, x, y, z), space-frame angular velocity (rad/s) and

@@ -156,7 +156,7 @@ def stream_frames(
     next one. Its frames run from ``t_start`` until the source is closed and
     ``t_end`` is reached, holding at rest meanwhile. Each frame is evaluated on
     its own from the source's snapshot (``snapshot()`` returns a path with
-    ``frames(t0, rate_hz)``, see :class:`~trajgen.online.PlanFrames`): a change's
+    ``frames(t0, rate_hz, previous)``, see :class:`~trajgen.online.PlanFrames`): a change's
     spliced segments in floats, blended ones with numpy a block at a time.
 
     Parameters
@@ -245,7 +245,7 @@ def _online_frames(source, kin: FrameKinematics, rate_hz: float) -> Iterator[Joi
         t = t0 + i / rate_hz
         latest, path = source.snapshot()
         if latest != version:
-            version, frames = latest, path.frames(t0, rate_hz)
+            version, frames = latest, path.frames(t0, rate_hz, frames)
         unwrapped = kin.state
         joints = kin(t, *frames(t))
         if not source.commit(t, version):  # changed meanwhile: this frame again
