@@ -255,3 +255,23 @@ def test_at_low_rates_a_change_starts_late_enough_for_its_steps():
     # streamed when its build started, a frame or two after the line arrived.
     lead = slow.keyframes[0]["at"] - slow.keyframes[0]["now"]
     assert 4 / 20.0 - 1e-9 <= lead <= 6 / 20.0 + 1e-9
+
+
+def test_a_line_still_queued_when_the_stream_ends_is_reported_and_changes_nothing(follower):
+    frames = follower.frames()
+    next(frames)
+    errors = []
+
+    def feed():
+        try:
+            follower.feed('{"in": 0.6, "pan": 10}', 7)
+        except ValueError as e:
+            errors.append(str(e))
+
+    fed = threading.Thread(target=feed)
+    fed.start()
+    queued(follower)
+    frames.close()  # the stream ends (a stop signal, a fault) before the change's steps
+    fed.join(timeout=10)
+    assert errors == ["stdin: line 7: the stream ended before its change was made"]
+    assert follower.spline.version == 1 and not follower.keyframes

@@ -289,9 +289,12 @@ class _Piece:
     def space_rates(self, t: np.ndarray, max_order: int):
         """Unit quaternions (M, 4) and space-frame rates of orders 1..max_order (M, 3),
         the blended part by the spline's own (compiled, where enabled) evaluation."""
+        hold, spliced, blended, seg = self._parts(t)
+        for mask, path, s in ((spliced, self.splice, None), (blended, self.spline, seg)):
+            if len(t) and mask.all():  # one part (the usual case): no masks
+                return path._space_rates(t, s, max_order)
         q = np.empty((len(t), 4))
         rates = [np.zeros((len(t), 3)) for _ in range(max_order)]
-        hold, spliced, blended, seg = self._parts(t)
         q[hold] = self.q_end
         for mask, path, s in ((spliced, self.splice, None), (blended, self.spline, seg)):
             if mask.any():
@@ -339,6 +342,8 @@ class _Plan(OrientationPath):
         return J.Jet(out)
 
     def _space_rates(self, t, seg, max_order):
+        if len(t) and (seg == seg[0]).all():  # one piece (the usual case): no masks
+            return self.pieces[seg[0]].space_rates(t, max_order)
         q = np.empty((len(t), 4))
         rates = [np.empty((len(t), 3)) for _ in range(max_order)]
         for j in np.unique(seg):

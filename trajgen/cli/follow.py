@@ -96,12 +96,19 @@ class _Job(Steps):
     """A line's change as a generator of steps, run by whichever thread gets to it;
     a refused line's error is kept for the reading thread."""
 
-    def __init__(self, steps):
+    def __init__(self, steps, where: str):
         super().__init__(steps)
+        self.where = where  # "line N", for messages
         self.finished = threading.Event()
         self.error: Exception | None = None
         self.busy_s = 0.0  # time (s) spent in its steps
         self.longest_s = 0.0  # its longest step (s)
+
+    def cancel(self, error: Exception) -> None:
+        """End it unrun, with ``error`` for the reading thread."""
+        self._steps.close()
+        self.error, self.done = error, True
+        self.finished.set()
 
     def step(self) -> bool:
         started = time.perf_counter()
@@ -222,7 +229,7 @@ class Follower:
         now = self._now()
         t = now + t if relative else t
         self._change_time(t, now, where)  # now, so that a line too late fails fast
-        job = _Job(self._change_steps(mode, q, t, where, arrival, now, number))
+        job = _Job(self._change_steps(mode, q, t, where, arrival, now, number), where)
         with self._lock:
             streaming = self._streaming
             if streaming:
@@ -368,8 +375,8 @@ class Follower:
             with self._lock:
                 self._streaming, jobs = False, list(self._jobs)
                 self._jobs.clear()
-            for job in jobs:  # the stream ended: finish them here
-                job.finish()
+            for job in jobs:  # the stream ended: those lines change nothing
+                job.cancel(self._error(job.where, "the stream ended before its change was made"))
 
     def _step(self) -> None:
         """One step of the oldest line's change, if any; its cost once it is done."""
