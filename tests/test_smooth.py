@@ -312,6 +312,11 @@ def test_property_random_keyframes(seed, n, spread, boundary):
             ValueError,
             "knots='end-minimax' needs boundary='rest' .* got boundary='natural'",
         ),
+        (
+            dict(knots="joint-minimax", boundary="natural"),
+            ValueError,
+            "knots='joint-minimax' needs boundary='rest' .* got boundary='natural'",
+        ),
     ],
 )
 def test_bad_input_raises_with_a_message_naming_it(kwargs, exc, match):
@@ -354,6 +359,7 @@ tilt = 20.0
             {"boundary": "natural"},
         ),
         ("[spline]\nknots = 'end-minimax'\n", "SmoothSpline", {"knots": "end-minimax"}),
+        ("[spline]\nknots = 'joint-minimax'\n", "SmoothSpline", {"knots": "joint-minimax"}),
         ("[spline]\nmethod = 'blending'\n", "BlendingSpline", {}),
         ("[spline]\nk = 3\n", "BlendingSpline", {"k": 3}),  # written for the blending spline
     ],
@@ -374,12 +380,19 @@ def test_keyframe_file_selects_the_method(tmp_path, spline, cls, options):
         ("method = 'fast'", r"\[spline\] method: expected one of smooth, blending, got 'fast'"),
         ("method = 'smooth'\nk = 2", r"\[spline\] k: applies to method = 'blending' only"),
         ("method = 'smooth'\nreparam = 'paper'", r"\[spline\] reparam: applies to method"),
-        ("knots = 'lp'", r"\[spline\] knots: expected one of quintic, end-minimax, got 'lp'"),
+        (
+            "knots = 'lp'",
+            r"\[spline\] knots: expected one of quintic, end-minimax, joint-minimax, got 'lp'",
+        ),
         ("method = 'blending'\nknots = 'quintic'", r"knots: applies to method = 'smooth' only"),
         ("k = 2\nknots = 'quintic'", r"knots: applies to method = 'smooth' only"),
         (
             "boundary = 'closed'\nknots = 'end-minimax'",
             r"knots: 'end-minimax' needs boundary = 'rest', got 'closed'",
+        ),
+        (
+            "boundary = 'natural'\nknots = 'joint-minimax'",
+            r"knots: 'joint-minimax' needs boundary = 'rest', got 'natural'",
         ),
     ],
 )
@@ -525,3 +538,123 @@ def test_natural_needs_three_keyframes():
     with pytest.raises(ValueError, match="natural.*at least 3 keyframes"):
         SmoothSpline(q, [0.0, 1.0], boundary="natural")
     SmoothSpline(q, [0.0, 1.0])  # the rest boundary is determined
+
+
+# --- knots = "joint-minimax": knot data chosen for the gimbal's joint jerk ---------------
+
+
+def gimbal_keys(rng, n=7):
+    """Keyframes of a look-around (pan +-70, tilt +-40, roll +-10 deg), rest at 0 at both
+    ends, uneven gaps: the kind of motion the torque race plans."""
+    a = rng.uniform([-70, -40, -10], [70, 40, 10], size=(n, 3))
+    a[0] = a[-1] = 0.0
+    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.5, 2.5, n - 1))])
+    return ptr(*a), t
+
+
+def sampled_joint_motion(s):
+    """Per segment: peak |joint acceleration| per joint (n - 1, 3), peak |joint jerk|
+    (n - 1,) and peak |tilt| (n - 1,), at JOINT_SAMPLES, from the exact coefficients."""
+    from trajgen.smooth import JOINT_SAMPLES, joint_motion
+
+    acc, jerk, tilt = joint_motion(s._poly, s.quats[:-1], JOINT_SAMPLES)
+    return np.abs(acc).max(axis=2), np.abs(jerk).max(axis=(1, 2)), np.abs(tilt).max(axis=1)
+
+
+def test_joint_motion_matches_differences_of_the_exact_joint_accelerations(rng):
+    from trajgen.gimbal import GimbalKinematics, joint_rates
+    from trajgen.smooth import joint_motion
+
+    q, t = gimbal_keys(rng)
+    s = SmoothSpline(q, t)
+    u = np.linspace(0.05, 0.95, 7)
+    acc, jerk, tilt = joint_motion(s._poly, s.quats[:-1], u)
+    tt = (t[:-1, None] + np.diff(t)[:, None] * u).ravel()
+    e = 1e-5
+    joint_acc = []
+    for x in (tt - e, tt, tt + e):
+        S = s.evaluate(x, max_order=2)
+        joint_acc.append(joint_rates(GimbalKinematics().inverse(S.q), S.omega, S.alpha)[1])
+    angles = GimbalKinematics().inverse(s(tt))
+    np.testing.assert_allclose(tilt.ravel(), angles[:, 1], atol=1e-13)
+    exact_acc = acc.transpose(0, 2, 1).reshape(-1, 3)
+    np.testing.assert_allclose(exact_acc, joint_acc[1], atol=1e-10 * np.abs(joint_acc[1]).max())
+    fd = (joint_acc[2] - joint_acc[0]) / (2 * e)
+    exact = jerk.transpose(0, 2, 1).reshape(-1, 3)
+    np.testing.assert_allclose(exact, fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_minimax_step_matches_the_exact_one_variable_minimax_and_a_grid(rng):
+    from trajgen.smooth import minimax_step
+
+    c, b = rng.normal(size=(4, 30)), rng.normal(size=(4, 30))
+    x = minimax_step(c, b[..., None])[:, 0]
+    for k in range(4):
+        exact = minimax_offset(c[k, :, None], b[k], np.zeros(1))[0]
+        best = np.abs(c[k] + b[k] * exact).max()
+        assert np.abs(c[k] + b[k] * x[k]).max() <= best * (1 + 1e-3)
+    # Two variables against a grid search.
+    c, B = rng.normal(size=(1, 40)), rng.normal(size=(1, 40, 2))
+    x = minimax_step(c, B)[0]
+    g = np.linspace(-3, 3, 601)
+    X = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    grid = np.abs(c[0] + X @ B[0].T).max(axis=1).min()
+    assert np.abs(c[0] + B[0] @ x).max() <= grid * (1 + 1e-3)
+
+
+def test_joint_minimax_is_exact_c3_and_at_rest(rng):
+    q, t = gimbal_keys(rng)
+    s = SmoothSpline(q, t, knots="joint-minimax")
+    assert Q.distance(s(t), q).max() < 1e-13
+    v, a, _ = s.knot_rates
+    assert not np.abs(np.concatenate([v[[0, -1]], a[[0, -1]]])).any()
+    S = s.evaluate(np.linspace(t[0], t[-1], 5001), max_order=3)
+    np.testing.assert_allclose(np.linalg.norm(S.q, axis=1), 1.0, atol=1e-15)
+    for x in (S.omega, S.alpha):
+        assert np.abs(x[[0, -1]]).max() < 1e-12 * (1 + np.abs(x).max())
+    for order in range(4):
+        before, after = one_sided(s, order)
+        assert np.abs(before - after).max() < 1e-11 * (1 + np.abs(before).max()), order
+    # The coefficients are the segment formula of its knot data.
+    D = Q.log(Q.mul(s.quats[1:], Q.conj(s.quats[:-1])))
+    rebuilt = s._segment_coefficients(D, np.diff(t), *s.knot_rates)
+    np.testing.assert_allclose(s._poly, rebuilt, rtol=1e-12, atol=1e-12 * np.abs(rebuilt).max())
+
+
+def test_joint_minimax_is_never_worse_than_end_minimax_and_keeps_its_guards(rng):
+    from trajgen.gimbal import angles_of
+    from trajgen.smooth import ACCELERATION_SLACK, TILT_MARGIN_RAD
+
+    lower = 0
+    for _ in range(4):
+        q, t = gimbal_keys(rng, int(rng.integers(4, 9)))
+        start, best = (SmoothSpline(q, t, knots=k) for k in ("end-minimax", "joint-minimax"))
+        (acc0, jerk0, tilt0), (acc, jerk, tilt) = map(sampled_joint_motion, (start, best))
+        # The path's sampled peak joint jerk does not rise (a segment's may, when its
+        # window's peak, in a neighbour, drops).
+        assert jerk.max() <= jerk0.max() * (1 + 1e-12)
+        lower += jerk.max() < 0.97 * jerk0.max()
+        # Per joint, the peak acceleration stays within the slack (or the start's own).
+        cap = ACCELERATION_SLACK * np.maximum(acc0.max(0), 1e-2 * acc0.max())
+        assert (acc.max(0) <= np.maximum(cap, acc0.max(0)) * (1 + 1e-12)).all()
+        keyframe_tilt = np.abs(angles_of(*q.T, np.arctan2, np.hypot)[1]).max()
+        assert tilt.max() <= max(keyframe_tilt + TILT_MARGIN_RAD, tilt0.max()) + 1e-12
+    assert lower >= 2  # it does something: the peak drops by 3% or more on most cases
+
+
+def test_joint_minimax_is_deterministic_and_sign_invariant(rng):
+    q, t = gimbal_keys(rng, 6)
+    a, b = (SmoothSpline(q, t, knots="joint-minimax") for _ in range(2))
+    np.testing.assert_array_equal(a._poly, b._poly)
+    flipped = q * np.where(rng.uniform(size=len(q)) < 0.5, -1.0, 1.0)[:, None]
+    c = SmoothSpline(flipped, t, knots="joint-minimax")
+    tt = np.linspace(t[0], t[-1], 301)
+    assert Q.distance(a(tt), c(tt)).max() < 1e-12
+
+
+def test_joint_minimax_leaves_a_motion_it_cannot_improve_bit_for_bit():
+    # A lone pan move: its peak jerk sits at both rest ends, where end-minimax already
+    # balanced it; no step lowers it, and nothing else changes.
+    q = ptr([0, 0, 0], [50, 0, 0])
+    a, b = (SmoothSpline(q, [0.0, 2.0], knots=k) for k in ("end-minimax", "joint-minimax"))
+    np.testing.assert_array_equal(a._poly, b._poly)

@@ -4,7 +4,8 @@
 [spline]            # optional
 method = "smooth"   # SmoothSpline (default) or "blending" (BlendingSpline)
 boundary = "rest"   # "rest", "natural" or "closed" (both methods)
-knots = "quintic"   # SmoothSpline's knots: "end-minimax" (default at rest) or "quintic"
+knots = "quintic"   # SmoothSpline's knots: "end-minimax" (default at rest), "quintic"
+                    # or "joint-minimax" (at rest; lower peak joint jerk, slower build)
                     # k, local, reparam are the blending spline's keywords; a file
                     # giving them without `method` gets method = "blending"
 
@@ -307,9 +308,9 @@ def _spline_options(table, path: Path) -> dict:
     blending_only = [k for k in BLENDING_ONLY if k in table]
     if "knots" in table and (table.get("method") == "blending" or blending_only):
         raise KeyframeFileError(f"{path}: [spline] knots: applies to method = 'smooth' only")
-    if table.get("knots") == "end-minimax" and table.get("boundary", "rest") != "rest":
+    if table.get("knots", "quintic") != "quintic" and table.get("boundary", "rest") != "rest":
         raise KeyframeFileError(
-            f"{path}: [spline] knots: 'end-minimax' needs boundary = 'rest', "
+            f"{path}: [spline] knots: {table['knots']!r} needs boundary = 'rest', "
             f"got {table['boundary']!r}"
         )
     if blending_only and table.get("method") == "smooth":
