@@ -476,7 +476,7 @@ def test_end_minimax_derivatives_match_finite_differences_and_sign_does_not_matt
         np.testing.assert_allclose(s(tt, order), fd, atol=1e-7 * np.abs(fd).max())
     flipped = q * np.where(rng.uniform(size=len(q)) < 0.5, -1.0, 1.0)[:, None]
     other = SmoothSpline(flipped, t, knots="end-minimax")
-    assert Q.distance(s(tt), other(tt)).max() < 1e-14
+    assert Q.distance(s(tt), other(tt)).max() < 1e-13  # rounding: a sign slip gives O(1)
     np.testing.assert_allclose(s(tt, 3), other(tt, 3), atol=1e-10)
 
 
