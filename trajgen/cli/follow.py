@@ -59,9 +59,10 @@ runs from JSON lines on stdin, one keyframe per line:
 
 "mode": "retarget" (the default) drops the keyframes still ahead and goes
 through the new one instead; "extend" keeps them and adds the new one after
-them. A change starts {CHANGE_MARGIN_S:g} s after the frame being streamed when its
-line arrives (time to build and check it, between frames of the stream), and its
-keyframe must lie at least 0.2 s after that. Each line is checked as a keyframe
+them. A change is built and checked in steps, one between two frames of the
+stream, and starts {CHANGE_MARGIN_S:g} s after the frame being streamed when it is
+begun (longer where the steps need it: at low rates, or for a keyframe far
+ahead); its keyframe must lie at least 0.2 s after that. Each line is checked as a keyframe
 file checks a keyframe, and the new path against the gimbal's joint limits and
 gimbal-lock margin; a bad line is reported on stderr and skipped, and the
 stream goes on. The path is C^k across every change (k from the file's
