@@ -6,6 +6,7 @@ import sys
 
 import numpy as np
 import pytest
+from conftest import random_walk_keyframes
 
 from trajgen import BlendingSpline, SmoothSpline, fast
 from trajgen import quat as Q
@@ -17,15 +18,9 @@ pytest.importorskip("numba")
 @pytest.mark.parametrize("reparam", ["paper", "rational"])
 @pytest.mark.parametrize("boundary", ["rest", "natural", "closed"])
 def test_compiled_path_matches_numpy(local, reparam, boundary, monkeypatch):
-    rng = np.random.default_rng(7)
-    steps = Q.exp(rng.normal(scale=0.3, size=(7, 3)))
-    q = steps.copy()
-    for i in range(1, len(q)):
-        q[i] = Q.mul(steps[i], q[i - 1])
-    if boundary == "closed":
-        q[-1] = q[0]
-        local = "parabola" if local == "circle" else local  # no circle on the seam reversal
-    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.4, 1.6, len(q) - 1))])
+    q, t = random_walk_keyframes(7, 7, 0.3, boundary)
+    if boundary == "closed" and local == "circle":
+        local = "parabola"  # no circle on the seam reversal
     s = BlendingSpline(q, t, k=3, local=local, reparam=reparam, boundary=boundary)
     tt = np.concatenate([np.linspace(t[0], t[-1], 999), t])
     compiled, reference = compiled_and_reference(s, tt, monkeypatch)
@@ -51,14 +46,7 @@ def compiled_and_reference(spline, t, monkeypatch):
 def test_compiled_smooth_spline_matches_numpy(boundary, monkeypatch):
     """SmoothSpline's kernel against its numpy closed form, both series branches
     (the keyframes themselves, where r = 0, take the series)."""
-    rng = np.random.default_rng(11)
-    steps = Q.exp(rng.normal(scale=0.6, size=(7, 3)))
-    q = steps.copy()
-    for i in range(1, len(q)):
-        q[i] = Q.mul(steps[i], q[i - 1])
-    if boundary == "closed":
-        q[-1] = q[0]
-    t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.4, 1.6, len(q) - 1))])
+    q, t = random_walk_keyframes(11, 7, 0.6, boundary)
     s = SmoothSpline(q, t, boundary=boundary)
     tt = np.concatenate([np.linspace(t[0], t[-1], 999), t, t[:-1] + 1e-4])
     compiled, reference = compiled_and_reference(s, tt, monkeypatch)

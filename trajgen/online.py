@@ -676,7 +676,7 @@ class OnlineSpline:
         self._change_plan("retarget", quats, times, at, check)
 
     def prepare(self, mode, quats, times, *, at) -> Change:
-        """Build a change without making it: ``extend`` or ``retarget`` in two steps.
+        """Build a change without making it: the first half of ``extend`` or ``retarget``.
 
         What :meth:`extend` and :meth:`retarget` do, split where their ``check``
         is called, so that a caller can check the new path (:attr:`Change.path`)

@@ -36,8 +36,9 @@ from trajgen.spline import BlendingSpline
 from trajgen.stream import JointTrajectory, stream_frames
 
 #: Time (s) from the frame being streamed when a line arrives to the change it
-#: makes: room to build and check the new path, in two steps between frames of the
-#: stream (two periods; more when the host stalls; see bench/online_cost.py).
+#: makes: room to build and check the new path, in steps between frames of the stream
+#: (a few periods at 1 kHz; see bench/online_cost.py). `Follower` allows more where the
+#: steps need it.
 CHANGE_MARGIN_S = 0.05
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
@@ -151,9 +152,9 @@ class Follower:
         that reflects it leaving :meth:`frames` (the servo gets it within one
         period after).
     change_costs_s : list of float
-        Per accepted line: time (s) to build and check the change (both steps).
+        Per accepted line: time (s) to build and check the change (all its steps).
     change_steps_s : list of float
-        Per accepted line: its longer step (s), what the streaming thread paid
+        Per accepted line: its longest step (s), what the streaming thread paid
         between two frames.
     keyframes : list of dict
         Accepted keyframes: line number, mode, ``t``, ``quat``, ``at`` (the
@@ -212,9 +213,8 @@ class Follower:
     def feed(self, text: str, number: int = 1) -> None:
         """Apply one JSON line to the plan; returns once the change is made.
 
-        The line is parsed here; the change is built and checked in two steps by
-        :meth:`frames`, each between two frames of the stream, while it streams
-        (else here).
+        The line is parsed here; while the stream runs, :meth:`frames` builds and
+        checks the change in steps, each between two frames (else it is built here).
 
         Raises
         ------
@@ -380,7 +380,7 @@ class Follower:
                 job.cancel(self._error(job.where, "the stream ended before its change was made"))
 
     def _step(self) -> None:
-        """One step of the oldest line's change, if any; its cost once it is done."""
+        """One step of the oldest line's change, if any (dropped from the queue once done)."""
         with self._lock:
             job = self._jobs[0] if self._jobs else None
         if job is not None and job.step():
