@@ -19,14 +19,19 @@ demo: $(STAMP)
 	@mkdir -p out
 	$(BIN)/trajgen stream --virtual --plot out/demo.png --json out/demo.json --telemetry out/demo_telemetry.csv
 
-test: $(STAMP)
+# numba caches the compiled kernel keyed on fast_kernel.py alone; per_sample.py is
+# what it compiles, so an edit there must make the cache stale.
+trajgen/fast_kernel.py: trajgen/per_sample.py
+	touch $@
+
+test: $(STAMP) trajgen/fast_kernel.py
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 
-bench: $(STAMP)
+bench: $(STAMP) trajgen/fast_kernel.py
 	TRAJGEN_NUMBA=1 $(BIN)/python bench/spline_speed.py --large | tee bench/results/spline_speed.md
 	TRAJGEN_NUMBA=0 $(BIN)/python bench/spline_speed.py | tee bench/results/spline_speed_numpy.md
 	TRAJGEN_NUMBA=0 $(BIN)/python bench/paper_table3.py | tee bench/results/paper_table3_numpy.md

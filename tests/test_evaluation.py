@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from trajgen import BlendingSpline, fast, spline
+from trajgen import BlendingSpline, SmoothSpline, fast, per_sample, spline
 from trajgen import derivatives as D
 from trajgen import quat as Q
 from trajgen.path import OrientationPath
@@ -76,18 +76,46 @@ def test_blocks_do_not_change_results(monkeypatch, rng):
 
 
 @pytest.mark.parametrize("local", ["auto", "circle", "parabola"])
-def test_one_sample_gives_its_row_of_a_batch(local, rng):
-    # The single-sample paths (floats in place of arrays) must give the same bits as the
-    # batch, on both sides of every series threshold (times at and next to the knots).
+def test_one_sample_gives_its_row_of_a_batch(local, rng, monkeypatch):
+    # Numpy's single-sample shortcuts (floats in place of arrays) give the same bits as
+    # the batch, and the per-sample Python that serves a few samples agrees with it, on
+    # both sides of every series threshold (times at and next to the knots).
     s = BlendingSpline(random_walk(rng, 7, 0.5), np.arange(7.0), local=local)
     tt = np.concatenate([rng.uniform(0, 6, 40), np.arange(7.0), np.arange(1.0, 6.0) + 1e-3])
     seg, tt = s._segment(tt)
     q, rates = s._space_rates(tt, seg, 3)
-    for i in range(len(tt)):
-        q1, rates1 = s._space_rates(tt[i : i + 1], seg[i : i + 1], 3)
-        np.testing.assert_array_equal(q1[0], q[i])
-        for a, b in zip(rates1, rates, strict=True):
-            np.testing.assert_array_equal(a[0], b[i])
+    for python_samples, atol in ((0, 0.0), (fast.PYTHON_SAMPLES, 1e-12)):
+        monkeypatch.setattr(fast, "PYTHON_SAMPLES", python_samples)
+        for i in range(len(tt)):
+            q1, rates1 = s._space_rates(tt[i : i + 1], seg[i : i + 1], 3)
+            np.testing.assert_allclose(q1[0], q[i], rtol=0, atol=atol)
+            for a, b in zip(rates1, rates, strict=True):
+                np.testing.assert_allclose(a[0], b[i], rtol=0, atol=atol * (1 + np.abs(b).max()))
+
+
+def test_few_samples_run_in_python_and_agree_with_numpy(rng, monkeypatch):
+    # Up to PYTHON_SAMPLES samples run trajgen.per_sample in Python (no numba here).
+    q, t = random_walk(rng, 9, 0.6), np.cumsum(rng.uniform(0.5, 1.5, 9))
+    calls = []
+    monkeypatch.setattr(per_sample, "evaluate_range", spy(per_sample.evaluate_range, calls))
+    monkeypatch.setattr(per_sample, "smooth_range", spy(per_sample.smooth_range, calls))
+    for s in (BlendingSpline(q, t, k=3), SmoothSpline(q, t)):
+        tt = np.concatenate([t, t[:-1] + 1e-4, rng.uniform(t[0], t[-1], 30)])
+        reference = s.evaluate(tt, max_order=3)  # numpy: more than PYTHON_SAMPLES
+        for i in range(0, len(tt), fast.PYTHON_SAMPLES):
+            few = s.evaluate(tt[i : i + fast.PYTHON_SAMPLES], max_order=3)
+            for a, b in zip(few, reference, strict=True):
+                b = b[i : i + fast.PYTHON_SAMPLES]
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * (1 + np.abs(b).max()))
+    assert len(calls) == 2 * -(-len(tt) // fast.PYTHON_SAMPLES)
+
+
+def spy(fn, calls):
+    def wrapped(*args):
+        calls.append(args[:2])
+        return fn(*args)
+
+    return wrapped
 
 
 @pytest.mark.parametrize("f", [0.0, 0.3, 1.0])

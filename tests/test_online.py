@@ -408,6 +408,35 @@ def test_splice_closed_form_matches_its_jet(rng, k):
         np.testing.assert_allclose(q, q_ref, rtol=0, atol=1e-13)
         for order, (a, b) in enumerate(zip(rates, ref, strict=True), start=1):
             np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-10 * 10**order)
+        for i, ti in enumerate(t):  # one time in floats (what a change starts from)
+            q1, rates1 = splice.rates(float(ti))
+            np.testing.assert_allclose(q1, q[i], rtol=0, atol=1e-13)
+            for a, b in zip(rates1, rates, strict=True):
+                np.testing.assert_allclose(a, b[i], rtol=0, atol=1e-12 * (1 + np.abs(b).max()))
+
+
+@pytest.mark.parametrize("local", ["auto", "parabola", "circle"])
+def test_log_of_a_local_curve_in_floats_matches_the_jet(rng, local):
+    """What a two-keyframe splice ends on: the Taylor coefficients of log(C_1(t) q_a*)
+    at T_1, in floats, against the jet reference, near the identity (series) and far."""
+    from trajgen import derivatives as D
+    from trajgen import jet as J
+    from trajgen.online import _log_of_curve
+    from trajgen.spline import BlendingSpline
+
+    for spread in (1e-5, 1e-3, 1e-2, 0.1, 0.4, 0.8):
+        q_a = Q.exp(rng.normal(size=(1, 3)))
+        q = np.vstack([q_a, Q.mul(Q.exp(rng.normal(scale=spread, size=(2, 3))), q_a)])
+        t = np.array([0.0, 0.4, 0.9 + rng.uniform()])
+        spline = BlendingSpline(q, t, local=local)
+        q_a = spline.quats[0]
+        c1 = spline._curves.derivatives(np.array([0]), t[1:2], 3)
+        c1 = np.array(c1)[..., 0] / np.array([1.0, 1.0, 2.0, 6.0])[:, None]
+        d = J.Jet(D.hamilton(c1.T, Q.conj(q_a)[:, None]).T[:, :, None])
+        reference = J.qlog(d).c[:, :, 0]
+        got = _log_of_curve(spline._curves.kernel_table, 0, float(t[1]), q_a)
+        tol = 1e-12 * (1 + np.abs(reference).max())
+        np.testing.assert_allclose(got, reference, rtol=0, atol=tol)
 
 
 @pytest.mark.parametrize("k", [1, 2, 3])

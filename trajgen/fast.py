@@ -1,8 +1,11 @@
-"""Optional compiled evaluation of the splines (numba): the same arithmetic as numpy.
+"""Evaluation one sample at a time: compiled (numba, optional), or in Python for a few samples.
 
-The numpy paths (:meth:`trajgen.spline.BlendingSpline._blend_derivatives`,
-``SmoothSpline._space_rates``) are the reference; :mod:`trajgen.fast_kernel`
-restates them per sample for numba. Tests check that both agree.
+The numpy paths (:meth:`trajgen.spline.BlendingSpline._blend_steps`,
+``SmoothSpline._space_rates``) are the reference; :mod:`trajgen.per_sample`
+restates them per sample, which :mod:`trajgen.fast_kernel` compiles with numba.
+Tests check that all agree. Evaluations of at most ``PYTHON_SAMPLES`` samples
+run :mod:`trajgen.per_sample` as plain Python where the kernel is not loaded:
+numpy's fixed cost per call is larger there.
 
 Loading numba and its cached kernel costs a second or more of start-up, which
 only large evaluations win back, so by default (``TRAJGEN_NUMBA`` unset or
@@ -22,6 +25,8 @@ import sys
 
 import numpy as np
 
+from . import per_sample
+
 
 def _numba_installed() -> bool:
     try:
@@ -38,6 +43,9 @@ ENABLED = MODE != "never" and _numba_installed()
 LOAD_SAMPLES = 2_000_000
 #: Samples from which the compiled kernel runs on all of numba's threads.
 PARALLEL_SAMPLES = 20_000
+#: Most samples evaluated in plain Python (a blending-spline sample costs 75 us there,
+#: numpy's evaluation about 500 us for one sample and 600 us for 16; quiet machine).
+PYTHON_SAMPLES = 4
 
 
 def use_compiled(samples: int) -> bool:
@@ -47,16 +55,19 @@ def use_compiled(samples: int) -> bool:
     return MODE == "always" or samples >= LOAD_SAMPLES or "trajgen.fast_kernel" in sys.modules
 
 
+def samplewise(samples: int) -> bool:
+    """Whether an evaluation of ``samples`` samples runs one sample at a time
+    (:func:`evaluate`): compiled, or in Python for a few."""
+    return 0 < samples <= PYTHON_SAMPLES or use_compiled(samples)
+
+
 def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Compiled evaluation of a BlendingSpline at times ``t`` (M,) in segments ``seg`` (M,).
+    """A BlendingSpline at times ``t`` (M,) in segments ``seg`` (M,), one sample at a time.
 
     Returns ``q`` (M, 4) and the space-frame ``omega, alpha, jerk`` stacked (3, M, 3).
     """
-    from . import fast_kernel
-
     return _run(
-        fast_kernel.evaluate_parallel,
-        fast_kernel.evaluate_serial,
+        "evaluate",
         t,
         seg,
         spline.times,
@@ -69,12 +80,9 @@ def evaluate(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def evaluate_smooth(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Compiled evaluation of a SmoothSpline, as :func:`evaluate` (same returns)."""
-    from . import fast_kernel
-
+    """A SmoothSpline, as :func:`evaluate` (same returns)."""
     return _run(
-        fast_kernel.smooth_parallel,
-        fast_kernel.smooth_serial,
+        "smooth",
         t,
         seg,
         spline.times,
@@ -83,9 +91,16 @@ def evaluate_smooth(spline, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray,
     )
 
 
-def _run(parallel, serial, t, seg, *arrays) -> tuple[np.ndarray, np.ndarray]:
-    """One of a kernel pair on ``len(t)`` samples (threads from ``PARALLEL_SAMPLES``)."""
+def _run(kernel: str, t, seg, *arrays) -> tuple[np.ndarray, np.ndarray]:
+    """Kernel ``kernel`` ("evaluate" or "smooth") on ``len(t)`` samples: compiled where
+    :func:`use_compiled` says (on numba's threads from ``PARALLEL_SAMPLES``), else in Python."""
     out_q = np.empty((len(t), 4))
     out_w = np.empty((3, len(t), 3))
-    (parallel if len(t) >= PARALLEL_SAMPLES else serial)(t, seg, *arrays, out_q, out_w)
+    if use_compiled(len(t)):
+        from . import fast_kernel
+
+        threads = "parallel" if len(t) >= PARALLEL_SAMPLES else "serial"
+        getattr(fast_kernel, f"{kernel}_{threads}")(t, seg, *arrays, out_q, out_w)
+    else:
+        getattr(per_sample, f"{kernel}_range")(0, len(t), t, seg, *arrays, out_q, out_w)
     return out_q, out_w

@@ -388,7 +388,7 @@ class LocalCurves:
 
     @cached_property
     def kernel_table(self) -> np.ndarray:
-        """The columns :mod:`trajgen.fast_kernel` reads, one row per curve (C, 29): kind,
+        """The columns :mod:`trajgen.per_sample` reads, one row per curve (C, 29): kind,
         t (3), 1 / window, a3, g_kind, g_coef (4), A.A, A.B, B.B, rise, power, |A|,
         basis (12). One contiguous row per curve, one array to hand over."""
         return np.column_stack(

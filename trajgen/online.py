@@ -73,6 +73,7 @@ import numpy as np
 
 from . import derivatives as D
 from . import jet as J
+from . import per_sample as P
 from . import quat as Q
 from .errors import TrajgenError
 from .frame_eval import exp_frame
@@ -140,19 +141,35 @@ class _Splice(OrientationPath):
         """Orientation, angular velocity (rad/s) and acceleration (rad/s^2) at one time
         ``t`` (s), in floats (:func:`~trajgen.frame_eval.exp_frame`): the per-frame
         counterpart of :meth:`_space_rates`."""
+        return exp_frame(*self._r_values(t, 3), self._q_a_floats)
+
+    def rates(self, t: float) -> tuple[np.ndarray, list[np.ndarray]]:
+        """``q`` (4,) and the space-frame angular velocity, acceleration and jerk (each
+        (3,)) at one time ``t`` (s), in floats (:mod:`trajgen.per_sample`)."""
+        v = self._r_values(t, 4)
+        E = P.exp_of(*(tuple(v[3 * n + i] for n in range(4)) for i in range(3)))
+        out = np.empty((3, 1, 3))
+        P.space_rates(E, 0, out)
+        q = _hamilton_floats(tuple(e[0] for e in E), self._q_a_floats)
+        return np.array(q), list(out[:, 0])
+
+    def _r_values(self, t: float, orders: int) -> list[float]:
+        """``r`` and its first ``orders - 1`` time derivatives per axis at ``t`` (s), by
+        Horner, order-major (``r_x, r_y, r_z, r'_x, ...``)."""
         u = (t - self.s) * (1.0 / self.h)
         values = []
-        for row in self._frame_rows:  # r, r', r'' per axis, by Horner
+        for row in self._rows[: 3 * orders]:
             acc = 0.0
             for c in row:
                 acc = acc * u + c
             values.append(acc)
-        return exp_frame(*values, self._q_a_floats)
+        return values
 
     @cached_property
-    def _frame_rows(self) -> list[list[float]]:
-        """Coefficients of ``r, r', r''`` per axis (9 rows), highest power first."""
-        return [c[::-1, i].tolist() for c in self._derivative_coefs[:3] for i in range(3)]
+    def _rows(self) -> list[list[float]]:
+        """Power-basis coefficients of ``r`` and its time derivatives up to order 3 per
+        axis (12 rows, order-major), highest power first."""
+        return [c[::-1, i].tolist() for c in self._derivative_coefs for i in range(3)]
 
     @cached_property
     def _q_a_floats(self) -> list[float]:
@@ -275,11 +292,15 @@ class _Piece:
             d = np.zeros((order + 1, 4))
             d[0, 0] = 1.0
             return self.q_end, d
-        if spliced[0]:
+        if order <= 3:  # the closed-form rates (in floats, or the compiled kernel)
+            if spliced[0]:
+                q, rates = self.splice.rates(t)
+            else:
+                q, rates = yield from self.spline._space_rate_steps(np.array([t]), seg, order)
+                q, rates = q[0], [x[0] for x in rates]
+            return q, _taylor_from_rates(rates[:order])
+        if spliced[0]:  # order 4: only the jets go that far
             return self.splice.taylor(t, order)
-        if order <= 3:  # the closed-form rates (the compiled kernel where it is loaded)
-            q, rates = yield from self.spline._space_rate_steps(np.array([t]), seg, order)
-            return q[0], _taylor_from_rates([x[0] for x in rates])
         old = self.spline._jet(np.array([t]), seg, order)  # order 4: only the jets go that far
         q = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
         d = J.qmul(old, Q.conj(q)).c[:, :, 0]
@@ -471,6 +492,32 @@ def _log_near_identity(d: np.ndarray) -> np.ndarray:
         raise ValueError(f"Expected at most 5 Taylor coefficients, got {len(d)}.")
     y = J.scale(J.reciprocal(J.Jet(d[:, 0])), J.Jet(d[:, 1:]))
     return (y - J.scale(J.dot(y, y), y) * (1.0 / 3.0)).c
+
+
+def _log_of_curve(tab: np.ndarray, c: int, t: float, q_a: np.ndarray) -> np.ndarray:
+    """Taylor coefficients (4, 3) at ``t`` (s) of ``log(C(t) q_a*)``, ``C`` curve ``c`` of
+    a local-curve table (:attr:`~trajgen.local_curves.LocalCurves.kernel_table`) with
+    ``C(t) . q_a >= 0``, in floats: the curve by :func:`trajgen.per_sample.curve`, the
+    ``log`` as :func:`trajgen.jet.qlog` writes it, ``atan(z) / (z w)`` with
+    ``z^2 = |xyz|^2 / w^2`` (a series in ``z^2`` near the identity)."""
+    curve = P.curve(c, t, tab)  # w, x, y, z, each (value, d/dt, d2/dt2, d3/dt3)
+    a = (float(q_a[0]), -float(q_a[1]), -float(q_a[2]), -float(q_a[3]))
+    d = list(zip(*(_hamilton_floats(tuple(x[n] for x in curve), a) for n in range(4)), strict=True))
+    w, xyz = d[0], d[1:]
+    s2 = P.add(P.add(P.prod(xyz[0], xyz[0]), P.prod(xyz[1], xyz[1])), P.prod(xyz[2], xyz[2]))
+    z2 = P.quot(s2, P.prod(w, w))
+    if z2[0] < J.SERIES_BELOW:
+        atanc = P.series(J._ATANC, z2[0])
+    else:  # atan(sqrt y) / sqrt y = H(y): 2 y H' = 1 / (1 + y) - H, differentiated
+        y = z2[0]
+        c0, inv2y = 1.0 / (1.0 + y), 0.5 / y
+        h0 = math.atan(math.sqrt(y)) / math.sqrt(y)
+        h1 = (c0 - h0) * inv2y
+        h2 = (-c0 * c0 - 3.0 * h1) * inv2y
+        atanc = (h0, h1, h2, (2.0 * c0**3 - 5.0 * h2) * inv2y)
+    g = P.quot(P.chain(*atanc, z2), w)
+    taylor = np.array([P.prod(g, v) for v in xyz]).T  # (4, 3) time derivatives
+    return taylor / np.array([1.0, 1.0, 2.0, 6.0])[:, None]
 
 
 def _hermite_matrix(k: int) -> np.ndarray:
@@ -821,10 +868,7 @@ class OnlineSpline:
         if len(t) >= 2:  # C_1 through (q_a, q_1, q_2): curve 0 of the spline
             spline = self._spline(np.vstack([q_a, q]), np.concatenate([[s], t]))
             yield
-            c1 = spline._curves.derivatives(np.array([0]), t[:1], k)  # (k + 1) x (4, 1)
-            c1 = np.array(c1)[..., 0] / self._factorials[: k + 1, None]
-            # log(C_1 q_a*): the product with a constant is one Hamilton product of arrays.
-            r = J.qlog(J.Jet(D.hamilton(c1.T, Q.conj(q_a)[:, None]).T[:, :, None])).c[:, :, 0]
+            r = _log_of_curve(spline._curves.kernel_table, 0, float(t[0]), q_a)[: k + 1]
             q_end = spline.quats[-1]
         else:  # the rest point q_1, on the short way round (as the spline takes it)
             spline = None

@@ -737,7 +737,7 @@ class SmoothSpline(OrientationPath):
         ``omega = 2 vec(E' E*)``, ``alpha = 2 vec(E'' E*)`` (``E' E'*`` is a scalar)
         and ``jerk = 2 vec(E''' E* + E'' E'*)``.
         """
-        if fast.use_compiled(len(t)):
+        if fast.samplewise(len(t)):
             q, rates = fast.evaluate_smooth(self, t, seg)
             return q, list(rates[:max_order])
         r = list(self._tangent(t, seg, max_order))

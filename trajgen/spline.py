@@ -204,7 +204,7 @@ class BlendingSpline(OrientationPath):
         self._falling = [x[:deg] for x in _FALLING]
 
     def _space_rates(self, t, seg, max_order):
-        if fast.use_compiled(len(t)):
+        if fast.samplewise(len(t)):
             q, rates = fast.evaluate(self, t, seg)
             return q, list(rates[:max_order])
         q = np.empty((len(t), 4))
@@ -220,7 +220,7 @@ class BlendingSpline(OrientationPath):
         return q, rates
 
     def _space_rate_steps(self, t, seg, max_order):
-        if len(t) > CHUNK or fast.use_compiled(len(t)):
+        if len(t) > CHUNK or fast.samplewise(len(t)):
             return self._space_rates(t, seg, max_order)
         q, rates = yield from self._blend_steps(t, seg, max_order)
         return q.T, [r.T for r in rates]
