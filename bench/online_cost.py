@@ -146,7 +146,7 @@ def change_costs(rng, n, label):
         print(f"| {kind} | {ms(cost)} | {ms(longest)} | {ms(peer)} | {ratio:.2f}x |")
     print(
         f"| `follow`'s check of a new path (joint limits, lock guard), {CHECK_FRAMES} frames "
-        f"a step | {ms(check)} | {ms(check_step)} | | |"
+        f"per two steps | {ms(check)} | {ms(check_step)} | | |"
     )
     worst = max(np.median(c) for _, c, _, _ in rows)
     step = max(np.median(x) for _, _, x, _ in rows)
