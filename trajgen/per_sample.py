@@ -9,7 +9,7 @@ A derivative list is a 4-tuple ``(x, x', x'', x''')`` of floats; all four
 orders are computed.
 
 Plain Python, so it serves two ways (:mod:`trajgen.fast` chooses): compiled by
-numba in :mod:`trajgen.fast_kernel`, which registers every function here, and
+numba in :mod:`trajgen.fast_kernel`, which compiles every function here, and
 as it is for an evaluation of a few samples, where it beats numpy's fixed cost
 per call (a blending-spline sample: 75 us, against 520 us for numpy's blend of
 one sample, quiet machine). Keep to what numba compiles: scalars, tuples,
@@ -26,7 +26,7 @@ from .local_curves import CIRCLE, G_POLY, G_RATIONAL, PARABOLA, POINT
 
 #: Functions numba inlines into their callers (no reference counting, per sample,
 #: of the arrays they are passed); the others it compiles as calls.
-INLINE = ("curve", "combine", "sample", "space_rates", "smooth_sample", "exp_of")
+INLINE = ("combine", "sample", "space_rates", "smooth_sample", "exp_of")
 
 
 def prod(a, b):
