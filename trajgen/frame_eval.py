@@ -32,6 +32,7 @@ import numpy as np
 from . import quat as Q
 from .gimbal import TWO_PI, GimbalKinematics, angles_of, joint_rates, rates_of
 from .jet import _COS, _SINC, SERIES_BELOW
+from .per_sample import hamilton
 
 
 def _series_rows(coef: np.ndarray) -> tuple:
@@ -128,13 +129,7 @@ def exp_frame(rx, ry, rz, vx, vy, vz, ax, ay, az, base) -> tuple[tuple, tuple, t
     fx = s0 * ax + S2 * rx + S1x2 * vx
     fy = s0 * ay + S2 * ry + S1x2 * vy
     fz = s0 * az + S2 * rz + S1x2 * vz
-    qw, qx, qy, qz = base
-    q = (
-        ew * qw - ex * qx - ey * qy - ez * qz,
-        ew * qx + ex * qw + ey * qz - ez * qy,
-        ew * qy - ex * qz + ey * qw + ez * qx,
-        ew * qz + ex * qy - ey * qx + ez * qw,
-    )
+    q = hamilton((ew, ex, ey, ez), base)
     # 2 vec(P E*) with E* = (ew, -ex, -ey, -ez) (derivatives.hamilton_vec).
     omega = (
         2.0 * (-dw * ex + dx * ew - dy * ez + dz * ey),

@@ -150,7 +150,7 @@ class _Splice(OrientationPath):
         E = P.exp_of(*(tuple(v[3 * n + i] for n in range(4)) for i in range(3)))
         out = np.empty((3, 1, 3))
         P.space_rates(E, 0, out)
-        q = _hamilton_floats(tuple(e[0] for e in E), self._q_a_floats)
+        q = P.hamilton(tuple(e[0] for e in E), self._q_a_floats)
         return np.array(q), list(out[:, 0])
 
     def _r_values(self, t: float, orders: int) -> list[float]:
@@ -209,22 +209,10 @@ def _taylor_from_rates(rates: list) -> np.ndarray:
         acc = [0.0, 0.0, 0.0, 0.0]
         for j in range(n + 1):
             c = 0.5 * comb(n, j)
-            for i, x in enumerate(_hamilton_floats(w[j], d[n - j])):
+            for i, x in enumerate(P.hamilton(w[j], d[n - j])):
                 acc[i] += c * x
         d.append(tuple(acc))
     return np.array(d) / np.array([factorial(n) for n in range(len(d))])[:, None]
-
-
-def _hamilton_floats(p: tuple, q: tuple) -> tuple:
-    """Hamilton product of two quaternions given as 4 floats (w, x, y, z)."""
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (
-        pw * qw - px * qx - py * qy - pz * qz,
-        pw * qx + px * qw + py * qz - pz * qy,
-        pw * qy - px * qz + py * qw + pz * qx,
-        pw * qz + px * qy - py * qx + pz * qw,
-    )
 
 
 @dataclass(frozen=True)
@@ -502,7 +490,7 @@ def _log_of_curve(tab: np.ndarray, c: int, t: float, q_a: np.ndarray) -> np.ndar
     ``z^2 = |xyz|^2 / w^2`` (a series in ``z^2`` near the identity)."""
     curve = P.curve(c, t, tab)  # w, x, y, z, each (value, d/dt, d2/dt2, d3/dt3)
     a = (float(q_a[0]), -float(q_a[1]), -float(q_a[2]), -float(q_a[3]))
-    d = list(zip(*(_hamilton_floats(tuple(x[n] for x in curve), a) for n in range(4)), strict=True))
+    d = list(zip(*(P.hamilton(tuple(x[n] for x in curve), a) for n in range(4)), strict=True))
     w, xyz = d[0], d[1:]
     s2 = P.add(P.add(P.prod(xyz[0], xyz[0]), P.prod(xyz[1], xyz[1])), P.prod(xyz[2], xyz[2]))
     z2 = P.quot(s2, P.prod(w, w))

@@ -260,6 +260,18 @@ def space_rates(Q, m, out_w):
     out_w[2, m, 2] += 2.0 * w
 
 
+def hamilton(p, q):
+    """Hamilton product of two quaternions, each 4 scalars (w, x, y, z)."""
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
+
 def vec_mul_conj(Q, a, b):
     """vec(Q^(a) Q^(b)*): the vector part of a Hamilton product with a conjugate."""
     pw, px, py, pz = Q[0][a], Q[1][a], Q[2][a], Q[3][a]
@@ -304,12 +316,11 @@ def smooth_sample(m, t, seg, times, poly, quats, out_q, out_w):
     i = seg[m]
     u = (t[m] - times[i]) / (times[i + 1] - times[i])
     E = exp_of(tangent(poly, i, 0, u), tangent(poly, i, 1, u), tangent(poly, i, 2, u))
-    ew, ex, ey, ez = E[0][0], E[1][0], E[2][0], E[3][0]
-    qw, qx, qy, qz = quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3]
-    out_q[m, 0] = ew * qw - ex * qx - ey * qy - ez * qz
-    out_q[m, 1] = ew * qx + ex * qw + ey * qz - ez * qy
-    out_q[m, 2] = ew * qy - ex * qz + ey * qw + ez * qx
-    out_q[m, 3] = ew * qz + ex * qy - ey * qx + ez * qw
+    q = hamilton(
+        (E[0][0], E[1][0], E[2][0], E[3][0]), (quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
+    )
+    for c in range(4):
+        out_q[m, c] = q[c]
     space_rates(E, m, out_w)
 
 
