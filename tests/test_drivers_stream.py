@@ -67,7 +67,8 @@ def rig():
 
 
 def _stream(r, trajectory, joints, tmp_path, **kwargs):
-    bring_up(r.bus, joints, MODELS, trajectory)
+    # Factory servos: --configure sets Return Delay Time 0 (and a mode a plan needs).
+    bring_up(r.bus, joints, MODELS, trajectory, configure=True)
     streamer = Streamer(r.bus, joints, telemetry=tmp_path / "telemetry.csv", **kwargs)
     return streamer
 

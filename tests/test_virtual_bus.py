@@ -255,9 +255,20 @@ def test_wire_timing_lower_bounds():
 
 
 def test_opens_at_4_5_mbps(pair):
-    virtual, _ = pair
+    virtual, first = pair
+    first.close()  # the port is opened exclusively
     with ServoBus(virtual.port, baud=4_500_000) as bus:
         assert bus.ping(3) == 1020
+
+
+def test_a_second_program_on_the_port_is_refused(pair):
+    virtual, first = pair
+    with pytest.raises(CommError, match=r"/dev/pts/\d+: in use by another program"):
+        ServoBus(virtual.port).open()
+    assert first.ping(1) == 1020  # the first one is not disturbed
+    first.close()
+    with ServoBus(virtual.port) as again:  # free once closed
+        assert again.ping(1) == 1020
 
 
 def test_bad_arguments():
@@ -384,5 +395,6 @@ def test_lockstep_stream_on_a_simulated_clock_does_not_wait_out_the_motion():
         wall_s = time.monotonic() - start
         np.testing.assert_array_equal(np.array(virtual.goal_log), JointMap().to_ticks(q))
     assert stats.frames_sent == 301
-    assert plant.time_s == pytest.approx(3.02)  # a period per frame, and the start-up poll
+    # A period per frame, and the start-up polls: two position reads that agree.
+    assert plant.time_s == pytest.approx(3.03)
     assert wall_s < 1.5  # half the motion's time, on a busy machine

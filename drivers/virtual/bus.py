@@ -28,7 +28,8 @@ raises one of ``unsupported``) is undone and answered with Result Fail. Two cloc
   ends at each packet that writes Goal Position (by any instruction): the
   plant first runs the period that ends as the goal arrives, under the goals
   it had, then takes the new goal. A poll (a read of the present-value
-  registers, 120..147, with no goal written since the previous poll) also
+  motion registers, 120..143, with no goal written since the previous poll;
+  supply voltage and temperature are read without ending one) also
   ends a period, so a client that writes one goal and polls until the servo
   is there sees it move. A read that follows a goal write returns the state at
   the moment the goal was written: a telemetry row labelled with the goal's
@@ -80,8 +81,9 @@ _SWITCH_INTERVAL_S = 1e-3
 # runs per hold of the lock (short holds: a packet may be waiting for it).
 _SIM_WAKE_S = 0.005
 _MAX_STEPS_PER_HOLD = 2
-# The first and last of the registers the plant fills (addresses 120..146).
-_PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Present Temperature"
+# The first and last of the motion registers the plant fills (addresses 120..143;
+# a read of them is a poll). Present Input Voltage and Temperature follow them.
+_PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
 # Registers that decide how Goal Position is clamped (the limits, in Position Mode).
 _GOAL_CLAMP = {"Min Position Limit", "Max Position Limit", "Operating Mode"}
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
@@ -517,7 +519,7 @@ class VirtualBus:
         return status
 
     def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
-        """Whether a read of ``address``.. touches the registers the plant fills."""
+        """Whether a read of ``address``.. touches the motion registers (a poll)."""
         low = servo.items[_PRESENT_FIRST][0]
         high = sum(servo.items[_PRESENT_LAST])
         return any(low <= servo.target(a) < high for a in range(address, address + length))

@@ -151,6 +151,19 @@ def add_stream_arguments(p) -> None:
         "without it the installed limits are only read, and a plan leaving them is refused",
     )
     p.add_argument(
+        "--configure",
+        action="store_true",
+        help="let bring-up change EEPROM settings the stream needs (Operating Mode) or is "
+        "advised (Return Delay Time 0); default [bus] configure, else off: it says what it "
+        "would change and refuses where the stream needs it",
+    )
+    p.add_argument(
+        "--restore",
+        action="store_true",
+        help="on exit, write back the settings bring-up changed (EEPROM ones need "
+        "--torque-off); default [bus] restore, else off",
+    )
+    p.add_argument(
         "--max-approach",
         type=positive_float,
         default=45.0,
@@ -388,6 +401,7 @@ def bring_up_servos(bus, args, p: Plan, *, plan_from=None):
         joint_names=JOINTS,
         set_limits=p.set_limits,
         max_approach_rad=math.radians(args.max_approach),
+        configure=args.configure or p.config.configure,
     )
     p.trajectory = setup.trajectory
     return setup
@@ -416,6 +430,9 @@ def stream_plan(bus, args, p: Plan, setup, outcome: Outcome, *, frames=None, clo
         max_approach_rad=math.radians(args.max_approach),
         goal_bounds_ticks=setup.goal_bounds_ticks,
         max_delay_s=args.max_delay,
+        start_ticks=setup.present_ticks,
+        power_limits=setup.power_limits,
+        restore=setup.changes if args.restore or p.config.restore else (),
         clock=clock,
     )
     try:
