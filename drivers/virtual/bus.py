@@ -43,7 +43,10 @@ modes.
 
 from __future__ import annotations
 
+import functools
 import heapq
+import itertools
+import operator
 import os
 import select
 import sys
@@ -75,6 +78,9 @@ from trajgen.drivers.virtual.servo import FACTORY_RESET_KEEPS, VirtualServo
 from trajgen.servo_ratings import CONTROL_REGISTERS, PWM_FULL_SCALE
 
 _OVERLOAD_BIT = 0x20
+# Faults that change replies, and faults that happen to a servo after a frame.
+_REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id", "glitch")
+_FRAME_FAULTS = ("close", "overload", "watchdog", "reboot", "set")
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).
 _SWITCH_INTERVAL_S = 1e-3
 # Real time: how often the simulation thread wakes (s), and the most steps it
@@ -86,6 +92,9 @@ _MAX_STEPS_PER_HOLD = 2
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
 # Registers that decide how Goal Position is clamped (the limits, in Position Mode).
 _GOAL_CLAMP = {"Min Position Limit", "Max Position Limit", "Operating Mode"}
+# Present Position's address on every X-series model (for the glitch fault).
+_PRESENT_POSITION_ADDRESS = 132
+_SECONDARY_ID = "Secondary(Shadow) ID"
 # CLEAR's fixed parameters after the option byte 0x01 (multi-turn clear).
 _CLEAR_PARAMS = bytes([0x01, 0x44, 0x58, 0x4C, 0x22])
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
@@ -136,7 +145,8 @@ class Fault:
 
     Attributes
     ----------
-    kind : {"drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"}
+    kind : {"drop", "corrupt", "delay", "short", "wrong_id", "glitch", "close", "overload", \
+"watchdog", "reboot", "set"}
         drop: replies are not sent. corrupt: replies get a wrong CRC. delay:
         replies come ``delay_s`` late. short: servo ``servo_id``'s reply
         loses ``n_bytes`` data bytes but stays well formed (valid CRC; in a
@@ -145,6 +155,11 @@ class Fault:
         pty master closes (the port goes away). overload: servo ``servo_id``
         latches hardware error bit 5 (torque off, since the default Shutdown
         covers it). watchdog: servo ``servo_id``'s Bus Watchdog trips.
+        glitch: servo ``servo_id``'s Present Position replies read
+        ``offset_ticks`` off (valid CRC; its part of a group read too).
+        reboot: servo ``servo_id`` reboots (RAM to its initial values, torque
+        off) and answers again at once. set: servo ``servo_id``'s register
+        ``register`` takes ``value`` (e.g. Present Temperature 78).
     at_frame : int
         Number of Goal Position sync writes received before the fault starts.
     servo_id : int or None
@@ -159,13 +174,31 @@ class Fault:
         Data bytes a short reply loses; None: all of them (an empty reply).
     reply_id : int or None
         The id a wrong_id reply carries; None: ``servo_id + 1``.
+    offset_ticks : int
+        How far a glitch reply is off (ticks).
+    register : str or None
+        The register a set fault writes.
+    value : int
+        The value a set fault writes.
     address : int or None
         Only replies to reads (READ, SYNC_READ, FAST_SYNC_READ) of this start
         address are affected; None: any reply. (short and wrong_id leave fast
         bulk read replies alone.)
     """
 
-    kind: Literal["drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog"]
+    kind: Literal[
+        "drop",
+        "corrupt",
+        "delay",
+        "short",
+        "wrong_id",
+        "glitch",
+        "close",
+        "overload",
+        "watchdog",
+        "reboot",
+        "set",
+    ]
     at_frame: int = 0
     servo_id: int | None = None
     count: int | None = None
@@ -173,12 +206,15 @@ class Fault:
     n_bytes: int | None = None
     reply_id: int | None = None
     address: int | None = None
+    offset_ticks: int = 0
+    register: str | None = None
+    value: int = 0
 
     def __post_init__(self) -> None:
-        kinds = ("drop", "corrupt", "delay", "short", "wrong_id", "close", "overload", "watchdog")
+        kinds = _REPLY_FAULTS + _FRAME_FAULTS
         if self.kind not in kinds:
             raise ValueError(f"Expected `kind` in {kinds}, got {self.kind!r}.")
-        if self.kind in ("short", "wrong_id", "overload", "watchdog") and self.servo_id is None:
+        if self.kind not in ("drop", "corrupt", "delay", "close") and self.servo_id is None:
             raise ValueError(f"Expected a `servo_id` for a {self.kind} fault, got None.")
 
 
@@ -452,7 +488,7 @@ class VirtualBus:
         servo = self.servos[servo_id]
         if names & set(CONTROL_REGISTERS):  # first: the plant may refuse them
             self.plant.set_control(j, self._control(servo))
-        if "ID" in names:
+        if names & {"ID", _SECONDARY_ID}:
             self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
@@ -590,17 +626,28 @@ class VirtualBus:
                 self._write(reply)
         self._wire_free_s = t
 
-    def _addressed(self, servo_id: int) -> list[int]:
-        """The servos (by power-up id) whose ID register is ``servo_id``, or all on broadcast."""
+    def _addressed(self, servo_id: int, *, acting: bool = False) -> list[int]:
+        """The servos (by power-up id) whose ID register is ``servo_id``, or all on broadcast.
+
+        ``acting``: also those whose Secondary ID is ``servo_id`` (a servo acts
+        on a packet to its Secondary ID, and never answers it).
+        """
         if servo_id == BROADCAST_ID:
             return list(self.ids)
-        return self._by_id.get(servo_id, [])
+        found = self._by_id.get(servo_id, [])
+        if acting:
+            found = found + [i for i in self._by_secondary.get(servo_id, []) if i not in found]
+        return found
 
     def _index_ids(self) -> None:
-        """Re-read every ID register (after a write of ID or a factory reset)."""
+        """Re-read every ID and Secondary ID register (after a write, a reset)."""
         self._by_id: dict[int, list[int]] = {}
+        self._by_secondary: dict[int, list[int]] = {}
         for i in self.ids:
             self._by_id.setdefault(self.servos[i].servo_id, []).append(i)
+            secondary = self.servos[i].get(_SECONDARY_ID)
+            if secondary < BROADCAST_ID:
+                self._by_secondary.setdefault(secondary, []).append(i)
 
     def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
@@ -612,7 +659,7 @@ class VirtualBus:
             self._catch_up(arrival_s)  # at most _SIM_WAKE_S behind: the thread keeps up
         else:
             self._check_watchdogs(arrival_s)
-        for servo_id in self._addressed(packet.servo_id):
+        for servo_id in self._addressed(packet.servo_id, acting=True):
             self._last_packet_s[servo_id] = arrival_s
         handler = self._HANDLERS.get(packet.instruction, VirtualBus._unknown)
         replies = handler(self, packet.servo_id, packet.params)
@@ -633,12 +680,25 @@ class VirtualBus:
         return level >= 2 or instruction in _ANSWERED_AT_LEVEL[level]
 
     def _unicast_replies(self, packet_id: int, instruction: int, answer) -> list[tuple[int, bytes]]:
-        """Run ``answer(servo id) -> (error, data)`` per servo addressed; reply unless broadcast."""
+        """Run ``answer(servo id) -> (error, data)`` per servo addressed; reply unless broadcast.
+
+        Servos acting on their Secondary ID do not reply; two servos sharing
+        the id both reply at once, and their bytes collide on the wire (a
+        wired AND: a 0 bit wins), so the host reads one garbled packet.
+        """
         replies = []
-        for servo_id in self._addressed(packet_id):
+        for servo_id in self._addressed(packet_id, acting=True):
             error, data = answer(servo_id)
-            if packet_id != BROADCAST_ID and self._answers(servo_id, instruction):
+            primary = self.servos[servo_id].servo_id == packet_id
+            if primary and self._answers(servo_id, instruction):
                 replies.append((servo_id, self._status(servo_id, error, data)))
+        if len(replies) > 1:
+            packets = [reply for _, reply in replies]
+            collided = bytes(
+                functools.reduce(operator.and_, column)
+                for column in itertools.zip_longest(*packets, fillvalue=0xFF)
+            )
+            return [(replies[0][0], collided)]
         return replies
 
     # -- instructions ----------------------------------------------------------
@@ -743,7 +803,7 @@ class VirtualBus:
 
     def _reboot(self, packet_id: int, params: bytes) -> list:
         replies = self._unicast_replies(packet_id, Instruction.REBOOT, lambda i: (0, b""))
-        for servo_id in self._addressed(packet_id):  # after the reply, as a servo does
+        for servo_id in self._addressed(packet_id, acting=True):  # after the reply, as a servo does
             self.servos[servo_id].reboot(self._plant_ticks(servo_id))
             self._after_reset(servo_id)
         return replies
@@ -786,7 +846,7 @@ class VirtualBus:
         address, size = _word(params, 0), _word(params, 2)
         body = params[4:]
         for k in range(0, len(body) - size, size + 1):
-            for servo_id in self._addressed(body[k]):
+            for servo_id in self._addressed(body[k], acting=True):
                 self._write_one(servo_id, address, body[k + 1 : k + 1 + size])
         servo = self.servos[self.ids[0]]
         if (address, size) == servo.items["Goal Position"]:
@@ -801,7 +861,7 @@ class VirtualBus:
         k = 0
         while k + 5 <= len(params):
             servo_key, address, size = params[k], _word(params, k + 1), _word(params, k + 3)
-            for servo_id in self._addressed(servo_key):
+            for servo_id in self._addressed(servo_key, acting=True):
                 self._write_one(servo_id, address, params[k + 5 : k + 5 + size])
             k += 5 + size
         return []
@@ -899,12 +959,17 @@ class VirtualBus:
 
     def _after_frame(self) -> list | None:
         """Apply faults that start at this frame; None to close the port."""
-        for entry in list(self._active(("close", "overload", "watchdog"))):
+        for entry in list(self._active(_FRAME_FAULTS)):
             fault = entry[0]
             self._faults.remove(entry)
             if fault.kind == "close":
                 return None
-            if fault.kind == "overload":
+            if fault.kind == "reboot":
+                self.servos[fault.servo_id].reboot(self._plant_ticks(fault.servo_id))
+                self._after_reset(fault.servo_id)
+            elif fault.kind == "set":
+                self.servos[fault.servo_id].set(fault.register, fault.value)
+            elif fault.kind == "overload":
                 j = self._joint[fault.servo_id]
                 self.servos[fault.servo_id].raise_hardware_error(_OVERLOAD_BIT)
                 self.plant.set_torque_enabled(j, self.servos[fault.servo_id].torque_on)
@@ -930,7 +995,7 @@ class VirtualBus:
                     continue
                 if fault.address is not None and fault.address != address:
                     continue
-                if fault.kind in ("short", "wrong_id") and not reshapable:
+                if fault.kind in ("short", "wrong_id", "glitch") and not reshapable:
                     continue
                 if remaining is not None:
                     if remaining <= 0:
@@ -940,8 +1005,8 @@ class VirtualBus:
                     dropped = True
                 elif fault.kind == "corrupt":
                     data = data[:-1] + bytes([data[-1] ^ 0xFF])
-                elif fault.kind in ("short", "wrong_id"):
-                    data = _reshape_reply(data, members, fault)
+                elif fault.kind in ("short", "wrong_id", "glitch"):
+                    data = _reshape_reply(data, members, fault, address)
                 else:
                     extra_s += fault.delay_s
             if not dropped:
@@ -949,11 +1014,11 @@ class VirtualBus:
         return out
 
 
-_REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id")
-
-
-def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
-    """A well-formed reply (valid CRC) with ``fault.servo_id``'s part short or re-addressed.
+def _reshape_reply(
+    reply: bytes, members: Sequence[int], fault: Fault, address: int | None
+) -> bytes:
+    """A well-formed reply (valid CRC) with ``fault.servo_id``'s part short, re-addressed,
+    or (a read from ``address``) its Present Position off by ``fault.offset_ticks``.
 
     ``reply`` is a status packet, or a fast sync read reply whose parts are
     ``ERR ID DATA CRC2`` for ``members`` in order, all of one data size.
@@ -964,6 +1029,8 @@ def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
     def reshaped(servo_id: int, error: int, data: bytes) -> tuple[int, int, bytes]:
         if fault.kind == "wrong_id":
             return reply_id, error, data
+        if fault.kind == "glitch":
+            return servo_id, error, _glitched(data, address, fault.offset_ticks)
         keep = 0 if fault.n_bytes is None else max(0, len(data) - fault.n_bytes)
         return servo_id, error, data[:keep]
 
@@ -980,6 +1047,15 @@ def _reshape_reply(reply: bytes, members: Sequence[int], fault: Fault) -> bytes:
             servo_id, error, data = reshaped(servo_id, error, data)
         entries.append((error, servo_id, data))
     return encode_fast_sync_status(entries)
+
+
+def _glitched(data: bytes, address: int | None, offset_ticks: int) -> bytes:
+    """``data`` read from ``address`` with Present Position (132, 4 bytes) moved by the offset."""
+    k = None if address is None else _PRESENT_POSITION_ADDRESS - address
+    if k is None or not 0 <= k <= len(data) - 4:
+        return data
+    value = int.from_bytes(data[k : k + 4], "little", signed=True) + offset_ticks
+    return data[:k] + value.to_bytes(4, "little", signed=True) + data[k + 4 :]
 
 
 def _word(params: bytes, k: int) -> int:
