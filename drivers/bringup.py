@@ -383,44 +383,56 @@ def inspect(bus: ServoBus, joints: JointMap) -> tuple[Installed, ...]:
         try:
             bus.read(servo_id, Register.HARDWARE_ERROR_STATUS)  # raises on the Alert bit
         except CommError as e:
+            hint = _shared_id_hint(e)
+            if hint:
+                raise BringUpError(f"servo {servo_id}: {e}{hint}; refusing to stream") from e
             raise BringUpError(
                 f"servo {servo_id} answers ping but not a read ({e}): its Status Return Level "
                 "(register 68) is probably 0 (it then answers ping only); set it to 2, e.g. "
                 "in Dynamixel Wizard (trajgen never writes it); refusing to stream"
             ) from e
-        model = bus.models[servo_id]
-
-        def read(register, servo_id=servo_id):
-            return bus.read(servo_id, register)
-
-        torque_on = read(Register.TORQUE_ENABLE) == 1
-        found.append(
-            Installed(
-                servo_id=servo_id,
-                torque_on=torque_on,
-                drive_mode=read(Register.DRIVE_MODE),
-                operating_mode=read(Register.OPERATING_MODE),
-                min_limit=read(Register.MIN_POSITION_LIMIT),
-                max_limit=read(Register.MAX_POSITION_LIMIT),
-                present=read_position_checked(bus, servo_id),
-                return_delay=read(Register.RETURN_DELAY_TIME),
-                secondary_id=read(Register.SECONDARY_ID),
-                status_return_level=read(Register.STATUS_RETURN_LEVEL),
-                profile_acceleration=read(Register.PROFILE_ACCELERATION),
-                profile_velocity=read(Register.PROFILE_VELOCITY),
-                bus_watchdog=read(Register.BUS_WATCHDOG),
-                # What it holds: read only where torque is on (else no load on it).
-                current_a=model.current_a(read(Register.PRESENT_CURRENT)) if torque_on else 0.0,
-                power_limits=PowerLimits.from_registers(
-                    read(Register.MIN_VOLTAGE_LIMIT),
-                    read(Register.MAX_VOLTAGE_LIMIT),
-                    read(Register.TEMPERATURE_LIMIT),
-                ),
-                voltage_v=read(Register.PRESENT_INPUT_VOLTAGE) * VOLTAGE_UNIT_V,
-                temperature_c=float(read(Register.PRESENT_TEMPERATURE)),
-            )
-        )
+        try:
+            found.append(_installed(bus, servo_id))
+        except CommError as e:
+            hint = _shared_id_hint(e)
+            if not hint:
+                raise
+            raise BringUpError(f"servo {servo_id}: {e}{hint}; refusing to stream") from e
     return tuple(found)
+
+
+def _installed(bus: ServoBus, servo_id: int) -> Installed:
+    """One servo's ``Installed`` (see ``inspect``)."""
+    model = bus.models[servo_id]
+
+    def read(register):
+        return bus.read(servo_id, register)
+
+    torque_on = read(Register.TORQUE_ENABLE) == 1
+    return Installed(
+        servo_id=servo_id,
+        torque_on=torque_on,
+        drive_mode=read(Register.DRIVE_MODE),
+        operating_mode=read(Register.OPERATING_MODE),
+        min_limit=read(Register.MIN_POSITION_LIMIT),
+        max_limit=read(Register.MAX_POSITION_LIMIT),
+        present=read_position_checked(bus, servo_id),
+        return_delay=read(Register.RETURN_DELAY_TIME),
+        secondary_id=read(Register.SECONDARY_ID),
+        status_return_level=read(Register.STATUS_RETURN_LEVEL),
+        profile_acceleration=read(Register.PROFILE_ACCELERATION),
+        profile_velocity=read(Register.PROFILE_VELOCITY),
+        bus_watchdog=read(Register.BUS_WATCHDOG),
+        # What it holds: read only where torque is on (else no load on it).
+        current_a=model.current_a(read(Register.PRESENT_CURRENT)) if torque_on else 0.0,
+        power_limits=PowerLimits.from_registers(
+            read(Register.MIN_VOLTAGE_LIMIT),
+            read(Register.MAX_VOLTAGE_LIMIT),
+            read(Register.TEMPERATURE_LIMIT),
+        ),
+        voltage_v=read(Register.PRESENT_INPUT_VOLTAGE) * VOLTAGE_UNIT_V,
+        temperature_c=float(read(Register.PRESENT_TEMPERATURE)),
+    )
 
 
 def _deg(joints: JointMap, j: int, ticks: float) -> str:

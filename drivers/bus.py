@@ -228,6 +228,8 @@ class ServoBus:
         Per servo id, the last Torque Enable value written to it through this
         bus (acknowledged or not): what the driver did to each servo's torque,
         for the per-servo outcome (``drivers.outcome``).
+    driven : set of int
+        Servos sent a Goal Position through this bus (write or sync write).
 
     Notes
     -----
@@ -253,6 +255,7 @@ class ServoBus:
         self.models: dict[int, Model] = {}
         self.failed_tries = 0
         self.torque_written: dict[int, int] = {}
+        self.driven: set[int] = set()
         self._port = None
         self._ph = None
 
@@ -499,6 +502,8 @@ class ServoBus:
         what = f"write {register.value} = {value}"
         if register is Register.TORQUE_ENABLE:
             self.torque_written[servo_id] = int(value)
+        elif register is Register.GOAL_POSITION:
+            self.driven.add(servo_id)
         _, error = self._unicast(servo_id, what, self._ph.writeTxRx, address, size, data)
         self._check_status(servo_id, error, what)
 
@@ -527,6 +532,8 @@ class ServoBus:
         """
         ids = list(values)
         address, size = self._address(ids[0], register)
+        if register is Register.GOAL_POSITION:
+            self.driven.update(ids)
         param = []
         for servo_id, value in values.items():
             param.append(servo_id)

@@ -2,7 +2,7 @@
 
 Never a blanket "the servos hold their last goal": after the safe stop each
 servo is asked (one try) for Torque Enable and Goal Position, and what it
-answers is put beside what the driver did to its torque (``ServoBus.torque_written``).
+answers is put beside what the driver did to it (``ServoBus.torque_written`` and ``driven``).
 A servo that does not answer is "unknown", with the likely cause where the
 evidence points to one (it answers ping but no read: Status Return Level 0;
 its replies are garbled: two servos on one id).
@@ -33,11 +33,12 @@ class ServoOutcome:
     servo_id : int
     joint : str
     state : {"holding", "released", "never torqued", "untouched", "off by itself", "unknown"}
-        holding: torque on, holding ``goal_rad``; released: torque off, turned
+        holding: torque on, holding ``goal_rad`` (the driver sent it goals or
+        torqued it); released: torque off, turned
         off by the driver; never torqued: torque off, as found; untouched:
         torque on as found, the driver never changed it; off by itself: torque
-        off although the driver turned it on (a reboot, a power loss, a
-        shutdown); unknown: no reply.
+        off although the driver turned it on or sent it goals (a reboot, a
+        power loss, a shutdown); unknown: no reply.
     goal_rad : float
         The Goal Position held (joint angle, rad), NaN unless holding.
     detail : str
@@ -122,6 +123,7 @@ def servo_outcomes(
     try:
         for j, servo_id in enumerate(joints.ids):
             written = bus.torque_written.get(servo_id)
+            driven = servo_id in bus.driven
             if not bus.is_open or servo_id not in bus.models:
                 state = "never torqued" if written is None else "unknown"
                 detail = "" if written is None else "the port is closed"
@@ -135,10 +137,10 @@ def servo_outcomes(
                 out.append(ServoOutcome(servo_id, names[j], "unknown", detail=detail))
                 continue
             if torque:
-                state = "untouched" if written is None else "holding"
+                state = "holding" if driven or written is not None else "untouched"
                 goal_rad = joints.directions[j] * (goal - joints.zeros[j]) * RAD_PER_TICK
                 out.append(ServoOutcome(servo_id, names[j], state, goal_rad))
-            elif written is None:
+            elif written is None and not driven:
                 out.append(ServoOutcome(servo_id, names[j], "never torqued"))
             elif written == 0:
                 out.append(ServoOutcome(servo_id, names[j], "released"))
