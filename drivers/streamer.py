@@ -470,6 +470,9 @@ class Streamer:
         self._writer = writer = None
         self._frame_no = 0
         self._last_position: tuple[float, np.ndarray] | None = None
+        self._max_speed = GLITCH_SPEED_FACTOR * np.array(
+            [self.bus.models[i].no_load_speed_rad_s for i in self.joints.ids]
+        )
         self._glitches = np.zeros(len(self.joints), dtype=int)
         failed_before = self.bus.failed_tries
         try:
@@ -559,8 +562,7 @@ class Streamer:
             self._last_position = (now, position)
             return position
         then, last = self._last_position
-        speed = np.array([self.bus.models[i].no_load_speed_rad_s for i in self.joints.ids])
-        allowed = GLITCH_SPEED_FACTOR * speed * max(now - then, 0.0)
+        allowed = self._max_speed * max(now - then, 0.0)
         allowed += POSITION_NOISE_TICKS * RAD_PER_TICK
         jumped = np.abs(position - last) > allowed
         self._glitches = np.where(jumped, self._glitches + 1, 0)
