@@ -28,7 +28,10 @@ and every change listed (``plan_changes``):
    warning); ``set_limits`` where given (the user's explicit option). Every
    change is said (``RuntimeWarning``) before it is made.
 
-then (``configure``), servo by servo: a servo whose EEPROM must change and
+then (``configure``), servo by servo: a servo with torque on that is far
+from its goal (a profile in progress) stops where it is first (before its
+profile is set to 0, which would make the rest of its move a step); a servo
+whose EEPROM must change and
 whose torque is on is released only when it is not holding a load (Present
 Current under ``LOADED_FRACTION`` of its stall current; else bring-up
 refuses before any write), with a warning, and torque goes back on at once
@@ -784,6 +787,8 @@ def configure(
     for servo in installed:
         servo_id = servo.servo_id
         mine = [c for c in changes if c.servo_id == servo_id]
+        if servo.torque_on:
+            _stop_where_it_is(bus, servo_id)
         for c in mine:
             if not c.eeprom:
                 bus.write(servo_id, c.register, c.new)
@@ -803,6 +808,25 @@ def configure(
             bus.write(servo_id, Register.GOAL_POSITION, read_position_checked(bus, servo_id))
             bus.write(servo_id, Register.TORQUE_ENABLE, 1)
         bus.write(servo_id, Register.BUS_WATCHDOG, 0)  # clears a tripped watchdog
+
+
+def _stop_where_it_is(bus: ServoBus, servo_id: int) -> None:
+    """A torque-on servo far from its goal (a profile in progress) stops where it is.
+
+    Written before the profile is set to 0, which would otherwise turn the
+    rest of its move into a full-speed step.
+    """
+    present = read_position_checked(bus, servo_id)
+    goal = bus.read(servo_id, Register.GOAL_POSITION)
+    if abs(goal - present) > HOLD_TOLERANCE_TICKS:
+        warnings.warn(
+            f"servo {servo_id}: moving to Goal Position {goal} (a profile in progress, or "
+            f"blocked) at {present}: stopped where it is (Goal Position {present}) before its "
+            "profile is set to 0",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+        bus.write(servo_id, Register.GOAL_POSITION, present)
 
 
 #: ``configure`` under another name, for ``bring_up`` (whose flag is called configure).

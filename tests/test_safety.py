@@ -759,3 +759,99 @@ def test_outcome_names_each_servos_state(rig):
     assert [o.state for o in states] == ["released", "holding", "holding"]
     assert states[1].format() == "tilt (servo 2): torque on, holding its goal 5.7 deg"
     assert states[0].to_json_dict()["goal_deg"] is None
+
+
+# -- issue 21: what already worked still works ---------------------------------
+
+
+def test_homing_offset_is_a_zero_in_the_joint_map(rig):
+    trajectory = _ramp((0.2, 0.1, 0.0))
+    virtual, bus = rig(registers={2: {"Homing Offset": 100}})
+    joints = JointMap(zeros=(2048, 2148, 2048))
+    setup = bring_up(bus, joints, MODELS, trajectory)
+    stats = Streamer(bus, joints, start_ticks=setup.present_ticks, clock=SimulatedClock()).run(
+        trajectory
+    )
+    assert stats.frames_sent == len(trajectory)
+    np.testing.assert_array_equal(
+        virtual.goal_log[-len(trajectory) :], joints.to_ticks(trajectory.q)
+    )
+    assert virtual.servos[2].get("Homing Offset") == 100
+
+
+def test_an_extra_servo_on_the_bus_is_left_alone(rig):
+    plant = FirstOrderPlant(n_joints=4, time_constant_s=0.01)
+    virtual, bus = rig(plant, ids=(1, 2, 3, 4))
+    before = bytes(virtual.servos[4].memory[WRITABLE])
+    trajectory = _ramp((0.2, 0.1, 0.0))
+    setup = bring_up(bus, JointMap(), MODELS, trajectory)
+    _streamer(bus, setup).run(trajectory)
+    assert bytes(virtual.servos[4].memory[WRITABLE]) == before
+    assert not virtual.servos[4].torque_on
+
+
+@pytest.mark.parametrize(("beyond", "ok"), [(0, True), (1, False)], ids=["exact", "off-by-one"])
+def test_a_plan_to_exactly_the_limit_streams_and_one_tick_beyond_is_refused(rig, beyond, ok):
+    limits = {Register.MIN_POSITION_LIMIT: 1800, Register.MAX_POSITION_LIMIT: 2300}
+    virtual, bus = rig(registers={2: limits})
+    tilt = (2300 + beyond - 2048) * 2 * math.pi / 4096
+    trajectory = _ramp((0.0, tilt, 0.0))
+    assert JointMap().to_ticks(trajectory.q)[:, 1].max() == 2300 + beyond
+    if not ok:
+        with pytest.raises(BringUpError, match=r"tick 2301\) is past the Max Position Limit 2300"):
+            bring_up(bus, JointMap(), MODELS, trajectory)
+        return
+    setup = bring_up(bus, JointMap(), MODELS, trajectory)
+    _streamer(bus, setup).run(trajectory)
+    assert max(goal[1] for goal in virtual.goal_log) == 2300
+
+
+def test_overheating_mid_stream_stops_naming_it(rig):
+    trajectory = _ramp((0.2, 0.1, 0.0))
+    fault = Fault("set", servo_id=2, register="Hardware Error Status", value=0x04, at_frame=30)
+    virtual, bus = rig(faults=[fault])
+    setup = bring_up(bus, JointMap(), MODELS, trajectory)
+    with pytest.raises(ServoError, match=r"servo 2: hardware error during streaming: overheating"):
+        _streamer(bus, setup).run(trajectory)
+    assert virtual.frames_received == 30
+
+
+def test_a_slow_reboot_within_the_retry_budget_is_still_noticed(rig):
+    trajectory = _ramp((0.3, 0.2, 0.1), duration_s=1.0)
+    faults = [
+        Fault("reboot", servo_id=2, at_frame=50),
+        Fault("drop", servo_id=2, at_frame=50, count=2),  # silent while it boots
+    ]
+    virtual, bus = rig(faults=faults)
+    setup = bring_up(bus, JointMap(), MODELS, trajectory)
+    with pytest.raises(ServoReset, match=r"servo 2 \(tilt\) reset itself"):
+        _streamer(bus, setup).run(trajectory)
+    assert bus.failed_tries == 2 and virtual.frames_received <= 50 + 10
+
+
+def test_a_profile_in_progress_is_stopped_where_it_is_before_the_profile_goes(rig):
+    # Torque on, moving slowly (a profile) towards a goal 30 deg away.
+    plant = FirstOrderPlant(time_constant_s=5.0)
+    installed = {Register.TORQUE_ENABLE: 1, "Profile Velocity": 20}
+    virtual, bus = rig(plant, registers={1: installed})
+    bus.add_servo(1, virtual.servos[1].model)
+    bus.write(1, Register.GOAL_POSITION, 2390)  # what another program asked of it
+    trajectory = _ramp((0.1, 0.0, 0.0))
+    with pytest.warns(RuntimeWarning, match=r"servo 1: moving to Goal Position 2390 .*stopped"):
+        setup = bring_up(bus, JointMap(), MODELS, trajectory)
+    assert abs(setup.present_ticks[0] - 2048) <= 4  # where it was, not 30 deg on
+    assert virtual.servos[1].get("Profile Velocity") == 0
+    assert abs(virtual.servos[1].get(Register.GOAL_POSITION) - 2048) <= 4
+
+
+def test_bus_table_configure_and_restore():
+    from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.errors import KeyframeFileError
+
+    config = bus_config_from_tables({"bus": {"configure": True, "restore": True}}, "f.toml")
+    assert config.configure and config.restore
+    assert not bus_config_from_tables({}, "f.toml").configure
+    with pytest.raises(
+        KeyframeFileError, match=r"f\.toml: \[bus\] restore: expected true or false"
+    ):
+        bus_config_from_tables({"bus": {"restore": 1}}, "f.toml")
