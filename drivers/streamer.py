@@ -61,6 +61,7 @@ from trajgen.drivers.bringup import (
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import WALL_CLOCK
 from trajgen.drivers.control_table import VOLTAGE_UNIT_V, Register
+from trajgen.drivers.defaults import MAX_DELAY_S
 from trajgen.drivers.errors import (
     BringUpError,
     CommError,
@@ -90,9 +91,6 @@ _POWER_LIMITS = (
 GLITCH_SPEED_FACTOR = 1.5
 #: This many glitched Present Position reads in a row of one servo stop the stream.
 MAX_GLITCHES = 3
-
-#: Default bound (s) on how far the stream may fall behind its plan in total.
-MAX_DELAY_S = 1.0
 
 
 class RunningQuantiles:

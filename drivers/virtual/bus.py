@@ -65,7 +65,7 @@ from trajgen.drivers.virtual.plant import Plant
 from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
-from trajgen.servo_ratings import CONTROL_REGISTERS
+from trajgen.servo_table import CONTROL_REGISTERS
 
 __all__ = ["IN_POSITION_TICKS", "Fault", "VirtualBus", "WireTiming"]
 

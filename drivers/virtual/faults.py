@@ -19,8 +19,9 @@ from trajgen.drivers.protocol import (
     encode_status,
     word,
 )
+from trajgen.servo_table import hardware_error_mask
 
-_OVERLOAD_BIT = 0x20
+_OVERLOAD_BIT = hardware_error_mask("overload")
 # Faults that change replies, and faults that happen to a servo after a frame.
 _REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id", "glitch")
 _FRAME_FAULTS = ("close", "overload", "watchdog", "reboot", "set")

@@ -14,7 +14,7 @@ import time
 from trajgen.drivers.control_table import WATCHDOG_UNIT_S
 from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks
 from trajgen.drivers.virtual.servo import VirtualServo
-from trajgen.servo_ratings import PWM_FULL_SCALE
+from trajgen.servo_table import PWM_FULL_SCALE
 
 # Real time: how often the simulation thread wakes (s), and the most steps it
 # runs per hold of the lock (short holds: a packet may be waiting for it).
