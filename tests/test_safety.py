@@ -465,19 +465,25 @@ def _streamer(bus, setup, **kwargs):
     )
 
 
+def _refused(virtual, bus, match, **options):
+    """Bring-up of a small plan is refused with ``match`` and nothing is written."""
+    before = _memory(virtual)
+    with pytest.raises(BringUpError, match=match):
+        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.1, 0.0)), **options)
+    assert _memory(virtual) == before
+
+
 @pytest.mark.parametrize(
     ("mode", "name"), [(1, "velocity control"), (0, "current control"), (16, "PWM control")]
 )
 def test_a_mode_that_cannot_stream_is_refused_naming_servo_register_value(rig, mode, name):
     virtual, bus = rig(registers={2: {Register.OPERATING_MODE: mode}})
-    before = _memory(virtual)
-    with pytest.raises(
-        BringUpError,
-        match=rf"servo 2 \(tilt\): Operating Mode \(register 11\) is {mode} \({name}\), which "
+    _refused(
+        virtual,
+        bus,
+        rf"servo 2 \(tilt\): Operating Mode \(register 11\) is {mode} \({name}\), which "
         r"cannot stream this plan .*pass --configure \(or \[bus\] configure = true\)",
-    ):
-        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.1, 0.0)))
-    assert _memory(virtual) == before
+    )
 
 
 def test_extended_and_current_based_position_modes_stream_as_installed(rig):
@@ -559,26 +565,24 @@ class _Loaded(FirstOrderPlant):
 def test_a_loaded_servo_is_never_released_for_an_eeprom_write(rig):
     registers = {1: {Register.OPERATING_MODE: 1, Register.TORQUE_ENABLE: 1}}
     virtual, bus = rig(_Loaded(time_constant_s=0.01), registers=registers)
-    before = _memory(virtual)
-    with pytest.raises(
-        BringUpError,
-        match=r"servo 1 \(pan\) holds a load \(torque on, Present Current 0\.50 A\): writing "
+    _refused(
+        virtual,
+        bus,
+        r"servo 1 \(pan\) holds a load \(torque on, Present Current 0\.50 A\): writing "
         r"Operating Mode, Return Delay Time \(EEPROM\) needs torque off, which would let it drop",
-    ):
-        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.1, 0.0)), configure=True)
-    assert _memory(virtual) == before and virtual.servos[1].torque_on
+        configure=True,
+    )
+    assert virtual.servos[1].torque_on
 
 
 def test_secondary_id_of_another_streamed_servo_is_refused_before_any_write(rig):
     virtual, bus = rig(registers={1: {"Secondary(Shadow) ID": 3}})
-    before = _memory(virtual)
-    with pytest.raises(
-        BringUpError,
-        match=r"servo 1 \(pan\): Secondary ID \(register 12\) is 3, the id of servo 3 \(roll\): "
+    _refused(
+        virtual,
+        bus,
+        r"servo 1 \(pan\): Secondary ID \(register 12\) is 3, the id of servo 3 \(roll\): "
         r"it would execute every write meant for servo 3",
-    ):
-        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.1, 0.0)))
-    assert _memory(virtual) == before
+    )
 
 
 def test_the_virtual_servo_acts_on_its_secondary_id_without_answering(rig):
@@ -597,10 +601,7 @@ def test_the_virtual_servo_acts_on_its_secondary_id_without_answering(rig):
 )
 def test_status_return_level_below_2_is_named(rig, level, match):
     virtual, bus = rig(registers={2: {Register.STATUS_RETURN_LEVEL: level}})
-    before = _memory(virtual)
-    with pytest.raises(BringUpError, match=match):
-        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.1, 0.0)))
-    assert _memory(virtual) == before
+    _refused(virtual, bus, match)
     outcome = servo_outcomes(bus, JointMap())
     assert [o.state for o in outcome] == ["never torqued"] * 3 or level == 0
     if level == 0:
@@ -735,13 +736,11 @@ def test_heat_is_read_warned_and_stops_the_stream_before_the_servo_shuts_down(ri
 def test_a_supply_under_the_min_voltage_limit_is_refused_at_bring_up(rig):
     registers = {2: {"Present Input Voltage": 85, "Min Voltage Limit": 95}}
     virtual, bus = rig(registers=registers)
-    before = _memory(virtual)
-    with pytest.raises(
-        BringUpError,
-        match=r"servo 2 \(tilt\): input voltage 8\.5 V, at or under its Min Voltage Limit 9\.5 V",
-    ):
-        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.1, 0.0)))
-    assert _memory(virtual) == before
+    _refused(
+        virtual,
+        bus,
+        r"servo 2 \(tilt\): input voltage 8\.5 V, at or under its Min Voltage Limit 9\.5",
+    )
 
 
 def test_outcome_names_each_servos_state(rig):
