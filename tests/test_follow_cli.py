@@ -76,7 +76,21 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         )
         + "\n[bus]\nwatchdog_s = 0.5\n"
     )
-    assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
+    assert (
+        main(
+            [
+                "follow",
+                str(keys),
+                "--virtual",
+                "--configure",
+                "--max-delay",
+                "60",
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     thread.join(timeout=5)
     run = json.loads(out.read_text())
     assert run["stream"]["fault"] == "" and "torque" in run
@@ -168,7 +182,7 @@ def test_follow_stops_safely_on_sigterm_while_waiting_for_lines():
 
     example = Path(__file__).parents[1] / "examples" / "follow_target.toml"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "trajgen", "follow", str(example), "--virtual"],
+        [sys.executable, "-m", "trajgen", "follow", str(example), "--virtual", "--configure"],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -190,7 +204,7 @@ def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, mon
         "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.5\npan = 5.0\n"
     )
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # no lines: the file's plan, then rest
-    assert main(["follow", str(keys), "--virtual", "--max-delay", "60"]) == 0
+    assert main(["follow", str(keys), "--virtual", "--configure", "--max-delay", "60"]) == 0
     err = capsys.readouterr().err
     assert "follow plans with the blending spline" in err and "method = 'smooth'" in err
 
