@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trajgen.sim.errors import SimError
+from trajgen.sim.errors import IdentifyError, SimError
 from trajgen.sim.firmware import PositionLoop
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig, JointParams, build_model
 
@@ -62,10 +62,6 @@ _BOUNDS = {
     "damping": (0.0, 2.0),
     "position_p_gain": (10.0, 16383.0),
 }
-
-
-class IdentifyError(ValueError):
-    """A telemetry log that cannot be used, or a missing ``mujoco[sysid]``."""
 
 
 @dataclass(frozen=True)

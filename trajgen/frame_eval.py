@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from . import quat as Q
+from .errors import BadArgument
 from .gimbal import TWO_PI, GimbalKinematics, angles_of, joint_rates, rates_of
 from .jet import _COS, _SINC, SERIES_BELOW
 from .per_sample import hamilton
@@ -188,7 +189,7 @@ class SmoothFrames:
             t = self._t0 + (t - self._t0) % (self._t1 - self._t0)
         elif not self._t0 <= t <= self._t1:
             if not self._t0 - self._eps <= t <= self._t1 + self._eps:
-                raise ValueError(
+                raise BadArgument(
                     f"Time {t!r} s is outside the path's range [{self._t0}, {self._t1}] s."
                 )
             t = min(max(t, self._t0), self._t1)

@@ -25,6 +25,7 @@ import numpy as np
 from . import derivatives as D
 from . import jet as J
 from . import quat as Q
+from .errors import NoCircleError
 from .path import run_steps
 
 POINT, CIRCLE, PARABOLA, GEODESIC = range(4)
@@ -35,10 +36,6 @@ G_POLY, G_POWER, G_RATIONAL = range(3)
 
 #: Keyframes closer than this on S^3 (chord) count as the same.
 SAME_POINT = 1e-9
-
-
-class NoCircleError(ValueError):
-    """Three keyframes admit no usable circle (a reversal)."""
 
 
 @dataclass

@@ -70,7 +70,7 @@ from math import comb, factorial
 import numpy as np
 
 from . import quat as Q
-from .errors import TrajgenError
+from .errors import BadArgument, TrajgenError
 from .online_frames import PlanFrames
 from .online_plan import Piece, Plan
 from .online_splice import Splice, hermite_matrix, log_near_identity, log_of_curve
@@ -160,7 +160,7 @@ class OnlineSpline:
             q0 = np.reshape(q0, (1, 4))
         q = Q.as_quats(q0, "q0")
         if q.shape[0] != 1:
-            raise ValueError(f"Expected `q0` to be one quaternion, got shape {q.shape}.")
+            raise BadArgument(f"Expected `q0` to be one quaternion, got shape {q.shape}.")
         t0 = check_number("t0", t0)
         # Splices match the old path's jet to order k + 1; jets go to order 4.
         self.k = check_number("k", k, integer=True, low=1, high=3)
@@ -326,13 +326,13 @@ class OnlineSpline:
         with self._swap:
             version, plan = self._version, self._plan
         if self._closed:
-            raise ValueError("The spline is closed: no more changes.")
+            raise BadArgument("The spline is closed: no more changes.")
         if at < self._last_at:
-            raise ValueError(f"`at` = {at} s is before the previous change at {self._last_at} s.")
+            raise BadArgument(f"`at` = {at} s is before the previous change at {self._last_at} s.")
         self._check_not_streamed(at)
         lead = t[0] - at
         if lead < self.min_lead_s - 1e-9:
-            raise ValueError(
+            raise BadArgument(
                 f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
                 f"it must be at least {self.min_lead_s} s after it."
             )
@@ -358,7 +358,7 @@ class OnlineSpline:
         """
         with self._swap:
             if self._closed:
-                raise ValueError("The spline is closed: no more changes.")
+                raise BadArgument("The spline is closed: no more changes.")
             if change.version != self._version:
                 raise ChangeTooLate(
                     f"The path changed since this change was prepared (version "
@@ -385,7 +385,7 @@ class OnlineSpline:
         last = plan.pieces[-1]
         kt, kq = last.key_times, last.key_quats
         if mode == "extend" and t[0] <= kt[-1]:
-            raise ValueError(
+            raise BadArgument(
                 f"extend: the first new keyframe (t = {t[0]} s) must come after the last "
                 f"keyframe kept (t = {kt[-1]} s)."
             )

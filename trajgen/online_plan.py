@@ -16,6 +16,7 @@ import numpy as np
 
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .online_frames import PlanFrames
 from .online_splice import Splice, taylor_from_rates
 from .path import OrientationPath
@@ -139,7 +140,7 @@ class Plan(OrientationPath):
     def _segment(self, t):
         t0 = self.t_start
         if (t < t0 - 1e-12 * max(1.0, abs(t0))).any():
-            raise ValueError(
+            raise BadArgument(
                 f"Time {float(t[t < t0][0])!r} s is before the path's kept range, which "
                 f"starts at {t0} s (changes drop what lies before them)."
             )

@@ -19,6 +19,7 @@ import numpy as np
 from . import derivatives as D
 from . import jet as J
 from . import per_sample as P
+from .errors import BadArgument
 from .frame_eval import exp_frame
 from .path import OrientationPath
 from .spline import CONJ
@@ -165,7 +166,7 @@ def log_near_identity(d: np.ndarray) -> np.ndarray:
     1 - x^2 / 3 + O(x^4)``: as ``y = O(tau)``, the ``x^4`` term is ``O(tau^5)``.
     """
     if len(d) > 5:
-        raise ValueError(f"Expected at most 5 Taylor coefficients, got {len(d)}.")
+        raise BadArgument(f"Expected at most 5 Taylor coefficients, got {len(d)}.")
     y = J.scale(J.reciprocal(J.Jet(d[:, 0])), J.Jet(d[:, 1:]))
     return (y - J.scale(J.dot(y, y), y) * (1.0 / 3.0)).c
 

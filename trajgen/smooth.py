@@ -31,6 +31,7 @@ from . import derivatives as dv
 from . import fast
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .gimbal import angles_of
 from .path import OrientationPath, check_times
 from .spline import check_closed
@@ -414,7 +415,7 @@ class SmoothSpline(OrientationPath):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
-            raise ValueError(f"Expected at least 2 keyframes, got {n}.")
+            raise BadArgument(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
         if knots is None:
@@ -422,14 +423,14 @@ class SmoothSpline(OrientationPath):
         #: The knot choice, one of :data:`KNOTS`.
         self.knots = check_choice("knots", knots, KNOTS)
         if knots != "quintic" and boundary != "rest":
-            raise ValueError(
+            raise BadArgument(
                 f"knots={knots!r} needs boundary='rest' (the ends it chooses the jerk "
                 f"at), got boundary={boundary!r}."
             )
         if boundary == "natural" and n < 3:
             # One segment with free ends: every parabola has zero jerk and snap,
             # so the knot rates are not determined.
-            raise ValueError(f"boundary='natural' needs at least 3 keyframes, got {n}.")
+            raise BadArgument(f"boundary='natural' needs at least 3 keyframes, got {n}.")
         if boundary == "closed":
             check_closed(q)
         self.periodic = boundary == "closed"

@@ -17,6 +17,7 @@ from . import derivatives as D
 from . import fast
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .local_curves import KIND_NAMES, NoCircleError, build_curves
 from .path import OrientationPath, check_times, run_steps
 from .validate import check_choice, check_number
@@ -44,10 +45,10 @@ def check_closed(quats: np.ndarray) -> None:
     """Refuse keyframes (N, 4) that cannot make a closed loop: N < 3, or a last
     keyframe more than :data:`CLOSED_TOLERANCE` away from the first."""
     if len(quats) < 3:
-        raise ValueError(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
+        raise BadArgument(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
     gap = float(Q.distance(quats[0], quats[-1]))
     if gap > CLOSED_TOLERANCE:
-        raise ValueError(
+        raise BadArgument(
             "boundary='closed' needs the last keyframe to repeat the first; they are "
             f"{np.degrees(gap):.4g} deg apart."
         )
@@ -138,7 +139,7 @@ class BlendingSpline(OrientationPath):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
-            raise ValueError(f"Expected at least 2 keyframes, got {n}.")
+            raise BadArgument(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
         self.k = check_number("k", k, integer=True, low=1, high=MAX_K)
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
@@ -186,7 +187,7 @@ class BlendingSpline(OrientationPath):
             self._curves = build_curves(triples, times, k=k, local=self.local, reparam=self.reparam)
         except NoCircleError as e:
             ts = times[e.index]
-            raise ValueError(
+            raise BadArgument(
                 f"The keyframes at t = {ts[0]:g} s and t = {ts[2]:g} s coincide around the "
                 f"one at t = {ts[1]:g} s (a reversal): no circle passes through them; "
                 "use local='auto' or 'parabola'."
