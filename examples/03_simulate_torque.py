@@ -7,7 +7,8 @@ needed with the servo's 12 V torque-speed envelope and the tracking error with
 its budget (the report lists each reason it fails). The built-in look-around
 passes; ``examples/sim_too_fast.toml`` fails on purpose.
 
-Run: .venv/bin/python examples/03_simulate_torque.py [--file examples/sim_too_fast.toml --expect-fail]
+Run: .venv/bin/python examples/03_simulate_torque.py
+     [--file examples/sim_too_fast.toml --expect-fail]
 """
 
 from __future__ import annotations

@@ -21,6 +21,7 @@ from trajgen.drivers.config import bus_config_from_tables
 from trajgen.drivers.session import Session
 from trajgen.sim import GimbalPlant, gimbal_config_from_tables
 
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--file", type=Path, default=BUILTIN_EXAMPLE, help="default: built-in")
