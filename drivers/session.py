@@ -39,9 +39,10 @@ from . import bringup
 from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
 from .clock import WALL_CLOCK, SimulatedClock
 from .config import BusConfig
+from .defaults import MAX_DELAY_S
 from .errors import BringUpError, DriverError, Interrupted
 from .signals import StopSignals
-from .streamer import MAX_DELAY_S, Streamer, safe_stop
+from .streamer import Streamer, safe_stop
 
 #: What a servo was left doing, per ``Outcome.servo_states``.
 UNTOUCHED = "untouched"  # nothing was written to it

@@ -71,9 +71,6 @@ exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
 2 bad input, 128 + signal number when stopped by a signal (130 SIGINT,
 143 SIGTERM, 129 SIGHUP)."""
 
-#: Default --max-delay (s), as ``trajgen.drivers.streamer.MAX_DELAY_S`` (which loads the SDK).
-MAX_DELAY_S = 1.0
-
 
 def _limits(text: str) -> tuple[str, float, float]:
     """argparse type: ``JOINT=MIN:MAX`` in degrees."""
@@ -104,6 +101,8 @@ def register(subparsers) -> None:
 def add_stream_arguments(p) -> None:
     """The file, bus, rate, output, --virtual and safety options (shared with
     ``trajgen follow``)."""
+    from trajgen.drivers.defaults import MAX_DELAY_S  # constants only: no SDK, no numpy
+
     add_file_argument(p)
     p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
     p.add_argument(
