@@ -376,3 +376,14 @@ def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
     assert "trajgen: follow: stdin: line 2: longer than 65536 bytes" in err
     result = json.loads(out.read_text())["follow"]
     assert result["accepted"] == 1 and result["keyframes"][0]["line"] == 3
+
+
+def test_noise_prints_twenty_refusals_then_counts_the_rest(capsys):
+    from trajgen.cli.follow import SHOWN_SKIPS, _skipped
+
+    show = _skipped()
+    for n in range(1, 100):
+        show(f"stdin: line {n}: invalid JSON")
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == SHOWN_SKIPS + 1 and err[0].endswith("line 1: invalid JSON (line skipped)")
+    assert err[-1] == "trajgen: follow: 20 lines skipped; more are counted, not shown"

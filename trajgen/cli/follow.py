@@ -9,6 +9,7 @@ are those of ``trajgen stream``.
 
 from __future__ import annotations
 
+import itertools
 import sys
 
 from trajgen.cli import stream as stream_command
@@ -65,8 +66,28 @@ def run_follow(args) -> int:
     return follow(args, capped_lines(stdin))
 
 
-def _skipped(message: str) -> None:
-    print(f"trajgen: follow: {message} (line skipped)", file=sys.stderr, flush=True)
+#: Refused lines reported one by one; after these, only counted (binary noise on stdin
+#: would otherwise print a line per newline byte).
+SHOWN_SKIPS = 20
+
+
+def _skipped():
+    """An ``on_skip``: print the first ``SHOWN_SKIPS`` refused lines, then say once that
+    the rest are counted in the summary."""
+    count = itertools.count(1)
+
+    def show(message: str) -> None:
+        n = next(count)
+        if n <= SHOWN_SKIPS:
+            print(f"trajgen: follow: {message} (line skipped)", file=sys.stderr, flush=True)
+        if n == SHOWN_SKIPS:
+            print(
+                f"trajgen: follow: {SHOWN_SKIPS} lines skipped; more are counted, not shown",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    return show
 
 
 def follow(args, lines) -> int:
@@ -76,7 +97,7 @@ def follow(args, lines) -> int:
 
     def make_plan(args):
         p = stream_command.plan(args)
-        made["follower"] = Follower(online_spline(p.source), p.rate_hz, on_skip=_skipped)
+        made["follower"] = Follower(online_spline(p.source), p.rate_hz, on_skip=_skipped())
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
         if p.source.method != "blending":
             print(
