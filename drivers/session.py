@@ -39,6 +39,7 @@ from . import bringup
 from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
 from .clock import WALL_CLOCK, SimulatedClock
 from .config import BusConfig
+from .control_table import Register
 from .defaults import MAX_DELAY_S
 from .errors import BringUpError, DriverError, Interrupted
 from .signals import StopSignals
@@ -47,9 +48,9 @@ from .streamer import Streamer, safe_stop
 #: What a servo was left doing, per ``Outcome.servo_states``.
 UNTOUCHED = "untouched"  # nothing was written to it
 NOT_MOVED = "not moved"  # bring-up refused before torque on
-HOLDING = "holding"  # torque on, holding its last goal, Bus Watchdog cleared
-RELEASED = "released"  # torque off
-UNKNOWN = "unknown"  # the safe stop could not reach it: see ``stop_errors``
+HOLDING = "holding"  # reads torque on after the safe stop: holds its goal, no Bus Watchdog
+RELEASED = "released"  # reads torque off after the safe stop
+UNKNOWN = "unknown"  # did not answer after the safe stop: see ``stop_errors``
 
 
 @dataclass
@@ -72,8 +73,9 @@ class Outcome:
     stop_errors : list of str
         What the safe stop could not do.
     servo_states : dict of int to str
-        Per servo id: ``UNTOUCHED``, ``NOT_MOVED``, ``HOLDING``, ``RELEASED`` or
-        ``UNKNOWN`` (the safe stop failed for it).
+        Per servo id: ``UNTOUCHED``, ``NOT_MOVED``, or after a safe stop its
+        Torque Enable as read back, ``HOLDING`` or ``RELEASED`` (``UNKNOWN`` if it
+        did not answer).
     trajectory : JointTrajectory or JointRange or None
         The plan bring-up checked (for a stream, what was streamed).
     virtual_error : Exception or None
@@ -360,7 +362,7 @@ class Session:
                 source = setup.trajectory if frames is None else frames(setup)
                 self._stream(bus, setup, source, rate_hz, clock, outcome)
             outcome.stage = ""
-            self._states(ids, outcome)
+            self._states(bus, ids, outcome)
         except (DriverError, Interrupted) as e:
             outcome.stopped_by = str(e)
             if isinstance(e, Interrupted):
@@ -375,7 +377,7 @@ class Session:
                 if outcome.stats is None:
                     # Stopped during bring-up, possibly after it changed something.
                     outcome.stop_errors += safe_stop(bus, ids, self.on_stop)
-                self._states(ids, outcome)
+                self._states(bus, ids, outcome)
         finally:
             if bus is not None:
                 bus.close()
@@ -404,12 +406,17 @@ class Session:
             outcome.stats = streamer.stats
             outcome.stop_errors += streamer.stop_errors
 
-    def _states(self, ids, outcome: Outcome) -> None:
-        """Each servo's state after a safe stop: the stop asked of it, unless a stop
-        error names it (or names no servo: the port itself failed)."""
-        done = RELEASED if self.on_stop == "torque_off" else HOLDING
-        failed = set()
-        for message in outcome.stop_errors:
-            named = {i for i in ids if message.startswith(f"servo {i}:")}
-            failed |= named or set(ids)
-        outcome.servo_states = {i: UNKNOWN if i in failed else done for i in ids}
+    def _states(self, bus, ids, outcome: Outcome) -> None:
+        """Each servo's state after the safe stop, as it reads back: Torque Enable 1 is
+        holding (the Bus Watchdog was cleared), 0 released; a servo that does not answer
+        is unknown."""
+        states = {}
+        for servo_id in ids:
+            try:
+                on = bus.read(servo_id, Register.TORQUE_ENABLE)
+            except DriverError as e:
+                states[servo_id] = UNKNOWN
+                outcome.stop_errors.append(f"state unknown: {e}")
+            else:
+                states[servo_id] = HOLDING if on else RELEASED
+        outcome.servo_states = states

@@ -118,3 +118,16 @@ def test_bring_up_checks_a_joint_range_not_a_fake_trajectory():
     modes, _ = check_plan(installed, JointMap(), narrow)
     trajectory = plan_joint_trajectory(_path(), RATE_HZ)
     assert modes == check_plan(installed, JointMap(), trajectory)[0] == (3, 3, 3)
+
+
+def test_an_overloaded_servo_is_stated_apart_from_the_others():
+    faults = [Fault("overload", at_frame=30, servo_id=2)]
+    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, faults=faults) as virtual:
+        outcome = Session(BusConfig(port=virtual.port)).stream_path(_path(), RATE_HZ)
+        torque = {i: virtual.servos[i].torque_on for i in IDS}
+    assert outcome.stage == "stream" and "servo 2" in outcome.stopped_by
+    assert torque == {1: True, 2: False, 3: True}
+    assert outcome.servo_states[1] == outcome.servo_states[3] == HOLDING
+    # Its replies carry the hardware error, so its Torque Enable is not taken from them.
+    assert outcome.servo_states[2] == UNKNOWN
+    assert any(m.startswith("state unknown: servo 2: hardware error") for m in outcome.stop_errors)

@@ -353,20 +353,21 @@ def run_plan(args, make_plan, go, extra=None) -> int:
 
 def _state(outcome, on_stop: str) -> str:
     """What the servos were left doing, as a clause for the terminal."""
-    from trajgen.drivers.session import UNKNOWN, UNTOUCHED
+    from trajgen.drivers.session import HOLDING, RELEASED, UNTOUCHED
 
     states = outcome.servo_states
+    asked = RELEASED if on_stop == "torque_off" else HOLDING
     if states and all(s == UNTOUCHED for s in states.values()):
-        state = "no servo was touched"
-    elif outcome.refused:
-        state = "bring-up refused before torque on: no servo was moved"
-    elif on_stop == "torque_off":
+        return "no servo was touched"
+    if outcome.refused:
+        return "bring-up refused before torque on: no servo was moved"
+    if on_stop == "torque_off":
         state = "the servos were released (torque off)"
     else:
         state = "the servos hold their last goal"
-    unknown = [i for i, s in states.items() if s == UNKNOWN]
-    if unknown:
-        state += f" (except servo {', '.join(map(str, unknown))}: the safe stop failed, see above)"
+    others = [f"servo {i} {s}" for i, s in states.items() if s != asked]
+    if others:
+        state += f" (except {', '.join(others)}: see the warnings above)"
     return state
 
 
