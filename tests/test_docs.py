@@ -148,3 +148,27 @@ def test_quick_start_is_the_makefiles_demo_and_test_which_install_what_they_need
         rule = re.search(rf"^{target}:(.*)$", makefile, re.M)
         assert rule is not None, f"the Makefile has no {target} target"
         assert "$(STAMP)" in rule.group(1).split(), f"make {target} does not install first"
+
+
+def _blocks(language: str) -> list[str]:
+    return re.findall(rf"^```{language}\n(.*?)^```", README.read_text(), re.S | re.M)
+
+
+def test_the_readmes_keyframe_file_is_a_valid_file_for_the_servos(tmp_path):
+    from trajgen import load_keyframe_file
+    from trajgen.drivers.config import bus_config_from_tables
+
+    (block,) = _blocks("toml")
+    path = tmp_path / "keys.toml"
+    path.write_text(block)
+    keys = load_keyframe_file(path)
+    assert keys.times.tolist() == [0.0, 2.0, 4.0]
+    bus = bus_config_from_tables(keys.tables, path)
+    assert (bus.port, bus.baud) == ("/dev/ttyUSB0", 1_000_000)
+
+
+def test_the_readmes_library_example_runs_and_passes_its_torque_check():
+    (block,) = _blocks("python")
+    namespace: dict = {}
+    exec(compile(block, "README.md", "exec"), namespace)  # raises if the check fails
+    assert namespace["report"].ok
