@@ -53,14 +53,27 @@ def _anchors(path: Path) -> set[str]:
 
 
 def _tracked_files() -> list[Path]:
-    """Every file git tracks (or would track: new files not ignored)."""
-    out = subprocess.run(
-        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout.split()
+    """Every file git tracks (or would track: new files not ignored); outside a git
+    checkout, every file but the virtualenv's and the caches'."""
+    try:
+        out = subprocess.run(
+            ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.split()
+    except (OSError, subprocess.CalledProcessError):
+        skip = {".git", ".venv", "out", "build", "__pycache__", ".pytest_cache", ".ruff_cache"}
+        return [
+            p
+            for p in ROOT.rglob("*")
+            if p.is_file()
+            and not any(
+                part in skip or part.startswith(".hypothesis") or part.endswith(".egg-info")
+                for part in p.relative_to(ROOT).parts
+            )
+        ]
     return [ROOT / name for name in out if (ROOT / name).is_file()]
 
 
