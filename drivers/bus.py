@@ -1,7 +1,7 @@
 """The servo bus: ``dynamixel-sdk`` over pyserial, with every result checked.
 
 ``ServoBus`` wraps the SDK's ``PortHandler`` and ``Protocol2PacketHandler``.
-What it adds to them (see DYNAMIXEL.md for why):
+What it adds to them (see docs/dynamixel.md for why):
 
 - the port opened exclusively (pyserial ``exclusive=True``, an ``flock``): a
   second program on the same port is refused with a message that says so;

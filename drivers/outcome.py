@@ -18,7 +18,7 @@ from typing import Literal
 from trajgen.drivers.bringup import joint_names_for
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.control_table import Register
-from trajgen.drivers.errors import DriverError
+from trajgen.drivers.errors import CommError, DriverError
 from trajgen.drivers.units import RAD_PER_TICK, JointMap
 
 State = Literal["holding", "released", "never torqued", "untouched", "off by itself", "unknown"]
@@ -132,8 +132,12 @@ def servo_outcomes(
             try:
                 torque = bus.read(servo_id, Register.TORQUE_ENABLE)
                 goal = bus.read(servo_id, Register.GOAL_POSITION) if torque else None
-            except DriverError as e:
+            except CommError as e:
                 detail = silence_cause(bus, servo_id, e)
+                out.append(ServoOutcome(servo_id, names[j], "unknown", detail=detail))
+                continue
+            except DriverError as e:  # it answers, with an error (a hardware error)
+                detail = str(e)
                 out.append(ServoOutcome(servo_id, names[j], "unknown", detail=detail))
                 continue
             if torque:
