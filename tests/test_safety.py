@@ -854,3 +854,43 @@ def test_bus_table_configure_and_restore():
         KeyframeFileError, match=r"f\.toml: \[bus\] restore: expected true or false"
     ):
         bus_config_from_tables({"bus": {"restore": 1}}, "f.toml")
+
+
+def test_the_session_reads_back_each_servo_after_a_reboot():
+    from trajgen.drivers.config import BusConfig
+    from trajgen.drivers.session import HOLDING, OFF_BY_ITSELF, Session
+
+    faults = [Fault("reboot", servo_id=2, at_frame=60)]
+    plant = FirstOrderPlant(time_constant_s=0.01)
+    with VirtualBus(plant, lockstep_dt_s=1 / RATE_HZ, faults=faults) as virtual:
+        session = Session(BusConfig(port=virtual.port))
+        path = _ramp((0.2, 0.1, 0.0), duration_s=1.0)
+        outcome = session.run(lambda present: path, RATE_HZ, clock=SimulatedClock())
+    assert "servo 2 (tilt) reset itself" in outcome.stopped_by
+    assert outcome.servo_states == {1: HOLDING, 2: OFF_BY_ITSELF, 3: HOLDING}
+    lines = [o.format() for o in outcome.servos]
+    assert lines[1] == "tilt (servo 2): torque off by itself (it rebooted, lost power or shut down)"
+    assert lines[0].startswith("pan (servo 1): torque on, holding its goal ")
+
+
+def test_the_command_line_prints_each_servos_state(tmp_path, capsys):
+    import argparse
+    import json
+
+    from trajgen.cli import stream
+
+    path = tmp_path / "k.toml"
+    path.write_text(
+        "[stream]\nrate_hz = 100\n"
+        "[[keyframes]]\nt = 0.0\npan = 0\n[[keyframes]]\nt = 0.3\npan = 5\n"
+    )
+    parser = argparse.ArgumentParser(prog="trajgen")
+    stream.register(parser.add_subparsers())
+    args = parser.parse_args(["stream", str(path), "--virtual", "--json", str(tmp_path / "r.json")])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "  pan (servo 1): torque on, holding its goal 5.0 deg" in out
+    assert "  roll (servo 3): torque on, holding its goal 0.0 deg" in out
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["servo_outcomes"]["pan"]["state"] == "holding"
+    assert result["servo_outcomes"]["pan"]["goal_deg"] == pytest.approx(5.0, abs=0.1)
