@@ -314,3 +314,16 @@ def test_virtual_bus_serves_a_new_model_from_its_entry(name):
                 assert value == spec.defaults[register], register
         finally:
             port.closePort()
+
+
+def test_keyframe_files_take_every_model_per_joint():
+    # [gimbal] servo (one name, or one per joint) and [bus] models read the same table.
+    from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    names = sorted(T.SERVOS)
+    for pan, tilt, roll in zip(names, names[1:] + names[:1], names[2:] + names[:2], strict=True):
+        tables = {"gimbal": {"servo": {"pan": pan.lower(), "tilt": f" {tilt} ", "roll": roll}}}
+        config = gimbal_config_from_tables(tables, "f.toml")
+        assert [s.spec for s in config.servos] == [T.SERVOS[n] for n in (pan, tilt, roll)]
+        assert bus_config_from_tables(tables, "f.toml").models == (pan, tilt, roll)
