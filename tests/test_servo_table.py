@@ -191,6 +191,7 @@ def test_the_existing_four_keep_their_simulation_parameters():
     # Menagerie OP3 (XM430-W350): armature 0.045, frictionloss 0.03; the others
     # by gear ratio squared and stall torque, as before the table was merged.
     xm = SIM_SERVOS["XM430-W350"]
+    assert (T._REF_GEAR, T._REF_STALL_NM) == (xm.gear_ratio, xm.stall_torque_nm)
     assert (xm.armature, xm.frictionloss, xm.damping) == (0.045, 0.03, 0.01)
     assert SIM_SERVOS["XH430-W350"].armature == 0.045
     assert SIM_SERVOS["XL430-W250"].armature == pytest.approx(0.045 * (258.5 / 353.5) ** 2)
