@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import select
+import time
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -44,6 +45,9 @@ from trajgen.validate import check_number
 # The SDK's fixed assumption, used where the port has no latency timer to read.
 DEFAULT_LATENCY_MS = 16.0
 _SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{tty}/latency_timer"
+# Longest wait (s) for reply bytes a lock-step responder has written (they are in the
+# pty already; this only bounds a kernel that never passes them on).
+_OWED_WAIT_S = 5.0
 # Status packet layout (e-Manual, Protocol 2.0): ID at byte 4, LEN at 5..6.
 _PKT_ID, _PKT_LENGTH = 4, 5
 _STATUS_MIN_BYTES = 11  # header 4, ID, LEN 2, INST, ERR, CRC 2
@@ -51,11 +55,20 @@ _STATUS_MIN_BYTES = 11  # header 4, ID, LEN 2, INST, ERR, CRC 2
 _STATUS_LENGTH_NO_DATA = 4
 
 
-def _make_port(port_name: str, latency_ms: float):
-    """An SDK PortHandler accepting any baud rate, timing out on ``latency_ms``."""
+def _make_port(port_name: str, latency_ms: float, responder=None):
+    """An SDK PortHandler accepting any baud rate, timing out on ``latency_ms``.
+
+    With a ``responder`` (a lock-step virtual bus in this process, see
+    ``ServoBus``), each packet written is answered before ``writePort``
+    returns, and a read waits for the reply bytes the responder wrote, however
+    long the kernel takes to pass them through the pty: the SDK's timeout,
+    which starts after the write, can then only expire where no reply was sent.
+    """
     from dynamixel_sdk import PortHandler
 
     class _Port(PortHandler):
+        owed = 0  # reply bytes the responder wrote that have not been read yet
+
         def setupPort(self, cflag_baud):  # noqa: N802 (SDK name)
             # The SDK's own, with the port locked (flock) against a second program.
             import serial
@@ -77,12 +90,36 @@ def _make_port(port_name: str, latency_ms: float):
         def getCFlagBaud(self, baudrate):  # noqa: N802 (SDK name)
             return baudrate if baudrate > 0 else -1
 
+        def clearPort(self):  # noqa: N802 (SDK name)
+            self._wait_owed(self.owed)  # so that a stale reply is really dropped
+            super().clearPort()
+            self.owed = 0
+
+        def writePort(self, packet):  # noqa: N802 (SDK name)
+            written = self.ser.write(packet)
+            if responder is not None:
+                self.owed += responder.answer(written)
+            return written
+
         def readPort(self, length):  # noqa: N802 (SDK name)
-            # The SDK polls this in a loop with a zero timeout; wait here (up to
-            # 1 ms, GIL released) for the first byte instead of spinning a core.
-            if not self.ser.in_waiting:
+            if self.owed:
+                self._wait_owed(min(length, self.owed))
+            elif not self.ser.in_waiting:
+                # The SDK polls this in a loop with a zero timeout; wait here (up to
+                # 1 ms, GIL released) for the first byte instead of spinning a core.
                 select.select([self.ser.fileno()], [], [], 0.001)
-            return self.ser.read(length)
+            data = self.ser.read(length)
+            self.owed = max(0, self.owed - len(data))
+            return data
+
+        def _wait_owed(self, n_bytes: int) -> None:
+            """Wait until ``n_bytes`` are readable (bounded by ``_OWED_WAIT_S``)."""
+            deadline = time.monotonic() + _OWED_WAIT_S
+            while n_bytes and self.ser.in_waiting < n_bytes:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                select.select([self.ser.fileno()], [], [], min(left, 0.001))
 
         def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
             self.packet_start_time = self.getCurrentTime()
@@ -211,6 +248,12 @@ class ServoBus:
     latency_ms : float or None, optional
         Adapter latency (ms) used in reply timeouts; None reads the FTDI latency
         timer (after setting it to 1 ms) and falls back to 16 ms.
+    responder : object, optional
+        A lock-step virtual bus in this process (``VirtualBus.connect`` passes
+        it): each packet written is answered in this thread (its
+        ``answer(n_bytes)``) before the reply is awaited, so no reply timeout
+        depends on another thread being scheduled in time. Its
+        ``attach_client``/``detach_client`` are called on open and close.
 
     Raises
     ------
@@ -230,6 +273,9 @@ class ServoBus:
         for the per-servo outcome (``drivers.outcome``).
     driven : set of int
         Servos sent a Goal Position through this bus (write or sync write).
+    lockstep : bool
+        Whether a ``responder`` answers (simulated time: a stream on this bus
+        runs on a ``SimulatedClock``).
 
     Notes
     -----
@@ -245,6 +291,7 @@ class ServoBus:
         baud: int = DEFAULT_BAUD,
         retries: int = 2,
         latency_ms: float | None = None,
+        responder=None,
     ) -> None:
         baud = check_number("baud", baud, integer=True, low=1)
         retries = check_number("retries", retries, integer=True, low=0)
@@ -252,6 +299,8 @@ class ServoBus:
         self.baud = baud
         self.retries = retries
         self.latency_ms = latency_ms
+        self.responder = responder
+        self.lockstep = responder is not None
         self.models: dict[int, Model] = {}
         self.failed_tries = 0
         self.torque_written: dict[int, int] = {}
@@ -274,7 +323,7 @@ class ServoBus:
         if self.latency_ms is None:
             timer = set_ftdi_latency_timer(self.port_name)
             self.latency_ms = DEFAULT_LATENCY_MS if timer is None else float(timer)
-        self._port = _make_port(self.port_name, self.latency_ms)
+        self._port = _make_port(self.port_name, self.latency_ms, self.responder)
         self._ph = _make_packet_handler()
         try:
             ok = self._port.setBaudRate(self.baud)
@@ -289,6 +338,8 @@ class ServoBus:
         if not ok:
             self._port = None
             raise CommError(f"{self.port_name}: baud rate {self.baud} refused")
+        if self.responder is not None:
+            self.responder.attach_client()
         return self
 
     def close(self) -> None:
@@ -299,6 +350,8 @@ class ServoBus:
             except OSError:
                 pass  # already gone (unplugged)
             self._port = None
+            if self.responder is not None:
+                self.responder.detach_client()
 
     @property
     def is_open(self) -> bool:

@@ -37,7 +37,7 @@ from trajgen.stream import plan_joint_trajectory
 
 from . import bringup
 from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
-from .clock import WALL_CLOCK, SimulatedClock
+from .clock import WALL_CLOCK
 from .config import BusConfig
 from .defaults import MAX_DELAY_S
 from .errors import BringUpError, DriverError, Interrupted
@@ -350,7 +350,10 @@ class Session:
         try:
             with signals.armed():
                 outcome.stage = "open"
-                bus = ServoBus(port, baud=self.config.baud).open()
+                if virtual is None:
+                    bus = ServoBus(port, baud=self.config.baud).open()
+                else:  # answered in this thread, in lock-step
+                    bus = virtual.connect(baud=self.config.baud).open()
                 outcome.stage = "bring-up"
                 setup = bringup.bring_up(
                     bus,
@@ -397,9 +400,8 @@ class Session:
                 outcome.virtual_error = virtual.error
 
     def _stream(self, bus, setup: BringUp, source, rate_hz, clock, outcome: Outcome) -> None:
-        if clock is None:
-            # Lock-step: simulated time moves with the frames, so do not wait for them.
-            clock = WALL_CLOCK if self.plant is None else SimulatedClock()
+        # clock None: simulated in lock-step (time moves with the frames: no waiting
+        # for them), else the wall clock (``Streamer``).
         streamer = Streamer(
             bus,
             self.config.joints,

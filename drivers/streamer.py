@@ -59,7 +59,7 @@ from trajgen.drivers.bringup import (
     restore_settings,
 )
 from trajgen.drivers.bus import ServoBus
-from trajgen.drivers.clock import WALL_CLOCK
+from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
 from trajgen.drivers.control_table import VOLTAGE_UNIT_V, Register
 from trajgen.drivers.defaults import MAX_DELAY_S
 from trajgen.drivers.errors import (
@@ -341,9 +341,10 @@ class Streamer:
         Settings bring-up changed (``BringUp.changes``), written back by the
         safe stop (``restore_settings``); empty: nothing is restored.
     clock : object with ``now()`` and ``sleep_until(deadline_s)``, optional
-        What the deadlines run on: the host's monotonic clock, or a
-        ``drivers.clock.SimulatedClock`` against a lock-step virtual bus (the
-        stream then runs as fast as the simulation allows, and never stalls).
+        What the deadlines run on. Default: a ``drivers.clock.SimulatedClock``
+        when the bus answers in lock-step (``bus.lockstep``: the stream then
+        runs as fast as the simulation allows, never stalls and never waits on
+        the wall clock), else the host's monotonic clock.
 
     Attributes
     ----------
@@ -378,7 +379,7 @@ class Streamer:
         health_s: float = 0.5,
         power_limits: Sequence[PowerLimits] | None = None,
         restore: Sequence = (),
-        clock=WALL_CLOCK,
+        clock=None,
     ) -> None:
         positive = {"low": 0.0, "low_open": True}
         telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
@@ -423,6 +424,8 @@ class Streamer:
         self.health_s = health_s
         self.power_limits = None if power_limits is None else tuple(power_limits)
         self.restore = tuple(restore)
+        if clock is None:
+            clock = SimulatedClock() if bus.lockstep else WALL_CLOCK
         self.clock = clock
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []

@@ -301,7 +301,10 @@ def test_multi_turn_joint_with_installed_limits_is_refused(rig):
 
 
 def _stalling(trajectory, stalls):
-    """The trajectory's frames, the host pausing ``stalls[k]`` s before frame k."""
+    """The trajectory's frames, the host pausing ``stalls[k]`` s before frame k.
+
+    On a real-time virtual bus: in lock-step the servos live on simulated time and
+    never see the host pause (``drivers.virtual.bus``)."""
     for frame in trajectory:
         time.sleep(stalls.get(frame.index, 0.0))
         yield frame
@@ -315,7 +318,7 @@ def _sent_intervals(path):
 
 def test_stall_shifts_the_stream_instead_of_replaying_it(rig, tmp_path):
     trajectory = _ramp((0.3, 0.2, 0.1), duration_s=0.5)
-    virtual, bus = rig()
+    virtual, bus = rig(lockstep_dt_s=None)  # host stalls are wall-clock events
     bring_up(bus, JointMap(), MODELS, trajectory)
     streamer = Streamer(bus, JointMap(), telemetry=tmp_path / "t.csv")
     stats = streamer.run(_stalling(trajectory, {30: 0.08}), rate_hz=RATE_HZ)
@@ -334,7 +337,7 @@ def test_stall_shifts_the_stream_instead_of_replaying_it(rig, tmp_path):
 
 def test_stall_longer_than_the_watchdog_stops_before_the_next_goal(rig):
     trajectory = _ramp((0.3, 0.2, 0.1), duration_s=0.5)
-    virtual, bus = rig()
+    virtual, bus = rig(lockstep_dt_s=None)  # host stalls are wall-clock events
     bring_up(bus, JointMap(), MODELS, trajectory, watchdog_s=0.1)
     streamer = Streamer(bus, JointMap())
     with pytest.raises(
@@ -347,7 +350,7 @@ def test_stall_longer_than_the_watchdog_stops_before_the_next_goal(rig):
 
 def test_lateness_past_the_bound_fails_the_stream(rig):
     trajectory = _ramp((0.3, 0.2, 0.1), duration_s=1.0)
-    virtual, bus = rig()
+    virtual, bus = rig(lockstep_dt_s=None)  # host stalls are wall-clock events
     bring_up(bus, JointMap(), MODELS, trajectory)
     streamer = Streamer(bus, JointMap(), max_delay_s=0.1, on_stop="torque_off")
     stalls = {k: 0.03 for k in range(10, len(trajectory), 10)}

@@ -25,7 +25,7 @@ def _open(plant=None, *, faults=(), timing=None, baud=1_000_000, models="XM430-W
         faults=faults,
         timing=timing,
     ).start()
-    bus = ServoBus(virtual.port, baud=baud).open()
+    bus = virtual.connect(baud=baud).open()
     for servo_id in (1, 2, 3):
         bus.add_servo(servo_id, XM430)
     return virtual, bus
@@ -195,11 +195,17 @@ def test_overload_sets_alert_and_reboot_clears_it():
         virtual.stop()
 
 
-def test_bus_watchdog_trips_and_blocks_goals_until_cleared(pair):
+def test_bus_watchdog_trips_on_simulated_time_and_blocks_goals_until_cleared(pair):
     virtual, bus = pair
     bus.write(1, Register.TORQUE_ENABLE, 1)
     bus.write(1, Register.BUS_WATCHDOG, 1)  # 20 ms
-    time.sleep(0.1)
+    time.sleep(0.1)  # wall time: in lock-step the servos do not see it
+    assert bus.read(1, Register.BUS_WATCHDOG) == 1
+    # Servo 2 polled four times: three 10 ms periods (the first poll ends none) with
+    # nothing sent to servo 1.
+    for _ in range(4):
+        bus.read(2, Register.PRESENT_POSITION)
+    assert virtual.sim_time_s == pytest.approx(0.03)
     assert bus.read(1, Register.BUS_WATCHDOG) == -1
     with pytest.raises(ServoError, match="servo 1: write Goal Position = 2100: .*data range"):
         bus.write(1, Register.GOAL_POSITION, 2100)
@@ -208,12 +214,25 @@ def test_bus_watchdog_trips_and_blocks_goals_until_cleared(pair):
     assert virtual.servos[1].get(Register.GOAL_POSITION) == 2100
 
 
+def test_bus_watchdog_trips_on_the_wall_clock_in_real_time():
+    virtual = VirtualBus(FirstOrderPlant()).start()
+    try:
+        with ServoBus(virtual.port) as bus:
+            bus.add_servo(1, XM430)
+            bus.write(1, Register.TORQUE_ENABLE, 1)
+            bus.write(1, Register.BUS_WATCHDOG, 1)  # 20 ms
+            time.sleep(0.1)  # at least five periods of silence, however busy the host
+            assert bus.read(1, Register.BUS_WATCHDOG) == -1
+    finally:
+        virtual.stop()
+
+
 def test_watchdog_stays_quiet_while_packets_flow(pair):
     _, bus = pair
     bus.write(1, Register.TORQUE_ENABLE, 1)
     bus.write(1, Register.BUS_WATCHDOG, 5)  # 100 ms
     for _ in range(20):
-        time.sleep(0.01)
+        time.sleep(0.01)  # however long the host takes between frames (lock-step)
         _goals(bus, [2048, 2048, 2048])
     assert bus.read(1, Register.BUS_WATCHDOG) == 5
 
@@ -347,7 +366,7 @@ def test_lockstep_telemetry_holds_the_state_at_its_time_label(tmp_path):
     zeros = np.zeros_like(q)
     trajectory = JointTrajectory(t, q, zeros, zeros, 100.0)
     plant = FirstOrderPlant(time_constant_s=0.0, initial_rad=q[0])
-    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, ServoBus(virtual.port) as bus:
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, virtual.connect() as bus:
         for servo_id in (1, 2, 3):
             bus.add_servo(servo_id, XM430)
             bus.write(servo_id, Register.TORQUE_ENABLE, 1)
@@ -376,25 +395,64 @@ def test_simulated_clock_jumps_to_deadlines_never_back():
     assert time.monotonic() - start < 0.1
 
 
-def test_lockstep_stream_on_a_simulated_clock_does_not_wait_out_the_motion():
+def test_lockstep_stream_on_a_simulated_clock_does_not_wait_out_the_motion(monkeypatch):
+    import threading
+
     from trajgen.drivers.clock import SimulatedClock
     from trajgen.drivers.streamer import Streamer
     from trajgen.drivers.units import JointMap
     from trajgen.stream import JointTrajectory
 
+    # Every wall-clock wait of the host's thread, recorded (the serving thread is idle).
+    waits = []
+    real_sleep = time.sleep
+
+    def sleep(seconds):
+        if threading.current_thread() is threading.main_thread():
+            waits.append(seconds)
+        real_sleep(seconds)
+
+    monkeypatch.setattr(time, "sleep", sleep)
     t = np.arange(301) / 100.0  # 3 s of motion
     q = np.stack([0.2 * np.sin(t), 0.1 * t, 0 * t], axis=1)
     trajectory = JointTrajectory(t, q, np.zeros_like(q), np.zeros_like(q), 100.0)
     plant = FirstOrderPlant(initial_rad=q[0])
-    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, ServoBus(virtual.port) as bus:
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual, virtual.connect() as bus:
         for servo_id in (1, 2, 3):
             bus.add_servo(servo_id, XM430)
             bus.write(servo_id, Register.TORQUE_ENABLE, 1)
-        start = time.monotonic()
-        stats = Streamer(bus, JointMap(), clock=SimulatedClock()).run(trajectory)
-        wall_s = time.monotonic() - start
+        streamer = Streamer(bus, JointMap())
+        assert isinstance(streamer.clock, SimulatedClock)  # lock-step: simulated by default
+        stats = streamer.run(trajectory)
         np.testing.assert_array_equal(np.array(virtual.goal_log), JointMap().to_ticks(q))
     assert stats.frames_sent == 301
     # A period per frame, and the start-up polls: two position reads that agree.
     assert plant.time_s == pytest.approx(3.03)
-    assert wall_s < 1.5  # half the motion's time, on a busy machine
+    assert streamer.clock.now() == pytest.approx(3.01)  # first deadline one period in
+    assert stats.stalls == 0 and stats.lateness_max_s == 0.0
+    assert waits == []  # the 3 s of motion were never waited out on the wall clock
+
+
+def test_real_time_reply_does_not_wait_for_a_simulation_far_behind():
+    import threading
+
+    class SlowPlant(FirstOrderPlant):
+        """20 ms of wall time per 1 ms step: the simulation cannot keep real time."""
+
+        advanced_by = {}
+
+        def advance(self, dt_s):
+            name = threading.current_thread().name
+            self.advanced_by[name] = max(self.advanced_by.get(name, 0.0), dt_s)
+            time.sleep(0.02)
+            super().advance(dt_s)
+
+    plant = SlowPlant()
+    with VirtualBus(plant) as virtual, ServoBus(virtual.port, latency_ms=200.0) as bus:
+        time.sleep(0.2)  # at least 200 steps due, at most 10 simulated
+        assert bus.ping(1) == 1020  # XM430-W350
+        stale, stale_s = virtual.stale_replies, virtual.stale_max_s
+    # The reply was not held back for the 190+ steps missing: at most 5 ms of
+    # simulation in the serving thread, and the lag said.
+    assert plant.advanced_by["virtual-bus_serve"] <= 0.005 + 1e-12
+    assert stale >= 1 and stale_s >= 0.1

@@ -20,8 +20,9 @@ raises one of ``unsupported``) is undone and answered with Result Fail. Two cloc
   clock since ``start``, in whole steps of ``sim_step_s``. A simulation thread
   keeps the plant there whether packets arrive or not (it wakes every 5 ms),
   and each packet first brings the plant to its arrival time, so a reply
-  shows the state at that time and never waits for more than a few steps of
-  simulation, even after a long pause;
+  shows the state at that time and never waits for more than 5 ms of
+  simulation, even after a long pause (further behind, on a busy host, the
+  reply goes out with the state it has, counted in ``stale_replies``);
 - lock-step (``lockstep_dt_s`` given): simulated time advances only with the
   host's traffic, by exactly ``lockstep_dt_s`` per period, so a run does not
   depend on the host's timing and goes as fast as the plant computes. A period
@@ -35,10 +36,17 @@ raises one of ``unsupported``) is undone and answered with Result Fail. Two cloc
   the moment the goal was written: a telemetry row labelled with the goal's
   time holds what the servo saw at that time.
 
+In lock-step the Bus Watchdog runs on simulated time too: a servo trips when
+more than its period of simulated time passes without a packet to it (checked
+at the end of each period), never because the host was slow. In real time it
+runs on the wall clock. A client in the same process (``connect``) can answer
+its own packets in its own thread (``PtyTransport.answer``), so that no reply
+waits for the serving thread to be scheduled: a lock-step run then does not
+depend on the host's load at all.
+
 ``WireTiming`` adds what a pty lacks: byte time at the baud rate, each servo's
 Return Delay Time, its turnaround, and the USB adapter's latency. ``Fault``
-injects failures for tests. The Bus Watchdog runs on the wall clock in both
-modes.
+injects failures for tests.
 """
 
 from __future__ import annotations
@@ -49,6 +57,7 @@ import threading
 import time
 import tty
 from collections.abc import Callable, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -56,6 +65,7 @@ from trajgen.drivers.control_table import Model, model_named
 from trajgen.drivers.protocol import (
     Instruction,
     PacketError,
+    PacketReader,
     decode,
 )
 from trajgen.drivers.units import rad_to_servo_ticks, servo_ticks_to_rad
@@ -66,6 +76,9 @@ from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
 from trajgen.servo_table import CONTROL_REGISTERS
+
+if TYPE_CHECKING:
+    from trajgen.drivers.bus import ServoBus
 
 __all__ = ["IN_POSITION_TICKS", "Fault", "VirtualBus", "WireTiming"]
 
@@ -135,6 +148,10 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         Bytes read from and written to the host.
     sim_time_s : float
         Simulated time (s) the bus has advanced the plant by.
+    stale_replies, stale_max_s : int, float
+        Real time: packets answered before the simulation had caught up with
+        their arrival (a busy host; the reply did not wait), and the furthest
+        behind such a reply's state was (s).
     lock : threading.Lock
         Held around every plant call and while a packet is handled: hold it to
         look at ``servos`` or the plant from another thread while the bus runs.
@@ -196,6 +213,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self.bytes_sent = 0
         self.sim_time_s = 0.0
         self.lock = threading.Lock()
+        self._io_lock = threading.Lock()  # around reading the master and answering
+        self._client_answers = False
+        self._reader = PacketReader()
         self._goal_rad = np.asarray(plant.read()[0], dtype=float).copy()
         ticks = rad_to_servo_ticks(self._goal_rad)
         for servo_id in ids:
@@ -206,7 +226,7 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._index_ids()
         self._goal_written = False
         self._polled = False
-        self._last_packet_s = {i: time.monotonic() for i in ids}
+        self._last_packet_s = dict.fromkeys(ids, 0.0)
         self._wire_free_s = 0.0
         self._master = -1
         self._slave = -1
@@ -219,6 +239,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._switch_interval_s = sys.getswitchinterval()
         self._started_s = time.monotonic()
         self._steps_done = 0
+        self.stale_replies = 0
+        self.stale_max_s = 0.0
 
     # -- life cycle --------------------------------------------------------
 
@@ -234,11 +256,14 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         sys.setswitchinterval(_SWITCH_INTERVAL_S)
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)
+        os.set_blocking(self._master, False)  # read what is there, from either side
         self.port = os.ttyname(self._slave)
         self._stop.clear()
+        self._reader = PacketReader()
+        self._client_answers = False
         self._started_s = time.monotonic()
         self._steps_done = 0
-        self._last_packet_s = dict.fromkeys(self.ids, self._started_s)
+        self._last_packet_s = dict.fromkeys(self.ids, self._now())
         targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
         self._threads = [
             threading.Thread(target=t, name=f"virtual-bus{t.__name__}", daemon=True)
@@ -268,6 +293,29 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def connect(self, **kwargs) -> ServoBus:
+        """A driver bus on this port (not yet open); in lock-step it answers in lock-step.
+
+        In lock-step, the ``ServoBus`` returned has this bus as its
+        ``responder``: each packet it writes is answered in its own thread
+        before it waits for the reply, and a stream on it runs on a
+        ``SimulatedClock`` (``ServoBus.lockstep``). In real time it is a plain
+        ``ServoBus`` on the port, served by this bus's thread.
+
+        Parameters
+        ----------
+        **kwargs
+            Passed to ``ServoBus`` (``baud``, ``retries``, ``latency_ms``).
+        """
+        from trajgen.drivers.bus import ServoBus
+
+        responder = None if self.lockstep_dt_s is None else self
+        return ServoBus(self.port, responder=responder, **kwargs)
+
+    def _now(self) -> float:
+        """The time the Bus Watchdog runs on (s): simulated in lock-step, else the wall clock."""
+        return time.monotonic() if self.lockstep_dt_s is None else self.sim_time_s
 
     @property
     def wall_time_s(self) -> float:
@@ -322,11 +370,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
-            self._catch_up(arrival_s)  # at most _SIM_WAKE_S behind: the thread keeps up
-        else:
-            self._check_watchdogs(arrival_s)
+            self._catch_up_for_reply(arrival_s)
         for servo_id in self._addressed(packet.servo_id, acting=True):
-            self._last_packet_s[servo_id] = arrival_s
+            self._last_packet_s[servo_id] = self._now()
         handler = self._HANDLERS.get(packet.instruction, InstructionHandlers._unknown)
         replies = handler(self, packet.servo_id, packet.params)
         self._commit_goals()

@@ -2,8 +2,9 @@
 
 ``SimulatedTime`` (a part of ``VirtualBus``) keeps the plant on the wall clock
 (real time) or advances it one period per goal or poll (lock-step), fills the
-present-value registers from the plant, and runs each servo's Bus Watchdog on
-the wall clock; see ``drivers.virtual.bus``.
+present-value registers from the plant, and runs each servo's Bus Watchdog
+(on simulated time in lock-step, on the wall clock in real time); see
+``drivers.virtual.bus``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,11 @@ from trajgen.servo_table import PWM_FULL_SCALE
 # runs per hold of the lock (short holds: a packet may be waiting for it).
 _SIM_WAKE_S = 0.005
 _MAX_STEPS_PER_HOLD = 2
+# Real time: the most simulation a packet waits for before its reply (s). A servo
+# answers within its Return Delay Time whatever happens; when the simulation thread
+# has fallen further behind (a busy host), the reply carries the state that far
+# back (counted in ``stale_replies``) and the thread catches up.
+_MAX_CATCH_UP_S = 0.005
 # The first and last of the motion registers the plant fills (addresses 120..143;
 # a read of them is a poll). Present Input Voltage and Temperature follow them.
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
@@ -32,9 +38,11 @@ class SimulatedTime:
     """The plant's time and present values for a ``VirtualBus``."""
 
     def _advance(self, dt_s: float) -> None:
-        """Advance the plant by ``dt_s`` (lock held)."""
+        """Advance the plant by ``dt_s`` (lock held); in lock-step, then the Bus Watchdogs."""
         self.plant.advance(dt_s)
         self.sim_time_s += dt_s
+        if self.lockstep_dt_s is not None:
+            self._check_watchdogs(self.sim_time_s)
 
     def _catch_up(self, now_s: float, max_steps: int | None = None) -> None:
         """Real time: advance the plant by whole steps to ``now_s`` (lock held)."""
@@ -45,6 +53,18 @@ class SimulatedTime:
         if steps > 0:
             self._advance(steps * self.sim_step_s)
             self._steps_done += steps
+
+    def _catch_up_for_reply(self, arrival_s: float) -> None:
+        """Real time: bring the plant to a packet's arrival, at most ``_MAX_CATCH_UP_S`` of it.
+
+        Further behind, the reply does not wait: ``stale_replies`` counts it and
+        ``stale_max_s`` keeps how far behind the state it carries was (s).
+        """
+        self._catch_up(arrival_s, max(1, round(_MAX_CATCH_UP_S / self.sim_step_s)))
+        behind = int((arrival_s - self._started_s) / self.sim_step_s) - self._steps_done
+        if behind > 0:
+            self.stale_replies += 1
+            self.stale_max_s = max(self.stale_max_s, behind * self.sim_step_s)
 
     def _simulate(self) -> None:
         """Real time: keep the plant on the wall clock, whatever the traffic.

@@ -2,7 +2,8 @@
 
 ``WireTiming`` adds what a pty lacks (byte time, Return Delay Time, servo
 turnaround, adapter latency); ``PtyTransport`` (a part of ``VirtualBus``)
-serves the pty master from a thread and hands each packet to ``_handle``.
+serves the pty master, from a thread or in the thread of a client in the same
+process (lock-step), and hands each packet to ``_handle``.
 """
 
 from __future__ import annotations
@@ -14,9 +15,12 @@ import time
 from dataclasses import dataclass
 
 from trajgen.drivers.clock import sleep_until
-from trajgen.drivers.protocol import (
-    PacketReader,
-)
+
+# How long ``answer`` waits for bytes a client wrote to come through the pty (s):
+# the kernel passes them on at once; this only bounds a lost write.
+_ARRIVAL_WAIT_S = 5.0
+# Most bytes read from the pty at once (a packet is at most a few hundred).
+_READ_BYTES = 1 << 12
 
 
 @dataclass(frozen=True)
@@ -45,52 +49,138 @@ class WireTiming:
 
 
 class PtyTransport:
-    """Serving a ``VirtualBus``'s pty master (its ``_master``, ``lock``, ``_handle``)."""
+    """Serving a ``VirtualBus``'s pty master (its ``_master``, ``lock``, ``_handle``).
+
+    Two ways: a thread that answers whatever arrives (any client, any
+    process), or, for a client in this process attached with
+    ``attach_client`` (lock-step only), ``answer`` called by the client right
+    after each write, which answers in the client's own thread before the
+    client starts waiting for a reply: no thread has to be scheduled in time,
+    so no reply timeout can expire on a busy host.
+    """
 
     def _serve(self) -> None:
-        reader = PacketReader()
         while not self._stop.is_set():
-            self._flush_late_replies()
+            with self._io_lock:
+                self._flush_late_replies()
             wait_s = 0.05
             if self._late:
                 wait_s = min(wait_s, max(0.0, self._late[0][0] - time.monotonic()))
+            if self._client_answers:  # the client answers its own packets
+                self._stop.wait(wait_s)
+                continue
             try:
                 ready, _, _ = select.select([self._master], [], [], wait_s)
-                if not ready:
-                    continue
-                data = os.read(self._master, 4096)
             except (OSError, ValueError):
                 return  # master closed
-            arrival_s = time.monotonic()
-            self.bytes_received += len(data)
-            reader.feed(data)
-            for raw in reader.packets():
-                try:
-                    with self.lock:
-                        replies = self._handle(raw, arrival_s)
-                except Exception as e:  # the plant failed: the port goes away
-                    self._fail(e)
+            if not ready:
+                continue
+            with self._io_lock:
+                if self._client_answers:
+                    continue
+                data = self._read_master()
+                if data is None or self._answer_data(data, time.monotonic()) is None:
                     return
-                if replies is None:  # "close" fault
-                    os.close(self._master)
-                    self._master = -1
-                    return
-                self._send(raw, replies, arrival_s)
 
-    def _write(self, reply: bytes) -> None:
+    def attach_client(self) -> None:
+        """From now on, the client in this process answers its packets with ``answer``.
+
+        Raises
+        ------
+        RuntimeError
+            In real time (the simulation runs on the wall clock; a thread serves).
+        """
+        if self.lockstep_dt_s is None:
+            raise RuntimeError("a real-time virtual bus is served by its own thread")
+        with self._io_lock:
+            self._client_answers = True
+
+    def detach_client(self) -> None:
+        """Back to the serving thread (the client closed)."""
+        with self._io_lock:
+            self._client_answers = False
+
+    def answer(self, n_bytes: int) -> int:
+        """Answer the ``n_bytes`` an attached client just wrote, in the caller's thread.
+
+        Waits (up to ``_ARRIVAL_WAIT_S``, for the kernel to pass the bytes
+        through the pty) until they have all arrived, handles every whole
+        packet and writes its replies with their wire timing.
+
+        Returns
+        -------
+        int
+            Bytes of the replies written: they are on their way to the client,
+            which may wait for them without a reply timeout. Replies a "delay"
+            fault holds back are not counted (they come later, from the thread).
+        """
+        got = sent = 0
+        with self._io_lock:
+            deadline = time.monotonic() + _ARRIVAL_WAIT_S
+            while got < n_bytes and self._master >= 0:
+                try:
+                    ready, _, _ = select.select(
+                        [self._master], [], [], max(0.0, deadline - time.monotonic())
+                    )
+                except (OSError, ValueError):
+                    break
+                if not ready:
+                    break  # never arrived: the client times out as it would on a wire
+                data = self._read_master()
+                if data is None:
+                    break
+                got += len(data)
+                out = self._answer_data(data, time.monotonic())
+                if out is None:
+                    break
+                sent += out
+        return sent
+
+    def _read_master(self) -> bytes | None:
+        """What the master holds (b"" if nothing), or None if it is closed."""
+        try:
+            return os.read(self._master, _READ_BYTES)
+        except BlockingIOError:
+            return b""
+        except (OSError, ValueError):
+            return None
+
+    def _answer_data(self, data: bytes, arrival_s: float) -> int | None:
+        """Answer the whole packets ``data`` completes; reply bytes written, None if closed."""
+        self.bytes_received += len(data)
+        self._reader.feed(data)
+        sent = 0
+        for raw in self._reader.packets():
+            try:
+                with self.lock:
+                    replies = self._handle(raw, arrival_s)
+            except Exception as e:  # the plant failed: the port goes away
+                self._fail(e)
+                return None
+            if replies is None:  # "close" fault
+                os.close(self._master)
+                self._master = -1
+                return None
+            sent += self._send(raw, replies, arrival_s)
+        return sent
+
+    def _write(self, reply: bytes) -> int:
         try:
             os.write(self._master, reply)
-            self.bytes_sent += len(reply)
         except OSError:
-            pass  # the host closed the port
+            return 0  # the host closed the port
+        self.bytes_sent += len(reply)
+        return len(reply)
 
     def _flush_late_replies(self) -> None:
-        """Write the replies a "delay" fault held back, once they are due."""
+        """Write the replies a "delay" fault held back, once they are due (io lock held)."""
         while self._late and self._late[0][0] <= time.monotonic():
             self._write(heapq.heappop(self._late)[2])
 
-    def _send(self, request: bytes, replies: list[tuple[int, bytes, float]], arrival_s: float):
-        """Write replies [(servo id, bytes, extra delay)] with wire timing.
+    def _send(
+        self, request: bytes, replies: list[tuple[int, bytes, float]], arrival_s: float
+    ) -> int:
+        """Write replies [(servo id, bytes, extra delay)] with wire timing; bytes written now.
 
         Wire time is slept (the bus is busy); a fault's extra delay is not (the
         servo has acted on the packet, only its reply is late).
@@ -98,6 +188,7 @@ class PtyTransport:
         t = arrival_s
         if self.timing is not None:
             t = max(arrival_s, self._wire_free_s) + len(request) * self.timing.byte_time_s
+        sent = 0
         for servo_id, reply, extra_s in replies:
             if self.timing is not None:
                 servo = self.servos.get(servo_id)
@@ -108,5 +199,6 @@ class PtyTransport:
                 self._late_count += 1
                 heapq.heappush(self._late, (time.monotonic() + extra_s, self._late_count, reply))
             else:
-                self._write(reply)
+                sent += self._write(reply)
         self._wire_free_s = t
+        return sent

@@ -138,4 +138,11 @@ def run_virtual_bus(args) -> int:
         f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated in {wall_s:.3f} s",
         file=sys.stderr,
     )
+    if virtual.stale_replies:
+        print(
+            f"trajgen: {virtual.stale_replies} replies went out before the simulation had "
+            f"caught up (at most {1e3 * virtual.stale_max_s:.1f} ms behind): the host was too "
+            "busy to simulate in real time",
+            file=sys.stderr,
+        )
     return EXIT_OK
