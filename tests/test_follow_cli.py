@@ -78,23 +78,9 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         BUILTIN_EXAMPLE.read_text().replace(
             "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
         )
-        + "\n[bus]\nwatchdog_s = 0.5\n"
+        + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n"  # Extended Position Mode
     )
-    assert (
-        main(
-            [
-                "follow",
-                str(keys),
-                "--virtual",
-                "--configure",
-                "--max-delay",
-                "60",
-                "--json",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
     thread.join(timeout=5)
     run = json.loads(out.read_text())
     assert run["stream"]["fault"] == "" and "torque" in run
@@ -383,22 +369,8 @@ def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(open(stdin, "rb")))  # noqa: SIM115
     out = tmp_path / "follow.json"
     keys = tmp_path / "keys.toml"
-    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\n")
-    assert (
-        main(
-            [
-                "follow",
-                str(keys),
-                "--virtual",
-                "--configure",
-                "--max-delay",
-                "60",
-                "--json",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n")
+    assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
     err = capsys.readouterr().err
     assert "trajgen: follow: stdin: line 1: not UTF-8 text" in err
     assert "trajgen: follow: stdin: line 2: longer than 65536 bytes" in err
