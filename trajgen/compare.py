@@ -1,4 +1,4 @@
-"""Comparison methods for benchmarks (SPEC section 7); not defaults.
+"""Comparison methods for benchmarks (docs/algorithm.md §7); not defaults.
 
 Each is an :class:`~trajgen.path.OrientationPath` built from ``(quats, times)``
 with exact derivatives, so the simulator can race them on equal terms:
@@ -31,7 +31,7 @@ __all__ = ["PiecewiseSlerp", "Squad", "SphericalBezier", "PiecewiseCircles", "Sc
 
 
 def _signed_keys(quats, times) -> tuple[np.ndarray, np.ndarray]:
-    """Validated keyframes, signs walked so neighbours are on one hemisphere (SPEC 1)."""
+    """Validated keyframes, signs walked so neighbours are on one hemisphere (algorithm.md §1)."""
     q = Q.as_quats(quats, "quats")
     if len(q) < 2:
         raise BadArgument(f"Expected at least 2 keyframes, got {len(q)}.")

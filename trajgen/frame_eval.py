@@ -99,7 +99,7 @@ def exp_frame(rx, ry, rz, vx, vy, vz, ax, ay, az, base) -> tuple[tuple, tuple, t
     """Orientation, angular velocity and acceleration of ``q = exp(r) q_b`` at one time.
 
     ``E = exp(r) = (C(x), S(x) r)``, ``x = r . r``; ``omega = 2 vec(E' E*)`` and
-    ``alpha = 2 vec(E'' E*)``, as ``SmoothSpline._space_rates`` (SPEC section 8).
+    ``alpha = 2 vec(E'' E*)``, as ``SmoothSpline._space_rates`` (algorithm.md §8).
 
     Parameters
     ----------
@@ -149,8 +149,8 @@ class SmoothFrames:
     """A :class:`~trajgen.smooth.SmoothSpline` at one time per call, in floats.
 
     On segment i the path is ``q = E q_i``, ``E = exp(r_i(u)) = (C(x), S(x) r)``,
-    ``x = r . r``; ``omega = 2 vec(E' E*)`` and ``alpha = 2 vec(E'' E*)`` (SPEC
-    section 8). Times are expected mostly increasing, as in a stream: the segment
+    ``x = r . r``; ``omega = 2 vec(E' E*)`` and ``alpha = 2 vec(E'' E*)`` (docs/
+    algorithm.md §8). Times are expected mostly increasing, as in a stream: the segment
     is looked up only when the time leaves the current one, and its row of the
     coefficient table is converted to floats then.
 

@@ -4,7 +4,7 @@ References
 ----------
 M.-J. Kim, M.-S. Kim, S. Y. Shin / M.-S. Kim, K.-W. Nam, "Interpolating solid
 orientations with circular blending quaternion curves", Computer-Aided Design
-27(5), 1995. ``SPEC.md`` in the project's shared notes states the algorithm.
+27(5), 1995. ``docs/algorithm.md`` states the algorithm.
 """
 
 from __future__ import annotations
@@ -147,7 +147,7 @@ class BlendingSpline(OrientationPath):
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         if boundary == "closed":
             check_closed(q)
-        # SPEC 1: one sign per consecutive pair, the shortest geodesic: q_i flips when
+        # docs/algorithm.md §1: one sign per consecutive pair, the shortest geodesic: q_i flips when
         # q_i . q_{i-1} < 0 with q_{i-1} already flipped, i.e. by the product of the signs so far.
         flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0
         q[1:] *= np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)[:, None]
@@ -252,7 +252,7 @@ class BlendingSpline(OrientationPath):
                 acc = acc * u + coef[j] * fall[j]
             f.append(acc * rate**n if n else acc)
         yield
-        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
+        # algorithm.md §3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
         Q = yield from D.slerp_steps(c_left, c_right, f)
         yield
         q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
@@ -280,6 +280,6 @@ class BlendingSpline(OrientationPath):
         h = self.times[seg + 1] - self.times[seg]
         u = (J.Jet.variable(t, order) - self.times[seg]) * (1.0 / h)
         f = J.polyval(self._blend[seg].T, u)
-        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
+        # algorithm.md §3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
         v = J.qlog(J.qmul(c_right, J.qconj(c_left)))
         return J.qmul(J.qexp(J.scale(f, v)), c_left)
