@@ -415,7 +415,7 @@ def online_spline(kf) -> OnlineSpline:
 
     Raises
     ------
-    ValueError
+    KeyframeFileError
         If the file's [spline] table asks for something the online plan does not
         do (a boundary other than "rest", k above 3) or its second keyframe is
         closer than 0.2 s to the first.
@@ -423,12 +423,14 @@ def online_spline(kf) -> OnlineSpline:
     options = dict(kf.spline_options)
     options.pop("knots", None)  # the smooth spline's knot choice; follow plans the blending one
     if options.pop("boundary", "rest") != "rest":
-        raise ValueError(f"{kf.path}: [spline] boundary: follow needs 'rest'")
+        raise KeyframeFileError(f"{kf.path}: [spline] boundary: follow needs 'rest'")
     if options.get("k", 2) > 3:
-        raise ValueError(f"{kf.path}: [spline] k: follow takes k in 1..3, got {options['k']}")
+        raise KeyframeFileError(
+            f"{kf.path}: [spline] k: follow takes k in 1..3, got {options['k']}"
+        )
     spline = OnlineSpline(kf.quats[0], kf.times[0], **options)
     try:
         spline.extend(kf.quats[1:], kf.times[1:], at=kf.times[0])
     except ValueError as e:
-        raise ValueError(f"{kf.path}: {e}") from None
+        raise KeyframeFileError(f"{kf.path}: {e}") from None
     return spline
