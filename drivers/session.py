@@ -106,6 +106,19 @@ class Outcome:
             and all(s in (NOT_MOVED, UNTOUCHED) for s in self.servo_states.values())
         )
 
+    def to_json_dict(self, joint_names=JOINT_NAMES) -> dict:
+        """What happened, as plain JSON types: ``stopped_by``, ``signal``, ``stage``,
+        ``stop_errors``, ``servos`` (state per servo id), ``bring_up`` and ``stream``."""
+        return {
+            "stopped_by": self.stopped_by,
+            "signal": self.signal,
+            "stage": self.stage,
+            "stop_errors": self.stop_errors,
+            "servos": {str(i): s for i, s in self.servo_states.items()},
+            "bring_up": self.bring_up_summary(joint_names),
+            "stream": None if self.stats is None else self.stats.to_json_dict(),
+        }
+
     def bring_up_summary(self, joint_names=JOINT_NAMES) -> dict | None:
         """Per joint: servo id, Drive Mode, Operating Mode, position limits and start tick."""
         setup = self.bring_up

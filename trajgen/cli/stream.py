@@ -394,16 +394,7 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
     telemetry = p.options.get("telemetry")
     if telemetry and stats is not None:
         print(f"telemetry: {telemetry}")
-    result = {
-        "status": status,
-        "stopped_by": outcome.stopped_by,
-        "on_stop": on_stop,
-        "stop_errors": outcome.stop_errors,
-        "servos": {str(i): s for i, s in outcome.servo_states.items()},
-        "bring_up": outcome.bring_up_summary(JOINTS),
-        "stream": None if stats is None else stats.to_json_dict(),
-        **(extra or {}),
-    }
+    result = {"status": status, "on_stop": on_stop, **outcome.to_json_dict(JOINTS), **(extra or {})}
     if plant is not None and status == EXIT_OK:
         status, outcome.torque_report = torque_report(
             plant, outcome.trajectory, getattr(args, "plot", None), result
