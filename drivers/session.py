@@ -166,9 +166,9 @@ class Session:
     plant : drivers.virtual.plant.Plant, optional
         Stream to a virtual bus around this plant (e.g. ``sim.plant.GimbalPlant``)
         instead of ``config.port``; the bus advances one period per frame.
-    plant_registers : mapping of int to mapping of str to int, optional
-        With ``plant``: register values per servo id at power-up (e.g.
-        ``GimbalPlant.initial_registers()`` by id).
+    plant_registers : sequence or mapping of dict, optional
+        With ``plant``: register values at power-up, per joint (as
+        ``GimbalPlant.initial_registers()`` gives them) or per servo id.
     stop_signals : StopSignals, optional
         Stop signals the caller has installed (and may act on around the
         session); default a new one, installed for each run (on the main thread).
@@ -190,7 +190,7 @@ class Session:
         max_approach_rad: float = MAX_APPROACH_RAD,
         set_limits_rad: Mapping[int, tuple[float, float]] | None = None,
         plant=None,
-        plant_registers: Mapping[int, Mapping[str, int]] | None = None,
+        plant_registers=None,
         stop_signals: StopSignals | None = None,
     ) -> None:
         self.config = BusConfig() if config is None else config
@@ -199,6 +199,8 @@ class Session:
         self.max_delay_s = max_delay_s
         self.max_approach_rad = float(max_approach_rad)
         self.plant = plant
+        if plant_registers is not None and not isinstance(plant_registers, Mapping):
+            plant_registers = dict(zip(self.config.joints.ids, plant_registers, strict=True))
         self.plant_registers = plant_registers
         self.stop_signals = stop_signals
         joints = self.config.joints
