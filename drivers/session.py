@@ -48,7 +48,7 @@ from .streamer import Streamer, safe_stop
 #: What a servo was left doing, per ``Outcome.servo_states``.
 UNTOUCHED = "untouched"  # nothing was written to it
 NOT_MOVED = "not moved"  # bring-up refused before torque on
-HOLDING = "holding"  # reads torque on after the safe stop: holds its goal, no Bus Watchdog
+HOLDING = "holding"  # reads torque on after the safe stop: it holds its last goal
 RELEASED = "released"  # reads torque off after the safe stop
 UNKNOWN = "unknown"  # did not answer after the safe stop: see ``stop_errors``
 

@@ -160,6 +160,7 @@ class Follower:
             The lines, e.g. ``keyframe_lines.capped_lines(sys.stdin.buffer)``:
             bytes are decoded here, and a line longer than ``MAX_LINE_BYTES`` is
             refused without being parsed.
+
         Notes
         -----
         Lines are numbered as they come (blank ones too), so messages name the
@@ -194,7 +195,7 @@ class Follower:
         """
         arrival = time.monotonic()
         where = f"line {number}"
-        mode, q, t, relative = self._parse(text, where)
+        mode, q, t, relative = parse_line(text, self._where(number))
         now = self._now()
         t = now + t if relative else t
         self._change_time(t, now, where)  # now, so that a line too late fails fast
@@ -254,9 +255,6 @@ class Follower:
             )
             return
         raise self._error(where, "the stream ran past three attempts to change it (busy?)")
-
-    def _parse(self, text: str, where: str):
-        return parse_line(text, f"{self.source}: {where}")
 
     def _where(self, number: int) -> str:
         return f"{self.source}: line {number}"
