@@ -349,6 +349,10 @@ def test_binary_noise_is_refused_line_by_line_and_the_stream_goes_on(follower, r
         (b'{"in": 1, "pan": "\xff"}', r"line 1: not UTF-8 text \(byte 0xff at column 19\)"),
         ("[" * 60_000, "line 1: invalid JSON: nested too deeply"),
         ('{"in": 1, "pan": ' + "1" * 5000 + "}", "line 1: invalid JSON: Exceeds the limit"),
+        (
+            '{"in": 1, "pan": "' + "x" * 5000 + '"}',
+            r"^stdin: line 1: field 'pan': .*x\[\.\.\.\] \(50",
+        ),
     ],
 )
 def test_a_line_names_its_field_and_number(follower, line, message):
