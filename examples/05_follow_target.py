@@ -168,6 +168,9 @@ def main() -> int:
     print(report.format())
     if not options.no_plot:
         print(f"plot: {plot(follower, report, options.out)}")
+    if not follower.keyframes:
+        print("no keyframe line was accepted (see the messages above)")
+        return 1
     gap = Q.distance(forward(outcome.trajectory.q[-1]), follower.keyframes[-1]["quat"])
     print(f"the stream ends {np.degrees(gap):.1e} deg from the last keyframe, at rest")
     return 0 if report.ok else 1
