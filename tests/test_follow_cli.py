@@ -391,3 +391,12 @@ def test_noise_prints_twenty_refusals_then_counts_the_rest(capsys):
     err = capsys.readouterr().err.splitlines()
     assert len(err) == SHOWN_SKIPS + 1 and err[0].endswith("line 1: invalid JSON (line skipped)")
     assert err[-1] == "trajgen: follow: 20 lines skipped; more are counted, not shown"
+
+
+def test_capped_lines_reads_a_text_file_alike():
+    import io
+
+    from trajgen.keyframe_lines import capped_lines
+
+    lines = list(capped_lines(io.StringIO("a\n" + "b" * 50 + "\nc"), max_bytes=10))
+    assert lines == ["a\n", "b" * 11, "c"]
