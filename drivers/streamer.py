@@ -450,10 +450,14 @@ class Streamer:
             If no rate is known or the stream is empty.
         BringUpError
             If a joint reads farther than ``max_approach_rad`` from the first
-            frame (nothing is sent; the servos hold or are released).
+            frame, or its position reads do not agree with ``start_ticks`` (or
+            with each other) (nothing is sent; the servos hold or are released).
         CommError, ServoError, WatchdogTripped, StreamLagging, OutsideLimits
             On a fault, after the safe stop; ``self.stats`` holds the statistics
             and ``self.stop_errors`` anything the safe stop could not do.
+            ``ServoReset`` (a ``ServoError``): a servo rebooted or lost power;
+            ``ServoError`` also for supply or temperature at the stop margins,
+            and for ``MAX_GLITCHES`` implausible position reads in a row.
         KeyboardInterrupt
             On Ctrl-C (or ``errors.Interrupted``: a stop signal), after the safe stop.
         """

@@ -257,7 +257,9 @@ def test_limits_and_drive_mode_are_kept_and_guard_the_stream(rig):
     np.testing.assert_array_equal(setup.goal_bounds_ticks[1], [1800, 2300])
     # A frame source that leaves the limits mid-stream (e.g. online) is stopped before it.
     frames = list(trajectory) + list(_ramp((0.2, math.radians(40), 0.0), q_start=(0.2, 0.35, 0)))
-    streamer = Streamer(bus, JointMap(), goal_bounds_ticks=setup.goal_bounds_ticks)
+    streamer = Streamer(
+        bus, JointMap(), goal_bounds_ticks=setup.goal_bounds_ticks, clock=SimulatedClock()
+    )
     with pytest.raises(
         OutsideLimits, match=r"tilt: goal tick 23\d\d at t = .* is outside 1800\.\.2300 .*; not"
     ):
