@@ -178,6 +178,11 @@ def reply_problem(packet: Sequence[int], servo_id: int, length_field: int) -> st
     return None
 
 
+def _latency_path(port_name: str) -> str:
+    """Where Linux exposes a USB serial adapter's latency timer for ``port_name``."""
+    return _SYSFS_LATENCY.format(tty=os.path.basename(os.path.realpath(port_name)))
+
+
 def set_ftdi_latency_timer(port_name: str, latency_ms: int = 1) -> int | None:
     """Set an FTDI adapter's latency timer through sysfs, where there is one.
 
@@ -195,8 +200,7 @@ def set_ftdi_latency_timer(port_name: str, latency_ms: int = 1) -> int | None:
         latency timer (not a USB serial adapter, e.g. a pseudo-terminal).
         Warns (``RuntimeWarning``) when it stays at 16 ms or more.
     """
-    tty = os.path.basename(os.path.realpath(port_name))
-    path = _SYSFS_LATENCY.format(tty=tty)
+    path = _latency_path(port_name)
     if not os.path.exists(path):
         return None
     try:
@@ -273,6 +277,9 @@ class ServoBus:
         for the per-servo outcome (``drivers.outcome``).
     driven : set of int
         Servos sent a Goal Position through this bus (write or sync write).
+    latency_timer_ms : int or None
+        The USB adapter's latency timer as read after ``open`` tried to set it
+        to 1 ms (None: the port has none, e.g. not an FTDI adapter, a pty).
     lockstep : bool
         Whether a ``responder`` answers (simulated time: a stream on this bus
         runs on a ``SimulatedClock``).
@@ -301,6 +308,7 @@ class ServoBus:
         self.latency_ms = latency_ms
         self.responder = responder
         self.lockstep = responder is not None
+        self.latency_timer_ms: int | None = None
         self.models: dict[int, Model] = {}
         self.failed_tries = 0
         self.torque_written: dict[int, int] = {}
@@ -320,8 +328,9 @@ class ServoBus:
         """
         import serial
 
+        self.latency_timer_ms = set_ftdi_latency_timer(self.port_name)
         if self.latency_ms is None:
-            timer = set_ftdi_latency_timer(self.port_name)
+            timer = self.latency_timer_ms
             self.latency_ms = DEFAULT_LATENCY_MS if timer is None else float(timer)
         self._port = _make_port(self.port_name, self.latency_ms, self.responder)
         self._ph = _make_packet_handler()
@@ -384,6 +393,16 @@ class ServoBus:
 
     def _result_text(self, result: int) -> str:
         return self._ph.getTxRxResult(result).removeprefix("[TxRxResult] ")
+
+    def latency_advice(self) -> str:
+        """ "" or a clause on the adapter's latency timer, when it slows every read-back."""
+        timer = self.latency_timer_ms
+        if timer is None or timer <= 1:
+            return ""
+        return (
+            f"; {self.port_name}'s FTDI latency timer is {timer} ms and every read-back waits "
+            f"for it: lower it with echo 1 | sudo tee {_latency_path(self.port_name)}"
+        )
 
     # -- servos ------------------------------------------------------------
 

@@ -32,6 +32,9 @@ def sleep_until(deadline_s: float) -> None:
 class WallClock:
     """The host's monotonic clock (s)."""
 
+    #: Whether waiting for a deadline takes that much of the host's time.
+    real_time = True
+
     def now(self) -> float:
         """``time.monotonic()``."""
         return time.monotonic()
@@ -49,6 +52,8 @@ class SimulatedClock:
     start_s : float, optional
         Its time (s) at creation.
     """
+
+    real_time = False
 
     def __init__(self, start_s: float = 0.0) -> None:
         self.time_s = float(start_s)

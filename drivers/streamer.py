@@ -73,6 +73,7 @@ from trajgen.drivers.errors import (
     WatchdogTripped,
 )
 from trajgen.drivers.health import PowerLimits, health_problem
+from trajgen.drivers.probe import PROBE_FRAMES, max_rate_hz, probe_cycle, read_every_for
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import RAD_PER_TICK, JointMap
 from trajgen.validate import check_choice, check_number
@@ -175,6 +176,12 @@ class StreamStats:
         "fast sync read" or "sync read".
     read_fallback : str
         Why Fast Sync Read was given up for Sync Read ("" if it was not).
+    read_every : int
+        Frames per telemetry read-back, as streamed (the probe may raise it
+        above ``telemetry_every``: said with a warning).
+    probe_write_s, probe_read_s : float
+        A goal write's wire time and what a read-back took before the stream (s, median;
+        NaN when not probed: on a simulated clock, or ``probe_frames=0``).
     fault : str
         The message of the fault or signal that stopped the stream ("" if none).
     """
@@ -198,6 +205,9 @@ class StreamStats:
     comm_errors: int = 0
     read_method: str = "fast sync read"
     read_fallback: str = ""
+    read_every: int = 1
+    probe_write_s: float = math.nan
+    probe_read_s: float = math.nan
     fault: str = ""
     _errors: RunningQuantiles = field(default_factory=RunningQuantiles, repr=False)
     _first: tuple[float, float] | None = field(default=None, repr=False)
@@ -248,8 +258,14 @@ class StreamStats:
             f"overruns: {self.overruns}",
             f"stalls: {self.stalls} (longest {ms(self.stall_max_s)}; "
             f"stream ended {ms(self.delay_s)} behind its plan)",
-            f"telemetry reads: {self.reads} ({self.read_method}); comm errors: {self.comm_errors}",
+            f"telemetry reads: {self.reads} ({self.read_method}, every {self.read_every} "
+            f"frames); comm errors: {self.comm_errors}",
         ]
+        if not math.isnan(self.probe_write_s):
+            lines.append(
+                f"probe before the stream: goal write {ms(self.probe_write_s)}, read-back "
+                f"{ms(self.probe_read_s)}"
+            )
         if self.position_glitches:
             lines.append(f"position reads not trusted (glitches): {self.position_glitches}")
         if self.fault:
@@ -345,6 +361,13 @@ class Streamer:
         when the bus answers in lock-step (``bus.lockstep``: the stream then
         runs as fast as the simulation allows, never stalls and never waits on
         the wall clock), else the host's monotonic clock.
+    probe_frames : int, optional
+        On a real-time clock, before the approach: time this many read-backs
+        (nothing is written; a goal write counts its wire time) and refuse
+        a rate the host and bus cannot keep (``StreamLagging``, nothing
+        moved), or read back less often than ``telemetry_every`` where that
+        is what does not fit (a ``RuntimeWarning``; ``stats.read_every``); see
+        ``drivers.probe``. 0: no probe.
 
     Attributes
     ----------
@@ -380,9 +403,11 @@ class Streamer:
         power_limits: Sequence[PowerLimits] | None = None,
         restore: Sequence = (),
         clock=None,
+        probe_frames: int = PROBE_FRAMES,
     ) -> None:
         positive = {"low": 0.0, "low_open": True}
         telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
+        probe_frames = check_number("probe_frames", probe_frames, low=0, integer=True)
         check_choice("on_stop", on_stop, ("hold", "torque_off"))
         poll_s = check_number("poll_s", poll_s, **positive)
         health_s = check_number("health_s", health_s, **positive)
@@ -427,6 +452,7 @@ class Streamer:
         if clock is None:
             clock = SimulatedClock() if bus.lockstep else WALL_CLOCK
         self.clock = clock
+        self.probe_frames = probe_frames
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []
 
@@ -491,6 +517,9 @@ class Streamer:
             check_start(
                 present, np.asarray(first.q, float), self.max_approach_rad, self.joint_names
             )
+            stats.read_every = self.telemetry_every
+            if self.clock.real_time and self.probe_frames:
+                self._probe()
             t_ramp, q_ramp = min_jerk_ramp(
                 present, np.asarray(first.q, float), rate_hz, self.approach_speed_rad_s
             )
@@ -512,6 +541,41 @@ class Streamer:
         return stats
 
     # -- reading -----------------------------------------------------------
+
+    def _probe(self) -> None:
+        """Time the stream's traffic before its first goal; refuse a rate it cannot carry.
+
+        Raises
+        ------
+        StreamLagging
+            If no read-back interval lets this host and bus keep the rate.
+        """
+        stats, ids = self.stats, self.joints.ids
+        period_s = 1.0 / stats.rate_hz
+        # A Sync Write of Goal Position: 14 bytes and 5 per servo, 10 bits each.
+        write_s = (14 + 5 * len(ids)) * 10 / self.bus.baud
+
+        def read():
+            block = self.bus.read_block(ids, _STATE, fast=self._use_fast)
+            self.bus.check_block(block, "probing the bus")
+
+        cost = probe_cycle(read, write_s, self.probe_frames)
+        stats.probe_write_s, stats.probe_read_s = cost.write_s, cost.read_s
+        every = read_every_for(cost, period_s, self.telemetry_every)
+        if every is None:
+            raise StreamLagging(
+                f"before the first goal: {cost.describe()}, and {stats.rate_hz:g} Hz leaves "
+                f"{1e3 * period_s:.2f} ms a frame: this host and bus cannot keep it (about "
+                f"{max_rate_hz(cost, self.telemetry_every):.0f} Hz at most, reading back every "
+                f"{self.telemetry_every}. frame); nothing was moved{self.bus.latency_advice()}"
+            )
+        if every > self.telemetry_every:
+            self._warn(
+                f"reading the servos back every {every} frames instead of every "
+                f"{self.telemetry_every}: {cost.describe()}, and {stats.rate_hz:g} Hz leaves "
+                f"{1e3 * period_s:.2f} ms a frame{self.bus.latency_advice()}"
+            )
+            stats.read_every = every
 
     def _choose_read_method(self) -> None:
         if self.fast_read:
@@ -749,7 +813,7 @@ class Streamer:
             state = (nan, nan, nan)
             power = (nan, nan)
             try:
-                if k % self.telemetry_every == 0:
+                if k % stats.read_every == 0:
                     state = self._read_state()
                 if k % poll_every == poll_every - 1:
                     self._poll_watchdog("before")

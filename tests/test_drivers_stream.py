@@ -10,7 +10,7 @@ import pytest
 from trajgen.drivers.bringup import bring_up, operating_mode_for, watchdog_units
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import SimulatedClock
-from trajgen.drivers.control_table import Register
+from trajgen.drivers.control_table import Register, model_named
 from trajgen.drivers.errors import BringUpError, CommError, ServoError, WatchdogTripped
 from trajgen.drivers.streamer import Streamer, min_jerk_ramp
 from trajgen.drivers.units import JointMap
@@ -400,3 +400,89 @@ def test_lockstep_stream_is_the_same_on_a_slow_busy_host(rng, tmp_path):
     assert slow_rows == rows
     assert slow_stats == stats
     assert stats["stalls"] == 0 and stats["fault"] == ""
+
+
+# -- the probe before a wall-clock stream ---------------------------------------------
+
+
+def test_read_every_fits_the_period():
+    from trajgen.drivers.probe import CycleCost, max_rate_hz, read_every_for
+
+    # 1 kHz: 0.1 ms write + 0.3 ms read fit 0.8 ms every frame.
+    assert read_every_for(CycleCost(1e-4, 3e-4, 20), 1e-3) == 1
+    # 500 Hz with a 2 ms read-back: 1.5 ms spare a frame, so every 2nd frame.
+    assert read_every_for(CycleCost(1e-4, 2e-3, 20), 2e-3) == 2
+    assert read_every_for(CycleCost(1e-4, 2e-3, 20), 2e-3, wanted=5) == 5
+    # A 16 ms read-back (FTDI latency timer at its default) outlasts 1.5 periods at 200 Hz.
+    assert read_every_for(CycleCost(1e-4, 16e-3, 20), 5e-3) is None
+    # Writes alone past the budget.
+    assert read_every_for(CycleCost(9e-4, 1e-4, 20), 1e-3) is None
+    # Every frame read back: 0.8 of the period carries 16.1 ms at 49.7 Hz at most.
+    assert max_rate_hz(CycleCost(1e-4, 16e-3, 20)) == pytest.approx(0.8 / 16.1e-3)
+    assert max_rate_hz(CycleCost(1e-4, 16e-3, 20), read_every=4) == pytest.approx(1.5 / 16.1e-3)
+
+
+def test_probe_lowers_the_read_back_rate_it_cannot_carry(rig, rng, tmp_path, monkeypatch):
+    from trajgen.drivers import streamer as streamer_module
+    from trajgen.drivers.clock import WALL_CLOCK
+    from trajgen.drivers.probe import CycleCost
+
+    timed = []
+
+    def probe_cycle(read, write_s, frames):  # the reads run; their cost is the test's
+        for _ in range(frames):
+            read()
+        timed.append((frames, write_s))
+        return CycleCost(write_s=2e-4, read_s=8e-3, frames=frames)
+
+    monkeypatch.setattr(streamer_module, "probe_cycle", probe_cycle)
+    trajectory = _trajectory(rng, duration_s=0.2, rate_hz=100.0)
+    r = rig()
+    start = bring_up(r.bus, JointMap(), MODELS, trajectory, configure=True).present_ticks
+    goals_before = r.virtual.frames_received
+    streamer = Streamer(
+        r.bus,
+        JointMap(),
+        telemetry=tmp_path / "telemetry.csv",
+        clock=WALL_CLOCK,
+        start_ticks=start,
+        max_delay_s=None,
+    )
+    with pytest.warns(
+        RuntimeWarning,
+        match=r"reading the servos back every 2 frames instead of every 1: .*"
+        r"a read-back 8\.00 ms .* 100 Hz leaves 10\.00 ms a frame",
+    ):
+        stats = streamer.run(trajectory)
+    # 29 bytes of Sync Write at 1 Mbps; the probe wrote nothing.
+    assert timed == [(20, pytest.approx(290e-6))] and stats.read_every == 2
+    assert r.virtual.frames_received - goals_before == stats.approach_frames + len(trajectory)
+    assert stats.reads == math.ceil(stats.approach_frames / 2) + math.ceil(len(trajectory) / 2)
+    assert "probe before the stream: goal write 0.200 ms, read-back 8.000 ms" in stats.format()
+
+
+def test_probe_refuses_a_rate_the_adapter_latency_cannot_carry():
+    from trajgen.drivers.errors import StreamLagging
+    from trajgen.drivers.virtual.bus import WireTiming
+
+    t = np.arange(41) / RATE_HZ
+    q = np.zeros((len(t), 3))
+    trajectory = JointTrajectory(t, q, q, q, RATE_HZ)
+    # Real time, every reply 16 ms late (an FTDI adapter at its default latency timer):
+    # a read-back takes at least that, whatever the host's load; 200 Hz leaves 5 ms.
+    timing = WireTiming(baud=1_000_000, adapter_latency_s=0.016)
+    with VirtualBus(FirstOrderPlant(), timing=timing) as virtual:
+        with ServoBus(virtual.port, latency_ms=100.0) as bus:
+            for servo_id in (1, 2, 3):
+                bus.add_servo(servo_id, model_named("XM430-W350"))
+                bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+            streamer = Streamer(bus, JointMap(), probe_frames=3)
+            with pytest.raises(
+                StreamLagging,
+                match=r"before the first goal: a goal write takes 0\.29 ms and a read-back "
+                r"\d+\.\d\d ms \(median of 3 probe reads\), and 200 Hz leaves 5\.00 ms a "
+                r"frame: this host and bus cannot keep it .*; nothing was moved",
+            ):
+                streamer.run(trajectory)
+        assert virtual.frames_received == 0
+    assert streamer.stats.frames_sent == 0 and streamer.stats.probe_read_s >= 0.016

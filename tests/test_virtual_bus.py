@@ -349,6 +349,19 @@ def test_ftdi_latency_timer_warns_when_stuck_at_16(tmp_path, monkeypatch):
         assert drivers_bus.set_ftdi_latency_timer("/dev/ttyUSB7") == 16
 
 
+def test_latency_timer_advice_names_the_sysfs_file(tmp_path, monkeypatch):
+    monkeypatch.setattr(drivers_bus, "_SYSFS_LATENCY", str(tmp_path / "{tty}" / "latency_timer"))
+    bus = ServoBus("/dev/ttyUSB7")
+    assert bus.latency_advice() == ""  # not opened: no timer known
+    bus.latency_timer_ms = 16  # as open() reads it from a timer it could not set
+    assert bus.latency_advice() == (
+        "; /dev/ttyUSB7's FTDI latency timer is 16 ms and every read-back waits for it: "
+        f"lower it with echo 1 | sudo tee {tmp_path}/ttyUSB7/latency_timer"
+    )
+    bus.latency_timer_ms = 1
+    assert bus.latency_advice() == ""
+
+
 def test_lockstep_telemetry_holds_the_state_at_its_time_label(tmp_path):
     """Each row's present values are the servo's state when that row's goal was sent.
 

@@ -1,0 +1,120 @@
+"""What one frame costs on this host and bus, measured before a stream starts.
+
+A stream on the wall clock sends one goal per period and reads the servos back
+every ``read_every`` frames. ``probe_cycle`` times a few read-backs (it writes
+nothing: a goal write has no reply, the host only builds it and hands it to the
+port, so its share is its wire time, given by the caller), and
+``read_every_for`` decides from the median whether the rate can hold: the mean
+cost per frame must fit ``BUDGET`` of a period, and a frame with a read-back
+must end before the next frame counts as a stall (half a period late). A rate
+that cannot hold is refused before the first goal instead of tripping the
+lateness bound or the Bus Watchdog mid-motion.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+#: Share of a period the mean cost of a frame may take (the rest: sleep overshoot,
+#: the periodic watchdog and health polls, the host's own jitter).
+BUDGET = 0.8
+#: Frames timed by the probe (at 1 kHz and 3 servos, about 20 ms of traffic).
+PROBE_FRAMES = 20
+#: Read-back less often than this many frames is refused instead (telemetry too sparse).
+MAX_READ_EVERY = 50
+
+
+@dataclass(frozen=True)
+class CycleCost:
+    """Median host-plus-bus time of the two halves of a frame (s).
+
+    Attributes
+    ----------
+    write_s : float
+        One Sync Write of Goal Position (no reply: its wire time).
+    read_s : float
+        One group read of the state block (request, replies, checks), median.
+    frames : int
+        Read-backs timed.
+    """
+
+    write_s: float
+    read_s: float
+    frames: int
+
+    def describe(self) -> str:
+        """One phrase with both figures in ms."""
+        return (
+            f"a goal write takes {1e3 * self.write_s:.2f} ms and a read-back "
+            f"{1e3 * self.read_s:.2f} ms (median of {self.frames} probe reads)"
+        )
+
+
+def probe_cycle(
+    read, write_s: float, frames: int = PROBE_FRAMES, clock=time.perf_counter
+) -> CycleCost:
+    """Time ``frames`` calls of ``read()``; their median, with ``write_s`` for the write.
+
+    Parameters
+    ----------
+    read : callable
+        One read-back (raises on a bus fault).
+    write_s : float
+        What a goal write costs (s), e.g. its wire time.
+    frames : int, optional
+        How many read-backs to time (>= 1).
+    clock : callable, optional
+        Seconds, monotonic.
+
+    Returns
+    -------
+    CycleCost
+    """
+    reads = []
+    for _ in range(frames):
+        t0 = clock()
+        read()
+        reads.append(clock() - t0)
+    return CycleCost(write_s, _median(reads), frames)
+
+
+def _median(values: Sequence[float]) -> float:
+    ordered = sorted(values)
+    n = len(ordered)
+    return 0.5 * (ordered[(n - 1) // 2] + ordered[n // 2])
+
+
+def read_every_for(cost: CycleCost, period_s: float, wanted: int = 1) -> int | None:
+    """The least read-back interval (frames, >= ``wanted``) a period can carry, or None.
+
+    Parameters
+    ----------
+    cost : CycleCost
+    period_s : float
+        The stream's period (s).
+    wanted : int, optional
+        The read-back interval asked for.
+
+    Returns
+    -------
+    int or None
+        ``k``: ``write + read / k <= BUDGET * period`` and a frame with a read
+        fits in 1.5 periods; None when no ``k`` up to ``MAX_READ_EVERY`` does
+        (the goal writes alone do not fit, or one read-back outlasts the next
+        deadline by more than half a period).
+    """
+    spare = BUDGET * period_s - cost.write_s
+    if spare <= 0 or cost.write_s + cost.read_s > 1.5 * period_s:
+        return None
+    k = max(wanted, math.ceil(cost.read_s / spare - 1e-12))
+    return k if k <= MAX_READ_EVERY else None
+
+
+def max_rate_hz(cost: CycleCost, read_every: int = 1) -> float:
+    """The highest rate (Hz) that carries ``cost`` with read-back every ``read_every`` frames."""
+    mean_s = cost.write_s + cost.read_s / read_every
+    peak_s = cost.write_s + cost.read_s
+    return min(BUDGET / mean_s, 1.5 / peak_s)
