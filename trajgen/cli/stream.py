@@ -31,6 +31,7 @@ from trajgen.cli.common import (
     add_file_argument,
     bad_input,
     baud_rate,
+    check_module,
     check_output_path,
     check_plot_path,
     check_timing,
@@ -122,7 +123,10 @@ def add_stream_arguments(p) -> None:
         help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
     )
     p.add_argument(
-        "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
+        "--telemetry",
+        metavar="OUT",
+        help="write per-frame telemetry to OUT (.csv, .npz, or .mcap: ROS 2 messages for "
+        "Foxglove, needs trajgen[mcap])",
     )
     p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
     p.add_argument(
@@ -262,7 +266,9 @@ def _plan(args):
     from trajgen.keyframes import DEFAULT_RATE_HZ
     from trajgen.stream import plan_joint_trajectory
 
-    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
+    check_output_path("--telemetry", args.telemetry, (".csv", ".npz", ".mcap"))
+    if args.telemetry and args.telemetry.lower().endswith(".mcap"):
+        check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
     check_output_path("--json", args.json, (".json",))
     check_plot_path(args.plot)
     if hasattr(args.file, "spline"):
@@ -527,7 +533,19 @@ def report(args, p: Plan, plant, outcome: Outcome, extra: dict | None = None) ->
     if plant is not None and outcome.status == EXIT_OK:
         outcome.status, outcome.torque_report = torque_report(plant, p.trajectory, args, result)
         result["status"] = outcome.status
+    if args.telemetry and stats is not None:
+        add_telemetry_report(args.telemetry, result)
     return write_json(args, result, outcome.status)
+
+
+def add_telemetry_report(path: str, result: dict) -> None:
+    """Add the report to the telemetry file where it holds one (MCAP); warn if it cannot."""
+    from trajgen.drivers.telemetry import add_report
+
+    try:
+        add_report(path, result)
+    except OSError as e:
+        print(f"trajgen: warning: telemetry {path}: report not added: {e}", file=sys.stderr)
 
 
 def torque_report(plant, trajectory, args, result: dict):
