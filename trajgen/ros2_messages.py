@@ -16,6 +16,7 @@ Stamps: a time ``t`` (s) on a clock becomes ``builtin_interfaces/Time``
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -167,13 +168,13 @@ class McapContents:
     Attributes
     ----------
     complete : bool
-        False when the file ends mid-record (a writer killed before it
-        finished): everything up to its last whole chunk was read.
+        False when the file ends before its DataEnd record (a writer killed
+        before it finished): everything up to its last whole chunk was read.
     metadata : dict of str to dict
         Metadata records by name.
     """
 
-    complete: bool = True
+    complete: bool = False
     metadata: dict | None = None
 
 
@@ -205,13 +206,14 @@ def read_messages(path, contents: McapContents | None = None) -> Iterator[Decode
         If it cannot be read.
     """
     _import_mcap()
-    from mcap.exceptions import EndOfFile, InvalidMagic
-    from mcap.records import Channel, Message, Metadata, Schema
+    from mcap.exceptions import EndOfFile, McapError
+    from mcap.records import Channel, DataEnd, Message, Metadata, Schema
     from mcap.stream_reader import StreamReader
     from mcap_ros2.decoder import DecoderFactory
 
     contents = McapContents() if contents is None else contents
     contents.metadata = {}
+    contents.complete = False
     factory = DecoderFactory()
     schemas, channels, decoders = {}, {}, {}
     with open(path, "rb") as f:
@@ -237,7 +239,10 @@ def read_messages(path, contents: McapContents | None = None) -> Iterator[Decode
                     )
                 elif isinstance(record, Metadata):
                     contents.metadata[record.name] = dict(record.metadata)
-        except InvalidMagic as e:
-            raise ValueError(f"{path}: not an MCAP file ({e})") from None
-        except EndOfFile:
-            contents.complete = False
+                elif isinstance(record, DataEnd):
+                    contents.complete = True
+                    return  # the summary only repeats and indexes the data
+        except (EndOfFile, struct.error):
+            return  # cut short: read up to the last whole record
+        except McapError as e:
+            raise ValueError(f"{path}: not a readable MCAP file ({e})") from None
