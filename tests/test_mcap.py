@@ -373,3 +373,27 @@ def test_planned_columns_go_to_the_plan_topic(tmp_path, rng):
         np.testing.assert_array_equal(got[f"plan_rad_{joint}"], [r[-3 + j] for r in rows])
     plans = [ros.position for t, _, ros in _decoded(tmp_path / "p.mcap") if t == PLAN]
     np.testing.assert_array_equal(plans, [r[-3:] for r in rows])
+
+
+def test_the_foxglove_layout_shows_fields_the_run_log_has(excited):
+    import re
+
+    layout = json.loads((Path(__file__).parents[1] / "docs" / "foxglove_layout.json").read_text())
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    panels = leaves(layout["layout"])
+    assert sorted(panels) == sorted(layout["configById"])
+    assert {p.split("!")[0] for p in panels} == {"Plot", "RawMessages", "RosOut"}
+    log, _, _ = excited
+    last = {topic: ros for topic, _, ros in _decoded(log)}
+    paths = [p["value"] for c in layout["configById"].values() for p in c.get("paths", ())]
+    assert len(paths) == 16  # 3 joints x (goal, plan, present), effort, velocity, lateness
+    for value in paths:
+        topic, field, index = re.fullmatch(r"(/[\w/]+)\.(\w+)(?:\[(\d)\])?", value).groups()
+        got = getattr(last[topic], field)
+        got = got if index is None else got[int(index)]
+        assert isinstance(got, float) and math.isfinite(got), value
+    for config in layout["configById"].values():
+        assert config.get("topicPath", config.get("topicToRender", "/trajgen")) in last
