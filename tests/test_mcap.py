@@ -395,5 +395,6 @@ def test_the_foxglove_layout_shows_fields_the_run_log_has(excited):
         got = getattr(last[topic], field)
         got = got if index is None else got[int(index)]
         assert isinstance(got, float) and math.isfinite(got), value
-    for config in layout["configById"].values():
-        assert config.get("topicPath", config.get("topicToRender", "/trajgen")) in last
+    shown = [layout["configById"]["RawMessages!frame"]["topicPath"]]
+    shown.append(layout["configById"]["RosOut!log"]["topicToRender"])
+    assert shown == [FRAME, "/rosout"] and all(topic in last for topic in shown)
