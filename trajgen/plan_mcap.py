@@ -40,7 +40,9 @@ from trajgen.telemetry_mcap import PLAN
 TRAJECTORY, ORIENTATION = "/trajgen/joint_trajectory", "/trajgen/orientation"
 
 
-def write_plan_mcap(path: str | Path, spline, rate_hz: float, **plan_options) -> JointTrajectory:
+def write_plan_mcap(
+    path: str | Path, spline, rate_hz: float, *, progress=None, **plan_options
+) -> JointTrajectory:
     """Plan ``spline`` at ``rate_hz`` and write it to an MCAP file.
 
     Parameters
@@ -51,6 +53,8 @@ def write_plan_mcap(path: str | Path, spline, rate_hz: float, **plan_options) ->
         The orientation path (``t_start``, ``t_end``, ``evaluate``).
     rate_hz : float
         Sample rate (Hz).
+    progress : callable, optional
+        Called with the fraction written (0..1) every 1000 samples and at the end.
     **plan_options
         ``kinematics``, ``start``: as for ``plan_joint_trajectory``.
 
@@ -99,5 +103,9 @@ def write_plan_mcap(path: str | Path, spline, rate_hz: float, **plan_options) ->
             writer.write_message(ORIENTATION, orientation, message, log_time, sequence=k)
             message = {"header": stamp, "name": names, "position": q, "velocity": qd}
             writer.write_message(PLAN, state, message | {"effort": []}, log_time, sequence=k)
+            if progress is not None and k % 1000 == 999:
+                progress((k + 1) / len(plan))
         writer.finish()
+    if progress is not None:
+        progress(1.0)
     return plan

@@ -91,7 +91,8 @@ def _plan_mcap(args, kf, spline, rate) -> int:
     """``--out plan.mcap``: the exact joint plan and the orientation (``trajgen.plan_mcap``)."""
     from trajgen.plan_mcap import write_plan_mcap
 
-    plan = write_plan_mcap(args.out, spline, rate)
+    progress = Progress(f"trajgen plan: writing {args.out}")
+    plan = write_plan_mcap(args.out, spline, rate, progress=progress)
     print(
         f"planned {kf.path.name}: {len(plan)} samples at {rate:g} Hz over "
         f"{plan.duration_s:.3f} s; peak |qd| {np.abs(plan.qd).max():.4g} rad/s, "
