@@ -25,6 +25,7 @@ import json
 import os
 import pickle
 import queue
+import struct
 import subprocess
 import sys
 import threading
@@ -85,6 +86,8 @@ class McapRunLog:
     joint_names : sequence of str
     effort_nm_per_a : sequence of float, optional
         Each joint's torque constant (N m/A), for the effort of ``/trajgen/present``.
+    current_scale : sequence of str, optional
+        Each joint's current register scale, stated in the metadata.
     chunk_size : int, optional
         Bytes per chunk.
 
@@ -100,17 +103,19 @@ class McapRunLog:
         columns: Sequence[str],
         joint_names: Sequence[str],
         effort_nm_per_a: Sequence[float] | None = None,
+        current_scale: Sequence[str] | None = None,
         *,
         chunk_size: int = CHUNK_BYTES,
     ) -> None:
-        RowMessages(columns, joint_names, effort_nm_per_a)  # bad columns fail here
+        scales = (effort_nm_per_a, current_scale)
+        RowMessages(columns, joint_names, *scales)  # bad columns fail here
         self._process = subprocess.Popen(
             [sys.executable, "-m", __name__],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             start_new_session=True,
         )
-        layout = (str(path), list(columns), list(joint_names), effort_nm_per_a, chunk_size)
+        layout = (str(path), list(columns), list(joint_names), scales, chunk_size)
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._queue.put(layout)
         self._error: BaseException | None = None
@@ -195,14 +200,14 @@ def _write_rows(rows, status) -> None:
     Statuses go to ``status``: ``("ready", "")``, then ``("done", "")`` or the
     failure as ``(exception name, message)``.
     """
-    path, columns, joint_names, effort_nm_per_a, chunk_size = pickle.load(rows)
+    path, columns, joint_names, scales, chunk_size = pickle.load(rows)
 
     def report(kind: str, detail: str = "") -> None:
         pickle.dump((kind, detail), status)
         status.flush()
 
     try:
-        layout = RowMessages(columns, joint_names, effort_nm_per_a)
+        layout = RowMessages(columns, joint_names, *scales)
         file = open(path, "wb")  # noqa: SIM115 (closed below)
     except (OSError, ValueError) as e:
         return report("OSError", f"telemetry {path}: {e}")
@@ -266,13 +271,21 @@ def report_log(report: dict) -> list[tuple[int, str]]:
     return lines
 
 
-def add_report(path: str | Path, report: dict) -> None:
+def add_report(path: str | Path, report: dict, progress=None) -> None:
     """Add a run's report and its log to a finished MCAP run log (the file is copied once).
 
     The report becomes the metadata record ``trajgen.report`` (one entry per
     top-level key, its value as JSON); :func:`report_log` becomes
     ``rcl_interfaces/msg/Log`` messages on ``/rosout``, stamped at the last
     frame. The copy replaces the file only when complete.
+
+    Parameters
+    ----------
+    path : str or Path
+    report : dict
+        The run's report (``trajgen stream --json``'s content).
+    progress : callable, optional
+        Called with the fraction of the file copied (0..1), now and then.
 
     Raises
     ------
@@ -286,12 +299,15 @@ def add_report(path: str | Path, report: dict) -> None:
 
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
+    size = max(path.stat().st_size, 1)
     end_ns = 0
     try:
         with open(path, "rb") as src, open(tmp, "wb") as out:
             copy = Writer(out)
             try:
-                for record in StreamReader(src).records:
+                for k, record in enumerate(StreamReader(src).records):
+                    if progress is not None and k % 20_000 == 0:
+                        progress(src.tell() / size)
                     if isinstance(record, Header):
                         copy.start(record.profile, record.library)
                     elif isinstance(record, Schema):
@@ -324,7 +340,7 @@ def add_report(path: str | Path, report: dict) -> None:
                         )
                     elif isinstance(record, DataEnd):
                         break  # the summary repeats schemas and channels
-            except EndOfFile:
+            except (EndOfFile, struct.error):
                 pass  # a file cut short: copy what it holds
             schema = copy.register_schema(LOG[0], "ros2msg", LOG[1].encode())
             channel = copy.register_channel(ROSOUT, "cdr", schema)
@@ -339,6 +355,8 @@ def add_report(path: str | Path, report: dict) -> None:
             copy.add_metadata(REPORT_NAME, {k: json.dumps(v) for k, v in report.items()})
             copy.finish()
         os.replace(tmp, path)
+        if progress is not None:
+            progress(1.0)
     finally:
         if tmp.exists():
             tmp.unlink()

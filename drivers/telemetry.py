@@ -27,6 +27,7 @@ import numpy as np
 # Loaded here, not when a stream opens its log: the Bus Watchdog is already
 # running then. It imports ``mcap`` only in its writer process.
 from trajgen.drivers import mcap_telemetry
+from trajgen.servo_table import LOAD_UNIT
 
 
 def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
@@ -78,7 +79,8 @@ class TelemetryWriter:
         self._mcap = None
         if self.path.suffix == ".mcap":
             kt = None if models is None else [m.stall_torque_nm / m.stall_current_a for m in models]
-            self._mcap = mcap_telemetry.McapRunLog(self.path, self.columns, joint_names, kt)
+            scale = None if models is None else [_current_scale(m) for m in models]
+            self._mcap = mcap_telemetry.McapRunLog(self.path, self.columns, joint_names, kt, scale)
         elif self.path.suffix == ".csv":
             self._file = open(self.path, "w", newline="")  # noqa: SIM115 (closed in close())
             self._writer = csv.writer(self._file)
@@ -135,11 +137,22 @@ class TelemetryWriter:
             self._spool = None
 
 
-def add_report(path: str | Path, report: dict) -> None:
+def _current_scale(model) -> str:
+    """How a model's register 126 became the current column (A)."""
+    if model.current_unit_a is None:
+        return (
+            f"{model.name}: Present Load, {LOAD_UNIT:g} x stall current "
+            f"({model.stall_current_a:g} A) per unit"
+        )
+    return f"{model.name}: Present Current, {1e3 * model.current_unit_a:g} mA per unit"
+
+
+def add_report(path: str | Path, report: dict, progress=None) -> None:
     """Add a run's report (and its faults and stop reason) to its telemetry file.
 
     MCAP: a metadata record and ``/rosout`` log messages
-    (``drivers.mcap_telemetry.add_report``). CSV and NPZ hold rows only: nothing.
+    (``drivers.mcap_telemetry.add_report``; ``progress`` is called with the
+    fraction done). CSV and NPZ hold rows only: nothing.
 
     Raises
     ------
@@ -147,7 +160,7 @@ def add_report(path: str | Path, report: dict) -> None:
         If the MCAP file cannot be rewritten.
     """
     if Path(path).suffix == ".mcap":
-        mcap_telemetry.add_report(path, report)
+        mcap_telemetry.add_report(path, report, progress)
 
 
 #: Telemetry file extensions, one writer each.

@@ -135,6 +135,8 @@ def test_report_and_stop_reason_are_in_the_log(excited):
     assert {k: json.loads(v) for k, v in metadata["trajgen.report"].items()} == report
     layout = metadata["trajgen.telemetry"]
     assert json.loads(layout["effort_nm_per_a"]) == pytest.approx([KT_XM430] * 3, rel=1e-15)
+    scale = "XM430-W350: Present Current, 2.69 mA per unit"
+    assert json.loads(layout["current_scale"]) == [scale] * 3
     rosout = [ros for topic, _, ros in _decoded(log) if topic == "/rosout"]
     frames = report["stream"]["frames_sent"]
     assert f"stream completed: {frames}/{frames} frames sent" in [r.msg for r in rosout]

@@ -86,6 +86,8 @@ class RowMessages:
     effort_nm_per_a : sequence of float, optional
         Each joint's torque constant (N m/A): effort = current x this. None:
         no effort (the current stays in ``/trajgen/frame``, in A).
+    current_scale : sequence of str, optional
+        Each joint's current register scale, as stated in the metadata.
 
     Raises
     ------
@@ -99,8 +101,10 @@ class RowMessages:
         columns: Sequence[str],
         joint_names: Sequence[str],
         effort_nm_per_a: Sequence[float] | None = None,
+        current_scale: Sequence[str] | None = None,
     ) -> None:
         self.columns = list(columns)
+        self.current_scale = None if current_scale is None else list(current_scale)
         self.joint_names = list(joint_names)
         self.effort_nm_per_a = None if effort_nm_per_a is None else list(effort_nm_per_a)
         index = {c: k for k, c in enumerate(self.columns)}
@@ -127,6 +131,7 @@ class RowMessages:
             "columns": json.dumps(self.columns),
             "joint_names": json.dumps(self.joint_names),
             "effort_nm_per_a": json.dumps(self.effort_nm_per_a),
+            "current_scale": json.dumps(self.current_scale),
             "effort": "present current (A) x torque constant (N m/A) = stall torque / stall "
             "current at 12 V of the servo model"
             if self.effort_nm_per_a is not None

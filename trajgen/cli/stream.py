@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    Progress,
     add_file_argument,
     bad_input,
     baud_rate,
@@ -543,7 +544,7 @@ def add_telemetry_report(path: str, result: dict) -> None:
     from trajgen.drivers.telemetry import add_report
 
     try:
-        add_report(path, result)
+        add_report(path, result, Progress(f"trajgen: adding the report to {path}"))
     except OSError as e:
         print(f"trajgen: warning: telemetry {path}: report not added: {e}", file=sys.stderr)
 
