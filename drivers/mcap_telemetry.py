@@ -258,7 +258,8 @@ def report_log(report: dict) -> list[tuple[int, str]]:
     if stream.get("comm_errors"):
         lines.append((LOG_WARN, f"{stream['comm_errors']} failed transactions (retried or fatal)"))
     lines += [(LOG_ERROR, f"safe stop: {e}") for e in report.get("stop_errors", ())]
-    sent = f"{stream.get('frames_sent', 0)}/{stream.get('frames_planned', 0)} frames sent"
+    planned = stream.get("frames_planned") or 0  # 0: an online stream, length unknown
+    sent = f"{stream.get('frames_sent', 0)}{f'/{planned}' if planned else ''} frames sent"
     if report.get("stopped_by"):
         lines.append((LOG_ERROR, f"stopped by: {report['stopped_by']} ({sent})"))
     else:
