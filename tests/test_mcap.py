@@ -400,3 +400,21 @@ def test_the_foxglove_layout_shows_fields_the_run_log_has(excited):
     shown = [layout["configById"]["RawMessages!frame"]["topicPath"]]
     shown.append(layout["configById"]["RosOut!log"]["topicToRender"])
     assert shown == [FRAME, "/rosout"] and all(topic in last for topic in shown)
+
+
+def test_faults_and_the_stop_reason_become_log_lines():
+    from trajgen.drivers.mcap_telemetry import report_log
+    from trajgen.ros2_messages import LOG_ERROR, LOG_INFO, LOG_WARN
+
+    stream = {"frames_sent": 81, "frames_planned": 0, "stalls": 2, "delay_s": 0.0125}
+    stream |= {"comm_errors": 3, "read_fallback": "no reply from servo 2"}
+    report = {"status": 130, "stopped_by": "interrupted by SIGINT", "on_stop": "hold"}
+    report |= {"stop_errors": ["servo 3: no status packet"], "stream": stream}
+    assert report_log(report) == [
+        (LOG_WARN, "read back by sync read: no reply from servo 2"),
+        (LOG_WARN, "2 stalls; the stream ended 0.012500 s behind its plan"),
+        (LOG_WARN, "3 failed transactions (retried or fatal)"),
+        (LOG_ERROR, "safe stop: servo 3: no status packet"),
+        (LOG_ERROR, "stopped by: interrupted by SIGINT (81 frames sent)"),
+        (LOG_INFO, "exit status 130; servos: hold"),
+    ]
