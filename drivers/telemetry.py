@@ -2,12 +2,12 @@
 
 The writer is chosen by the file's extension. CSV (``.csv``): one row per
 frame, flushed as written. MCAP (``.mcap``, the ``mcap`` extra): ROS 2
-messages per frame, encoded and written by a thread of its own
+messages per frame, encoded and written by a process of its own
 (``drivers.mcap_telemetry``; layout in ``trajgen.telemetry_mcap``), readable
 up to its last chunk even after SIGKILL; :func:`add_report` then adds the
-run's report and log. NPZ (``.npz``): the same
-columns as arrays, written when the stream stops (on any stop, faults and stop
-signals included; only SIGKILL loses it). Until then NPZ rows are spooled to
+run's report and log. NPZ (``.npz``): the same columns as arrays, written
+when the stream stops (on any stop, faults and stop signals included; only
+SIGKILL loses it). Until then NPZ rows are spooled to
 an anonymous temporary file as binary doubles, so memory stays constant
 however long the stream; the file is assembled one column at a time.
 """
