@@ -40,10 +40,11 @@ JOINTS = ("pan", "tilt", "roll")
 def rows(n: int) -> list[list]:
     rng = np.random.default_rng(0)
     values = rng.normal(size=(n, len(telemetry_columns(JOINTS)) - 6))
+    ticks = rng.integers(1000, 3000, size=(n, 3))  # any goal register values
     out = []
     for k in range(n):
         row = [k, "stream", k / 200, k / 200, 1e-5, 100 + k / 200] + values[k].tolist()
-        row[9:12] = [2048, 2048, 2048]
+        row[9:12] = ticks[k].tolist()
         out.append(row)
     return out
 

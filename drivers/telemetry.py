@@ -18,6 +18,7 @@ import csv
 import math
 import struct
 import tempfile
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -108,9 +109,17 @@ class TelemetryWriter:
         self.rows += 1
 
     def close(self) -> None:
-        """Flush and close (NPZ: write the file now, one column at a time)."""
+        """Flush and close (NPZ: write the file now, one column at a time).
+
+        MCAP: wait for the writer process to finish the file; if it failed
+        (the file could not be written), a ``RuntimeWarning`` says so (the
+        stream's safe stop still follows).
+        """
         if self._mcap is not None:
-            self._mcap.close()
+            try:
+                self._mcap.close()
+            except (OSError, ImportError) as e:  # after the stream: say it, stop safely
+                warnings.warn(str(e), RuntimeWarning, stacklevel=2)
         elif self._file is not None:
             self._file.close()
             self._file = None

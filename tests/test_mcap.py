@@ -353,10 +353,10 @@ def test_every_telemetry_column_has_a_place_in_the_run_log():
         RowMessages([c for c in telemetry_columns(JOINTS) if c != "clock_s"], JOINTS)
 
 
-def test_a_log_that_cannot_be_written_fails_the_stream_at_close(tmp_path):
+def test_a_log_that_cannot_be_written_is_said_at_close(tmp_path):
     writer = TelemetryWriter(tmp_path / "missing" / "t.mcap", JOINTS)
     writer.write(_rows(1, np.random.default_rng(0))[0])
-    with pytest.raises(OSError, match="telemetry .*t.mcap: .*No such file or directory"):
+    with pytest.warns(RuntimeWarning, match="telemetry .*t.mcap: .*No such file or directory"):
         writer.close()
 
 
