@@ -38,13 +38,24 @@ JOINTS = ("pan", "tilt", "roll")
 
 
 def rows(n: int) -> list[list]:
+    """``n`` telemetry rows of random values, by column."""
     rng = np.random.default_rng(0)
-    values = rng.normal(size=(n, len(telemetry_columns(JOINTS)) - 6))
-    ticks = rng.integers(1000, 3000, size=(n, 3))  # any goal register values
+    columns = telemetry_columns(JOINTS)
+    bookkeeping = {"frame": 0, "phase": "stream", "t_s": 0.0, "sent_s": 0.0, "lateness_s": 1e-5}
     out = []
     for k in range(n):
-        row = [k, "stream", k / 200, k / 200, 1e-5, 100 + k / 200] + values[k].tolist()
-        row[9:12] = ticks[k].tolist()
+        row = []
+        for c in columns:
+            if c == "frame":
+                row.append(k)
+            elif c in ("t_s", "sent_s", "clock_s"):
+                row.append(k / 200)
+            elif c in bookkeeping:
+                row.append(bookkeeping[c])
+            elif c.startswith("goal_tick_"):
+                row.append(int(rng.integers(1000, 3000)))  # any goal register value
+            else:
+                row.append(float(rng.normal()))
         out.append(row)
     return out
 

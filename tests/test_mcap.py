@@ -122,9 +122,10 @@ def test_run_log_values_equal_the_csv_of_the_same_run(excited):
         assert message.log_time == round(clock[k] * 1e9)
         if topic == PRESENT:
             np.testing.assert_allclose(ros.effort, current[k] * KT_XM430, rtol=1e-12)
-        if topic == PLAN:  # no plan_rad columns: the goal sent is the plan
-            goal = [float(want[f"goal_rad_{j}"][k]) for j in JOINTS]
-            np.testing.assert_array_equal(ros.position, goal)
+        if topic == PLAN:  # the plan_rad columns, or without them the goal sent
+            prefix = "plan_rad" if "plan_rad_pan" in want else "goal_rad"
+            plan = [float(want[f"{prefix}_{j}"][k]) for j in JOINTS]
+            np.testing.assert_array_equal(ros.position, plan)
 
 
 def test_report_and_stop_reason_are_in_the_log(excited):
@@ -164,23 +165,31 @@ def test_identify_from_mcap_equals_identify_from_csv(excited):
             assert a[p] == pytest.approx(b[p], abs=1e-9), (joint, p)
 
 
-def _rows(n, rng):
-    """``n`` telemetry rows of random values (NaN where a read failed)."""
+def _rows(n, rng, columns=None):
+    """``n`` telemetry rows of random values by column (NaN where a read failed)."""
+    columns = telemetry_columns(JOINTS) if columns is None else columns
+    bookkeeping = {
+        "frame": lambda k: k,
+        "phase": lambda k: "approach" if k < 20 else "stream",
+        "t_s": lambda k: 0.01 * k,
+        "sent_s": lambda k: 0.01 * k,
+        "lateness_s": lambda k: 1e-5,
+        "clock_s": lambda k: 5 + 0.01 * k,
+    }
+    read = ("position_rad_", "velocity_rad_s_", "current_a_")
     rows = []
     for k in range(n):
-        state = rng.normal(size=9)
-        if k % 7 == 3:
-            state[:] = math.nan
-        ticks = rng.integers(0, 4096, 3).tolist()
-        bookkeeping = [
-            k,
-            "approach" if k < 20 else "stream",
-            0.01 * k,
-            0.01 * k,
-            1e-5,
-            5 + 0.01 * k,
-        ]
-        rows.append(bookkeeping + rng.normal(size=3).tolist() + ticks + state.tolist())
+        row = []
+        for c in columns:
+            if c in bookkeeping:
+                row.append(bookkeeping[c](k))
+            elif c.startswith("goal_tick_"):
+                row.append(int(rng.integers(1000, 3000)))
+            elif c.startswith(read) and k % 7 == 3:
+                row.append(math.nan)
+            else:
+                row.append(float(rng.normal()))
+        rows.append(row)
     return rows
 
 
@@ -363,18 +372,19 @@ def test_a_log_that_cannot_be_written_is_said_at_close(tmp_path):
 def test_planned_columns_go_to_the_plan_topic(tmp_path, rng):
     from trajgen.drivers.mcap_telemetry import McapRunLog
 
-    columns = telemetry_columns(JOINTS) + [f"plan_rad_{j}" for j in JOINTS]
-    rows = [row + rng.normal(size=3).tolist() for row in _rows(30, rng)]
+    columns = telemetry_columns(JOINTS)
+    columns += [f"plan_rad_{j}" for j in JOINTS if f"plan_rad_{j}" not in columns]
+    rows = _rows(30, rng, columns)
     log = McapRunLog(tmp_path / "p.mcap", columns, JOINTS)
     for row in rows:
         log.write(row)
     log.close()
     got = read_columns(tmp_path / "p.mcap")
     assert list(got) == columns
-    for j, joint in enumerate(JOINTS):
-        np.testing.assert_array_equal(got[f"plan_rad_{joint}"], [r[-3 + j] for r in rows])
+    planned = [[r[columns.index(f"plan_rad_{j}")] for j in JOINTS] for r in rows]
+    np.testing.assert_array_equal(np.column_stack([got[f"plan_rad_{j}"] for j in JOINTS]), planned)
     plans = [ros.position for t, _, ros in _decoded(tmp_path / "p.mcap") if t == PLAN]
-    np.testing.assert_array_equal(plans, [r[-3:] for r in rows])
+    np.testing.assert_array_equal(plans, planned)
 
 
 def test_the_foxglove_layout_shows_fields_the_run_log_has(excited):
