@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -277,8 +278,17 @@ def _writer_children(pid):
     return found
 
 
+def _gone(pid) -> bool:
+    """Whether process ``pid`` has exited (a zombie counts as exited)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="finds the writer process in /proc")
-def test_a_run_killed_mid_stream_leaves_a_readable_log(tmp_path):
+@pytest.mark.parametrize("writer_too", [True, False], ids=["with its writer", "alone"])
+def test_a_run_killed_mid_stream_leaves_a_readable_log(tmp_path, writer_too):
     toml = _keyframes(tmp_path / "long.toml", seconds=40.0, rate=100)
     log = tmp_path / "run.mcap"
     proc = subprocess.Popen(
@@ -304,15 +314,25 @@ def test_a_run_killed_mid_stream_leaves_a_readable_log(tmp_path):
                 pass
         children = _writer_children(proc.pid)
         assert len(children) == 1
-        for pid in [proc.pid, *children]:  # everything dies at once, as on a power cut
+        # With its writer: everything dies at once, as on a power cut. Alone: the
+        # writer process reads the end of its pipe and finishes the file.
+        for pid in [proc.pid, *children] if writer_too else [proc.pid]:
             os.kill(pid, signal.SIGKILL)
     finally:
         proc.kill()
         proc.wait()
     assert proc.returncode == -signal.SIGKILL
+    for _ in range(6000):  # a bound for a writer that never ends (10 min), not a timing
+        if _gone(children[0]):
+            break
+        time.sleep(0.1)
+    assert _gone(children[0])
     contents = McapContents()
     got = read_columns(log, contents)
-    assert not contents.complete
+    assert contents.complete is not writer_too
+    if not writer_too:
+        with open(log, "rb") as f:
+            assert make_reader(f).get_summary().statistics.message_count == 4 * len(got["frame"])
     n = len(got["frame"])
     assert n > 50
     assert got["frame"].tolist() == list(range(n))
