@@ -448,3 +448,16 @@ def test_faults_and_the_stop_reason_become_log_lines():
         (LOG_ERROR, "stopped by: interrupted by SIGINT (81 frames sent)"),
         (LOG_INFO, "exit status 130; servos: hold"),
     ]
+
+
+def test_a_plan_too_long_for_one_message_is_refused(tmp_path, monkeypatch, capsys):
+    from trajgen import plan_mcap
+
+    monkeypatch.setattr(plan_mcap, "MAX_SAMPLES", 80)
+    toml = _keyframes(tmp_path / "k.toml", seconds=0.8, rate=100)  # 81 samples
+    out = tmp_path / "plan.mcap"
+    assert main(["plan", str(toml), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}: 81 samples; an MCAP plan is one JointTrajectory message" in err
+    assert "at most 80 samples: lower --rate, or write CSV" in err
+    assert not out.exists()

@@ -39,6 +39,10 @@ from trajgen.telemetry_mcap import PLAN
 
 TRAJECTORY, ORIENTATION = "/trajgen/joint_trajectory", "/trajgen/orientation"
 
+#: Most samples of an MCAP plan: its one JointTrajectory message is built in
+#: memory (about 1 kB of Python objects a point) and encoded in pure Python.
+MAX_SAMPLES = 200_000
+
 
 def write_plan_mcap(
     path: str | Path, spline, rate_hz: float, *, progress=None, **plan_options

@@ -13,6 +13,7 @@ import numpy as np
 
 from trajgen.cli.common import (
     EXIT_OK,
+    BadInput,
     Progress,
     add_file_argument,
     add_rate_argument,
@@ -54,6 +55,13 @@ def _plan(args) -> int:
         raise PlanTooLarge(f"{e}; --max-samples N raises the limit") from None
     spline = checked.spline
     if to_mcap:
+        from trajgen.plan_mcap import MAX_SAMPLES as MAX_MCAP_SAMPLES
+
+        if total > MAX_MCAP_SAMPLES:
+            raise BadInput(
+                f"--out {args.out}: {total:,} samples; an MCAP plan is one JointTrajectory "
+                f"message of at most {MAX_MCAP_SAMPLES:,} samples: lower --rate, or write CSV"
+            )
         return _plan_mcap(args, kf, spline, rate)
     progress = Progress(f"trajgen plan: writing {total:,} rows") if args.out else None
     out = open(args.out, "w", newline="") if args.out else sys.stdout
