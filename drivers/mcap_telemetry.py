@@ -203,8 +203,11 @@ def _write_rows(rows, status) -> None:
     path, columns, joint_names, scales, chunk_size = pickle.load(rows)
 
     def report(kind: str, detail: str = "") -> None:
-        pickle.dump((kind, detail), status)
-        status.flush()
+        try:
+            pickle.dump((kind, detail), status)
+            status.flush()
+        except OSError:  # the stream process is gone: nobody to tell
+            pass
 
     try:
         layout = RowMessages(columns, joint_names, *scales)
