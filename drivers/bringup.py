@@ -832,8 +832,20 @@ def configure(
         for c in eeprom:
             _write_keeping_gains(bus, servo_id, c.register, c.new)
         if eeprom and servo.torque_on:
-            bus.write(servo_id, Register.GOAL_POSITION, read_position_checked(bus, servo_id))
+            try:
+                after = read_position_checked(bus, servo_id)
+            except BringUpError:  # moving (falling?): catch it where it is now
+                after = bus.read(servo_id, Register.PRESENT_POSITION)
+            bus.write(servo_id, Register.GOAL_POSITION, after)
             bus.write(servo_id, Register.TORQUE_ENABLE, 1)
+            if abs(after - servo.present) > HOLD_TOLERANCE_TICKS:
+                warnings.warn(
+                    f"servo {servo_id} ({eeprom[0].joint}) moved {after - servo.present:+d} "
+                    "ticks while released for the EEPROM write: it was holding more than its "
+                    "current showed; it holds where it is now",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
         bus.write(servo_id, Register.BUS_WATCHDOG, 0)  # clears a tripped watchdog
 
 
@@ -863,27 +875,29 @@ _configure = configure
 def start_goal(bus: ServoBus, servo_id: int, joint: str) -> tuple[int, bool]:
     """The Goal Position a servo will start the stream from, and whether to torque it on.
 
-    A servo holding torque keeps the goal it holds (no step), once its
-    checked position agrees with it within ``HOLD_TOLERANCE_TICKS``; another
-    starts from its checked position.
+    A servo holding torque keeps the goal it holds (no step), once a position
+    read agrees with that goal within ``HOLD_TOLERANCE_TICKS`` (up to 3 reads:
+    it may still be settling); a servo with torque off starts from its checked
+    position (``read_position_checked``).
 
     Raises
     ------
     BringUpError
-        If a torque-on servo is far from the goal it holds.
+        If a torque-on servo stays far from the goal it holds.
     """
-    present = read_position_checked(bus, servo_id)
     if bus.read(servo_id, Register.TORQUE_ENABLE) != 1:
-        return present, True
+        return read_position_checked(bus, servo_id), True
     goal = bus.read(servo_id, Register.GOAL_POSITION)
-    if abs(goal - present) > HOLD_TOLERANCE_TICKS:
-        raise BringUpError(
-            f"servo {servo_id} ({joint}) holds Goal Position {goal} with torque on but reads "
-            f"Present Position {present}, {abs(goal - present)} ticks away (more than "
-            f"{HOLD_TOLERANCE_TICKS}): it is blocked, overloaded or its encoder is glitching; "
-            "refusing to stream"
-        )
-    return goal, False
+    reads = []
+    for _ in range(3):
+        reads.append(bus.read(servo_id, Register.PRESENT_POSITION))
+        if abs(goal - reads[-1]) <= HOLD_TOLERANCE_TICKS:
+            return goal, False
+    raise BringUpError(
+        f"servo {servo_id} ({joint}) holds Goal Position {goal} with torque on but reads "
+        f"Present Position {', '.join(map(str, reads))}, more than {HOLD_TOLERANCE_TICKS} "
+        "ticks away: it is blocked, overloaded or its encoder is glitching; refusing to stream"
+    )
 
 
 @dataclass

@@ -899,3 +899,22 @@ def test_the_command_line_prints_each_servos_state(tmp_path, capsys):
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["servo_outcomes"]["pan"]["state"] == "holding"
     assert result["servo_outcomes"]["pan"]["goal_deg"] == pytest.approx(5.0, abs=0.1)
+
+
+class _Sagging(FirstOrderPlant):
+    """A plant whose pan falls at 20 rad/s when released (a load its current hid)."""
+
+    def advance(self, dt_s):
+        super().advance(dt_s)
+        if not self._torque[0]:
+            self._q[0] -= 20.0 * dt_s
+
+
+def test_a_servo_that_moves_while_released_is_caught_and_said(rig):
+    registers = {1: {Register.OPERATING_MODE: 1, Register.TORQUE_ENABLE: 1}}
+    virtual, bus = rig(_Sagging(time_constant_s=0.01), registers=registers)
+    with pytest.warns(RuntimeWarning, match=r"servo 1 \(pan\) moved -\d+ ticks while released"):
+        setup = bring_up(bus, JointMap(), MODELS, _ramp((0.0, 0.0, 0.0)), configure=True)
+    assert virtual.servos[1].torque_on  # caught: torque back on where it fell to
+    fell_to = virtual.servos[1].get(Register.GOAL_POSITION)
+    assert fell_to < 2048 - 57 and setup.present_ticks[0] == fell_to
