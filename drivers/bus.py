@@ -48,6 +48,8 @@ _SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{tty}/latency_timer"
 # Longest wait (s) for reply bytes a lock-step responder has written (they are in the
 # pty already; this only bounds a kernel that never passes them on).
 _OWED_WAIT_S = 5.0
+# Most rounds of waiting for a quiet bus after a failed try (each one reply timeout).
+_MAX_DRAINS = 10
 # Status packet layout (e-Manual, Protocol 2.0): ID at byte 4, LEN at 5..6.
 _PKT_ID, _PKT_LENGTH = 4, 5
 _STATUS_MIN_BYTES = 11  # header 4, ID, LEN 2, INST, ERR, CRC 2
@@ -456,7 +458,30 @@ class ServoBus:
             if problem is None:
                 return value
             self.failed_tries += 1
+            self._drain()
         raise CommError(f"{who}: {what} failed after {self.retries + 1} tries: {problem}")
+
+    def _drain(self) -> None:
+        """After a failed try: wait until the bus has been quiet for one reply timeout,
+        dropping what arrives.
+
+        A reply later than its timeout would otherwise be read as the answer to
+        the next request: same id and length (another register of the same
+        servo), the wrong value. Costs one timeout per failed try.
+        """
+        import serial
+
+        port = self._port
+        if port is None:
+            return
+        quiet_s = (2.0 * self.latency_ms + 2.0) / 1e3
+        try:
+            for _ in range(_MAX_DRAINS):
+                port.clearPort()
+                if not select.select([port.ser.fileno()], [], [], quiet_s)[0]:
+                    return
+        except (serial.SerialException, OSError, ValueError):
+            pass  # the port failed: the next try says so
 
     def _unicast(self, servo_id: int, what: str, call, *args, data_bytes: int = 0):
         """One unicast transaction with retries; returns the SDK call's result tuple.

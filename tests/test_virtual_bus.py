@@ -469,3 +469,27 @@ def test_real_time_reply_does_not_wait_for_a_simulation_far_behind():
     # simulation in the serving thread, and the lag said.
     assert plant.advanced_by["virtual-bus_serve"] <= 0.005 + 1e-12
     assert stale >= 1 and stale_s >= 0.1
+
+
+def test_a_reply_later_than_its_timeout_is_never_read_as_the_next_ones():
+    # Every reply 150 ms late against a 102 ms timeout (latency 50 ms): a late reply
+    # to "read Min Position Limit" has the id and length of one to "read Max
+    # Position Limit". Each read either fails or returns its own register.
+    limits = {"Min Position Limit": 1000, "Max Position Limit": 3000}
+    virtual = VirtualBus(
+        FirstOrderPlant(), registers={1: limits}, faults=[Fault("delay", delay_s=0.15)]
+    ).start()
+    try:
+        with ServoBus(virtual.port, latency_ms=50.0, retries=1) as bus:
+            bus.add_servo(1, XM430)
+            for register, value in (
+                (Register.MIN_POSITION_LIMIT, 1000),
+                (Register.MAX_POSITION_LIMIT, 3000),
+                (Register.MIN_POSITION_LIMIT, 1000),
+            ):
+                try:
+                    assert bus.read(1, register) == value
+                except CommError as e:
+                    assert "failed after 2 tries" in str(e)
+    finally:
+        virtual.stop()
