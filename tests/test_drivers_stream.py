@@ -187,14 +187,12 @@ def test_fault_stops_safely_within_a_second(rig, rng, tmp_path, fault, error, ma
     trajectory = _trajectory(rng, duration_s=1.0)
     r = rig(faults=[fault])
     streamer = _stream(r, trajectory, JointMap(), tmp_path, on_stop=on_stop)
-    start = time.monotonic()
     with pytest.raises(error, match=match):
         streamer.run(trajectory)
-    elapsed = time.monotonic() - start
-    fault_time_s = fault.at_frame / RATE_HZ
-    assert elapsed - fault_time_s < 1.0
     stats = streamer.stats
-    assert fault.at_frame <= stats.frames_sent <= fault.at_frame + 11  # one watchdog poll
+    # Within one watchdog poll (50 ms of stream time) of the fault, on a busy host too:
+    # the stream runs on simulated time.
+    assert fault.at_frame <= stats.frames_sent <= fault.at_frame + 11
     assert stats.frames_sent < len(trajectory)
     assert stats.fault and stats.fault in str(streamer.stats.fault)
     # Telemetry up to the fault is on disk.
