@@ -24,7 +24,7 @@ from trajgen.drivers.control_table import BAUD_RATES, WATCHDOG_UNIT_S
 from trajgen.drivers.units import ZERO_TICK, JointMap
 from trajgen.gimbal import JOINT_NAMES
 from trajgen.servo_ratings import DEFAULT_SERVO, servo_rating
-from trajgen.validate import check_number, check_numbers
+from trajgen.validate import check_keys, check_number, check_numbers
 
 BUS_KEYS = ("port", "baud", "ids", "directions", "zeros", "models", "watchdog_s")
 DEFAULT_BAUD = 1_000_000
@@ -94,9 +94,7 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
     table = tables.get("bus", {})
     if not isinstance(table, dict):
         raise _error(path, "")(f"expected a table, got {table!r}")
-    for key in table:
-        if key not in BUS_KEYS:
-            raise _error(path, key)(f"unknown key (known: {', '.join(BUS_KEYS)})")
+    check_keys(table, BUS_KEYS, error=_error(path, ""))
     port = table.get("port")
     if port is not None and (not isinstance(port, str) or not port):
         raise _error(path, "port")(f"expected a device path string, got {port!r}")

@@ -114,12 +114,12 @@ pan = 0.0
             "[spline]\nboundary = 'free'\n" + KEYS,
             r"\[spline\] boundary: expected one of rest, natural, closed, got 'free'",
         ),
-        ("[spline]\nkk = 2\n" + KEYS, r"\[spline\] unknown key 'kk'"),
+        ("[spline]\nkk = 2\n" + KEYS, r"\[spline\]: unknown key 'kk'"),
         (
             "[stream]\nrate_hz = -5\n" + KEYS,
             r"\[stream\] rate_hz: expected a finite number > 0, got -5",
         ),
-        ("[keyframe]\nt = 1\n", r"unknown table \[keyframe\] \(known: spline, keyframes"),
+        ("[keyframe]\nt = 1\n", r"unknown table 'keyframe' \(known: spline, keyframes"),
         ("[[keyframes]\nt = 1\n", r"invalid TOML"),
         (
             "[spline]\nboundary = 'closed'\n" + KEYS + "\n[[keyframes]]\nt = 1.0\npan = 5.0\n"
@@ -159,7 +159,8 @@ def test_plan_command_bad_file_exits_2_with_one_line(tmp_path):
     )
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
-        f"trajgen: error: {path}: keyframe 2: unknown field 'tlt' (known: t, pan, tilt, roll, quat)"
+        f"trajgen plan: error: {path}: keyframe 2: unknown field 'tlt' "
+        "(known: t, pan, tilt, roll, quat)"
     ]
     assert "Traceback" not in proc.stderr
 

@@ -136,8 +136,21 @@ def check_choice(name: str, value, allowed, *, error: ErrorFactory = None) -> st
     return value
 
 
-def check_keys(table: dict, known, *, error: Callable[[str], Exception]) -> None:
-    """Refuse the first key of ``table`` not in ``known``, listing the known ones."""
+def check_keys(table: dict, known, *, error: Callable[[str], Exception], kind: str = "key") -> None:
+    """Refuse the first key of ``table`` not in ``known``, listing the known ones.
+
+    The one message shape for every table of every file: ``"unknown {kind} 'x'
+    (known: a, b, c)"``, ``kind`` e.g. "key", "field", "table", "joint".
+
+    Parameters
+    ----------
+    table : dict
+    known : iterable of str
+    error : callable
+        Builds the exception from the message (prefixing file and table).
+    kind : str
+        What a key of this table is, for the message.
+    """
     for key in table:
         if key not in known:
-            raise error(f"unknown key '{key}' (known: {', '.join(known)})")
+            raise error(f"unknown {kind} '{key}' (known: {', '.join(known)})")

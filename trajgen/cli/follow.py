@@ -25,7 +25,7 @@ import numpy as np
 
 from trajgen import fast
 from trajgen.cli import stream as stream_command
-from trajgen.cli.common import EXIT_FAILED
+from trajgen.cli.common import EXIT_FAILED, exit_status_text
 from trajgen.errors import KeyframeFileError, KinematicsError
 from trajgen.gimbal import GimbalKinematics
 from trajgen.keyframes import check_keyframes
@@ -75,10 +75,7 @@ Bring-up, stop signals, safe stop and report are those of `trajgen stream`;
 bring-up checks the whole range the joint limits allow against the servos'
 installed limits. --virtual streams in real time (the lines do), unlike
 `trajgen stream --virtual`, and ends with the torque report of what was streamed.
-
-exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
-128 + the signal number when stopped by SIGINT, SIGTERM or SIGHUP (the servos
-hold their last goal, or are released with --torque-off)."""
+On a signal the servos hold their last goal, or are released with --torque-off."""
 
 
 def register(subparsers) -> None:
@@ -89,6 +86,7 @@ def register(subparsers) -> None:
         "follow",
         help="stream a plan that keyframes arriving on stdin (JSON lines) change",
         description=FOLLOW_DESCRIPTION,
+        epilog=exit_status_text(stream_command.STREAM_FAILED, signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     stream_command.add_stream_arguments(p)

@@ -28,16 +28,20 @@ from dataclasses import dataclass, field
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    add_bus_arguments,
     add_file_argument,
+    add_ids_argument,
+    add_json_argument,
+    add_rate_argument,
+    add_telemetry_argument,
     bad_input,
-    baud_rate,
     check_output_path,
     check_plot_path,
     check_timing,
+    exit_status_text,
     load_checked,
     open_bus,
     positive_float,
-    servo_ids,
 )
 from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
@@ -69,9 +73,11 @@ on a pseudo-terminal, backed by the MuJoCo gimbal of `trajgen sim` (the file's
 [gimbal] table; ideal assembly: direction +1, zero 2048), advancing one stream
 period per frame received, and then prints the torque report.
 
-exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
-2 bad input, 128 + signal number when stopped by a signal (130 SIGINT,
-143 SIGTERM, 129 SIGHUP)."""
+Units: angles in degrees on the command line and in the file (joint degrees for
+--set-limits and --max-approach), seconds for --max-delay."""
+
+#: What gives exit status 1 (the stream and every command that streams).
+STREAM_FAILED = "a stream fault, a refused bring-up, or (with --virtual) a failed torque check"
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: Default --max-delay (s), as ``trajgen.drivers.streamer.MAX_DELAY_S`` (which loads the SDK).
@@ -98,6 +104,7 @@ def register(subparsers) -> None:
         "stream",
         help="stream a keyframe file to Dynamixel servos (or a virtual bus)",
         description=STREAM_DESCRIPTION,
+        epilog=exit_status_text(STREAM_FAILED, signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_stream_arguments(p)
@@ -108,23 +115,13 @@ def add_stream_arguments(p) -> None:
     """The file, bus, rate, output, --virtual and safety options (shared with
     ``trajgen follow``)."""
     add_file_argument(p)
-    p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
-    p.add_argument(
-        "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
+    add_bus_arguments(
+        p, "stream to a virtual bus backed by the simulated gimbal (instead of --port)"
     )
-    p.add_argument(
-        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
-    )
-    p.add_argument(
-        "--rate",
-        type=positive_float,
-        metavar="HZ",
-        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
-    )
-    p.add_argument(
-        "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
-    )
-    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
+    add_ids_argument(p)
+    add_rate_argument(p)
+    add_telemetry_argument(p)
+    add_json_argument(p, "the statistics (and with --virtual the torque report)")
     p.add_argument(
         "--torque-off", action="store_true", help="release the servos when the stream stops"
     )
@@ -137,11 +134,8 @@ def add_stream_arguments(p) -> None:
         f"(default {MAX_DELAY_S:g} s; stream --virtual runs on simulated time: no stalls)",
     )
     p.add_argument(
-        "--virtual",
-        action="store_true",
-        help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
+        "--plot", metavar="OUT.png", help="with --virtual: plot the torque report to OUT.png"
     )
-    p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
     p.add_argument(
         "--set-limits",
         type=_limits,
@@ -155,7 +149,8 @@ def add_stream_arguments(p) -> None:
         type=positive_float,
         default=45.0,
         metavar="DEG",
-        help="refuse to start when a joint is farther than this from the first frame (default 45)",
+        help="refuse to start when a joint is farther than DEG (joint degrees) from the first "
+        "frame (default 45)",
     )
 
 
