@@ -28,6 +28,10 @@ import pytest
 
 from trajgen.cli import main
 
+#: Every subcommand: its errors start "trajgen <command>:".
+COMMANDS = ("plan", "sim", "fit", "sweep", "stream", "follow", "scan", "virtual-bus", "excite")
+COMMANDS += ("identify",)
+
 # Three keyframes, 2 s apart: a gentle pan and tilt.
 KEYS = """
 [[keyframes]]
@@ -996,6 +1000,359 @@ CASES = [
         r"the following arguments are required: --port",
         "unclear",
     ),
+    # --- issue 20: the same rules on every command ----------------------------
+    (
+        "plan --rat 100 (a prefix of --rate)",
+        ["plan", "--rat", "100"],
+        None,
+        2,
+        r"^trajgen plan: error: unrecognized arguments: --rat",
+        "silent",
+    ),
+    (
+        "sim --jso (a prefix of --json)",
+        ["sim", "--jso", "{tmp}/r.json"],
+        None,
+        2,
+        r"^trajgen sim: error: unrecognized arguments: --jso",
+        "silent",
+    ),
+    (
+        "excite --virt (a prefix of --virtual)",
+        ["excite", "--virt", "--telemetry", "{tmp}/t.csv"],
+        None,
+        2,
+        r"^trajgen excite: error: unrecognized arguments: --virt",
+        "silent",
+    ),
+    (
+        "excite --port and --virtual",
+        ["excite", "--port", "/dev/null", "--virtual", "--telemetry", "{tmp}/t.csv"],
+        None,
+        2,
+        r"^trajgen excite: error: argument --virtual: not allowed with argument --port",
+        "ok",
+    ),
+    (
+        "excite --telemetry .txt",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.txt"],
+        None,
+        2,
+        r"^trajgen excite: error: --telemetry '.*t.txt': expected a .csv or .npz file",
+        "ok",
+    ),
+    (
+        "scan without --port",
+        ["scan", "--baud", "57600"],
+        None,
+        2,
+        r"^trajgen scan: error: the following arguments are required: --port",
+        "unclear",
+    ),
+    (
+        "sweep --threads 0",
+        ["sweep", "--threads", "0"],
+        None,
+        2,
+        r"^trajgen sweep: error: argument --threads: expected a whole number >= 1, got '0'",
+        "ok",
+    ),
+    (
+        "sweep --offset-m nan,0,0",
+        ["sweep", "--offset-m", "nan,0,0"],
+        None,
+        2,
+        r"argument --offset-m: expected 3 finite numbers x,y,z in m, got 'nan,0,0'",
+        "silent",
+    ),
+    (
+        "identify --max-iter 0",
+        ["identify", "{file}", "{file}", "--out", "{tmp}/f.toml", "--max-iter", "0"],
+        KEYS,
+        2,
+        r"argument --max-iter: expected a whole number >= 1, got '0'",
+        "ok",
+    ),
+    (
+        "fit --out not .toml",
+        ["fit", "{file}", "--out", "{tmp}/fitted.csv"],
+        KEYS,
+        2,
+        r"^trajgen fit: error: --out '.*fitted.csv': expected a .toml file",
+        "new",
+    ),
+    # --- issue 20: outputs --------------------------------------------------------
+    (
+        "plan --out the input file",
+        ["plan", "{file}", "--out", "{file}"],
+        KEYS,
+        2,
+        r"--out '.*keys.toml': is the input file '.*keys.toml'; writing it would destroy it",
+        "silent",
+    ),
+    (
+        "plan --out a symbolic link to the input",
+        ["plan", "{file}", "--out", "{link}"],
+        KEYS,
+        2,
+        r"--out '.*link.csv': is the input file '.*keys.toml'",
+        "silent",
+    ),
+    (
+        "plan --out a hard link to the input",
+        ["plan", "{file}", "--out", "{hardlink}"],
+        KEYS,
+        2,
+        r"--out '.*hard.csv': is the input file '.*keys.toml'",
+        "silent",
+    ),
+    (
+        "fit --out the input file",
+        ["fit", "{file}", "--out", "{file}"],
+        KEYS,
+        2,
+        r"^trajgen fit: error: --out '.*keys.toml': is the input file",
+        "silent",
+    ),
+    (
+        "identify --out the keyframe file",
+        ["identify", "{file}", "{empty}", "--out", "{file}"],
+        KEYS,
+        2,
+        r"^trajgen identify: error: --out '.*keys.toml': is the input file",
+        "silent",
+    ),
+    (
+        "sim --json a symbolic link to the input",
+        ["sim", "{file}", "--json", "{link}"],
+        KEYS,
+        2,
+        r"--json '.*link.csv': is the input file",
+        "silent",
+    ),
+    (
+        "plan --out /dev/full",
+        ["plan", "--out", "/dev/full"],
+        None,
+        2,
+        r"^trajgen plan: error: --out '/dev/full': cannot write: No space left on device",
+        "crash",
+    ),
+    ("plan --out /dev/null", ["plan", "--out", "/dev/null"], None, 0, r"wrote /dev/null", "ok"),
+    (
+        "plan --out /proc/...",
+        ["plan", "--out", "/proc/self/plan.csv"],
+        None,
+        2,
+        r"--out '/proc/self/plan.csv': is in /proc, a kernel interface",
+        "crash",
+    ),
+    (
+        "plan --out /sys/...",
+        ["plan", "--out", "/sys/kernel/plan.csv"],
+        None,
+        2,
+        r"--out '/sys/kernel/plan.csv': is in /sys, a kernel interface",
+        "crash",
+    ),
+    (
+        "sweep --json /proc/...",
+        ["sweep", "--json", "/proc/self/r.json"],
+        None,
+        2,
+        r"^trajgen sweep: error: --json '/proc/self/r.json': is in /proc",
+        "silent",
+    ),
+    # --- issue 20: what is read ---------------------------------------------------
+    (
+        "file /dev/zero",
+        ["plan", "/dev/zero"],
+        None,
+        2,
+        r"/dev/zero: more than 128 MiB, the most a keyframe file may hold",
+        "hang",
+    ),
+    (
+        "file /dev/urandom",
+        ["plan", "/dev/urandom"],
+        None,
+        2,
+        r"/dev/urandom: (more than 128 MiB|binary data \(a NUL byte\))",
+        "hang",
+    ),
+    (
+        "file with a UTF-8 byte-order mark",
+        ["plan", "{file}"],
+        "\ufeff" + KEYS,
+        0,
+        r"801 samples at 200 Hz",
+        "wrong",
+    ),
+    (
+        "file not UTF-8",
+        ["plan", "{file}"],
+        b"# caf\xe9\n" + KEYS.encode(),
+        2,
+        r"keys.toml: not UTF-8 text \(byte 0xe9 at offset 5\); save it as UTF-8",
+        "ok",
+    ),
+    (
+        "keyframes a table, not a list",
+        ["plan", "{file}"],
+        "[keyframes]\nt = 0\npan = 0\n",
+        2,
+        r"keys.toml: keyframes: expected a list of tables, each starting with a line "
+        r"\[\[keyframes\]\] \(two brackets\), got one \[keyframes\] table",
+        "unclear",
+    ),
+    (
+        "unknown table [Spline] (a capital)",
+        ["plan", "{file}"],
+        "[Spline]\nk = 2\n" + KEYS,
+        2,
+        r"keys.toml: unknown table 'Spline' \(known: spline, keyframes",
+        "ok",
+    ),
+    (
+        "identify: log missing",
+        ["identify", "{file}", "{tmp}/none.csv", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r"^trajgen identify: error: .*none.csv: no such telemetry log",
+        "unclear",
+    ),
+    (
+        "identify: log empty",
+        ["identify", "{file}", "{empty}", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r"empty.csv: empty telemetry log",
+        "unclear",
+    ),
+    (
+        "identify: log a folder",
+        ["identify", "{file}", "{tmp}", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r": is a directory, not a telemetry log",
+        "unclear",
+    ),
+    (
+        "identify: log a keyframe file",
+        ["identify", "{file}", "{file}", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r"keys.toml: not a telemetry log \(no column 'frame'\)",
+        "ok",
+    ),
+    # --- issue 20: work that cannot finish ---------------------------------------
+    (
+        "sweep of 100 x 100 values",
+        [
+            "sweep",
+            "--payload-kg",
+            ",".join(f"{0.01 * (i + 1):g}" for i in range(100)),
+            "--time-scale",
+            ",".join(f"{0.5 + 0.01 * i:g}" for i in range(100)),
+        ],
+        None,
+        2,
+        r"10,000 variants \(100 payloads x 1 offsets x 1 servo sets x 100 time scales\), over "
+        r"the limit of 1,000; --max-variants N raises it",
+        "silent",
+    ),
+    (
+        "joint-minimax through 6,000 keyframes",
+        ["plan", "{file}"],
+        '[spline]\nknots = "joint-minimax"\n'
+        + keys(*(f"t = {i};pan = {10 * (i % 2)}" for i in range(6000))),
+        2,
+        r"knots: 'joint-minimax' through 6,000 keyframes would take about 5 min, over the limit "
+        r"of 5,000 keyframes; use knots = 'end-minimax'",
+        "silent",
+    ),
+    # --- issue 20: keyframe angles the path cannot honour --------------------------
+    (
+        "two turns of pan",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;pan = 720"),
+        2,
+        r"keyframe 2: field 'pan': 720 deg is outside the pan joint's range -360..360 deg",
+        "silent",
+    ),
+    (
+        "one turn of pan between two keyframes",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;pan = 360"),
+        2,
+        r"keyframe 2: field 'pan': 360 deg: 360 deg from keyframe 1's 0: the path turns the "
+        r"shorter way",
+        "silent",
+    ),
+    (
+        "more than half a turn of roll between two keyframes",
+        ["sim", "{file}"],
+        keys("t = 0;roll = -100", "t = 2;roll = 100"),
+        2,
+        r"keyframe 2: field 'roll': 100 deg: 200 deg from keyframe 1's -100",
+        "silent",
+    ),
+    (
+        "pan = 1e300",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 1e300", "t = 2;pan = 1e300"),
+        2,
+        r"keyframe 1: field 'pan': 1e\+300 deg is outside the pan joint's range",
+        "silent",
+    ),
+    (
+        "a first pan the stream reaches on another turn",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 300", "t = 2;pan = 310"),
+        2,
+        r"keyframe 1: field 'pan': 300 deg: the path reaches this orientation with pan at -60 deg",
+        "silent",
+    ),
+    (
+        "pan 0, 150, 300: each step under half a turn",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;pan = 150", "t = 4;pan = 300"),
+        0,
+        r"801 samples",
+        "ok",
+    ),
+    (
+        "plan: tilt = 90",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"keyframe 2: field 'tilt': 90 deg is within 10 deg of gimbal lock \(\|tilt\| <= 80 deg",
+        "silent",
+    ),
+    (
+        "sim: tilt = 90",
+        ["sim", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"^trajgen sim: error: .*keyframe 2: field 'tilt': 90 deg is within 10 deg of gimbal lock",
+        "ok",
+    ),
+    (
+        "fit: tilt = 90",
+        ["fit", "{file}", "--out", "{tmp}/f.toml"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"^trajgen fit: error: .*keyframe 2: field 'tilt': 90 deg is within 10 deg of gimbal lock",
+        "unclear",
+    ),
+    (
+        "stream: tilt = 90",
+        ["stream", "{file}", "--virtual"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"keyframe 2: field 'tilt': 90 deg is within 10 deg of gimbal lock",
+        "ok",
+    ),
 ]
 
 
@@ -1007,13 +1364,25 @@ def _write(path, content) -> None:
 
 
 def run_case(argv, file, tmp_path, capsys) -> tuple[int, str, str]:
-    """Run one row through ``trajgen.cli.main``; returns (status, stdout, stderr)."""
+    """Run one row through ``trajgen.cli.main``; returns (status, stdout, stderr).
+
+    Besides ``{file}`` and ``{tmp}``, ``argv`` may name ``{link}`` (a symbolic link
+    to the keyframe file), ``{hardlink}`` (a hard link to it) and ``{empty}`` (an
+    empty file).
+    """
     folder = tmp_path / "empty"
     folder.mkdir()
     path = tmp_path / "keys.toml"
     if file is not None:
         _write(path, file)
-    argv = [a.format(file=path, tmp=folder) for a in argv]
+    link, hardlink, empty = tmp_path / "link.csv", tmp_path / "hard.csv", tmp_path / "empty.csv"
+    empty.touch()
+    if file is not None:
+        link.symlink_to(path)
+        os.link(path, hardlink)
+    argv = [
+        a.format(file=path, tmp=folder, link=link, hardlink=hardlink, empty=empty) for a in argv
+    ]
     try:
         status = main(argv)
     except SystemExit as e:  # argparse
@@ -1032,7 +1401,9 @@ def test_bad_input_is_refused_clearly(argv, file, status, message, tmp_path, cap
     assert got == status, err
     if status == 2:
         line = err.strip()
-        assert line.startswith("trajgen") and "\n" not in line, err
+        command = argv[0] if argv and argv[0] in COMMANDS else None
+        assert line.startswith(f"trajgen {command}:" if command else "trajgen:"), err
+        assert "\n" not in line, err
         assert re.search(message, line), line
     else:
         assert re.search(message, out + err), out + err

@@ -388,21 +388,6 @@ def check_plot_path(path: str | None, inputs=()) -> None:
         check_module("--plot", "matplotlib", "matplotlib")
 
 
-def distinct_outputs(*options: tuple[str, str | None]) -> None:
-    """Refuse two output options naming one file (``--json r.json --plot r.json``).
-
-    Parameters
-    ----------
-    *options : (str, str or None)
-        Each option and its path (None when not given).
-    """
-    given = [(o, p) for o, p in options if p is not None]
-    for k, (option, path) in enumerate(given):
-        for other, other_path in given[:k]:
-            if _same_file(Path(path), Path(other_path)):
-                raise BadInput(f"{option} {path!r}: is also {other}'s file; give another name")
-
-
 @dataclass(frozen=True)
 class CheckedFile:
     """A keyframe file with every table checked; its spline is built on first use.

@@ -22,7 +22,6 @@ from trajgen.cli.common import (
     check_output_path,
     check_plot_path,
     check_timing,
-    distinct_outputs,
     exit_status_text,
     load_checked,
     output_path,
@@ -92,7 +91,6 @@ def check_sim_arguments(args) -> None:
     check_output_path("--json", args.json, (".json",), inputs)
     check_plot_path(args.plot, inputs)
     check_output_path("--video", args.video, (".mp4",), inputs)
-    distinct_outputs(("--json", args.json), ("--plot", args.plot), ("--video", args.video))
     if args.video:
         check_module("--video", "imageio_ffmpeg", "imageio-ffmpeg")
 

@@ -21,7 +21,6 @@ from trajgen.cli.common import (
     bad_input,
     check_output_path,
     check_plot_path,
-    distinct_outputs,
     exit_status_text,
     load_checked,
     output_path,
@@ -147,7 +146,6 @@ def run_sweep(args) -> int:
     try:
         check_plot_path(args.plot, [args.file])
         check_output_path("--json", args.json, (".json",), [args.file])
-        distinct_outputs(("--plot", args.plot), ("--json", args.json))
         checked = load_checked(args.file)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
