@@ -1438,3 +1438,46 @@ def test_a_closed_pipe_ends_quietly():
     assert plan.wait(timeout=60) == 0
     err = plan.stderr.read()
     assert b"Traceback" not in err and b"BrokenPipe" not in err
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    from trajgen.cli.common import output_file
+
+    out = tmp_path / "plan.csv"
+    out.write_text("old")
+    with pytest.raises(RuntimeError, match="half way"):
+        with output_file("--out", str(out)) as f:
+            f.write("new, but only half")
+            raise RuntimeError("half way")
+    assert out.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.csv"]
+
+
+def test_an_output_through_a_symbolic_link_replaces_what_it_names(tmp_path):
+    from trajgen.cli.common import output_file
+
+    target, link = tmp_path / "target.csv", tmp_path / "link.csv"
+    target.write_text("old")
+    target.chmod(0o640)
+    link.symlink_to(target)
+    with output_file("--out", str(link)) as f:
+        f.write("new")
+    assert link.is_symlink() and target.read_text() == "new"
+    assert target.stat().st_mode & 0o777 == 0o640  # the permissions of the file replaced
+
+
+def test_ctrl_c_while_plan_writes_leaves_no_half_csv(tmp_path, monkeypatch, capsys):
+    from trajgen.cli import plan
+
+    written = []
+
+    def interrupted(out, *args):
+        out.write("t_s,qw\n")  # a first block, then Ctrl-C
+        written.append(out.name)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plan, "_write_csv", interrupted)
+    out = tmp_path / "p.csv"
+    assert main(["plan", "--out", str(out)]) == 130
+    assert "trajgen plan: interrupted" in capsys.readouterr().err
+    assert written and not out.exists() and not list(tmp_path.iterdir())

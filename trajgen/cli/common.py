@@ -12,6 +12,7 @@ import os
 import stat
 import sys
 import tempfile
+import textwrap
 import time
 import warnings
 from contextlib import contextmanager
@@ -104,9 +105,10 @@ def exit_status_text(failed: str, *, signals: bool = False) -> str:
         if signals
         else f"{EXIT_INTERRUPTED} interrupted (Ctrl-C)"
     )
-    return (
+    return textwrap.fill(
         f"exit status: {EXIT_OK} ok, {EXIT_FAILED} {failed}, {EXIT_BAD_INPUT} bad input "
-        f"(one line on stderr naming the option, file or field), {stopped}."
+        f"(one line on stderr naming the option, file or field), {stopped}.",
+        width=79,
     )
 
 
@@ -131,13 +133,16 @@ def add_rate_argument(parser: argparse.ArgumentParser, what: str = "stream rate"
     )
 
 
-def add_json_argument(parser: argparse.ArgumentParser, what: str = "the report") -> None:
-    """The ``--json OUT.json`` option every reporting subcommand shares."""
+def add_json_argument(
+    parser: argparse.ArgumentParser, what: str = "the report", *, atomic: bool = True
+) -> None:
+    """The ``--json OUT.json`` option every reporting subcommand shares (``atomic``: the
+    command writes it with :func:`write_json`)."""
     parser.add_argument(
         "--json",
         metavar="OUT.json",
-        help=f"also write {what} as JSON to OUT.json (every key names its unit: _s, _rad, "
-        "_deg, _nm, ...; written whole or not at all)",
+        help=f"also write {what} as JSON to OUT.json (units in the key names: _s, _rad, _nm, "
+        f"...{'; written whole or not at all' if atomic else ''})",
     )
 
 
@@ -265,9 +270,10 @@ def check_output_path(
     p = Path(path)
     if not path or p.is_dir():
         raise BadInput(f"{option} {path!r}: is a directory; give a file name")
-    real = os.path.realpath(p)
+    # /dev/stdout leads into /proc/self/fd: devices are written in place, not refused.
+    names = {os.path.abspath(p)} if _in_place(p) else {os.path.abspath(p), os.path.realpath(p)}
     for kernel in _KERNEL_FOLDERS:
-        if real == kernel or real.startswith(kernel + os.sep):
+        if any(name == kernel or name.startswith(kernel + os.sep) for name in names):
             raise BadInput(
                 f"{option} {path!r}: is in {kernel}, a kernel interface, not a place for "
                 "files; give a file name"
@@ -278,8 +284,8 @@ def check_output_path(
                 f"{option} {path!r}: is the input file {str(source)!r}; writing it would "
                 "destroy it: give another name"
             )
-    if p.exists() and not p.is_file():
-        if not os.access(p, os.W_OK):
+    if _in_place(p):
+        if p.exists() and not os.access(p, os.W_OK):
             raise BadInput(f"{option} {path!r}: is not writable")
         return  # a device or pipe (/dev/null, /dev/stdout): written as it is
     if suffixes and p.suffix.lower() not in suffixes:
@@ -302,8 +308,11 @@ def _same_file(a: Path, b: Path) -> bool:
         return os.path.realpath(a) == os.path.realpath(b)
 
 
-def _is_special(path: Path) -> bool:
-    """An existing device, pipe or socket: written in place, never renamed over."""
+def _in_place(path: Path) -> bool:
+    """A device, pipe or socket, or anything in /dev (``/dev/stdout`` redirected to a
+    file too): written in place, never replaced by a renamed file."""
+    if os.path.abspath(path).startswith("/dev/"):
+        return True
     try:
         return not stat.S_ISREG(os.stat(path).st_mode)
     except OSError:
@@ -315,7 +324,7 @@ def output_path(option: str, path: str):
     """A temporary path beside ``path`` (same suffix) to write an output to; renamed to
     ``path`` when the block ends without error, removed when it fails, so that
     ``path`` is the whole output or untouched. A device (``/dev/null``) is written
-    directly.
+    directly; through a symbolic link, the file it names is replaced (the link stays).
 
     Raises
     ------
@@ -324,12 +333,13 @@ def output_path(option: str, path: str):
         naming the option and the path; the temporary file is removed.
     """
     target = Path(path)
-    if _is_special(target):
+    if _in_place(target):
         try:
             yield str(target)
         except OSError as e:
             raise BadInput(f"{option} {path!r}: cannot write: {e.strerror or e}") from None
         return
+    target = Path(os.path.realpath(target))  # through a symbolic link: replace what it names
     try:
         fd, tmp = tempfile.mkstemp(
             dir=target.parent, prefix=f".{target.name}.", suffix=f".part{target.suffix}"

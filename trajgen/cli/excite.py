@@ -68,7 +68,7 @@ def register(subparsers) -> None:
     add_bus_arguments(p, "excite the simulated gimbal on a virtual bus (instead of --port)")
     add_rate_argument(p)
     add_telemetry_argument(p, required=True)
-    add_json_argument(p, "the statistics (and with --virtual the torque report)")
+    add_json_argument(p, "the statistics (and with --virtual the torque report)", atomic=False)
     p.add_argument(
         "--seconds",
         type=positive_float,

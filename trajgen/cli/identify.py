@@ -149,9 +149,10 @@ def run_identify(args) -> int:
     try:
         with output_path("--out", args.out) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")
-            # The result must load as the file it claims to be, before it replaces anything.
-            fitted = load_keyframe_file(tmp)
-            gimbal_config_from_tables(fitted.tables, fitted.path)
+            if Path(tmp).is_file():  # not a device (/dev/null), which cannot be read back
+                # The result must load as the file it claims to be, before it replaces anything.
+                fitted = load_keyframe_file(tmp)
+                gimbal_config_from_tables(fitted.tables, fitted.path)
     except (ValueError, OSError) as e:
         return bad_input(e)
     print(f"fitted: {args.out}")

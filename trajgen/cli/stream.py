@@ -121,7 +121,7 @@ def add_stream_arguments(p) -> None:
     add_ids_argument(p)
     add_rate_argument(p)
     add_telemetry_argument(p)
-    add_json_argument(p, "the statistics (and with --virtual the torque report)")
+    add_json_argument(p, "the statistics (and with --virtual the torque report)", atomic=False)
     p.add_argument(
         "--torque-off", action="store_true", help="release the servos when the stream stops"
     )
