@@ -526,7 +526,7 @@ def check_angles(written: np.ndarray, has_angle: np.ndarray, path) -> None:
             i = _first(bad)
             value = written[i, j]
             why = (
-                f"within {90 - lock_deg:g} deg of gimbal lock (|tilt| <= {lock_deg:g} deg, "
+                f"within {90 - lock_deg:.1f} deg of gimbal lock (|tilt| <= {lock_deg:.1f} deg, "
                 "where pan and roll turn about one axis)"
                 if name == "tilt"
                 else f"outside the {name} joint's range {low:g}..{high:g} deg"
