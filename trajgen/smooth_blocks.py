@@ -1,7 +1,7 @@
 """The knot-rate system of :class:`~trajgen.smooth.SmoothSpline` and its O(n) solvers.
 
 :func:`knot_system` builds the symmetric positive definite block-tridiagonal
-system of the flat C4 quintic spline's knot conditions (SPEC 8.2);
+system of the flat C4 quintic spline's knot conditions (docs/algorithm.md §8.2);
 :func:`solve_block_tridiagonal` solves it by block cyclic reduction and
 :func:`solve_block_cyclic` the closed loop's, with its two corner blocks, by
 Woodbury's identity.
@@ -13,7 +13,7 @@ import numpy as np
 
 
 def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
-    """Blocks of the knot-rate system (SPEC 8.2), symmetric positive definite.
+    """Blocks of the knot-rate system (docs/algorithm.md §8.2), symmetric positive definite.
 
     The unknowns at each free knot are ``(v, a)``; the rows are the snap condition
     (``S0_i - S1_{i-1} = 0``) and the jerk condition (``J1_{i-1} - J0_i = 0``), the

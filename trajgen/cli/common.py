@@ -30,7 +30,7 @@ from trajgen.keyframes import (
     load_keyframe_file,
 )
 from trajgen.sampling import MAX_SAMPLES, check_sample_count
-from trajgen.servo_ratings import RATINGS
+from trajgen.servo_table import SERVOS
 
 #: Exit statuses shared by every subcommand.
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -197,7 +197,7 @@ def add_bus_arguments(parser: argparse.ArgumentParser, virtual: str | None) -> N
 
 
 def _default_baud() -> int:
-    from trajgen.drivers.config import DEFAULT_BAUD
+    from trajgen.drivers.defaults import DEFAULT_BAUD
 
     return DEFAULT_BAUD
 
@@ -497,7 +497,7 @@ def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLE
 
 def fastest_servo_rad_s() -> tuple[str, float]:
     """The supported servo with the highest no-load speed: name and speed (rad/s)."""
-    fastest = max(RATINGS.values(), key=lambda r: r.no_load_speed_rad_s)
+    fastest = max(SERVOS.values(), key=lambda r: r.no_load_speed_rad_s)
     return fastest.name, fastest.no_load_speed_rad_s
 
 
@@ -558,5 +558,5 @@ def open_bus(port: str, baud: int):
         warnings.simplefilter("always", RuntimeWarning)
         bus = ServoBus(port, baud=baud).open()
     for w in caught:
-        print(f"trajgen: warning: {w.message}", file=sys.stderr)
+        warn(w.message)
     return bus

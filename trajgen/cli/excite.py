@@ -1,9 +1,9 @@
 """The ``trajgen excite`` command: stream a multi-sine excitation with telemetry.
 
 The excitation (``sim.excite.Multisine``, about the file's first keyframe) is
-handed to the ``stream`` command as the path to stream, so bring-up, the
-approach, the fixed-rate loop, telemetry and the safe stop are the stream
-command's own.
+the path a ``trajgen.drivers.session.Session`` streams, as ``trajgen stream``
+runs it, so bring-up, the approach, the fixed-rate loop, telemetry and the safe
+stop are the stream's own.
 
 This module imports quickly: MuJoCo, dynamixel-sdk and pyserial load inside
 :func:`run_excite`.
@@ -19,14 +19,6 @@ from pathlib import Path
 from trajgen.cli import stream
 from trajgen.cli.common import (
     EXIT_OK,
-    TELEMETRY_SUFFIXES,
-    add_bus_arguments,
-    add_file_argument,
-    add_json_argument,
-    add_rate_argument,
-    add_telemetry_argument,
-    bad_input,
-    check_output_path,
     exit_status_text,
     load_checked,
     positive_float,
@@ -45,9 +37,9 @@ With --virtual the excitation runs on the simulated gimbal of the file's
 [gimbal] tables and the torque report is printed (judged on torque only: an
 excitation is meant to lag).
 
-The bus options are those of `trajgen stream`; --telemetry is required. An
-excitation that leaves the envelope or the joint limits is bad input (exit
-status 2), refused before anything moves.
+It takes every option of `trajgen stream` (bus, ids, rate, safety, outputs);
+--telemetry is required. An excitation that leaves the envelope or the joint
+limits is bad input (exit status 2), refused before anything moves.
 
 Then: trajgen identify FILE LOG.csv --out FITTED.toml"""
 
@@ -64,11 +56,7 @@ def register(subparsers) -> None:
         epilog=exit_status_text(stream.STREAM_FAILED, signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_file_argument(p)
-    add_bus_arguments(p, "excite the simulated gimbal on a virtual bus (instead of --port)")
-    add_rate_argument(p)
-    add_telemetry_argument(p, required=True)
-    add_json_argument(p, "the statistics (and with --virtual the torque report)", atomic=False)
+    stream.add_stream_arguments(p, telemetry_required=True)
     p.add_argument(
         "--seconds",
         type=positive_float,
@@ -125,8 +113,7 @@ def excitation_file(args) -> ExcitationFile:
     from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
     from trajgen.stream import plan_joint_trajectory
 
-    check_output_path("--telemetry", args.telemetry, TELEMETRY_SUFFIXES, [args.file])
-    check_output_path("--json", args.json, (".json",), [args.file])
+    stream.check_stream_outputs(args)
     checked = load_checked(args.file)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal
     center = GimbalKinematics().inverse(kf.quats[:1])[0]
@@ -155,22 +142,16 @@ def excitation_file(args) -> ExcitationFile:
 
 def run_excite(args) -> int:
     """Run ``trajgen excite``; returns the exit status."""
-    try:
+
+    def make_plan(args):
+        from trajgen.drivers.config import bus_config_from_tables
+
         source = excitation_file(args)
-    except (ValueError, TypeError, OSError) as e:
-        return bad_input(e)
-    # The stream command's own arguments, with its defaults, streaming the excitation.
-    parser = argparse.ArgumentParser(prog="trajgen")
-    stream.register(parser.add_subparsers())
-    argv = ["stream", str(source.path), "--telemetry", args.telemetry]
-    for flag, value in (("--port", args.port), ("--baud", args.baud), ("--json", args.json)):
-        if value is not None:
-            argv += [flag, str(value)]
-    if args.virtual:
-        argv.append("--virtual")
-    stream_args = parser.parse_args(argv)
-    stream_args.file = source
-    status = stream_args.func(stream_args)
+        config = bus_config_from_tables(source.tables, source.path)
+        # Every stream option applies: --torque-off, --max-delay, --set-limits, ...
+        return stream.planned(source, config, source.rate_hz, args, stream.stream_options(args))
+
+    status = stream.run_plan(args, make_plan, stream.stream_source)
     if status == EXIT_OK:
         print(f"next: trajgen identify {args.file} {args.telemetry} --out FITTED.toml")
     return status

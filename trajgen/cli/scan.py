@@ -34,8 +34,8 @@ def register(subparsers) -> None:
 
 def run_scan(args) -> int:
     """Run ``trajgen scan``; returns the exit status."""
-    from trajgen.drivers.config import DEFAULT_BAUD
     from trajgen.drivers.control_table import Model, model_numbered
+    from trajgen.drivers.defaults import DEFAULT_BAUD
     from trajgen.drivers.errors import CommError
 
     baud = args.baud or DEFAULT_BAUD

@@ -21,7 +21,7 @@ from trajgen.cli.common import (
     tell,
 )
 from trajgen.errors import TrajgenError
-from trajgen.servo_ratings import DEFAULT_SERVO
+from trajgen.servo_table import DEFAULT_SERVO
 
 VIRTUAL_BUS_DESCRIPTION = """\
 Serve the simulated gimbal of a keyframe file (its [gimbal] table; the built-in
