@@ -26,6 +26,9 @@ from .errors import BadArgument
 
 ErrorFactory = Callable[[str], Exception] | None
 
+#: Most characters of an unknown key a message shows (a JSON line's key may be megabytes).
+_KEY_SHOWN = 40
+
 
 def _raise(name: str, what: str, value, error: ErrorFactory, kind: type) -> None:
     if error is not None:
@@ -156,4 +159,5 @@ def check_keys(table: dict, known, *, error: Callable[[str], Exception], kind: s
     """
     for key in table:
         if key not in known:
-            raise error(f"unknown {kind} '{key}' (known: {', '.join(known)})")
+            shown = key if len(key) <= _KEY_SHOWN else key[:_KEY_SHOWN] + "..."
+            raise error(f"unknown {kind} '{shown}' (known: {', '.join(known)})")

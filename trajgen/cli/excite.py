@@ -108,6 +108,7 @@ def excitation_file(args) -> ExcitationFile:
         Bad input: the file, the options, or an excitation that leaves the
         joint limits, nears gimbal lock or leaves the torque envelope.
     """
+    from trajgen.errors import KinematicsError
     from trajgen.gimbal import GimbalKinematics
     from trajgen.sim.check import check_planned_torque
     from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
@@ -125,7 +126,10 @@ def excitation_file(args) -> ExcitationFile:
     except ValueError as e:
         raise ValueError(f"--seconds: {e}") from e
     rate = kf.stream_rate(args.rate)
-    trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
+    try:
+        trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
+    except KinematicsError as e:
+        raise ValueError(f"the excitation: {e}; lower --amplitude") from None
     reasons = check_planned_torque(trajectory, config)
     if reasons:
         raise ValueError(

@@ -54,9 +54,14 @@ A failed variant is a row of the table, not a failure of the command."""
 MAX_VARIANTS = 1_000
 
 
-def _floats(text: str) -> list[float]:
-    """argparse type: comma-separated numbers, each > 0 (a bare 0 is allowed for payloads)."""
+def _masses(text: str) -> list[float]:
+    """argparse type: comma-separated masses (kg), each > 0 or a bare 0 (no payload)."""
     return [0.0 if v.strip() == "0" else positive_float(v) for v in text.split(",")]
+
+
+def _scales(text: str) -> list[float]:
+    """argparse type: comma-separated time multipliers, each > 0."""
+    return [positive_float(v) for v in text.split(",")]
 
 
 def _offset(text: str) -> tuple[float, float, float]:
@@ -88,7 +93,9 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
-    p.add_argument("--payload-kg", type=_floats, metavar="M,M,...", help="payload masses (kg)")
+    p.add_argument(
+        "--payload-kg", type=_masses, metavar="M,M,...", help="payload masses (kg; 0: none)"
+    )
     p.add_argument(
         "--offset-m",
         type=_offset,
@@ -105,7 +112,7 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--time-scale",
-        type=_floats,
+        type=_scales,
         default=[0.5, 0.75, 1.0, 1.5],
         metavar="S,S,...",
         help="keyframe time multipliers (default 0.5,0.75,1,1.5)",
@@ -163,7 +170,10 @@ def run_sweep(args) -> int:
             )
         variants = sweep.variants(payloads, offsets, servo_sets, args.time_scale)
         for v in variants:  # unknown servo names fail here, before any work
-            v.config(base)
+            try:
+                v.config(base)
+            except ValueError as e:
+                raise BadInput(f"--servo: {e}") from None
     except (ValueError, TypeError, OSError, ModuleNotFoundError) as e:
         return bad_input(e)  # every option and table, checked before any simulation
     seconds = float(source.times[-1] - source.times[0]) * sum(v.time_scale for v in variants)
