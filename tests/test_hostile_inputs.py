@@ -1595,3 +1595,56 @@ def test_ctrl_c_while_plan_writes_leaves_no_half_csv(tmp_path, monkeypatch, caps
     assert main(["plan", "--out", str(out)]) == 130
     assert "trajgen plan: interrupted" in capsys.readouterr().err
     assert written and not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_ctrl_c_while_the_command_line_loads_is_one_line(monkeypatch, capsys):
+    import builtins
+
+    import trajgen_launch
+
+    real_import = builtins.__import__
+
+    def interrupted(name, *args, **kwargs):
+        if name == "trajgen.cli":
+            raise KeyboardInterrupt  # Ctrl-C in the middle of loading numpy and the commands
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", interrupted)
+    assert trajgen_launch.main() == 130
+    assert capsys.readouterr().err.strip() == "trajgen: interrupted while starting"
+
+
+def test_ctrl_c_in_a_commands_lazy_import_is_one_line(monkeypatch, capsys):
+    from trajgen.cli import sim
+
+    def interrupted_import(args):
+        try:
+            raise KeyboardInterrupt  # Ctrl-C while MuJoCo loads ...
+        except KeyboardInterrupt as e:  # ... which a module turned into an ImportError
+            raise ImportError("cannot import name 'mjModel' (most likely a circular import)") from e
+
+    monkeypatch.setattr(sim, "run_sim", interrupted_import)
+    monkeypatch.setattr(sim, "register", _registering(sim.register, interrupted_import))
+    assert main(["sim"]) == 130
+    assert capsys.readouterr().err.strip() == "trajgen sim: interrupted"
+
+
+def _registering(register, func):
+    """``register`` with ``func`` as the subcommand's function."""
+
+    def wrapped(subparsers):
+        register(subparsers)
+        subparsers.choices["sim"].set_defaults(func=func)
+
+    return wrapped
+
+
+def test_an_import_error_that_is_no_interrupt_still_shows(monkeypatch):
+    from trajgen.cli import sim
+
+    def missing(args):
+        raise ImportError("No module named 'mujoco'")
+
+    monkeypatch.setattr(sim, "register", _registering(sim.register, missing))
+    with pytest.raises(ImportError, match="mujoco"):
+        main(["sim"])

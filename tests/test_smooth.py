@@ -652,3 +652,15 @@ def test_joint_minimax_leaves_a_motion_it_cannot_improve_bit_for_bit():
     q = ptr([0, 0, 0], [50, 0, 0])
     a, b = (SmoothSpline(q, [0.0, 2.0], knots=k) for k in ("end-minimax", "joint-minimax"))
     np.testing.assert_array_equal(a._poly, b._poly)
+
+
+def test_joint_minimax_reports_its_progress_and_ends_at_one(rng):
+    q, t = gimbal_keys(rng, 5)
+    done = []
+    with_progress = SmoothSpline(q, t, knots="joint-minimax", progress=done.append)
+    assert done and done[-1] == 1.0 and done == sorted(done) and 0 < done[0] <= 1
+    # The progress callback changes nothing of the result.
+    np.testing.assert_array_equal(
+        with_progress.tangent_coefficients,
+        SmoothSpline(q, t, knots="joint-minimax").tangent_coefficients,
+    )
