@@ -1404,6 +1404,14 @@ CASES = [
         "unclear",
     ),
     (
+        "excite --torque-off (a stream option) is honoured",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "3", "--torque-off"],
+        None,
+        0,
+        r"servos: were released \(torque off\)",
+        "new",
+    ),
+    (
         "excite --seconds 1",
         ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "1"],
         None,

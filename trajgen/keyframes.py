@@ -28,6 +28,13 @@ for the drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages 
 (``trajgen.cli.common.load_checked`` checks them all before any command works).
 Keyframes are counted from 1 in messages, as a person reading the file would.
 
+Angles are refused where the motion would not follow them as written
+(:func:`check_angles`, :func:`check_honoured`, one rule for every command): tilt
+within the lock margin of +-90 deg, an angle outside its joint's range, half a
+turn or more of a joint between two keyframes, a first pan or roll outside
++-180 deg. A file is read up to :data:`MAX_FILE_BYTES`; a UTF-8 byte-order mark
+is dropped.
+
 Large files: ``tomllib`` takes about 100 s and 0.6 GB for a 70 MB file of a
 million keyframes. The common layout, a run of ``[[keyframes]]`` tables whose
 lines are each ``t``, ``pan``, ``tilt`` or ``roll`` ``= <decimal number>``, is
