@@ -99,7 +99,7 @@ def _interrupted_import(error: ImportError) -> bool:
         if isinstance(cause, KeyboardInterrupt):
             return True
         cause = cause.__cause__ or cause.__context__
-    return "partially initialized module" in str(error)
+    return False
 
 
 if __name__ == "__main__":
