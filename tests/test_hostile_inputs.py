@@ -9,11 +9,12 @@ Each row is ``(name, argv, file, status, message, before)``:
 - ``message``: a regular expression the output must match;
 - ``before``: what the same input did before the issue that fixed it (issue 8,
   or issue 20 for the rows under its headings), on the earlier command line:
-  ``"ok"`` (already a clear refusal), ``"crash"`` (a traceback), ``"silent"`` (accepted, or refused only after planning,
-  simulating or streaming, or a wrong result), ``"hang"`` (no answer in
-  90 s), ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more
-  than one line, or a message that did not name the option), ``"new"`` (an
-  option or table that did not exist then).
+  ``"ok"`` (already a clear refusal), ``"crash"`` (a traceback), ``"silent"``
+  (accepted, or refused only after planning, simulating or streaming, or a wrong
+  result), ``"hang"`` (no answer in 90 s, or growing without bound),
+  ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more than one
+  line, or a message that did not name the option), ``"new"`` (an option or
+  table that did not exist then).
 
 Every row runs in-process through :func:`trajgen.cli.main`; nothing here
 touches a serial port (``stream`` refuses before opening one).
