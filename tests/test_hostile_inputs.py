@@ -942,7 +942,7 @@ CASES = [
         ["stream", "--virtual", "--telemetry", "{tmp}/t.txt"],
         None,
         2,
-        r"--telemetry '.*t.txt': expected a \.csv or \.npz file",
+        r"--telemetry '.*t.txt': expected a \.csv or \.npz or \.mcap file",
         "ok",
     ),
     (
@@ -1039,7 +1039,7 @@ CASES = [
         ["excite", "--virtual", "--telemetry", "{tmp}/t.txt"],
         None,
         2,
-        r"^trajgen excite: error: --telemetry '.*t.txt': expected a .csv or .npz file",
+        r"^trajgen excite: error: --telemetry '.*t.txt': expected a .csv or .npz or .mcap file",
         "ok",
     ),
     (

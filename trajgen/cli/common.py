@@ -38,7 +38,7 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: Image formats ``--plot`` accepts (matplotlib's Agg backend writes each).
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 #: Telemetry formats (``trajgen stream --telemetry``, ``excite``, read by ``identify``).
-TELEMETRY_SUFFIXES = (".csv", ".npz")
+TELEMETRY_SUFFIXES = (".csv", ".npz", ".mcap")
 
 #: Keyframe files above this many keyframes print a line before the spline is built.
 _LARGE_FILE_KEYFRAMES = 100_000
@@ -152,8 +152,9 @@ def add_telemetry_argument(parser: argparse.ArgumentParser, *, required: bool = 
         "--telemetry",
         metavar="LOG.csv",
         required=required,
-        help="write per-frame telemetry to LOG.csv (or LOG.npz): goals and present "
-        "positions (ticks and rad), velocities, currents; what was streamed is kept on any stop",
+        help="write per-frame telemetry to LOG.csv (or .npz, or .mcap: ROS 2 messages for "
+        "Foxglove, needs trajgen[mcap]): goals and present positions (ticks and rad), "
+        "velocities, currents; what was streamed is kept on any stop",
     )
 
 

@@ -62,7 +62,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("file", metavar="FILE", help="keyframe file of the gimbal (TOML)")
     p.add_argument(
-        "logs", metavar="LOG", nargs="+", help="telemetry logs (.csv or .npz) of trajgen excite"
+        "logs",
+        metavar="LOG",
+        nargs="+",
+        help="telemetry logs (.csv, .npz or .mcap) of trajgen excite",
     )
     p.add_argument(
         "--out", metavar="FITTED.toml", required=True, help="write the fitted file to FITTED.toml"

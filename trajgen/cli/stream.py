@@ -27,6 +27,7 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     TELEMETRY_SUFFIXES,
+    Progress,
     add_bus_arguments,
     add_file_argument,
     add_ids_argument,
@@ -34,6 +35,7 @@ from trajgen.cli.common import (
     add_rate_argument,
     add_telemetry_argument,
     bad_input,
+    check_module,
     check_output_path,
     check_plot_path,
     check_timing,
@@ -41,6 +43,7 @@ from trajgen.cli.common import (
     load_checked,
     output_path,
     positive_float,
+    prefix,
     tell,
     warn,
     write_json,
@@ -184,6 +187,14 @@ class Plan:
     options: dict = field(default_factory=dict)
 
 
+def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=()) -> None:
+    """Refuse ``--telemetry PATH`` up front: writable, a known suffix, not one of
+    ``inputs``, and for ``.mcap`` the ``mcap`` extra installed."""
+    check_output_path("--telemetry", path, suffixes, inputs)
+    if path and path.lower().endswith(".mcap"):
+        check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
+
+
 def plan(args) -> Plan:
     """The stream command's plan; no hardware.
 
@@ -208,7 +219,7 @@ def check_stream_outputs(args) -> None:
     """Refuse unusable --telemetry, --json and --plot paths before any work (an output
     that is the keyframe file among them)."""
     inputs = [args.file]
-    check_output_path("--telemetry", args.telemetry, TELEMETRY_SUFFIXES, inputs)
+    check_telemetry_path(args.telemetry, TELEMETRY_SUFFIXES, inputs)
     check_output_path("--json", args.json, (".json",), inputs)
     check_plot_path(args.plot, inputs)
 
@@ -415,7 +426,19 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
             plant, outcome.trajectory, getattr(args, "plot", None), result
         )
         result["status"] = status
+    if telemetry and stats is not None:
+        add_telemetry_report(telemetry, result)
     return write_report(args.json, result, status)
+
+
+def add_telemetry_report(path: str, result: dict) -> None:
+    """Add the report to the telemetry file where it holds one (MCAP); warn if it cannot."""
+    from trajgen.drivers.telemetry import add_report
+
+    try:
+        add_report(path, result, Progress(f"{prefix()}: adding the report to {path}"))
+    except OSError as e:
+        warn(f"telemetry {path}: report not added: {e}")
 
 
 def torque_report(plant, trajectory, plot_path, result: dict):
