@@ -78,7 +78,7 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         BUILTIN_EXAMPLE.read_text().replace(
             "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
         )
-        + "\n[bus]\nwatchdog_s = 0.5\n"
+        + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n"  # Extended Position Mode
     )
     assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
     thread.join(timeout=5)
@@ -204,7 +204,7 @@ def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, mon
         "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.5\npan = 5.0\n"
     )
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # no lines: the file's plan, then rest
-    assert main(["follow", str(keys), "--virtual", "--max-delay", "60"]) == 0
+    assert main(["follow", str(keys), "--virtual", "--configure", "--max-delay", "60"]) == 0
     err = capsys.readouterr().err
     assert "follow plans with the blending spline" in err and "method = 'smooth'" in err
 
@@ -374,7 +374,7 @@ def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(open(stdin, "rb")))  # noqa: SIM115
     out = tmp_path / "follow.json"
     keys = tmp_path / "keys.toml"
-    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\n")
+    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n")
     assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
     err = capsys.readouterr().err
     assert "trajgen follow: stdin: line 1: not UTF-8 text" in err

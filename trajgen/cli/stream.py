@@ -148,6 +148,19 @@ def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
         "without it the installed limits are only read, and a plan leaving them is refused",
     )
     p.add_argument(
+        "--configure",
+        action="store_true",
+        help="let bring-up change EEPROM settings the stream needs (Operating Mode) or is "
+        "advised (Return Delay Time 0); default [bus] configure, else off: it says what it "
+        "would change and refuses where the stream needs it",
+    )
+    p.add_argument(
+        "--restore",
+        action="store_true",
+        help="on exit, write back the settings bring-up changed (EEPROM ones need "
+        "--torque-off); default [bus] restore, else off",
+    )
+    p.add_argument(
         "--max-approach",
         type=positive_float,
         default=45.0,
@@ -261,7 +274,12 @@ def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
     if getattr(args, "ids", None):
         joints = JointMap(args.ids, joints.directions, joints.zeros)
     config = replace(
-        config, port=args.port or config.port, baud=args.baud or config.baud, joints=joints
+        config,
+        port=args.port or config.port,
+        baud=args.baud or config.baud,
+        joints=joints,
+        configure=config.configure or bool(getattr(args, "configure", False)),
+        restore=config.restore or bool(getattr(args, "restore", False)),
     )
     trajectory = plan_joint_trajectory(source.spline(), rate_hz)
     return Plan(source, config, rate_hz, trajectory, bool(args.virtual), options)
@@ -417,6 +435,8 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
         tell(f"{kind}: {outcome.stopped_by}; {state}")
     else:
         print(f"servos: {state.removeprefix('the servos ')}")
+    for servo in outcome.servos:  # each as read back after the stop
+        print(f"  {servo.format()}")
     telemetry = p.options.get("telemetry")
     if telemetry and stats is not None:
         print(f"telemetry: {telemetry}")
