@@ -10,7 +10,7 @@ Keys (all optional)::
     zeros = [2048, 2048, 2048] # tick at joint angle 0
     models = "XM430-W350"      # or one per joint; default: [gimbal] servo
     watchdog_s = 0.1           # Bus Watchdog period, 0.02 .. 2.54 s
-    configure = false          # let bring-up change EEPROM settings (docs/safety_registers.md)
+    configure = false          # let bring-up change EEPROM settings (docs/safety.md)
     restore = false            # write back, on exit, what bring-up changed
 
 Errors are ``trajgen.keyframes.KeyframeFileError`` with a one-line message
@@ -27,7 +27,7 @@ from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.units import ZERO_TICK, JointMap
 from trajgen.gimbal import JOINT_NAMES
 from trajgen.servo_table import DEFAULT_SERVO, servo_spec
-from trajgen.validate import check_number, check_numbers
+from trajgen.validate import check_keys, check_number, check_numbers
 
 BUS_KEYS = (
     "port",
@@ -114,9 +114,7 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
     table = tables.get("bus", {})
     if not isinstance(table, dict):
         raise _error(path, "")(f"expected a table, got {table!r}")
-    for key in table:
-        if key not in BUS_KEYS:
-            raise _error(path, key)(f"unknown key (known: {', '.join(BUS_KEYS)})")
+    check_keys(table, BUS_KEYS, error=_error(path, ""))
     port = table.get("port")
     if port is not None and (not isinstance(port, str) or not port):
         raise _error(path, "port")(f"expected a device path string, got {port!r}")

@@ -64,7 +64,7 @@ def test_bus_table_defaults_and_values():
 @pytest.mark.parametrize(
     ("table", "match"),
     [
-        ({"speed": 1}, r"f.toml: \[bus\] speed: unknown key \(known: port, baud"),
+        ({"speed": 1}, r"f.toml: \[bus\]: unknown key 'speed' \(known: port, baud"),
         ({"baud": "fast"}, r"f.toml: \[bus\] baud: expected an integer, got 'fast'"),
         ({"ids": [1, 1, 2]}, r"\[bus\] ids: expected 3 distinct ids, got \[1, 1, 2\]"),
         ({"ids": [1, 2]}, r"\[bus\] ids: expected a list of 3 integers, got \[1, 2\]"),
@@ -144,7 +144,6 @@ def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--port", "/dev/x", "--virtual"], "--port and --virtual exclude each other"),
         ([], "no serial port: give --port, set [bus] port, or use --virtual"),
         (["--port", "/dev/x", "--plot", "p.png"], "--plot needs --virtual"),
         (
@@ -169,6 +168,12 @@ def test_stream_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, message)
 def test_stream_missing_file_exits_2(tmp_path, capsys):
     assert _run(["stream", tmp_path / "none.toml", "--virtual"]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_port_and_virtual_exclude_each_other_in_the_parser(capsys):
+    with pytest.raises(SystemExit):
+        _run(["stream", "--port", "/dev/x", "--virtual"])
+    assert "argument --virtual: not allowed with argument --port" in capsys.readouterr().err
 
 
 def test_ids_flag_is_checked(capsys):
