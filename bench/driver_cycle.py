@@ -31,17 +31,18 @@ from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.control_table import Register, model_named
 from trajgen.drivers.protocol import encode_fast_sync_status
 from trajgen.drivers.units import JointMap
+from trajgen.servo_table import ZERO_TICK
 
 IDS = (1, 2, 3)
 STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 SYNC_WRITE_B, READ_REQUEST_B = 29, 17
 BAUD = 4_000_000
-BLOCK_B = 10  # 126..135
+READ_BYTES = 1 << 12  # most bytes the responder reads at once
 
 
 def reply_bytes() -> bytes:
-    """A fast sync read reply for IDS: current 0, velocity 0, position 2048."""
-    data = (0).to_bytes(2, "little") + (0).to_bytes(4, "little") + (2048).to_bytes(4, "little")
+    """A fast sync read reply for IDS: current 0, velocity 0, position at the zero tick."""
+    data = (0).to_bytes(2, "little") + (0).to_bytes(4, "little") + ZERO_TICK.to_bytes(4, "little")
     return encode_fast_sync_status([(0, i, data) for i in IDS])
 
 
@@ -50,7 +51,7 @@ def responder(master: int, request_b: int, reply: bytes) -> None:
     pending = 0
     while True:
         try:
-            data = os.read(master, 4096)
+            data = os.read(master, READ_BYTES)
         except OSError:
             return
         if not data:
@@ -74,7 +75,7 @@ def driver_frames(port: str, frames: int) -> tuple[list[float], list[float]]:
     with ServoBus(port, baud=BAUD, latency_ms=50.0) as bus:  # a busy host: no timeouts
         for i in IDS:
             bus.add_servo(i, model)
-        goal = {i: 2048 for i in IDS}
+        goal = dict.fromkeys(IDS, ZERO_TICK)
         for k in range(frames + 100):  # the first 100 warm up
             w0, c0 = time.perf_counter(), time.process_time()
             bus.sync_write(Register.GOAL_POSITION, goal)

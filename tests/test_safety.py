@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from trajgen.drivers.bringup import bring_up, read_position_checked
-from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import SimulatedClock
 from trajgen.drivers.control_table import Register, model_named
 from trajgen.drivers.errors import (
@@ -57,7 +56,7 @@ def rig():
     def make(plant=None, **kwargs):
         kwargs.setdefault("lockstep_dt_s", 1 / RATE_HZ)
         virtual = VirtualBus(plant or FirstOrderPlant(time_constant_s=0.01), **kwargs).start()
-        bus = ServoBus(virtual.port).open()
+        bus = virtual.connect().open()  # lock-step: answered in this thread
         made.append((virtual, bus))
         return virtual, bus
 
