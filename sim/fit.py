@@ -17,7 +17,9 @@ C3, at rest at both ends, and passes every keyframe in order. Three stages:
    simulated servo included) on the stream. A joint whose tracking error passes
    the limit in a path segment gets a speed cap there (lag grows with speed); a
    stretch of path where a joint reaches the torque limit loses 5-15 % of its
-   torque budget. Then stage 1 again from the last law, until the check passes.
+   torque budget. Then stage 1 again from the last law, until the check passes;
+   after ``_SIM_ROUNDS`` the last law is stretched uniformly (bisection under
+   the check) instead.
 3. Tightness: the same motion 5 % faster (``T / 1.05``) must fail the check;
    if it passes, ``T`` is shortened by bisection under the full check.
 """
@@ -42,7 +44,9 @@ __all__ = ["FitError", "FitResult", "SegmentFit", "fit_timing", "plan_reasons"]
 FASTER = 1.05
 #: Rate (Hz) at which the exact motion is checked against the envelope and torque rate.
 CHECK_RATE_HZ = 1000.0
-_SIM_ROUNDS = 20
+_SIM_ROUNDS = 8
+#: Uniform stretches tried under the full check when the local slow-downs do not settle.
+_SIM_STRETCHES = (1.02, 1.05, 1.1, 1.2, 1.4, 2.0)
 _TRACKING_TARGET = 0.97
 #: Uniform stretches tried, in turn, until the exact plan keeps every limit.
 _STRETCHES = (1.0, 1.002, 1.005, 1.01, 1.02, 1.05, 1.1, 1.2, 1.5)
@@ -106,28 +110,13 @@ def fit_timing(
     TypeError, ValueError
         For bad arguments.
     """
-    from trajgen.sim.check import check_torque
-
     fitter = _Fitter.build(source, config, limits, rate_hz, torque_rate_nm_s, progress)
-    say = fitter.say
     c, z = fitter.plan(None, None)
-    report = None
-    rounds = 0
-    while simulate:
-        rounds += 1
-        law = fitter.law(c, z)
-        say(f"round {rounds}: simulating {law.duration_s:.3f} s")
-        report = check_torque(fitter.trajectory(law), config=fitter.config)
-        if report.ok:
-            break
-        if rounds == _SIM_ROUNDS or not fitter.learn_from_sim(report, law):
-            raise FitError(
-                f"no passing timing after {rounds} simulation rounds: {report.reasons[0]}"
-            )
-        c, z = fitter.plan(c, z)
+    if simulate:
+        c, z, report = fitter.fit_to_simulation(c, z)
+    else:
+        report = fitter.simulate(c, z)
     law = fitter.law(c, z)
-    if report is None:
-        report = check_torque(fitter.trajectory(law), config=fitter.config)
     law, report, faster_reasons = fitter.tighten(c, z, law, report, simulate)
     return fitter.result(c, law, report, faster_reasons)
 
@@ -377,8 +366,9 @@ class _Fitter:
 
         Where a joint reaches the torque limit, the torque budget loses 5, 10 or
         15 % (fewer than 20, 100 or more physics steps at the limit) within
-        ``_WINDOW_S`` of motion time either side; where its tracking error passes the limit, its speed is capped over the
-        ``_WINDOW_S`` before (lag builds up with speed).
+        ``_WINDOW_S`` of motion time either side; where its tracking error passes
+        the limit, its speed is capped over the ``_WINDOW_S`` before (lag builds
+        up with speed).
         """
         record, plan = report.record, report.trajectory
         bounds = self.bounds
@@ -413,6 +403,49 @@ class _Fitter:
                 learned = True
         self.say("  simulation: " + "; ".join(report.reasons[:2]))
         return learned
+
+    def simulate(self, c, z):
+        """The full check (:func:`trajgen.sim.check.check_torque`) of the law ``(c, z)``."""
+        from trajgen.sim.check import check_torque
+
+        return check_torque(self.trajectory(self.law(c, z)), config=self.config)
+
+    def fit_to_simulation(self, c, z):
+        """Stage 2: local slow-downs where the check fails, re-planned, then (if that has not
+        passed after ``_SIM_ROUNDS``) a uniform stretch by bisection under the check.
+
+        Returns
+        -------
+        c, z, report
+            The passing law and its check.
+        """
+        for round_ in range(1, _SIM_ROUNDS + 1):
+            self.say(f"round {round_}: simulating {np.exp(z):.3f} s")
+            report = self.simulate(c, z)
+            if report.ok:
+                return c, z, report
+            if not self.learn_from_sim(report, self.law(c, z)):
+                break
+            c, z = self.plan(c, z)
+        # The local slow-downs did not settle: stretch the last law as a whole.
+        failed, passed, passing = 0.0, None, None
+        for stretch in _SIM_STRETCHES:
+            self.say(f"  stretched x{stretch:g}: simulating")
+            trial = self.simulate(c, z + np.log(stretch))
+            if trial.ok:
+                passed, passing = np.log(stretch), trial
+                break
+            failed, report = np.log(stretch), trial
+        if passed is None:
+            raise FitError(f"no passing timing found by simulation: {report.reasons[0]}")
+        for _ in range(_STRETCH_BISECTIONS):
+            mid = 0.5 * (failed + passed)
+            trial = self.simulate(c, z + mid)
+            if trial.ok:
+                passed, passing = mid, trial
+            else:
+                failed = mid
+        return c, z + passed, passing
 
     def tighten(self, c, z, law, report, simulate):
         """Stage 3: make sure ``FASTER`` times as fast fails; returns the law, its report and
