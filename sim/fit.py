@@ -27,13 +27,17 @@ C3, at rest at both ends, and passes every keyframe in order. Three stages:
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
-from trajgen.sim.fit_result import FitError, FitResult, SegmentFit
+from trajgen.sim.fit_result import (
+    FitError,
+    FitResult,
+    SegmentFit,
+    refuse_unholdable_keyframes,
+    retimed_document,
+)
 from trajgen.sim.limits import JointLimits, check_limits
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.smooth import SmoothSpline
@@ -231,7 +235,7 @@ class _Fitter:
         self.source, self.config, self.limits = source, config, limits
         self.rate_hz, self.torque_rate, self.say = rate_hz, torque_rate, say
         self.model = simulation_model(config)
-        self.check_static()
+        refuse_unholdable_keyframes(source, self.model, config)
         self.path_times = default_path_times(source)
         # The path is always the C3 SmoothSpline (a blending spline is C2 at k = 2: its
         # jerk steps at the keyframes, and so would the torque rate).
@@ -263,29 +267,6 @@ class _Fitter:
         self._problem_class = LawProblem
         self.iterations = 0
         self.problem = None
-
-    def check_static(self) -> None:
-        """Refuse keyframes the gimbal cannot hold still against gravity."""
-        from trajgen import gimbal
-        from trajgen.sim.dynamics import inverse_dynamics
-
-        try:
-            q = gimbal.GimbalKinematics().inverse(self.source.quats, self.source.times)
-        except gimbal.KinematicsError as e:
-            raise FitError(f"no timing can help: at a keyframe, {e}") from e
-        zero = np.zeros_like(q)
-        hold = np.abs(inverse_dynamics(self.model, q, zero, zero, coulomb=False))
-        stall = np.array([s.stall_torque_nm for s in self.config.servos])
-        avail = self.config.torque_margin * stall
-        over = hold > avail
-        if over.any():
-            i, j = np.argwhere(over)[0]
-            raise FitError(
-                f"keyframe {i + 1}: the {JOINT_NAMES[j]} servo cannot hold this pose against "
-                f"gravity: it needs {hold[i, j]:.3f} N m, {self.config.torque_margin:g} x stall "
-                f"is {avail[j]:.3f} N m ({self.config.servos[j].name}, payload "
-                f"{self.config.payload_kg:g} kg)"
-            )
 
     def _check_path_static(self) -> None:
         """Refuse a path that passes a pose the gimbal cannot hold against gravity."""
@@ -522,9 +503,7 @@ class _Fitter:
 
     def document(self, times, law) -> dict:
         """The input's TOML document with the keyframes' new times and the ``[timing]`` table."""
-        document = tomllib.loads(Path(self.source.path).read_text(encoding="utf-8"))
-        for entry, t in zip(document["keyframes"], times, strict=True):
-            entry["t"] = float(t)
+        document = retimed_document(self.source.path, times)
         document["spline"] = dict(self.spline_table)
         document["timing"] = {
             "path_times": [float(s) for s in self.path_times],

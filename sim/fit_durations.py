@@ -40,13 +40,17 @@ faster, which must fail: the fit is tight.
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
-from trajgen.sim.fit_result import FitError, FitResult, SegmentFit
+from trajgen.sim.fit_result import (
+    FitError,
+    FitResult,
+    SegmentFit,
+    refuse_unholdable_keyframes,
+    retimed_document,
+)
 from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.validate import check_number
@@ -142,7 +146,7 @@ def fit_durations(
     fitter = _make_fitter(source, config, limits, rate_hz, tolerance, progress)
     source, config, limits = fitter.source, fitter.config, fitter.limits
     say = fitter.say
-    fitter.check_static()
+    refuse_unholdable_keyframes(fitter.source, fitter.model, fitter.config)
     old_times = np.asarray(source.times, dtype=float)
     durations = np.diff(old_times)
     best = None
@@ -192,7 +196,7 @@ def fit_durations(
         report=report,
         faster_reasons=tuple(faster_reasons),
         limits=limits,
-        document=_retimed_document(source.path, times),
+        document=retimed_document(source.path, times),
         iterations=fitter.iterations,
     )
 
@@ -273,14 +277,6 @@ def _round_times(t0: float, durations: np.ndarray) -> np.ndarray:
     return np.round(t0 + np.concatenate([[0.0], np.cumsum(durations)]), _TIME_DECIMALS)
 
 
-def _retimed_document(path, times: np.ndarray) -> dict:
-    """The file's TOML document (``tomllib``) with keyframe ``i``'s ``t`` set to ``times[i]``."""
-    document = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    for entry, t in zip(document["keyframes"], times, strict=True):
-        entry["t"] = float(t)
-    return document
-
-
 class _Fitter:
     """The plan loop's state: the keyframes, the model and the learned simulation caps."""
 
@@ -335,28 +331,6 @@ class _Fitter:
         except KinematicsError as e:
             raise FitError(f"no timing can help: the path {e}") from e
         return JointTrajectory(at, q, qd, qdd, self.rate_hz)
-
-    def check_static(self) -> None:
-        """Refuse keyframes the gimbal cannot hold still against gravity."""
-        from trajgen import gimbal
-        from trajgen.sim.dynamics import inverse_dynamics
-
-        try:
-            q = gimbal.GimbalKinematics().inverse(self.source.quats, self.source.times)
-        except gimbal.KinematicsError as e:
-            raise FitError(f"no timing can help: at a keyframe, {e}") from e
-        zero = np.zeros_like(q)
-        hold = np.abs(inverse_dynamics(self.model, q, zero, zero, coulomb=False))
-        avail = self.config.torque_margin * self.stall
-        over = hold > avail
-        if over.any():
-            i, j = np.argwhere(over)[0]
-            raise FitError(
-                f"keyframe {i + 1}: the {JOINT_NAMES[j]} servo cannot hold this pose against "
-                f"gravity: it needs {hold[i, j]:.3f} N m, {self.config.torque_margin:g} x stall "
-                f"is {avail[j]:.3f} N m ({self.config.servos[j].name}, payload "
-                f"{self.config.payload_kg:g} kg)"
-            )
 
     def sample_factors(self, trajectory, segment):
         """Largest speed-up per sample and joint, and the code of the limit that sets it.

@@ -1,13 +1,17 @@
-"""What a timing fit returns: per-segment durations, the binding limits, the file to write."""
+"""What a timing fit returns (per-segment durations, the binding limits, the file to write),
+and the refusal both fits share."""
 
 from __future__ import annotations
 
+import tomllib
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from trajgen.sim.errors import SimError
 from trajgen.sim.limits import JointLimits
+from trajgen.sim.model import JOINT_NAMES
 
 
 class FitError(SimError):
@@ -114,3 +118,36 @@ class FitResult:
         else:
             lines.append(f"NOT tight: {percent} faster still passes")
         return "\n".join(lines)
+
+
+def refuse_unholdable_keyframes(source, model, config) -> None:
+    """Raise FitError if a keyframe is near gimbal lock or a pose the servos cannot hold
+    against gravity (``torque_margin x`` stall)."""
+    from trajgen import gimbal
+    from trajgen.sim.dynamics import inverse_dynamics
+
+    try:
+        q = gimbal.GimbalKinematics().inverse(source.quats, source.times)
+    except gimbal.KinematicsError as e:
+        raise FitError(f"no timing can help: at a keyframe, {e}") from e
+    zero = np.zeros_like(q)
+    hold = np.abs(inverse_dynamics(model, q, zero, zero, coulomb=False))
+    stall = np.array([s.stall_torque_nm for s in config.servos])
+    avail = config.torque_margin * stall
+    over = hold > avail
+    if over.any():
+        i, j = np.argwhere(over)[0]
+        raise FitError(
+            f"keyframe {i + 1}: the {JOINT_NAMES[j]} servo cannot hold this pose against "
+            f"gravity: it needs {hold[i, j]:.3f} N m, {config.torque_margin:g} x stall "
+            f"is {avail[j]:.3f} N m ({config.servos[j].name}, payload "
+            f"{config.payload_kg:g} kg)"
+        )
+
+
+def retimed_document(path, times: np.ndarray) -> dict:
+    """The file's TOML document (``tomllib``) with keyframe ``i``'s ``t`` set to ``times[i]``."""
+    document = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    for entry, t in zip(document["keyframes"], times, strict=True):
+        entry["t"] = float(t)
+    return document
