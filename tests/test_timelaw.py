@@ -201,3 +201,13 @@ def test_bad_timing_table(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(KeyframeFileError, match=match):
         load_keyframe_file(path)
+
+
+def test_follow_refuses_a_fitted_file(tmp_path):
+    """follow splices changes onto the blending spline: it cannot play a time law."""
+    from trajgen.follower import online_spline
+
+    path = tmp_path / "timed.toml"
+    path.write_text(TIMED.format(t1=0.4))
+    with pytest.raises(ValueError, match=r"\[timing\]: follow cannot splice changes onto a fitted"):
+        online_spline(load_keyframe_file(path))
