@@ -227,7 +227,7 @@ def plot_report(report, path) -> Path:
     verdict = "OK" if report.ok else "FAILED"
     fig.suptitle(
         f"torque check: {verdict} ({report.duration_s:.2f} s at {report.rate_hz:g} Hz, "
-        f"margin {margin:g} of the 12 V envelope)"
+        f"margin {margin:g} of the {report.envelope_volts} envelope)"
     )
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     path = Path(path)

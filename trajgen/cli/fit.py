@@ -27,7 +27,7 @@ Retime a keyframe file's motion to the servos: the path through the keyframes
 (orientations and order; the C3 smooth spline) stays, its clock is replaced by
 a smooth time law (a quintic B-spline: the motion stays C3 and at rest at both
 ends) that is as fast as `trajgen sim`'s torque check allows: planned torque
-within torque_margin x the 12 V torque-speed envelope, torque rate within
+within torque_margin x the rated-voltage torque-speed envelope, torque rate within
 [limits] torque_rate_nm_s (default 300 N m/s), no simulated step at the torque
 limit, tracking within the limit, and the file's optional [limits] table:
 

@@ -31,7 +31,7 @@ Plan the joint stream of a keyframe file, play it to a simulated pan-tilt-roll
 gimbal of Dynamixel servos (MuJoCo, 1 ms physics; goal positions in whole ticks
 held for one stream period, followed by each servo's own firmware position
 loop) and check torque: the planned torque (inverse dynamics) must stay within
-torque_margin x the 12 V torque-speed envelope tau_stall (1 - |w| / w0), no
+torque_margin x the rated-voltage torque-speed envelope tau_stall (1 - |w| / w0), no
 simulated step may reach the servo's torque limit, and the tracking error must stay
 below the limit (with default gains a servo lags about speed x 45 ms). The
 file's [gimbal] table picks the servos (servo = "XM430-W350" or servo = {pan =
