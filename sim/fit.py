@@ -37,6 +37,7 @@ from trajgen.sim.fit_result import (
     SegmentFit,
     refuse_unholdable_keyframes,
     retimed_document,
+    segment_fits,
 )
 from trajgen.sim.limits import JointLimits, check_limits
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
@@ -483,10 +484,7 @@ class _Fitter:
         times = path.times
         old = np.asarray(self.source.times, dtype=float)
         binding = self.binding(c, law)
-        segments = tuple(
-            SegmentFit(i + 1, float(o), float(n), binding[i])
-            for i, (o, n) in enumerate(zip(np.diff(old), np.diff(times), strict=True))
-        )
+        segments = segment_fits(old, times, binding)
         return FitResult(
             times=times,
             old_times=old,

@@ -47,9 +47,9 @@ import numpy as np
 from trajgen.sim.fit_result import (
     FitError,
     FitResult,
-    SegmentFit,
     refuse_unholdable_keyframes,
     retimed_document,
+    segment_fits,
 )
 from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
@@ -184,10 +184,7 @@ def fit_durations(
     else:
         faster_report = check_torque(faster_trajectory, config=config)
         faster_reasons = faster_report.reasons + check_limits(faster_trajectory, limits)
-    segments = tuple(
-        SegmentFit(i + 1, float(old), float(new), binding[i])
-        for i, (old, new) in enumerate(zip(np.diff(old_times), np.diff(times), strict=True))
-    )
+    segments = segment_fits(old_times, times, binding)
     return FitResult(
         faster=_FASTER,
         times=times,

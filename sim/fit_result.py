@@ -120,6 +120,15 @@ class FitResult:
         return "\n".join(lines)
 
 
+def segment_fits(old_times: np.ndarray, times: np.ndarray, binding) -> tuple:
+    """One :class:`SegmentFit` per segment of keyframe ``old_times`` and ``times`` (N,), s,
+    with ``binding`` (N - 1 str)."""
+    return tuple(
+        SegmentFit(i + 1, float(old), float(new), binding[i])
+        for i, (old, new) in enumerate(zip(np.diff(old_times), np.diff(times), strict=True))
+    )
+
+
 def refuse_unholdable_keyframes(source, model, config) -> None:
     """Raise FitError if a keyframe is near gimbal lock or a pose the servos cannot hold
     against gravity (``torque_margin x`` stall)."""
