@@ -91,7 +91,7 @@ class TelemetryLog:
 
 
 def load_telemetry(path) -> TelemetryLog:
-    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv or .npz).
+    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv, .npz or .mcap).
 
     Raises
     ------
@@ -101,11 +101,19 @@ def load_telemetry(path) -> TelemetryLog:
         If it cannot be read.
     """
     path = Path(path)
-    if path.suffix == ".npz":
+    if path.suffix == ".mcap":
+        from trajgen.ros2_messages import McapMissing
+        from trajgen.telemetry_mcap import read_columns
+
+        try:
+            columns = read_columns(path)
+        except (ValueError, McapMissing) as e:
+            raise IdentifyError(str(e)) from None
+    elif path.suffix == ".npz":
         with np.load(path) as f:
             columns = {k: np.asarray(f[k]) for k in f.files}
     else:
-        with open(path, newline="", encoding="utf-8") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:  # a spreadsheet's BOM
             rows = list(csv.DictReader(f))
         columns = {k: np.array([r[k] for r in rows]) for k in (rows[0] if rows else {})}
     names = ["frame", "t_s"] + [

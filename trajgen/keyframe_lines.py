@@ -20,11 +20,14 @@ from collections.abc import Iterator
 from .errors import KeyframeFileError
 from .keyframes import check_keyframes
 from .online import MODES
-from .validate import check_number
+from .validate import check_keys, check_number
 
 #: Longest line (bytes, newline included) parsed; a longer one is refused unread past
 #: this. A keyframe line is under 200 bytes.
 MAX_LINE_BYTES = 64 * 1024
+
+#: Longest message (characters) about a refused line: what arrived is cut to fit.
+MAX_MESSAGE_CHARS = 200
 
 #: The fields a line may have.
 LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
@@ -105,6 +108,17 @@ def parse_line(text: str, where: str):
         ``"{where}: ..."``, naming the field that is wrong.
     """
 
+    try:
+        return _parse(text, where)
+    except KeyframeFileError as e:
+        # One keyframe a line: "keyframe 1" says nothing; a value 60 KB long is cut.
+        message = str(e).replace(f"{where}: keyframe 1: ", f"{where}: ", 1)
+        if len(message) > MAX_MESSAGE_CHARS:
+            message = f"{message[: MAX_MESSAGE_CHARS - 5]}[...] ({len(message)} characters)"
+        raise KeyframeFileError(message) from None
+
+
+def _parse(text: str, where: str):
     def error(problem: str) -> KeyframeFileError:
         return KeyframeFileError(f"{where}: {problem}")
 
@@ -118,9 +132,7 @@ def parse_line(text: str, where: str):
         raise error(f"invalid JSON: {e}") from None
     if not isinstance(entry, dict):
         raise error(f"expected a JSON object, got {text.strip()[:80]!r}")
-    for key in entry:
-        if key not in LINE_KEYS:
-            raise error(f"unknown field {key[:40]!r} (known: {', '.join(LINE_KEYS)})")
+    check_keys(entry, LINE_KEYS, error=error, kind="field")
     mode = entry.get("mode", "retarget")
     if mode not in MODES:
         raise error(f"field 'mode': expected one of {MODES}, got {mode!r}")
