@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import BadArgument
 from .path import OrientationPath, check_times
 from .validate import check_number
 
@@ -99,22 +100,22 @@ class TimeLaw:
         c = np.asarray(coefficients, dtype=float)
         p = int(degree)
         if c.ndim != 1 or knots.shape != (len(c) + p + 1,) or len(c) < p + 1:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected {p + 1} or more coefficients and {p + 1} knots more than "
                 f"coefficients, got {c.size} and {knots.size}."
             )
         if not (np.isfinite(knots).all() and np.isfinite(c).all()):
-            raise ValueError("Expected finite knots and coefficients.")
+            raise BadArgument("Expected finite knots and coefficients.")
         if (
             (np.diff(knots) < 0).any()
             or (knots[: p + 1] != 0).any()
             or (knots[-p - 1 :] != 1).any()
         ):
-            raise ValueError(
+            raise BadArgument(
                 f"Expected non-decreasing knots with {p + 1} zeros first and {p + 1} ones last."
             )
         if c[0] != 0.0 or c[-1] != 1.0 or (np.diff(c) <= 0).any():
-            raise ValueError("Expected coefficients strictly increasing from 0 to 1.")
+            raise BadArgument("Expected coefficients strictly increasing from 0 to 1.")
         self.knots, self.coefficients, self.degree = knots, c, p
         self.t_start = check_number("t_start", t_start)
         self.duration_s = check_number("duration_s", duration_s, low=0.0, low_open=True)
@@ -195,7 +196,7 @@ class RetimedPath(OrientationPath):
     def __init__(self, path: OrientationPath, law: TimeLaw):
         s0, s1 = law.s_start, law.s_start + law.s_span
         if not (np.isclose(path.t_start, s0, atol=1e-9) and np.isclose(path.t_end, s1, atol=1e-9)):
-            raise ValueError(
+            raise BadArgument(
                 f"Expected the time law to span the path's [{path.t_start}, {path.t_end}] s, "
                 f"got [{s0}, {s1}] s."
             )
