@@ -46,6 +46,7 @@ from trajgen.drivers.control_table import (
 from trajgen.drivers.errors import BringUpError, CommError
 from trajgen.drivers.units import RAD_PER_TICK, TICKS_PER_REV, JointMap
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.lead import sent_q
 
 #: Drive Mode bits (e-Manual, "Drive Mode (10)").
 DRIVE_MODE_REVERSE = 0x01
@@ -314,7 +315,7 @@ def check_plan(
     """
     names = joint_names_for(joints, joint_names)
     set_limits = dict(set_limits or {})
-    q = np.asarray(trajectory.q, dtype=float)
+    q = np.asarray(sent_q(trajectory), dtype=float)  # the goals sent, led or not
     t = np.asarray(trajectory.t, dtype=float)
     ticks = joints.to_ticks(q)
     modes, limits = [], []
@@ -502,7 +503,7 @@ def bring_up(
                 f"servo {joints.ids[j]} ({names[j]}) reads Present Position {present[j]}, "
                 f"outside its limits {low}..{high}; torque stays off; refusing to stream"
             )
-    check_start(joints.to_rad(present), np.asarray(plan.q, float)[0], max_approach_rad, names)
+    check_start(joints.to_rad(present), np.asarray(sent_q(plan), float)[0], max_approach_rad, names)
     for servo_id, ticks in zip(joints.ids, present.tolist(), strict=True):
         # Goal Position = present position first, so torque on does not jump.
         bus.write(servo_id, Register.GOAL_POSITION, ticks)

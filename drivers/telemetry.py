@@ -21,9 +21,21 @@ import numpy as np
 
 
 def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
-    """Column names: frame bookkeeping, then per joint goal / present values."""
+    """Column names: frame bookkeeping, then per joint plan / goal / present values.
+
+    ``plan_rad`` is the planned angle, ``goal_rad`` what was sent (led ahead of
+    the plan, ``trajgen.lead``), ``position_rad`` where the servo was:
+    ``position_rad - plan_rad`` is the real tracking error.
+    """
     columns = ["frame", "phase", "t_s", "sent_s", "lateness_s"]
-    for prefix in ("goal_rad", "goal_tick", "position_rad", "velocity_rad_s", "current_a"):
+    for prefix in (
+        "plan_rad",
+        "goal_rad",
+        "goal_tick",
+        "position_rad",
+        "velocity_rad_s",
+        "current_a",
+    ):
         columns += [f"{prefix}_{name}" for name in joint_names]
     return columns
 

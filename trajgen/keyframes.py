@@ -69,7 +69,7 @@ METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
 DEFAULT_METHOD = "smooth"
 #: Keys only the blending spline takes; a file giving one without ``method`` gets it.
 BLENDING_ONLY = ("k", "local", "reparam")
-STREAM_KEYS = ("rate_hz",)
+STREAM_KEYS = ("rate_hz", "lead")
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 #: Keyframe angle fields (degrees), one per gimbal joint.
 ANGLE_KEYS = JOINT_NAMES
@@ -109,6 +109,10 @@ class KeyframeFile:
         The ``[stream]`` rate, if given.
     tables : dict
         Every other top-level table, as parsed (``tables.get("gimbal", {})``).
+    method : str
+        ``[spline] method``.
+    lead : str or None
+        The ``[stream] lead`` (``trajgen.lead.LEADS``), if given.
     """
 
     path: Path
@@ -119,6 +123,7 @@ class KeyframeFile:
     tables: dict = field(default_factory=dict)
     #: ``[spline] method``: "smooth" or "blending".
     method: str = DEFAULT_METHOD
+    lead: str | None = None
 
     @property
     def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
@@ -196,12 +201,14 @@ def load_keyframe_file(path) -> KeyframeFile:
             raise KeyframeFileError(f"{path}: unknown table [{name}] (known: {', '.join(TABLES)})")
     options = _spline_options(data.get("spline", {}), path)
     method = options.pop("method", DEFAULT_METHOD)
-    rate_hz = _stream_rate(data.get("stream", {}), path)
+    stream = data.get("stream", {})
+    rate_hz = _stream_rate(stream, path)
     if columns is None:
         columns = _keyframe_columns(data.get("keyframes"), path)
     times, quats = _keyframes(columns, path)
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method)
+    lead = _stream_lead(stream, path)
+    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method, lead=lead)
 
 
 def _toml(text: str, path: Path) -> dict:
@@ -331,6 +338,15 @@ def _stream_rate(table, path: Path) -> float | None:
     return check_number(
         "rate_hz", table["rate_hz"], low=0.0, low_open=True, error=_error(path, "[stream] rate_hz")
     )
+
+
+def _stream_lead(table, path: Path) -> str | None:
+    """The ``[stream] lead`` (checked by :func:`_stream_rate` to be in a table), or None."""
+    if "lead" not in table:
+        return None
+    from .lead import LEADS
+
+    return check_choice("lead", table["lead"], LEADS, error=_error(path, "[stream] lead"))
 
 
 # --- keyframes -----------------------------------------------------------------------

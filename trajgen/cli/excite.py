@@ -19,6 +19,7 @@ from pathlib import Path
 from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
+    add_lead_argument,
     bad_input,
     baud_rate,
     check_output_path,
@@ -77,6 +78,7 @@ def register(subparsers) -> None:
         "--rate", type=positive_float, metavar="HZ", help="stream rate (Hz); default 200"
     )
     p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
+    add_lead_argument(p)
     p.set_defaults(func=run_excite)
 
 
@@ -160,7 +162,13 @@ def run_excite(args) -> int:
     parser = argparse.ArgumentParser(prog="trajgen")
     stream.register(parser.add_subparsers())
     argv = ["stream", str(source.path), "--telemetry", args.telemetry]
-    for flag, value in (("--port", args.port), ("--baud", args.baud), ("--json", args.json)):
+    options = (
+        ("--port", args.port),
+        ("--baud", args.baud),
+        ("--json", args.json),
+        ("--lead", args.lead),
+    )
+    for flag, value in options:
         if value is not None:
             argv += [flag, str(value)]
     if args.virtual:

@@ -538,6 +538,8 @@ def follow(args, lines):
         return stream_command.bring_up_servos(bus, args, p, plan_from=envelope)
 
     def stream(bus, args, p, setup, outcome):
+        from trajgen.sim.lead import live_frames
+
         follower = made["follower"]
         source = lines(follower) if callable(lines) else lines
 
@@ -549,7 +551,15 @@ def follow(args, lines):
                 p,
                 setup,
                 outcome,
-                frames=follower.frames(start=p.joints.to_rad(setup.present_ticks)),
+                # Led goals from the live plan's own q, qd, qdd, inside the range
+                # bring-up checked (the joint limits).
+                frames=live_frames(
+                    follower.frames(start=p.joints.to_rad(setup.present_ticks)),
+                    p.gimbal,
+                    p.lead,
+                    p.rate_hz,
+                    np.array(follower.kinematics.limits_rad),
+                ),
                 clock=WALL_CLOCK,  # the lines arrive in real time, with --virtual too
             )
         finally:

@@ -16,6 +16,7 @@ from trajgen.cli.common import (
     EXIT_OK,
     Progress,
     add_file_argument,
+    add_lead_argument,
     add_rate_argument,
     bad_input,
     check_module,
@@ -33,9 +34,11 @@ held for one stream period, followed by each servo's own firmware position
 loop) and check torque: the planned torque (inverse dynamics) must stay within
 torque_margin x the 12 V torque-speed envelope tau_stall (1 - |w| / w0), no
 simulated step may reach the servo's torque limit, and the tracking error must stay
-below the limit (with default gains a servo lags about speed x 45 ms). The
-file's [gimbal] table picks the servos (servo = "XM430-W350" or servo = {pan =
-..., tilt = ..., roll = ...}), payload_kg, payload_offset_m, torque_margin,
+below the limit (with default gains a servo lags its goal by about speed x
+45 ms, so each goal is sent ahead of the plan: --lead, [stream] lead, default
+model; the error is against the plan, docs/lead.md). The file's [gimbal]
+table picks the servos (servo = "XM430-W350" or servo = {pan = ..., tilt =
+..., roll = ...}), payload_kg, payload_offset_m, torque_margin,
 max_tracking_error_rad and p_divisor; [gimbal.pan], [gimbal.tilt] and
 [gimbal.roll] set armature, frictionloss, damping and position_p_gain per joint
 (trajgen identify fits them).
@@ -56,6 +59,7 @@ def register(subparsers) -> None:
     )
     add_file_argument(p)
     add_rate_argument(p)
+    add_lead_argument(p)
     p.add_argument(
         "--json",
         metavar="OUT.json",
@@ -125,7 +129,9 @@ def _run(args, progress: Progress, done: dict) -> int:
     check_timing(kf, 1.0 / checked.gimbal.timestep_s)
     done.update(stage="simulating", rate_hz=rate, duration_s=float(kf.times[-1] - kf.times[0]))
     try:
-        report = check_torque(kf, rate_hz=rate, config=checked.gimbal, progress=progress)
+        report = check_torque(
+            kf, rate_hz=rate, config=checked.gimbal, progress=progress, lead=args.lead
+        )
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
         return EXIT_FAILED

@@ -29,6 +29,7 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     add_file_argument,
+    add_lead_argument,
     bad_input,
     baud_rate,
     check_output_path,
@@ -121,6 +122,7 @@ def add_stream_arguments(p) -> None:
         metavar="HZ",
         help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
     )
+    add_lead_argument(p)
     p.add_argument(
         "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
     )
@@ -231,6 +233,10 @@ class Plan:
     rate_hz: float
     trajectory: object
     set_limits: dict[int, tuple[int, int]]
+    #: How goals are led ahead of the plan (``trajgen.lead``), and the simulated
+    #: gimbal of the file's [gimbal] tables whose loop parameters set the lead.
+    lead: str = "model"
+    gimbal: object = None
 
 
 @dataclass
@@ -325,8 +331,27 @@ def plan(args) -> Plan:
     ValueError, TypeError, OSError
         Bad input.
     """
+    from trajgen.lead import DEFAULT_LEAD
+    from trajgen.sim.model import gimbal_config_from_tables
+
     kf, config, joints, rate, trajectory = _plan(args)
-    return Plan(kf, config, joints, rate, trajectory, _set_limits(args, joints))
+    lead = getattr(args, "lead", None) or getattr(kf, "lead", None) or DEFAULT_LEAD
+    gimbal = gimbal_config_from_tables(kf.tables, kf.path)
+    p = Plan(kf, config, joints, rate, trajectory, _set_limits(args, joints), lead, gimbal)
+    p.trajectory = lead_plan(p, trajectory)
+    return p
+
+
+def lead_plan(p: Plan, trajectory, *, quiet: bool = False):
+    """``trajectory`` with the goals to send (``sim.lead.lead_trajectory``: the same goals
+    ``trajgen sim`` simulates), led by ``p.lead`` with the loop parameters of the file's
+    [gimbal] tables; notes why a joint gets no lead."""
+    from trajgen.sim.lead import lead_trajectory
+
+    led, _, notes = lead_trajectory(trajectory, p.gimbal, p.lead)
+    for note in () if quiet else notes:
+        print(f"trajgen: note: {note}", file=sys.stderr)
+    return led
 
 
 def open_port(args, p: Plan):
@@ -370,6 +395,8 @@ def bring_up_servos(bus, args, p: Plan, *, plan_from=None):
     2 pi branch nearest to where the servos are, so the move to the first
     frame never unwinds a turn. ``plan_from(present)`` replaces that plan (what
     bring-up checks against the servos), e.g. the range an online plan may use.
+    The default plans from the present position and leads the goals
+    (:func:`lead_plan`): bring-up checks the goals that will be sent.
     """
     from trajgen.drivers.bringup import bring_up
     from trajgen.stream import plan_joint_trajectory
@@ -377,7 +404,9 @@ def bring_up_servos(bus, args, p: Plan, *, plan_from=None):
     if plan_from is None:
 
         def plan_from(present):
-            return plan_joint_trajectory(p.kf.spline(), p.rate_hz, start=present)
+            # Bring-up checks the goals that will be sent (led), not only the plan.
+            planned = plan_joint_trajectory(p.kf.spline(), p.rate_hz, start=present)
+            return lead_plan(p, planned, quiet=True)
 
     setup = bring_up(
         bus,
@@ -525,18 +554,20 @@ def report(args, p: Plan, plant, outcome: Outcome, extra: dict | None = None) ->
         **(extra or {}),
     }
     if plant is not None and outcome.status == EXIT_OK:
-        outcome.status, outcome.torque_report = torque_report(plant, p.trajectory, args, result)
+        outcome.status, outcome.torque_report = torque_report(
+            plant, p.trajectory, args, result, lead=p.lead
+        )
         result["status"] = outcome.status
     return write_json(args, result, outcome.status)
 
 
-def torque_report(plant, trajectory, args, result: dict):
+def torque_report(plant, trajectory, args, result: dict, *, lead: str = "none"):
     """Print (and plot with --plot) the torque report of ``trajectory`` as streamed to
     ``plant``; add it to ``result``; return the exit status and the report (or None)."""
     from trajgen.sim.errors import SimError
 
     try:
-        report = plant.report(trajectory)
+        report = plant.report(trajectory, lead=lead)
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)
         return EXIT_FAILED, None
