@@ -426,8 +426,8 @@ def simulate(
     (``trajectory.goal`` when led, else its angles), rounded to whole ticks as
     Goal Position is, is the servos' goal from ``t[i]`` to ``t[i + 1]`` (the
     last frame's for one stream period); the servos' own position loop
-    (``sim.firmware``, gains from ``config``) does the rest, exactly as behind the virtual bus (``sim.plant.GimbalPlant``).
-    Physics runs at ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
+    (``sim.firmware``, gains from ``config``) does the rest, exactly as
+    behind the virtual bus (``sim.plant.GimbalPlant``). Physics runs at ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
 
     Parameters
     ----------
