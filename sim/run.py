@@ -427,7 +427,8 @@ def simulate(
     Goal Position is, is the servos' goal from ``t[i]`` to ``t[i + 1]`` (the
     last frame's for one stream period); the servos' own position loop
     (``sim.firmware``, gains from ``config``) does the rest, exactly as
-    behind the virtual bus (``sim.plant.GimbalPlant``). Physics runs at ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
+    behind the virtual bus (``sim.plant.GimbalPlant``). Physics runs at
+    ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
 
     Parameters
     ----------
