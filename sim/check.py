@@ -220,13 +220,15 @@ def _envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j) -> str
     )
 
 
-def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
+def check_planned_torque(trajectory, config: GimbalConfig, *, model=None) -> tuple[str, ...]:
     """Part (a) alone: why the plan leaves ``torque_margin x`` the envelope (empty if not).
 
     Parameters
     ----------
     trajectory : JointTrajectory
     config : GimbalConfig
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it already.
 
     Returns
     -------
@@ -236,7 +238,8 @@ def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
     from trajgen.sim.dynamics import inverse_dynamics
 
     check_trajectory(trajectory)
-    tau = inverse_dynamics(simulation_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
+    model = simulation_model(config) if model is None else model
+    tau = inverse_dynamics(model, trajectory.q, trajectory.qd, trajectory.qdd)
     t = np.asarray(trajectory.t, dtype=float)
     qd = np.asarray(trajectory.qd, dtype=float)
     reasons = []

@@ -79,7 +79,7 @@ def lead_trajectory(
     params = lead_params(config)
     reasons: tuple[str, ...] = ()
     if lead != "none":
-        failed = check_planned_torque(trajectory, config)
+        failed = check_planned_torque(trajectory, config, model=model)
         off = [
             j for j, name in enumerate(JOINT_NAMES) if any(r.startswith(f"{name}:") for r in failed)
         ]

@@ -130,7 +130,11 @@ def _run(args, progress: Progress, done: dict) -> int:
     done.update(stage="simulating", rate_hz=rate, duration_s=float(kf.times[-1] - kf.times[0]))
     try:
         report = check_torque(
-            kf, rate_hz=rate, config=checked.gimbal, progress=progress, lead=args.lead
+            kf,
+            rate_hz=rate,
+            config=checked.gimbal,
+            progress=progress,
+            lead=getattr(args, "lead", None),
         )
     except SimError as e:
         print(f"trajgen: simulation failed: {e}", file=sys.stderr)

@@ -364,7 +364,11 @@ def open_port(args, p: Plan):
     """
     if not args.virtual:
         return args.port or p.config.port, None, None
-    virtual, plant = start_virtual(p.kf, p.config, p.joints, p.rate_hz, p.trajectory.q[0])
+    from trajgen.lead import sent_q
+
+    # Parked at the first goal (the plan's first angles plus the lead's static gravity
+    # term), so the stream needs no approach.
+    virtual, plant = start_virtual(p.kf, p.config, p.joints, p.rate_hz, sent_q(p.trajectory)[0])
     return virtual.port, virtual, plant
 
 
