@@ -142,13 +142,22 @@ def test_ramp_in_for_a_plan_that_starts_moving_and_out_to_the_end():
     tr = linear(v=0.5, duration=1.0)
     goals = led_goals(tr, "model", params(), torque=torque)
     full = (DAMP + K2R) * 0.5 / KP
-    lead = goals.goal - tr.q - 0.5 * H - GRAV / KP  # the ramped dynamic part
-    # first frame: no lead at all, only the half-period and gravity
-    np.testing.assert_allclose(goals.goal[0], tr.q[0] + 0.5 * H + GRAV / KP, atol=1e-15)
+    lead = goals.goal - tr.q - 0.5 * H  # the ramped lead, gravity included
+    # first frame: no lead at all, only the half-period (the servo is there already)
+    np.testing.assert_allclose(goals.goal[0], tr.q[0] + 0.5 * H, atol=1e-15)
     n_ramp = int(TAU * RATE)  # frames within tau of the start
-    np.testing.assert_allclose(lead[: n_ramp + 1, 0], full * ramp(np.arange(n_ramp + 1) / n_ramp))
+    w = ramp(np.arange(n_ramp + 1) / n_ramp)
+    np.testing.assert_allclose(lead[: n_ramp + 1, 0], (full + GRAV / KP) * w)
     assert np.all(np.diff(lead[: n_ramp + 1, 0]) > 0)
-    np.testing.assert_allclose(lead[n_ramp:-n_ramp, 0], full)
+    np.testing.assert_allclose(lead[n_ramp:-n_ramp, 0], full + GRAV / KP)
+    # the ramp out takes the dynamic part only; this plan ends moving, so the range
+    # (the plan's end + the static offset) clips the last goals
+    end = slice(-n_ramp - 1, None)
+    h = np.minimum(H, tr.t[-1] - tr.t[end])
+    unbounded = tr.q[end, 0] + 0.5 * h + full * w[::-1] + GRAV / KP
+    top = tr.q[-1, 0] + (GRAV + FRIC) / KP
+    np.testing.assert_allclose(goals.goal[end, 0], np.minimum(unbounded, top), atol=1e-15)
+    assert (unbounded > top).sum() >= 3
     # last frame: the plan's end plus gravity; it stays inside the range + offset
     np.testing.assert_allclose(goals.goal[-1], tr.q[-1] + GRAV / KP, atol=1e-15)
     np.testing.assert_allclose(goals.bounds[:, 1], tr.q[-1] + (GRAV + FRIC) / KP)

@@ -20,7 +20,9 @@ Bounded, because a goal is what moves a servo:
   ``LEAD_CAP x tau max|qd|`` plus the Coulomb term, per joint;
 - it is ramped in over ``tau`` from the first frame and out over ``tau``
   before the last (a quintic smoothstep), so a plan that starts moving does not
-  get a goal step, and the last goal is ``q_end`` plus the static gravity term;
+  get a goal step; the static gravity term ``tau_id(q, 0, 0) / kp`` is ramped in
+  with it (the first goal is the plan's, where the servo already is) but not
+  out, so the last goal is ``q_end`` plus the static gravity term;
 - every goal is clipped to the plan's own range of that joint widened by at
   most the static gravity/friction offset, and to the position limits given;
 - a joint whose lead is switched off (its plan fails the torque check, where a
@@ -208,19 +210,24 @@ def _raw_goal(lead, t, q, qd, qdd, period_s, params, torque, t_end, advance_q):
     return q_s, dynamic, gravity / params.kp_nm_rad
 
 
-def _weights(t, t_start, t_end, lag_s) -> np.ndarray:
-    """The ramp in from ``t_start`` and out to ``t_end``, each over the joint's lag, (N, n)."""
+def _weights(t, t_start, t_end, lag_s) -> tuple[np.ndarray, np.ndarray]:
+    """The ramp in from ``t_start`` and the ramp out to ``t_end``, each over the
+    joint's lag, (N, n) each."""
     width = np.maximum(lag_s, 1e-9)[None, :]
-    return ramp((t[:, None] - t_start) / width) * ramp((t_end - t[:, None]) / width)
+    return ramp((t[:, None] - t_start) / width), ramp((t_end - t[:, None]) / width)
 
 
-def _bound(plan_at_s, lead, static, w, cap, bounds, enabled, q):
-    """Apply the cap, the ramps, the range and the enabled mask; return (goal, clipped)."""
+def _bound(plan_at_s, lead, static, w_in, w_out, cap, bounds, enabled, q):
+    """Apply the cap, the ramps, the range and the enabled mask; return (goal, clipped).
+
+    The dynamic lead is ramped in and out; the static gravity term only in (the
+    servo holds its start against gravity already; it ends on ``q_end`` + gravity).
+    """
     capped = np.clip(lead, -cap, cap)
-    goal = plan_at_s + w * capped + static
-    bounded = np.clip(goal, bounds[:, 0], bounds[:, 1])
+    unbounded = plan_at_s + w_in * (w_out * capped + static)
+    bounded = np.clip(unbounded, bounds[:, 0], bounds[:, 1])
     goal = np.where(enabled[None, :], bounded, q)
-    changed = (capped != lead) | (bounded != plan_at_s + w * capped + static)
+    changed = (capped != lead) | (bounded != unbounded)
     return goal, (changed & enabled[None, :]).sum(axis=0)
 
 
@@ -267,12 +274,11 @@ def led_goals(
     zero = np.zeros_like(q)
     gravity = None if lead != "model" else torque(q, zero, zero)
     bounds = plan_bounds(q, gravity, params, limits_rad)
-    w = _weights(t, t[0], t[-1], params.lag_s)
     if lead == "none":  # the plan as it is: a plan outside the limits is refused, not clipped
         return LedGoals(q.copy(), lead, np.zeros(q.shape[1], dtype=int), bounds)
-    goal, clipped = _bound(
-        plan_at_s, raw, static, w, lead_cap(qd, params), bounds, params.enabled, q
-    )
+    w_in, w_out = _weights(t, t[0], t[-1], params.lag_s)
+    cap = lead_cap(qd, params)
+    goal, clipped = _bound(plan_at_s, raw, static, w_in, w_out, cap, bounds, params.enabled, q)
     return LedGoals(goal, lead, clipped, bounds)
 
 
@@ -342,8 +348,9 @@ class LedFrames:
         plan_at_s, raw, static = _raw_goal(
             self.lead, t, q, qd, qdd, self.period_s, self.params, self.torque, np.inf, ahead
         )
-        w = ramp((t[0] - t_start) / np.maximum(self.params.lag_s, 1e-9))[None, :]
-        goal, _ = _bound(plan_at_s, raw, static, w, self.cap, self.bounds, self.params.enabled, q)
+        w_in = ramp((t[0] - t_start) / np.maximum(self.params.lag_s, 1e-9))[None, :]
+        enabled = self.params.enabled
+        goal, _ = _bound(plan_at_s, raw, static, w_in, 1.0, self.cap, self.bounds, enabled, q)
         return goal[0]
 
 
