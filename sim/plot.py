@@ -132,6 +132,19 @@ def plot_report(report, path) -> Path:
     ValueError
         If matplotlib cannot write that format.
     """
+    import matplotlib.pyplot as plt
+
+    fig = report_figure(report)
+    path = Path(path)
+    try:
+        fig.savefig(path, dpi=100)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def report_figure(report):
+    """The figure :func:`plot_report` saves (a ``matplotlib.figure.Figure``; close it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -299,9 +312,4 @@ def plot_report(report, path) -> Path:
         f"margin {margin:g} of the 12 V envelope, lead {report.lead})"
     )
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    path = Path(path)
-    try:
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
-    return path
+    return fig
