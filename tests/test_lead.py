@@ -212,3 +212,21 @@ def test_params_are_checked():
         params(kp_nm_rad=[0.0, 1.0, 1.0])
     with pytest.raises(ValueError, match="Expected `lag_s` to have 3 entries"):
         params(lag_s=[0.1, 0.1])
+
+
+def test_stream_table_lead_is_read_and_checked(tmp_path):
+    from trajgen.errors import KeyframeFileError
+    from trajgen.keyframes import load_keyframe_file
+
+    keys = "[[keyframes]]\nt = 0\npan = 0\n[[keyframes]]\nt = 1\npan = 10\n"
+    path = tmp_path / "k.toml"
+    path.write_text('[stream]\nlead = "advance"\n' + keys)
+    assert load_keyframe_file(path).lead == "advance"
+    path.write_text(keys)
+    assert load_keyframe_file(path).lead is None
+    path.write_text('[stream]\nlead = "ahead"\n' + keys)
+    with pytest.raises(
+        KeyframeFileError,
+        match=r"\[stream\] lead: expected one of model, advance, none, got 'ahead'",
+    ):
+        load_keyframe_file(path)
