@@ -43,13 +43,15 @@ import numpy as np
 from dynamixel_sdk import COMM_SUCCESS, PacketHandler, PortHandler
 
 from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
+from trajgen.servo_table import EXTENDED_POSITION_MODE
 from trajgen.sim.model import GimbalConfig, JointParams
 from trajgen.sim.plant import GimbalPlant
 from trajgen.sim.servos import DEFAULT_SERVO
 
 OPERATING_MODE, TORQUE, GOAL, MOVING, PRESENT_POSITION = 11, 64, 116, 122, 132
-EXTENDED_POSITION, FAR_GOAL = 4, 1_048_575
-MOVING_THRESHOLD = 10  # Moving Threshold's factory value (x 0.229 rpm)
+EXTENDED_POSITION, FAR_GOAL = EXTENDED_POSITION_MODE, 1_048_575
+# Moving Threshold's factory value (x 0.229 rpm).
+MOVING_THRESHOLD = DEFAULT_SERVO.spec.defaults["Moving Threshold"]
 SPIN_S, CLEAR_AFTER_S, TRACE_S = 1.5, 0.3, 1.0
 
 

@@ -33,12 +33,12 @@ from trajgen.drivers.control_table import (
     describe_hardware_error,
     layout,
 )
+from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.errors import CommError, ServoError
 from trajgen.drivers.protocol import ALERT_BIT, BROADCAST_ID, StatusError
 from trajgen.drivers.units import to_signed, to_unsigned
 from trajgen.validate import check_number
 
-DEFAULT_BAUD = 1_000_000
 # The SDK's fixed assumption, used where the port has no latency timer to read.
 DEFAULT_LATENCY_MS = 16.0
 _SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{tty}/latency_timer"

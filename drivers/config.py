@@ -21,13 +21,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from trajgen.drivers.control_table import BAUD_RATES, WATCHDOG_UNIT_S
+from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.units import ZERO_TICK, JointMap
 from trajgen.gimbal import JOINT_NAMES
-from trajgen.servo_ratings import DEFAULT_SERVO, servo_rating
+from trajgen.servo_table import DEFAULT_SERVO, servo_spec
 from trajgen.validate import check_number, check_numbers
 
 BUS_KEYS = ("port", "baud", "ids", "directions", "zeros", "models", "watchdog_s")
-DEFAULT_BAUD = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
     if not isinstance(models, (list, tuple)) or len(models) != 3:
         raise _error(path, "models")(f"expected a model name or a list of 3, got {models!r}")
     try:
-        models = tuple(servo_rating(name).name for name in models)
+        models = tuple(servo_spec(name).name for name in models)
     except (TypeError, ValueError) as e:
         raise _error(path, "models")(str(e)) from None
     watchdog_s = check_number(

@@ -3,20 +3,54 @@
 Addresses and sizes come from the model files that ship with
 ``dynamixel-sdk`` (``dynamixel_easy_sdk.control_table.ControlTable``), which
 transcribe the ROBOTIS e-Manual control tables; they are read on first use.
-What those files lack is stated here (current unit, baud rates, and the access,
-initial value and range of each register, which the virtual servo enforces),
-with the e-Manual X-series pages as the source;
-the ratings and Model Numbers come from ``trajgen.servo_ratings``, the table the
-simulator reads too.
+Every model fact (Model Number, ratings, current unit, factory register
+values, indirect blocks, baud rates, error bits) is an entry of
+``trajgen.servo_table``, the table the simulator reads too; what is stated
+here is what only the driver needs: which registers it uses, which hold signed
+values, and the access and range rules the virtual servo enforces.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass
 from enum import Enum
 
-from trajgen.servo_ratings import RATINGS, servo_rating
+from trajgen.servo_table import (
+    BAUD_RATES,
+    EEPROM_END,
+    EXTENDED_POSITION_MODE,
+    GAIN_MAX,
+    HARDWARE_ERROR_BITS,
+    POSITION_MODE,
+    PWM_FULL_SCALE,
+    SERVOS,
+    TICKS_PER_REV,
+    WATCHDOG_UNIT_S,
+    ServoSpec,
+    servo_numbered,
+    servo_spec,
+)
+
+__all__ = [
+    "BAUD_RATES",
+    "EEPROM_END",
+    "EXTENDED_POSITION_MODE",
+    "HARDWARE_ERROR_BITS",
+    "MODELS",
+    "POSITION_MODE",
+    "WATCHDOG_UNIT_S",
+    "Model",
+    "Register",
+    "RegisterRule",
+    "control_items",
+    "describe_hardware_error",
+    "layout",
+    "model_named",
+    "model_numbered",
+    "rules",
+]
 
 
 class Register(Enum):
@@ -57,98 +91,12 @@ SIGNED = frozenset(
     }
 )
 
-# EEPROM area: writable only while Torque Enable is 0.
-EEPROM_END = 64
+#: A servo model: its entry of ``trajgen.servo_table`` (Model Number, ratings,
+#: ``current_a`` / ``current_raw`` for register 126, register defaults).
+Model = ServoSpec
 
-# Operating Mode values (e-Manual, "Operating Mode (11)").
-POSITION_MODE = 3
-EXTENDED_POSITION_MODE = 4
-
-# Hardware Error Status bits (e-Manual, "Hardware Error Status (70)").
-HARDWARE_ERROR_BITS = {
-    0: "input voltage",
-    2: "overheating",
-    3: "motor encoder",
-    4: "electrical shock",
-    5: "overload",
-}
-
-# Bus Watchdog unit (e-Manual, "Bus Watchdog (98)").
-WATCHDOG_UNIT_S = 0.020
-
-#: Baud rates an X-series servo can be set to (e-Manual, "Baud Rate (8)"), by register value.
-BAUD_RATES = {
-    0: 9_600,
-    1: 57_600,
-    2: 115_200,
-    3: 1_000_000,
-    4: 2_000_000,
-    5: 3_000_000,
-    6: 4_000_000,
-    7: 4_500_000,
-}
-
-
-@dataclass(frozen=True)
-class Model:
-    """One servo model.
-
-    Attributes
-    ----------
-    name : str
-        e-Manual name, e.g. ``"XM430-W350"``.
-    number : int
-        Model Number register value.
-    stall_torque_nm, stall_current_a : float
-        Stall torque (N m) and current (A) at 12 V.
-    no_load_speed_rad_s : float
-        No-load speed (rad/s) at 12 V.
-    current_unit_a : float or None
-        Present Current unit (A); None where register 126 is Present Load
-        (XL430, 0.1 % of stall), which the driver converts through the stall
-        current instead.
-    """
-
-    name: str
-    number: int
-    stall_torque_nm: float
-    stall_current_a: float
-    no_load_speed_rad_s: float
-    current_unit_a: float | None
-
-    def current_a(self, raw: int) -> float:
-        """Convert a signed register 126 value to amperes."""
-        if self.current_unit_a is None:
-            return raw * 0.001 * self.stall_current_a
-        return raw * self.current_unit_a
-
-    def current_raw(self, current_a: float) -> int:
-        """Convert amperes to a register 126 value (inverse of ``current_a``)."""
-        if self.current_unit_a is None:
-            return round(current_a / (0.001 * self.stall_current_a))
-        return round(current_a / self.current_unit_a)
-
-
-#: Present Current unit (A) per model (e-Manual: 2.69 mA; None where register 126
-#: is Present Load, 0.1 % of stall).
-_CURRENT_UNIT_A = {
-    "XM430-W350": 0.00269,
-    "XL430-W250": None,
-    "XH430-W350": 0.00269,
-    "XM540-W270": 0.00269,
-}
-
-MODELS: dict[str, Model] = {
-    r.name: Model(
-        r.name,
-        r.number,
-        r.stall_torque_nm,
-        r.stall_current_a,
-        r.no_load_speed_rad_s,
-        _CURRENT_UNIT_A[r.name],
-    )
-    for r in RATINGS.values()
-}
+#: Every supported model, by canonical name (the servo table's entries).
+MODELS = SERVOS
 
 
 def model_named(name: str) -> Model:
@@ -161,7 +109,7 @@ def model_named(name: str) -> Model:
     ValueError
         If the model is not one of ``MODELS``.
     """
-    return MODELS[servo_rating(name).name]
+    return servo_spec(name)
 
 
 def model_numbered(number: int) -> Model | str:
@@ -170,9 +118,9 @@ def model_numbered(number: int) -> Model | str:
     Returns the SDK model-file name (``"mx_28"``) for models outside ``MODELS``
     and ``"unknown"`` for numbers the SDK does not know either; used in messages.
     """
-    for model in MODELS.values():
-        if model.number == number:
-            return model
+    model = servo_numbered(number)
+    if model is not None:
+        return model
     from dynamixel_easy_sdk.control_table import ControlTable
     from dynamixel_easy_sdk.dynamixel_error import DxlRuntimeError
 
@@ -256,41 +204,45 @@ def _r(initial=None, signed=False):
     return RegisterRule(False, initial, signed=signed)
 
 
-_GAIN = (0, 16_383)
+_GAIN = (0, GAIN_MAX)
+_TICK_MAX = TICKS_PER_REV - 1
+_FROM_TABLE = None  # initial value (and range where it differs): the model's servo-table entry
 
-#: Rules of the X-series registers (XM430-W350 values; see MODEL_RULES for the others).
+#: Access and range of the X-series registers. Where a model's factory value or
+#: range differs (``trajgen.servo_table.DEFAULT_REGISTERS``, ``ServoSpec.ranges``)
+#: the entry supplies it: see ``rules``.
 X_SERIES_RULES: dict[str, RegisterRule] = {
     "Model Number": _r(),
     "Model Information": _r(0),
     "Firmware Version": _r(),
     "ID": _rw(1, 0, 252),
     "Baud Rate": _rw(1, 0, 7),
-    "Return Delay Time": _rw(250, 0, 254),
+    "Return Delay Time": _rw(_FROM_TABLE, 0, 254),
     "Drive Mode": _rw(0, 0, 13),
-    "Operating Mode": _rw(3, 0, 16),
+    "Operating Mode": _rw(POSITION_MODE, 0, 16),
     "Secondary(Shadow) ID": _rw(255, 0, 255),
     "Protocol Type": _rw(2, 1, 2),
     "Homing Offset": _rw(0, -1_044_479, 1_044_479, signed=True),
-    "Moving Threshold": _rw(10, 0, 1023),
-    "Temperature Limit": _rw(80, 0, 100),
-    "Max Voltage Limit": _rw(160, 95, 160),
-    "Min Voltage Limit": _rw(95, 95, 160),
-    "PWM Limit": _rw(885, 0, 885),
-    "Current Limit": _rw(1193, 0, 1193),
-    "Velocity Limit": _rw(350, 0, 1023),
-    "Max Position Limit": _rw(4095, 0, 4095, signed=True),
-    "Min Position Limit": _rw(0, 0, 4095, signed=True),
-    "Shutdown": _rw(52, 0, 255),
+    "Moving Threshold": _rw(_FROM_TABLE, 0, 1023),
+    "Temperature Limit": _rw(_FROM_TABLE, 0, 100),
+    "Max Voltage Limit": _rw(_FROM_TABLE, None, None),
+    "Min Voltage Limit": _rw(_FROM_TABLE, None, None),
+    "PWM Limit": _rw(_FROM_TABLE, 0, PWM_FULL_SCALE),
+    "Current Limit": _rw(_FROM_TABLE, None, None),
+    "Velocity Limit": _rw(_FROM_TABLE, 0, 1023),
+    "Max Position Limit": _rw(_TICK_MAX, 0, _TICK_MAX, signed=True),
+    "Min Position Limit": _rw(0, 0, _TICK_MAX, signed=True),
+    "Shutdown": _rw(_FROM_TABLE, 0, 255),
     "Torque Enable": _rw(0, 0, 1),
     "LED": _rw(0, 0, 1),
     "Status Return Level": _rw(2, 0, 2),
     "Registered Instruction": _r(0),
     "Hardware Error Status": _r(0),
-    "Velocity I Gain": _rw(1920, *_GAIN),
-    "Velocity P Gain": _rw(100, *_GAIN),
-    "Position D Gain": _rw(0, *_GAIN),
-    "Position I Gain": _rw(0, *_GAIN),
-    "Position P Gain": _rw(800, *_GAIN),
+    "Velocity I Gain": _rw(_FROM_TABLE, *_GAIN),
+    "Velocity P Gain": _rw(_FROM_TABLE, *_GAIN),
+    "Position D Gain": _rw(_FROM_TABLE, *_GAIN),
+    "Position I Gain": _rw(_FROM_TABLE, *_GAIN),
+    "Position P Gain": _rw(_FROM_TABLE, *_GAIN),
     "Feedforward 2nd Gain": _rw(0, *_GAIN),
     "Feedforward 1st Gain": _rw(0, *_GAIN),
     # 1..127 arms it, 0 disarms (and clears a trip); the servo writes -1 on a trip.
@@ -311,31 +263,8 @@ X_SERIES_RULES: dict[str, RegisterRule] = {
     "Present Position": _r(0, signed=True),
     "Velocity Trajectory": _r(0, signed=True),
     "Position Trajectory": _r(0, signed=True),
-    "Present Input Voltage": _r(120),
+    "Present Input Voltage": _r(_FROM_TABLE),
     "Present Temperature": _r(30),
-}
-
-#: Where the other models differ from X_SERIES_RULES (their e-Manual pages).
-MODEL_RULES: dict[str, dict[str, RegisterRule]] = {
-    "XM430-W350": {},
-    "XL430-W250": {
-        "Temperature Limit": _rw(72, 0, 100),
-        "Max Voltage Limit": _rw(140, 60, 140),
-        "Min Voltage Limit": _rw(60, 60, 140),
-        "Velocity Limit": _rw(265, 0, 1023),
-        "Velocity I Gain": _rw(1000, *_GAIN),
-        "Position D Gain": _rw(4000, *_GAIN),
-        "Position P Gain": _rw(640, *_GAIN),
-    },
-    "XH430-W350": {
-        "Current Limit": _rw(648, 0, 648),
-        "Velocity Limit": _rw(130, 0, 1023),
-        "Position P Gain": _rw(900, *_GAIN),
-    },
-    "XM540-W270": {
-        "Current Limit": _rw(2047, 0, 2047),
-        "Velocity Limit": _rw(128, 0, 1023),
-    },
 }
 
 #: Registers whose range is set by other registers: a write outside it is
@@ -348,23 +277,29 @@ LIMITED_BY = {
     "Goal Velocity": ("Velocity Limit",),
 }
 
-#: Indirect Address / Indirect Data blocks of the X-series: (first Indirect
-#: Address, first Indirect Data, count). Indirect Address n is 2 bytes, Indirect
-#: Data n 1 byte; Indirect Address n initially points at Indirect Data n, and
-#: may point anywhere in 64..661 (e-Manual, "Indirect Address").
-INDIRECT_BLOCKS = ((168, 224, 28), (578, 634, 28))
-INDIRECT_TARGETS = (64, 661)
-
 
 def rules(model: Model) -> dict[str, RegisterRule]:
-    """Every register rule of ``model``, Indirect Address / Data n included."""
+    """Every register rule of ``model``, Indirect Address / Data n included.
+
+    The X-series rules with the model's factory values and ranges from its
+    servo-table entry; a register the entry says the model lacks (Current Limit
+    None) has no rule.
+    """
     out = dict(X_SERIES_RULES)
-    out.update(MODEL_RULES[model.name])
+    for name, value in model.defaults.items():
+        if value is None:
+            del out[name]
+        else:
+            out[name] = dataclasses.replace(out[name], initial=value)
+    for name, (low, high) in model.ranges.items():
+        out[name] = dataclasses.replace(out[name], low=low, high=high)
+    # The virtual servo's supply: the rated voltage (unit 0.1 V).
+    out["Present Input Voltage"] = _r(round(model.voltage_v * 10))
     n = 0
-    for _, data0, count in INDIRECT_BLOCKS:
+    for _, data0, count in model.indirect_blocks:
         for k in range(count):
             n += 1
-            out[f"Indirect Address {n}"] = _rw(data0 + k, *INDIRECT_TARGETS)
+            out[f"Indirect Address {n}"] = _rw(data0 + k, *model.indirect_targets)
             out[f"Indirect Data {n}"] = _rw(0, 0, 255)
     return out
 
@@ -373,8 +308,10 @@ def rules(model: Model) -> dict[str, RegisterRule]:
 def control_items(model: Model) -> dict[str, tuple[int, int]]:
     """Address and size (bytes) of every register of ``model``, by SDK name.
 
-    From the SDK's model file, plus every Indirect Address / Data n (the file
-    lists only the first of each block). Only registers with a rule are kept.
+    From the SDK's model file, plus every Indirect Address / Data n from the
+    entry's indirect blocks (the file lists only the first of each block, and
+    for the 330 series at the 430's addresses). Only registers with a rule are
+    kept.
     """
     from dynamixel_easy_sdk.control_table import ControlTable
 
@@ -382,7 +319,7 @@ def control_items(model: Model) -> dict[str, tuple[int, int]]:
     known = rules(model)
     out = {name: (item.address, item.size) for name, item in table.items() if name in known}
     n = 0
-    for address0, data0, count in INDIRECT_BLOCKS:
+    for address0, data0, count in model.indirect_blocks:
         for k in range(count):
             n += 1
             out[f"Indirect Address {n}"] = (address0 + 2 * k, 2)

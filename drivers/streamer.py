@@ -41,6 +41,7 @@ from trajgen.drivers.bringup import MAX_APPROACH_RAD, check_start, joint_names_f
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import WALL_CLOCK
 from trajgen.drivers.control_table import Register
+from trajgen.drivers.defaults import MAX_DELAY_S
 from trajgen.drivers.errors import (
     CommError,
     DriverError,
@@ -54,9 +55,6 @@ from trajgen.lead import sent_q
 from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
-
-#: Default bound (s) on how far the stream may fall behind its plan in total.
-MAX_DELAY_S = 1.0
 
 
 class RunningQuantiles:

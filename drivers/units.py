@@ -1,25 +1,33 @@
 """Radians <-> register units, at the edge of the driver.
 
 A joint maps to a servo by id, direction (+1 or -1) and zero (the tick that
-is joint angle 0): ``tick = zero + direction * round(angle * 4096 / (2 pi))``.
-The defaults are ids 1, 2, 3 = pan, tilt, roll, direction +1, zero 2048.
+is joint angle 0): ``tick = zero + direction * round(angle / RAD_PER_TICK)``,
+4096 ticks a turn. The defaults are ids 1, 2, 3 = pan, tilt, roll, direction
++1, zero 2048. The encoder and velocity units are the servo table's
+(``trajgen.servo_table``).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from trajgen.servo_table import RAD_PER_TICK, TICKS_PER_REV, VELOCITY_UNIT_RAD_S, ZERO_TICK
 from trajgen.validate import check_number
 
-TICKS_PER_REV = 4096
-ZERO_TICK = 2048
-RAD_PER_TICK = 2.0 * math.pi / TICKS_PER_REV
-# Present Velocity unit: 0.229 rpm (e-Manual), in rad/s.
-VELOCITY_UNIT_RAD_S = 0.229 * 2.0 * math.pi / 60.0
+__all__ = [
+    "RAD_PER_TICK",
+    "TICKS_PER_REV",
+    "VELOCITY_UNIT_RAD_S",
+    "ZERO_TICK",
+    "JointMap",
+    "rad_to_servo_ticks",
+    "servo_ticks_to_rad",
+    "to_signed",
+    "to_unsigned",
+]
 
 
 def to_signed(value: int, size: int) -> int:

@@ -37,18 +37,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.servo_ratings import P_DIVISOR, PWM_FULL_SCALE
+from trajgen.servo_table import (
+    D_DIVISOR,
+    DEFAULT_SERVO,
+    EXTENDED_POSITION_MODE,
+    GAIN_MAX,
+    I_DIVISOR,
+    P_DIVISOR,
+    POSITION_MODE,
+    PWM_FULL_SCALE,
+    TICKS_PER_REV,
+    servo_spec,
+)
 from trajgen.sim.errors import SimError
-from trajgen.sim.servos import SUPPLY_VOLTAGE_V, ServoModel
+from trajgen.sim.servos import ServoModel
 from trajgen.validate import check_number
 
-PULSES_PER_RAD = 4096 / (2.0 * math.pi)
-I_DIVISOR = 65536.0
-D_DIVISOR = 16.0
+PULSES_PER_RAD = TICKS_PER_REV / (2.0 * math.pi)
 LOOP_PERIOD_S = 1e-3
 
 #: Operating modes whose loop this module models: Position (3), Extended Position (4).
-POSITION_MODES = (3, 4)
+POSITION_MODES = (POSITION_MODE, EXTENDED_POSITION_MODE)
+
+#: The loop of a servo whose registers are not given: the default model's factory values.
+_FACTORY = servo_spec(DEFAULT_SERVO).defaults
 
 
 class UnsupportedServoSetting(SimError):
@@ -72,9 +84,9 @@ class PositionLoop:
         The firmware's loop period (s), for the I and D terms (an estimate).
     """
 
-    p_gain: int = 800
-    i_gain: int = 0
-    d_gain: int = 0
+    p_gain: int = _FACTORY["Position P Gain"]
+    i_gain: int = _FACTORY["Position I Gain"]
+    d_gain: int = _FACTORY["Position D Gain"]
     pwm_limit: int = PWM_FULL_SCALE
     goal_pwm: int = PWM_FULL_SCALE
     p_divisor: float = P_DIVISOR
@@ -82,7 +94,7 @@ class PositionLoop:
 
     def __post_init__(self):
         for name in ("p_gain", "i_gain", "d_gain"):
-            check_register(name, getattr(self, name), 0, 16383)
+            check_register(name, getattr(self, name), 0, GAIN_MAX)
         for name in ("pwm_limit", "goal_pwm"):
             check_register(name, getattr(self, name), 0, PWM_FULL_SCALE)
         for name in ("p_divisor", "loop_period_s"):
@@ -128,16 +140,16 @@ class PositionLoop:
         Parameters
         ----------
         servo : ServoModel
-            The motor (``K / R = stall torque / 12 V``, ``K^2 / R = stall / w0``).
+            The motor (``K / R = stall torque / rated voltage``, ``K^2 / R = stall / w0``).
         """
-        volts_per_pulse = SUPPLY_VOLTAGE_V / PWM_FULL_SCALE * PULSES_PER_RAD
-        k_over_r = servo.stall_torque_nm / SUPPLY_VOLTAGE_V
+        volts_per_pulse = servo.voltage_v / PWM_FULL_SCALE * PULSES_PER_RAD
+        k_over_r = servo.stall_torque_nm / servo.voltage_v
         per_rad = volts_per_pulse * k_over_r  # N m per rad per unit of PWM gain
         kp = self.p_gain / self.p_divisor * per_rad
         ki = self.i_gain / I_DIVISOR / self.loop_period_s * per_rad
         kd_loop = self.d_gain / D_DIVISOR * self.loop_period_s * per_rad
         back_emf = servo.stall_torque_nm / servo.no_load_speed_rad_s
-        vmax = SUPPLY_VOLTAGE_V * self.pwm_cap / PWM_FULL_SCALE
+        vmax = servo.voltage_v * self.pwm_cap / PWM_FULL_SCALE
         return kp, ki, back_emf + kd_loop, vmax
 
 
@@ -155,7 +167,7 @@ def loop_from_registers(
     ----------
     registers : mapping of str to int
         Register values keyed by the SDK's control-table names
-        (``CONTROL_REGISTERS``); missing ones take the XM430-W350 defaults.
+        (``CONTROL_REGISTERS``); missing ones take the default servo's (XM430-W350) factory values.
     p_divisor : float
         See :class:`PositionLoop`.
     joint : str
@@ -174,7 +186,7 @@ def loop_from_registers(
     TypeError, ValueError
         If a gain or PWM register is not an int in range.
     """
-    mode = registers.get("Operating Mode", 3)
+    mode = registers.get("Operating Mode", POSITION_MODE)
     if mode not in POSITION_MODES:
         raise UnsupportedServoSetting(
             f"{joint}: Operating Mode {mode} is not simulated (only 3 position and "
@@ -187,9 +199,9 @@ def loop_from_registers(
                 "steps to each goal (profile 0, as the streamer configures it)"
             )
     return PositionLoop(
-        p_gain=registers.get("Position P Gain", 800),
-        i_gain=registers.get("Position I Gain", 0),
-        d_gain=registers.get("Position D Gain", 0),
+        p_gain=registers.get("Position P Gain", _FACTORY["Position P Gain"]),
+        i_gain=registers.get("Position I Gain", _FACTORY["Position I Gain"]),
+        d_gain=registers.get("Position D Gain", _FACTORY["Position D Gain"]),
         pwm_limit=registers.get("PWM Limit", PWM_FULL_SCALE),
         goal_pwm=registers.get("Goal PWM", registers.get("PWM Limit", PWM_FULL_SCALE)),
         p_divisor=p_divisor,

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.errors import SimError
 from trajgen.sim.firmware import PositionLoop
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig, JointParams, build_model
@@ -60,7 +61,7 @@ _BOUNDS = {
     "armature": (1e-4, 1.0),
     "frictionloss": (0.0, 1.0),
     "damping": (0.0, 2.0),
-    "position_p_gain": (10.0, 16383.0),
+    "position_p_gain": (10.0, float(GAIN_MAX)),
 }
 
 

@@ -36,8 +36,9 @@ from pathlib import Path
 
 from trajgen.errors import KeyframeFileError
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.firmware import P_DIVISOR, PositionLoop
-from trajgen.sim.servos import DEFAULT_SERVO, SUPPLY_VOLTAGE_V, ServoModel, servo_by_name
+from trajgen.sim.servos import DEFAULT_SERVO, ServoModel, servo_by_name
 from trajgen.validate import check_number, check_numbers
 
 GIMBAL_TABLE_KEYS = (
@@ -115,7 +116,7 @@ _JOINT_BOUNDS = {
     "armature": {"low": 0.0, "low_open": True},
     "frictionloss": {"low": 0.0},
     "damping": {"low": 0.0},
-    **{f"position_{g}_gain": {"low": 0, "high": 16383, "integer": True} for g in ("p", "i", "d")},
+    **{f"position_{g}_gain": {"low": 0, "high": GAIN_MAX, "integer": True} for g in "pid"},
     "p_divisor": {"low": 0.0, "low_open": True},
 }
 
@@ -365,7 +366,7 @@ def gimbal_mjcf(config: GimbalConfig | None = None) -> str:
         kp, ki, kd, vmax = config.loop(group).mujoco_controller(servo)
         return (
             f'<dcmotor name="{name}" joint="{name}" group="{group}" input="pos" '
-            f'nominal="{SUPPLY_VOLTAGE_V!r} {servo.stall_torque_nm!r} '
+            f'nominal="{servo.voltage_v!r} {servo.stall_torque_nm!r} '
             f'{servo.no_load_speed_rad_s!r}" '
             f'controller="{kp!r} {ki!r} {kd!r} 0 0 {vmax!r}" '
             f'saturation="{servo.stall_torque_nm!r} 0 0"/>'

@@ -27,7 +27,6 @@ from trajgen.sim.run import (
     step_and_record,
     warning_counts,
 )
-from trajgen.sim.servos import SUPPLY_VOLTAGE_V
 from trajgen.validate import check_number
 
 # Log columns: time, q (3), qd (3), torque (3), goal (3), drive cap in volts (3).
@@ -158,7 +157,7 @@ class GimbalPlant:
             0, 1 or 2.
         registers : mapping of str to int
             Register values in register units keyed by the SDK's control-table
-            names (``trajgen.servo_ratings.CONTROL_REGISTERS``); missing ones keep their
+            names (``trajgen.servo_table.CONTROL_REGISTERS``); missing ones keep their
             last value (initially the gains of ``config``, full PWM, no
             profile, Position Mode).
 
@@ -261,7 +260,8 @@ class GimbalPlant:
         """Drive output as a fraction of the supply, shape (3,), in [-1, 1].
 
         The voltage the firmware loop applies to each motor now (0 with torque
-        off) over 12 V, as Present PWM / 885.
+        off) over the supply (the servo's rated voltage), as Present PWM / PWM Limit
+        885.
         """
         model, data = self._model, self._data
         prm = model.actuator_gainprm
@@ -274,7 +274,8 @@ class GimbalPlant:
         tau = kp * (data.ctrl - data.qpos) - kd * w + ki * integral
         volts = np.clip(r / k * tau + k * w, -vmax, vmax)
         enabled = (model.opt.disableactuator >> np.arange(3)) & 1 == 0
-        return np.where(enabled, volts / SUPPLY_VOLTAGE_V, 0.0)
+        supply = np.array([s.voltage_v for s in self.config.servos])
+        return np.where(enabled, volts / supply, 0.0)
 
     def report(self, trajectory, *, lead: str = "none"):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.

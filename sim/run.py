@@ -11,7 +11,6 @@ from trajgen.lead import sent_q
 from trajgen.sim.errors import SimulationError
 from trajgen.sim.firmware import PULSES_PER_RAD
 from trajgen.sim.model import GimbalConfig, build_model
-from trajgen.sim.servos import SUPPLY_VOLTAGE_V
 
 _LIMIT_RTOL = 1e-6
 _PROGRESS_STEP = 0.05
@@ -66,12 +65,12 @@ class SimRecord:
         return self.at_limit.sum(axis=0)
 
 
-def at_torque_limit(config: GimbalConfig, qd, torque_nm, vmax=SUPPLY_VOLTAGE_V) -> np.ndarray:
+def at_torque_limit(config: GimbalConfig, qd, torque_nm, vmax=None) -> np.ndarray:
     """Whether each servo gives all the torque it has.
 
     A ``<dcmotor>`` with constant ``K = V / w0`` and resistance ``R = K V / tau_stall``
     needs ``v = R tau / K + K w`` volts to give ``tau`` at speed ``w``; it is at
-    its limit when that is the drive's cap (12 V at PWM Limit 885) or when
+    its limit when that is the drive's cap (the rated voltage at full PWM Limit) or when
     ``|tau|`` is at the stall torque clamp.
 
     Parameters
@@ -79,8 +78,8 @@ def at_torque_limit(config: GimbalConfig, qd, torque_nm, vmax=SUPPLY_VOLTAGE_V) 
     config : GimbalConfig
     qd, torque_nm : ndarray, shape (K, 3)
         Joint speed (rad/s) and actuator torque (N m).
-    vmax : float or array_like, broadcastable to (K, 3)
-        The drive's voltage cap (V).
+    vmax : float or array_like, broadcastable to (K, 3), optional
+        The drive's voltage cap (V); default each servo's rated voltage.
 
     Returns
     -------
@@ -88,8 +87,10 @@ def at_torque_limit(config: GimbalConfig, qd, torque_nm, vmax=SUPPLY_VOLTAGE_V) 
     """
     w0 = np.array([s.no_load_speed_rad_s for s in config.servos])
     stall = np.array([s.stall_torque_nm for s in config.servos])
-    k = SUPPLY_VOLTAGE_V / w0
-    r = k * SUPPLY_VOLTAGE_V / stall
+    volts_rated = np.array([s.voltage_v for s in config.servos])
+    vmax = volts_rated if vmax is None else vmax
+    k = volts_rated / w0
+    r = k * volts_rated / stall
     volts = r / k * torque_nm + k * qd
     clamped = np.abs(torque_nm) >= stall * (1.0 - _LIMIT_RTOL)
     return clamped | (np.abs(volts) >= np.asarray(vmax) * (1.0 - _LIMIT_RTOL))

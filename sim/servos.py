@@ -1,22 +1,13 @@
-"""Dynamixel X-series servo data for the simulated gimbal (SI units, 12 V ratings).
+"""The simulator's view of a Dynamixel X-series servo (SI units, at its rated voltage).
 
-Ratings (stall torque, stall current, no-load speed at 12 V), mass, housing size
-and gear ratio come from ``trajgen.servo_ratings``, the table the drivers read
-too. The rest is not published and is stated per field:
-
-- ``armature``: reflected rotor inertia (kg m^2). 0.045 for the XM430-W350 is
-  Menagerie's ROBOTIS OP3 value (no stated source). The XH430-W350 has the same
-  gear ratio and takes the same value. The XL430-W250 (258.5:1) and XM540-W270
-  (272.5:1) scale it by gear ratio squared (same rotor inertia assumed, an
-  estimate; the XM540's larger motor makes its value a lower bound).
-- ``damping``: viscous gear friction (N m s/rad), an estimate of 0.01. The motor's
-  own back-EMF is not part of it: ``<dcmotor>`` models that from the ratings.
-- ``frictionloss``: Coulomb friction (N m). Menagerie's OP3 uses 0.03 for the
-  XM430-W350; the others scale it with stall torque (estimate).
-- ``position_p_gain``, ``position_i_gain``, ``position_d_gain``: the
-  firmware's factory defaults of registers 84, 82, 80 (e-Manual control
-  tables; datasheet values). ``sim.firmware`` turns them into the servo's
-  position loop.
+Every figure comes from the model's entry in ``trajgen.servo_table``, the table
+the drivers read too: ratings (stall torque and current, no-load speed at the
+rated voltage), mass, housing size, gear ratio, the factory Position P / I / D
+Gain registers (84 / 82 / 80) that ``sim.firmware`` turns into the servo's
+position loop, and the simulation estimates (armature, damping, frictionloss)
+with the sources and scaling rules the table states. This module adds only
+what the simulator derives from them: the torque-speed line and the torque
+constant it uses.
 """
 
 from __future__ import annotations
@@ -25,60 +16,92 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.servo_ratings import DEFAULT_SERVO as _DEFAULT_NAME
-from trajgen.servo_ratings import RATINGS, servo_rating
-
-SUPPLY_VOLTAGE_V = 12.0
-
-_OP3_ARMATURE = 0.045
-_OP3_FRICTIONLOSS = 0.03
-_XM430_GEAR = 353.5
-_XM430_STALL = 4.1
+from trajgen.servo_table import DEFAULT_SERVO as _DEFAULT_NAME
+from trajgen.servo_table import SERVOS as _SPECS
+from trajgen.servo_table import ServoSpec, servo_spec
 
 
 @dataclass(frozen=True)
 class ServoModel:
-    """One Dynamixel model's ratings and simulation parameters (SI units).
+    """One Dynamixel model as the simulator uses it: a view of its table entry.
 
     Attributes
     ----------
-    name : str
-        Model name, e.g. ``"XM430-W350"``.
-    stall_torque_nm : float
-        Stall torque (N m) at 12 V.
-    stall_current_a : float
-        Stall current (A) at 12 V.
-    no_load_speed_rad_s : float
-        No-load speed (rad/s) at 12 V.
-    mass_kg : float
-        Servo mass (kg).
-    size_m : tuple of float
-        Housing width, height, depth (m); the horn axis runs along the depth.
-    gear_ratio : float
-        Gear reduction.
-    armature : float
-        Reflected rotor inertia (kg m^2); see the module docstring for sources.
-    damping : float
-        Viscous friction (N m s/rad).
-    frictionloss : float
-        Coulomb friction (N m).
-    position_p_gain, position_i_gain, position_d_gain : int
-        Factory defaults of the Position P / I / D Gain registers.
+    spec : trajgen.servo_table.ServoSpec
+        The entry; every property below reads it.
     """
 
-    name: str
-    stall_torque_nm: float
-    stall_current_a: float
-    no_load_speed_rad_s: float
-    mass_kg: float
-    size_m: tuple[float, float, float]
-    gear_ratio: float
-    armature: float
-    damping: float
-    frictionloss: float
-    position_p_gain: int = 800
-    position_i_gain: int = 0
-    position_d_gain: int = 0
+    spec: ServoSpec
+
+    @property
+    def name(self) -> str:
+        """Model name, e.g. ``"XM430-W350"``."""
+        return self.spec.name
+
+    @property
+    def voltage_v(self) -> float:
+        """Supply voltage (V) the motor is simulated at: the rated voltage of the ratings."""
+        return self.spec.voltage_v
+
+    @property
+    def stall_torque_nm(self) -> float:
+        """Stall torque (N m) at ``voltage_v``."""
+        return self.spec.stall_torque_nm
+
+    @property
+    def stall_current_a(self) -> float:
+        """Stall current (A) at ``voltage_v``."""
+        return self.spec.stall_current_a
+
+    @property
+    def no_load_speed_rad_s(self) -> float:
+        """No-load speed (rad/s) at ``voltage_v``."""
+        return self.spec.no_load_speed_rad_s
+
+    @property
+    def mass_kg(self) -> float:
+        """Servo mass (kg)."""
+        return self.spec.mass_kg
+
+    @property
+    def size_m(self) -> tuple[float, float, float]:
+        """Housing width, height, depth (m); the horn axis runs along the depth."""
+        return self.spec.size_m
+
+    @property
+    def gear_ratio(self) -> float:
+        """Gear reduction."""
+        return self.spec.gear_ratio
+
+    @property
+    def armature(self) -> float:
+        """Reflected rotor inertia (kg m^2), an estimate (``trajgen.servo_table``)."""
+        return self.spec.armature
+
+    @property
+    def damping(self) -> float:
+        """Viscous gear friction (N m s/rad), an estimate; the motor's back-EMF is apart."""
+        return self.spec.damping
+
+    @property
+    def frictionloss(self) -> float:
+        """Coulomb friction (N m), an estimate."""
+        return self.spec.frictionloss
+
+    @property
+    def position_p_gain(self) -> int:
+        """Factory Position P Gain (84), register units."""
+        return self.spec.defaults["Position P Gain"]
+
+    @property
+    def position_i_gain(self) -> int:
+        """Factory Position I Gain (82), register units."""
+        return self.spec.defaults["Position I Gain"]
+
+    @property
+    def position_d_gain(self) -> int:
+        """Factory Position D Gain (80), register units."""
+        return self.spec.defaults["Position D Gain"]
 
     @property
     def torque_constant_nm_a(self) -> float:
@@ -90,7 +113,7 @@ class ServoModel:
         return self.stall_torque_nm / self.stall_current_a
 
     def tau_max(self, speed_rad_s):
-        """Torque available (N m) at joint speed ``speed_rad_s`` at 12 V.
+        """Torque available (N m) at joint speed ``speed_rad_s`` at ``voltage_v``.
 
         ``tau_max(w) = tau_stall (1 - |w| / w0)``: the torque-speed line of a DC
         motor driven at its rated voltage. It is negative beyond the no-load speed.
@@ -108,41 +131,17 @@ class ServoModel:
         return self.stall_torque_nm * (1.0 - np.abs(speed_rad_s) / self.no_load_speed_rad_s)
 
 
-def _servo(name: str, armature: float | None = None, pid=(800, 0, 0)) -> ServoModel:
-    r = RATINGS[name]
-    if armature is None:
-        armature = _OP3_ARMATURE * (r.gear_ratio / _XM430_GEAR) ** 2
-    return ServoModel(
-        name=r.name,
-        stall_torque_nm=r.stall_torque_nm,
-        stall_current_a=r.stall_current_a,
-        no_load_speed_rad_s=r.no_load_speed_rad_s,
-        mass_kg=r.mass_kg,
-        size_m=r.size_m,
-        gear_ratio=r.gear_ratio,
-        armature=armature,
-        damping=0.01,
-        frictionloss=_OP3_FRICTIONLOSS * r.stall_torque_nm / _XM430_STALL,
-        position_p_gain=pid[0],
-        position_i_gain=pid[1],
-        position_d_gain=pid[2],
-    )
-
-
-XM430_W350 = _servo("XM430-W350", 0.045)
-XL430_W250 = _servo("XL430-W250", pid=(640, 0, 4000))
-XH430_W350 = _servo("XH430-W350", 0.045)
-XM540_W270 = _servo("XM540-W270")
-
-SERVOS: dict[str, ServoModel] = {
-    s.name: s for s in (XM430_W350, XL430_W250, XH430_W350, XM540_W270)
-}
+#: Every model of the table, by canonical name.
+SERVOS: dict[str, ServoModel] = {name: ServoModel(spec) for name, spec in _SPECS.items()}
 DEFAULT_SERVO = SERVOS[_DEFAULT_NAME]
+XM430_W350 = SERVOS["XM430-W350"]
+XL430_W250 = SERVOS["XL430-W250"]
+XM540_W270 = SERVOS["XM540-W270"]
 
 
 def servo_by_name(name: str) -> ServoModel:
     """Look up a servo model by its name (e.g. ``"XM430-W350"``; case and blanks do not
-    matter, see :func:`trajgen.servo_ratings.servo_rating`).
+    matter, see :func:`trajgen.servo_table.servo_spec`).
 
     Raises
     ------
@@ -151,4 +150,4 @@ def servo_by_name(name: str) -> ServoModel:
     ValueError
         If the model is unknown; the message lists the known ones.
     """
-    return SERVOS[servo_rating(name).name]
+    return SERVOS[servo_spec(name).name]

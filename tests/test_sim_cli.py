@@ -81,7 +81,8 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err == (
         f"trajgen: error: {bad_servo}: [gimbal] servo: unknown model 'XM999' "
-        "(known: XM430-W350, XL430-W250, XH430-W350, XM540-W270)"
+        "(known: XM430-W350, XL430-W250, XH430-W350, XM540-W270, XH540-W270, "
+        "XL330-M288, XL330-M077, XC330-M288, 2XL430-W250)"
     )
     assert _sim([tmp_path / "missing.toml"]) == 2
     err = capsys.readouterr().err.strip()

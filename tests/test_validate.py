@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from trajgen.errors import KeyframeFileError, TrajgenError
-from trajgen.servo_ratings import RATINGS, servo_rating
+from trajgen.servo_table import SERVOS, servo_spec
 from trajgen.validate import check_choice, check_number, check_numbers
 
 
@@ -51,15 +51,14 @@ def test_check_numbers_and_choice():
 
 
 def test_one_ratings_table_and_names_in_any_case():
-    assert servo_rating(" xm430-w350 ") is RATINGS["XM430-W350"]
+    assert servo_spec(" xm430-w350 ") is SERVOS["XM430-W350"]
     with pytest.raises(ValueError, match=r"unknown model 'MX-28' \(known: XM430-W350"):
-        servo_rating("MX-28")
+        servo_spec("MX-28")
     from trajgen.drivers.control_table import MODELS
-    from trajgen.sim.servos import SERVOS
+    from trajgen.sim.servos import SERVOS as SIM_SERVOS
 
-    for name, rating in RATINGS.items():  # both packages read the same figures
-        assert (
-            MODELS[name].stall_torque_nm == SERVOS[name].stall_torque_nm == rating.stall_torque_nm
-        )
-        assert MODELS[name].no_load_speed_rad_s == SERVOS[name].no_load_speed_rad_s
+    for name, rating in SERVOS.items():  # both packages read the same figures
+        sim = SIM_SERVOS[name]
+        assert MODELS[name].stall_torque_nm == sim.stall_torque_nm == rating.stall_torque_nm
+        assert MODELS[name].no_load_speed_rad_s == SIM_SERVOS[name].no_load_speed_rad_s
         assert MODELS[name].number == rating.number

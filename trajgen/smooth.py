@@ -33,10 +33,9 @@ from . import jet as J
 from . import quat as Q
 from .gimbal import angles_of
 from .path import OrientationPath, check_times
-from .spline import check_closed
+from .spline import BOUNDARIES, check_closed
 from .validate import check_choice
 
-BOUNDARIES = ("rest", "natural", "closed")
 #: Knot choices: "quintic", the knot conditions of the flat C4 quintic spline (SPEC
 #: 8.2); "end-minimax", the same with the jerk at each rest end chosen to minimise
 #: the peak jerk of its end segment; "joint-minimax", end-minimax's knot data improved

@@ -71,9 +71,9 @@ from trajgen.drivers.protocol import (
 from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
 from trajgen.drivers.virtual.plant import Plant
 from trajgen.drivers.virtual.servo import FACTORY_RESET_KEEPS, VirtualServo
-from trajgen.servo_ratings import CONTROL_REGISTERS, PWM_FULL_SCALE
+from trajgen.servo_table import CONTROL_REGISTERS, PWM_FULL_SCALE, hardware_error_mask
 
-_OVERLOAD_BIT = 0x20
+_OVERLOAD_BIT = hardware_error_mask("overload")
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).
 _SWITCH_INTERVAL_S = 1e-3
 # Real time: how often the simulation thread wakes (s), and the most steps it

@@ -12,7 +12,14 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from trajgen.drivers.units import RAD_PER_TICK
-from trajgen.servo_ratings import CONTROL_REGISTERS, P_DIVISOR, PWM_FULL_SCALE
+from trajgen.servo_table import (
+    CONTROL_REGISTERS,
+    DEFAULT_SERVO,
+    P_DIVISOR,
+    POSITION_MODE,
+    PWM_FULL_SCALE,
+    servo_spec,
+)
 
 
 @runtime_checkable
@@ -126,9 +133,9 @@ class FirstOrderPlant:
         self._qd = np.zeros(n_joints)
         self._goal = q0.copy()
         self._torque = np.zeros(n_joints, dtype=bool)
-        defaults = {name: 0 for name in CONTROL_REGISTERS}
-        defaults.update({"Position P Gain": 800, "PWM Limit": 885, "Goal PWM": 885})
-        defaults["Operating Mode"] = 3
+        factory = servo_spec(DEFAULT_SERVO).defaults
+        defaults = {name: factory.get(name, 0) for name in CONTROL_REGISTERS}
+        defaults.update({"Goal PWM": PWM_FULL_SCALE, "Operating Mode": POSITION_MODE})
         self.control = [dict(defaults) for _ in range(n_joints)]
         self.time_s = 0.0
 

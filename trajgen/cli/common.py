@@ -18,7 +18,7 @@ import numpy as np
 from trajgen.errors import TrajgenError
 from trajgen.keyframes import BUILTIN_EXAMPLE, KeyframeFile, load_keyframe_file
 from trajgen.sampling import MAX_SAMPLES, check_sample_count
-from trajgen.servo_ratings import RATINGS
+from trajgen.servo_table import SERVOS
 
 #: Exit statuses shared by every subcommand.
 EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -230,7 +230,7 @@ def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLE
 
 def fastest_servo_rad_s() -> tuple[str, float]:
     """The supported servo with the highest no-load speed: name and speed (rad/s)."""
-    fastest = max(RATINGS.values(), key=lambda r: r.no_load_speed_rad_s)
+    fastest = max(SERVOS.values(), key=lambda r: r.no_load_speed_rad_s)
     return fastest.name, fastest.no_load_speed_rad_s
 
 

@@ -75,8 +75,6 @@ exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
 143 SIGTERM, 129 SIGHUP)."""
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-#: Default --max-delay (s), as ``trajgen.drivers.streamer.MAX_DELAY_S`` (which loads the SDK).
-MAX_DELAY_S = 1.0
 
 
 def _limits(text: str) -> tuple[str, float, float]:
@@ -108,6 +106,8 @@ def register(subparsers) -> None:
 def add_stream_arguments(p) -> None:
     """The file, bus, rate, output, --virtual and safety options (shared with
     ``trajgen follow``)."""
+    from trajgen.drivers.defaults import MAX_DELAY_S  # constants only: no SDK, no numpy
+
     add_file_argument(p)
     p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
     p.add_argument(
