@@ -5,6 +5,7 @@ import dataclasses
 import io
 import math
 import sys
+from contextlib import contextmanager
 
 import numpy as np
 import pytest
@@ -45,26 +46,16 @@ def _move(q_end, duration_s=0.6):
     return JointTrajectory(t, q, qd, qdd, RATE_HZ)
 
 
-@pytest.fixture
-def rig():
-    made = []
-
-    def make(**kwargs):
-        virtual = VirtualBus(
-            FirstOrderPlant(time_constant_s=0.01),
-            ids=(1, 2, 3),
-            models=MODELS,
-            lockstep_dt_s=1 / RATE_HZ,
-            **kwargs,
-        ).start()
+@contextmanager
+def _servos(**registers):
+    """A virtual bus of three XM430s (first-order plant) and a ServoBus open on it."""
+    plant = FirstOrderPlant(time_constant_s=0.01)
+    with VirtualBus(plant, models=MODELS, lockstep_dt_s=1 / RATE_HZ, **registers) as virtual:
         bus = ServoBus(virtual.port).open()
-        made.append((virtual, bus))
-        return virtual, bus
-
-    yield make
-    for virtual, bus in made:
-        bus.close()
-        virtual.stop()
+        try:
+            yield virtual, bus
+        finally:
+            bus.close()
 
 
 def test_telemetry_has_the_plan_beside_goal_and_position():
@@ -74,21 +65,19 @@ def test_telemetry_has_the_plan_beside_goal_and_position():
         assert columns.index(f"goal_rad_{j}") > k and columns.index(f"position_rad_{j}") > k
 
 
-def test_the_streamer_sends_the_led_goals_and_logs_the_plan(rig, tmp_path):
+def test_the_streamer_sends_the_led_goals_and_logs_the_plan(tmp_path):
     led, goals, _ = lead_trajectory(_move([0.5, -0.3, 0.2]), GimbalConfig())
     assert np.abs(led.goal - led.q).max() > 0.01  # a real lead, not the plan
-    virtual, bus = rig()
     joints = JointMap()
-    setup = bring_up(bus, joints, MODELS, led)
     log = tmp_path / "t.csv"
-    stats = Streamer(
-        bus,
-        joints,
-        telemetry=log,
-        clock=SimulatedClock(),
-        goal_bounds_ticks=setup.goal_bounds_ticks,
-    ).run(led)
-    received = joints.to_rad(np.array(list(virtual.goal_log)[-len(led) :]))
+    with _servos() as (virtual, bus):
+        bounds = bring_up(bus, joints, MODELS, led).goal_bounds_ticks
+        streamer = Streamer(
+            bus, joints, telemetry=log, clock=SimulatedClock(), goal_bounds_ticks=bounds
+        )
+        stats = streamer.run(led)
+        goal_log = list(virtual.goal_log)
+    received = joints.to_rad(np.array(goal_log[-len(led) :]))
     np.testing.assert_allclose(received, led.goal, atol=TICK_RAD / 2 + 1e-12)
     assert stats.frames_sent == len(led)
     with open(log, newline="") as f:
@@ -99,7 +88,7 @@ def test_the_streamer_sends_the_led_goals_and_logs_the_plan(rig, tmp_path):
     np.testing.assert_array_equal(goal, led.goal)
 
 
-def test_bring_up_checks_the_goals_not_only_the_plan(rig):
+def test_bring_up_checks_the_goals_not_only_the_plan():
     # Tilt limited to 1800..2300 (up to 22.1 deg); the plan ends inside, 1 mrad short
     # of the limit; a goal led past it is refused before anything changes.
     high = (2300 - 2048) * TICK_RAD
@@ -107,12 +96,12 @@ def test_bring_up_checks_the_goals_not_only_the_plan(rig):
     goal = plan.q.copy()
     goal[-40, 1] = high + 0.01
     limits = {Register.MIN_POSITION_LIMIT: 1800, Register.MAX_POSITION_LIMIT: 2300}
-    virtual, bus = rig(registers={2: limits})
-    bring_up(bus, JointMap(), MODELS, plan)  # the plan alone fits
-    virtual2, bus2 = rig(registers={2: limits})
-    with pytest.raises(BringUpError, match=r"tilt leaves its position limits at t = 0\.4\d+ s"):
-        bring_up(bus2, JointMap(), MODELS, dataclasses.replace(plan, goal=goal))
-    assert not any(s.torque_on for s in virtual2.servos.values())
+    with _servos(registers={2: limits}) as (_, bus):
+        bring_up(bus, JointMap(), MODELS, plan)  # the plan alone fits
+    with _servos(registers={2: limits}) as (virtual, bus):
+        with pytest.raises(BringUpError, match=r"tilt leaves its position limits at t = 0\.4\d+ s"):
+            bring_up(bus, JointMap(), MODELS, dataclasses.replace(plan, goal=goal))
+        assert not any(s.torque_on for s in virtual.servos.values())
 
 
 def test_follow_sends_goals_led_from_the_live_plan(monkeypatch, tmp_path):
