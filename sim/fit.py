@@ -74,6 +74,11 @@ _SIM_SLOW_STEP = 0.97
 _RELAX_BELOW = 0.9
 _MAX_RELAX = 1.5
 
+#: The goals the fit's simulations send: the plan as it is (``trajgen.lead``). The
+#: fit learns the servo's lag as tracking speed caps; a stream's default led goals
+#: (docs/lead.md) track better, so the fitted timing is conservative for them.
+FIT_LEAD = "none"
+
 #: Names of the limits a segment can bind on, indexed by the codes used below.
 BINDINGS = (
     "torque envelope",
@@ -245,7 +250,7 @@ def fit_timing(
         times = _round_times(old_times[0], durations)
         durations = np.diff(times)
         say(f"round {round_}: simulating {times[-1] - times[0]:.3f} s")
-        report = check_torque(fitter.trajectory(times), config=config)
+        report = check_torque(fitter.trajectory(times), config=config, lead=FIT_LEAD)
         if not simulate:
             best = (times, binding, report)
             break
@@ -272,7 +277,7 @@ def fit_timing(
     except FitError as e:
         faster_reasons = (str(e),)
     else:
-        faster_report = check_torque(faster_trajectory, config=config)
+        faster_report = check_torque(faster_trajectory, config=config, lead=FIT_LEAD)
         faster_reasons = faster_report.reasons + check_limits(faster_trajectory, limits)
     segments = tuple(
         SegmentFit(i + 1, float(old), float(new), binding[i])
@@ -737,7 +742,9 @@ class _Fitter:
                 trial = _round_times(times[0], durations)
                 self.say(f"  segment {i + 1} alone x{step:.3f} faster: simulating")
                 try:
-                    trial_report = check_torque(self.trajectory(trial), config=self.config)
+                    trial_report = check_torque(
+                        self.trajectory(trial), config=self.config, lead=FIT_LEAD
+                    )
                 except FitError:
                     trial_report = None
                 if (

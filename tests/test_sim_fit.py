@@ -12,6 +12,9 @@ from trajgen.keyframes import load_keyframe_file
 from trajgen.sim import FitError, JointLimits, check_limits, check_torque, fit_timing
 from trajgen.sim.check import resolve_source
 
+# The fit judges the plan sent as it is (lead none, see sim/fit.py): so does its tightness.
+from trajgen.sim.fit import FIT_LEAD
+
 # Segment 1 is a large pan move, segment 2 a small tilt nudge, segment 3 a medium return.
 KEYS = """\
 [spline]
@@ -81,7 +84,7 @@ def test_gentle_motion_gets_faster_and_passes(fitted):
     assert result.duration_s < 0.5 * result.old_duration_s
     assert result.report.ok
     # The file as written passes `trajgen sim`'s check and keeps every other table.
-    assert check_torque(out).ok
+    assert check_torque(out, lead=FIT_LEAD).ok
     original, written = tomllib.loads(path.read_text()), tomllib.loads(out.read_text())
     for table in ("stream", "gimbal", "bus"):
         assert written[table] == original[table]
@@ -94,7 +97,9 @@ def test_ten_percent_faster_fails(fitted, tmp_path):
     _, result, out = fitted
     assert result.tight
     faster = result.times / 1.1
-    report = check_torque(_retimed(tmp_path, tomllib.loads(out.read_text()), faster, "f.toml"))
+    report = check_torque(
+        _retimed(tmp_path, tomllib.loads(out.read_text()), faster, "f.toml"), lead=FIT_LEAD
+    )
     assert not report.ok
 
 
@@ -113,7 +118,7 @@ def test_each_segment_is_bound_by_its_own_limit(fitted, tmp_path):
         d = durations.copy()
         d[i] /= 1.1
         times = np.concatenate([[0.0], np.cumsum(d)])
-        report = check_torque(_retimed(tmp_path, document, times, f"seg{i}.toml"))
+        report = check_torque(_retimed(tmp_path, document, times, f"seg{i}.toml"), lead=FIT_LEAD)
         assert not report.ok, f"segment {i + 1} could go 10% faster alone"
     # Per-segment, not a uniform scaling of the equal input durations.
     assert durations.max() / durations.min() > 1.05
@@ -242,13 +247,14 @@ def test_too_fast_motion_is_slowed_to_what_the_servos_track(tmp_path):
     for old, new in (("t = 2.0", "t = 0.3"), ("t = 4.0", "t = 0.6"), ("t = 6.0", "t = 0.9")):
         text = text.replace(old, new)
     path = _write(tmp_path, text)
-    assert not check_torque(path).ok
+    assert not check_torque(path, lead=FIT_LEAD).ok
     result = fit_timing(path)
     assert result.duration_s > 0.9
     out = _write(tmp_path, result.toml(), "out.toml")
-    assert check_torque(out).ok
+    assert check_torque(out, lead=FIT_LEAD).ok
     faster = check_torque(
-        _retimed(tmp_path, tomllib.loads(out.read_text()), result.times / 1.1, "f.toml")
+        _retimed(tmp_path, tomllib.loads(out.read_text()), result.times / 1.1, "f.toml"),
+        lead=FIT_LEAD,
     )
     assert not faster.ok
     assert any("tracking" in s.binding for s in result.segments)
@@ -276,7 +282,7 @@ def test_smooth_spline_fit_is_tight_segment_by_segment(fitted_smooth, tmp_path):
         d = durations.copy()
         d[i] /= 1.1
         times = np.concatenate([[0.0], np.cumsum(d)])
-        report = check_torque(_retimed(tmp_path, document, times, f"seg{i}.toml"))
+        report = check_torque(_retimed(tmp_path, document, times, f"seg{i}.toml"), lead=FIT_LEAD)
         assert not report.ok, f"segment {i + 1} could go 10% faster alone\n{result.format()}"
 
 
