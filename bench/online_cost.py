@@ -33,11 +33,11 @@ import time
 import numpy as np
 
 from trajgen import fast
+from trajgen import follower as follow
 from trajgen import quat as Q
-from trajgen.cli import follow
-from trajgen.cli.follow import CHECK_STEP_FRAMES as CHECK_FRAMES
-from trajgen.cli.follow import Follower, load_compiled_kernel
 from trajgen.drivers.clock import sleep_until
+from trajgen.follower import CHECK_STEP_FRAMES as CHECK_FRAMES
+from trajgen.follower import Follower, load_compiled_kernel
 from trajgen.online import OnlineSpline
 from trajgen.spline import BlendingSpline
 from trajgen.stream import stream_frames

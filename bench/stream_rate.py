@@ -8,7 +8,7 @@ velocity, position by fast sync read) every frame, or every 10th frame.
 
 Prints a markdown table: achieved rate, period error p50 / p99 / max, overruns,
 communication errors, and bytes per cycle on the wire against the minimum from
-DYNAMIXEL.md (sync write 29 B + fast sync read 17 + 50 B every N frames).
+docs/dynamixel.md (sync write 29 B + fast sync read 17 + 50 B every N frames).
 
 Run: .venv/bin/python bench/stream_rate.py [--seconds 3]
 """

@@ -53,7 +53,7 @@ QUICK_RANDOM = 5
 #: The joint-space minimax-jerk plan (not an orientation spline): the bound as a plan.
 JOINT_MINIMAX = "joint-space minimax jerk (LP)"
 MINIMAX_KNOTS = "SmoothSpline minimax knots (LP)"
-#: SmoothSpline's two knot choices (SPEC 8's quintic one, and the rest ends' jerk minimax).
+#: SmoothSpline's two knot choices (algorithm.md §8.5: quintic, and the rest ends' jerk minimax).
 QUINTIC = "SmoothSpline quintic"
 END_MINIMAX = "SmoothSpline end-minimax"
 #: The knot-by-knot descent on the gimbal's joint jerk, from end-minimax's knot data.
@@ -197,7 +197,7 @@ def _minimax_spline_class():
         the worst one's level, and long segments use that freedom to wander (the
         first version of this experiment, with a mean |jerk| term instead, reached
         27x the bound on a random case). Pressing each segment's own peak keeps
-        them tame; it does not make the flat model see the gimbal (see the README).
+        them tame; it does not make the flat model see the gimbal (see docs/results.md).
         """
 
         MINIMAX_SAMPLES = 40
@@ -413,7 +413,7 @@ def min_peak_jerk(theta: np.ndarray, times: np.ndarray, step: float = BOUND_STEP
 def torque_rate_bound(motion: str, pace: str) -> Bound:
     """Lower bound on the peak torque rate (N m/s) of any rest-to-rest path through the
     case's keyframes at its times, for the decoupled constant-inertia model
-    ``tau_j = I_j theta_j''`` (see :func:`min_peak_jerk`; what it ignores is in the README).
+    ``tau_j = I_j theta_j''`` (see :func:`min_peak_jerk`; what it ignores is in docs/results.md).
 
     The joints' keyframe angles are the gimbal's inverse kinematics (the branch the
     plans use); ``I_j`` is the smallest diagonal inertia over the keyframe poses.
@@ -573,7 +573,7 @@ def _num(value: float, digits: int) -> str:
     return f"{value:.{digits}f}" if abs(value) < 1e4 else f"{value:.2e}"
 
 
-#: The default method for offline plans (keyframe files), as the README's race chose it.
+#: The default method for offline plans (keyframe files), as the race in docs/results.md chose it.
 DEFAULT = END_MINIMAX
 #: The library methods whose goals the race reports (the default and the other knot choice).
 CANDIDATES = (DEFAULT, JOINT_KNOTS, QUINTIC)

@@ -127,6 +127,38 @@ class Installed:
 
 
 @dataclass(frozen=True)
+class JointRange:
+    """The plan of an online stream, for bring-up: where it starts and every angle it may take.
+
+    An online stream's frames are not known in advance; bring-up checks its
+    first frame (the approach distance) and the whole range it may cover (the
+    installed position limits) instead.
+
+    Attributes
+    ----------
+    first_rad : ndarray, shape (n,)
+        Where the stream starts (rad): its first frame, or where the servos are
+        (the streamer checks the first frame again before the approach).
+    limits_rad : ndarray, shape (n, 2)
+        Lowest and highest angle (rad) per joint the stream may command.
+    """
+
+    first_rad: np.ndarray
+    limits_rad: np.ndarray
+
+
+def _plan_rows(plan) -> tuple[np.ndarray, object]:
+    """Joint angles (rad, shape (M, n), the first frame first) bring-up checks of a plan
+    (a trajectory or a ``JointRange``), and a function naming row ``k`` in messages."""
+    if isinstance(plan, JointRange):
+        rows = np.vstack([plan.first_rad, np.asarray(plan.limits_rad, float).T])
+        return rows, lambda k: "at its start" if k == 0 else "within its joint limits"
+    t = np.asarray(plan.t, dtype=float)
+    # The goals that will be sent (led ahead of the plan, trajgen.lead), not only the plan.
+    return np.asarray(sent_q(plan), dtype=float), lambda k: f"at t = {t[k]:.3f} s"
+
+
+@dataclass(frozen=True)
 class BringUp:
     """What bring-up found and set.
 
@@ -141,7 +173,7 @@ class BringUp:
     present_ticks : ndarray of int64, shape (n,)
         Present Position just before torque on (= the first Goal Position).
     trajectory : object
-        The plan the checks were made against (with ``t`` and ``q``).
+        The plan the checks were made against (a trajectory, or a ``JointRange``).
     """
 
     installed: tuple[Installed, ...]
@@ -287,10 +319,9 @@ def check_plan(
     installed : sequence of Installed, shape (n,)
         From ``inspect``.
     joints : JointMap
-    trajectory : JointTrajectory or object with ``t`` (M,) and ``q`` (M, n)
+    trajectory : JointTrajectory (or object with ``t`` (M,) and ``q`` (M, n)), or JointRange
         The plan: times (s) and joint angles (rad), the first row the first
-        frame. A row with time NaN is a bound, not a frame (an online stream's
-        joint limits).
+        frame; or, for an online stream, its first frame and range.
     joint_names : sequence of str, optional
         For messages (default pan, tilt, roll).
     set_limits : mapping of int to (int, int), optional
@@ -315,8 +346,7 @@ def check_plan(
     """
     names = joint_names_for(joints, joint_names)
     set_limits = dict(set_limits or {})
-    q = np.asarray(sent_q(trajectory), dtype=float)  # the goals sent, led or not
-    t = np.asarray(trajectory.t, dtype=float)
+    q, when = _plan_rows(trajectory)
     ticks = joints.to_ticks(q)
     modes, limits = [], []
     for j, servo in enumerate(installed):
@@ -349,10 +379,8 @@ def check_plan(
                 k = outside[0]
                 goal = ticks[k, j]
                 which, limit = ("Min", low) if goal < low else ("Max", high)
-                # A time-less row is a bound of where an online stream may go.
-                when = f"at t = {t[k]:.3f} s" if np.isfinite(t[k]) else "within its joint limits"
                 raise BringUpError(
-                    f"{names[j]} leaves its position limits {when}: "
+                    f"{names[j]} leaves its position limits {when(k)}: "
                     f"{math.degrees(q[k, j]):.1f} deg (tick {goal}) is past the {which} Position "
                     f"Limit {limit} ({_deg(joints, j, limit)}) of servo {servo.servo_id}; "
                     "change the plan, or change the limits with --set-limits; refusing to stream"
@@ -443,10 +471,11 @@ def bring_up(
     joints : JointMap
     models : sequence of Model or str, shape (n,)
         Expected model per joint.
-    plan : JointTrajectory, or callable
-        The plan (``t`` (M,) in s, ``q`` (M, n) in rad), or a function of the
-        present joint angles (rad, shape (n,)) returning it: the command line
-        plans from where the servos are, so pan and roll take the nearest turn.
+    plan : JointTrajectory or JointRange, or callable
+        The plan (``t`` (M,) in s, ``q`` (M, n) in rad; or an online stream's
+        ``JointRange``), or a function of the present joint angles (rad, shape
+        (n,)) returning it: a session plans from where the servos are, so pan
+        and roll take the nearest turn.
     watchdog_s : float or None, optional
         Bus Watchdog period (s); None leaves it off.
     joint_names : sequence of str, optional
@@ -503,7 +532,7 @@ def bring_up(
                 f"servo {joints.ids[j]} ({names[j]}) reads Present Position {present[j]}, "
                 f"outside its limits {low}..{high}; torque stays off; refusing to stream"
             )
-    check_start(joints.to_rad(present), np.asarray(sent_q(plan), float)[0], max_approach_rad, names)
+    check_start(joints.to_rad(present), _plan_rows(plan)[0][0], max_approach_rad, names)
     for servo_id, ticks in zip(joints.ids, present.tolist(), strict=True):
         # Goal Position = present position first, so torque on does not jump.
         bus.write(servo_id, Register.GOAL_POSITION, ticks)

@@ -1,7 +1,7 @@
 """The servo bus: ``dynamixel-sdk`` over pyserial, with every result checked.
 
 ``ServoBus`` wraps the SDK's ``PortHandler`` and ``Protocol2PacketHandler``.
-What it adds to them (see DYNAMIXEL.md for why):
+What it adds to them (see docs/dynamixel.md for why):
 
 - any baud rate, 4.5 Mbps included (``getCFlagBaud`` accepts any rate and
   pyserial sets it with BOTHER), and packet timeouts from the adapter's real

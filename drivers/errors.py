@@ -12,6 +12,10 @@ class DriverError(Exception):
     """Base class of every failure raised by ``drivers``."""
 
 
+class PacketError(DriverError, ValueError):
+    """Bytes that are not a well-formed Protocol 2.0 packet."""
+
+
 class CommError(DriverError, ConnectionError):
     """Transport failure: no reply, a corrupt reply, or the port went away."""
 

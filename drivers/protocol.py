@@ -16,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
+from .errors import PacketError
+
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
 _MIN_LENGTH = 3  # INST + CRC
@@ -54,10 +56,6 @@ class StatusError(IntEnum):
 
 
 ALERT_BIT = 0x80
-
-
-class PacketError(ValueError):
-    """Bytes that are not a well-formed Protocol 2.0 packet."""
 
 
 def _crc_table() -> list[int]:

@@ -145,6 +145,35 @@ class JointMap:
         t = np.asarray(ticks, dtype=float)
         return np.asarray(self.directions) * (t - np.asarray(self.zeros)) * RAD_PER_TICK
 
+    def limit_ticks(self, joint: int, low_rad: float, high_rad: float) -> tuple[int, int]:
+        """Min and Max Position Limit (ticks) that keep joint ``joint`` in ``low_rad..high_rad``.
+
+        Parameters
+        ----------
+        joint : int
+            Joint index (0..n-1).
+        low_rad, high_rad : float
+            The joint's range (rad), in joint angles (direction and zero applied).
+
+        Returns
+        -------
+        (int, int)
+            ``(min, max)`` ticks, ``min < max`` whatever the joint's direction.
+
+        Raises
+        ------
+        ValueError
+            If the ticks fall outside the registers' range 0..4095.
+        """
+        angles = np.zeros((2, len(self)))
+        angles[:, joint] = (low_rad, high_rad)
+        low, high = sorted(int(v) for v in self.to_ticks(angles)[:, joint])
+        if not 0 <= low < high <= TICKS_PER_REV - 1:
+            raise ValueError(
+                f"ticks {low}..{high} fall outside the registers' range 0..{TICKS_PER_REV - 1}"
+            )
+        return low, high
+
     def velocity_to_rad_s(self, raw: np.ndarray) -> np.ndarray:
         """Joint velocities (rad/s) of signed Present Velocity values, shape (..., n)."""
         return np.asarray(self.directions) * np.asarray(raw, dtype=float) * VELOCITY_UNIT_RAD_S

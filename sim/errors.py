@@ -1,10 +1,19 @@
-"""The simulator's domain errors."""
+"""The simulator's domain errors: every one a :class:`SimError`.
+
+Those that are bad input (a telemetry log that cannot be used) are also
+``ValueError``s. ``FitError`` (``sim.fit``) and ``UnsupportedServoSetting``
+(``sim.firmware``) are ``SimError``s defined beside their code.
+"""
 
 from __future__ import annotations
 
 
 class SimError(RuntimeError):
     """Base class of the simulator's domain failures."""
+
+
+class IdentifyError(SimError, ValueError):
+    """A telemetry log that cannot be used, or a missing ``mujoco[sysid]``."""
 
 
 class SimulationError(SimError):

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from trajgen.servo_table import GAIN_MAX
-from trajgen.sim.errors import SimError
+from trajgen.sim.errors import IdentifyError, SimError
 from trajgen.sim.firmware import PositionLoop
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig, JointParams, build_model
 
@@ -63,10 +63,6 @@ _BOUNDS = {
     "damping": (0.0, 2.0),
     "position_p_gain": (10.0, float(GAIN_MAX)),
 }
-
-
-class IdentifyError(ValueError):
-    """A telemetry log that cannot be used, or a missing ``mujoco[sysid]``."""
 
 
 @dataclass(frozen=True)

@@ -126,3 +126,38 @@ def live_frames(
     cap = lead_cap(np.asarray(speed_rad_s, dtype=float)[None, :], params)
     torque = torque_function(simulation_model(config)) if lead == "model" else None
     return LedFrames(frames, rate_hz, lead, params, bounds_rad, cap, torque=torque)
+
+
+class Leader:
+    """Led goals for a ``drivers.session.Session`` (the drivers know no MuJoCo).
+
+    Parameters
+    ----------
+    config : GimbalConfig
+        The servos and their loops (the file's [gimbal] tables).
+    lead : {"model", "advance", "none"}
+
+    Attributes
+    ----------
+    notes : list of str
+        Why a joint got no lead, for every trajectory led so far.
+    """
+
+    def __init__(self, config: GimbalConfig, lead: str) -> None:
+        from trajgen.lead import check_lead
+        from trajgen.sim.run import simulation_model
+
+        self.config = config
+        self.lead = check_lead(lead)
+        self.model = simulation_model(config)
+        self.notes: list[str] = []
+
+    def trajectory(self, trajectory):
+        """``trajectory`` with its led goals attached (:func:`lead_trajectory`)."""
+        led, _, notes = lead_trajectory(trajectory, self.config, self.lead, model=self.model)
+        self.notes += [n for n in notes if n not in self.notes]
+        return led
+
+    def frames(self, frames, rate_hz: float, bounds_rad):
+        """A live stream's frames with led goals (:func:`live_frames`)."""
+        return live_frames(frames, self.config, self.lead, rate_hz, bounds_rad)

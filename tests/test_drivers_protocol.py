@@ -28,7 +28,7 @@ from trajgen.drivers.protocol import (
 )
 from trajgen.drivers.units import JointMap, to_signed, to_unsigned
 
-# Captured from dynamixel-sdk 4.1.0 (DYNAMIXEL.md): sync write of Goal Position
+# Captured from dynamixel-sdk 4.1.0 (docs/dynamixel.md): sync write of Goal Position
 # 2048, 1024, -4096 to ids 1, 2, 3, and ping(1).
 SYNC_WRITE_BYTES = bytes.fromhex(
     "FF FF FD 00 FE 16 00 83 74 00 04 00 01 00 08 00 00 02 00 04 00 00 03 00 F0 FF FF 3E 87"
@@ -170,7 +170,7 @@ def test_signed_round_trip(rng):
 
 
 def test_layout_agrees_with_emanual_addresses():
-    # e-Manual X-series control table (DYNAMIXEL.md), same for the four models.
+    # e-Manual X-series control table (docs/dynamixel.md), same for the four models.
     expected = {
         Register.MODEL_NUMBER: (0, 2),
         Register.RETURN_DELAY_TIME: (9, 1),

@@ -3,6 +3,7 @@
 import json
 import math
 import os
+import re
 import sys
 import threading
 import time
@@ -11,8 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from trajgen import follower as follow
 from trajgen import quat as Q
-from trajgen.cli import follow, main
+from trajgen.cli import main
+from trajgen.drivers.session import Session
 from trajgen.gimbal import forward
 from trajgen.keyframes import BUILTIN_EXAMPLE, load_keyframe_file
 
@@ -24,19 +27,20 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     read_end, write_end = os.pipe()
     monkeypatch.setattr(sys, "stdin", os.fdopen(read_end, "r"))
     seen = {}
-    start_virtual = follow.stream_command.start_virtual
+    open_virtual = Session._open_virtual
 
-    def spy_virtual(*args):
-        seen["virtual"], plant = start_virtual(*args)
-        return seen["virtual"], plant
+    def spy_virtual(self, rate_hz):
+        seen["virtual"] = open_virtual(self, rate_hz)
+        return seen["virtual"]
 
-    class SpyFollower(follow.Follower):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            seen["follower"] = self
+    real_follow = Session.follow
 
-    monkeypatch.setattr(follow.stream_command, "start_virtual", spy_virtual)
-    monkeypatch.setattr(follow, "Follower", SpyFollower)
+    def spy_follow(self, follower, lines, **kwargs):
+        seen["follower"] = follower
+        return real_follow(self, follower, lines, **kwargs)
+
+    monkeypatch.setattr(Session, "_open_virtual", spy_virtual)
+    monkeypatch.setattr(Session, "follow", spy_follow)
     lines = [
         '{"in": 0.8, "pan": 20, "tilt": 5}',
         '{"in": 0.6, "pan": 10, "tilt": -5, "roll": 3}',
@@ -139,9 +143,11 @@ def test_bad_lines_are_refused_and_the_plan_kept(follower, line, message):
     assert follower.spline.version == 1  # the file's plan only
 
 
-def test_read_reports_bad_lines_and_goes_on(follower, capsys):
-    follower.read(['{"in": 1, "yaw": 2}\n', "\n", '{"in": 1, "pan": 30}\n'], echo=sys.stdout)
-    assert "stdin: line 1: unknown field 'yaw'" in capsys.readouterr().out
+def test_read_reports_bad_lines_and_goes_on(follower):
+    told = []
+    follower.on_skip = told.append
+    follower.read(['{"in": 1, "yaw": 2}\n', "\n", '{"in": 1, "pan": 30}\n'])
+    assert told == follower.skipped and told[0].startswith("stdin: line 1: unknown field 'yaw'")
     assert len(follower.keyframes) == 1 and follower.keyframes[0]["line"] == 3
     assert follower.spline.closed
 
@@ -165,21 +171,28 @@ def test_a_frame_the_gimbal_cannot_take_ends_the_stream_at_the_frame_before(foll
     assert 0.3 < frames[-1].t < 0.8 and len(frames) == len(follower.trajectory())
 
 
-def test_follow_stops_safely_on_sigterm_while_waiting_for_lines():
+def test_follow_stops_safely_on_sigterm_while_waiting_for_lines(tmp_path):
     import signal
     import subprocess
 
     example = Path(__file__).parents[1] / "examples" / "follow_target.toml"
+    telemetry = tmp_path / "t.csv"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "trajgen", "follow", str(example), "--virtual"],
+        [sys.executable, "-m", "trajgen", "follow", str(example), "--virtual"]
+        + ["--telemetry", str(telemetry), "--max-delay", "60"],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    time.sleep(4.0)  # stdin stays open: the stream holds at rest, waiting for lines
+    # stdin stays open: the stream holds at rest, waiting for lines. The telemetry file
+    # (a row per frame, flushed) says when it streams.
+    deadline = time.monotonic() + 120.0
+    while not (telemetry.exists() and telemetry.read_text().count("\n") > 100):
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr
+        time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=30)
+    out, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "trajgen: interrupted" in err and "hold their last goal" in err
 
@@ -278,3 +291,102 @@ def test_a_line_still_queued_when_the_stream_ends_is_reported_and_changes_nothin
     fed.join(timeout=10)
     assert errors == ["stdin: line 7: the stream ended before its change was made"]
     assert follower.spline.version == 1 and not follower.keyframes
+
+
+# -- careless input on stdin --------------------------------------------------
+
+
+def test_a_50_mb_line_is_read_in_bounded_pieces_and_the_next_line_kept():
+    from trajgen.keyframe_lines import MAX_LINE_BYTES, capped_lines
+
+    read_end, write_end = os.pipe()
+
+    def writer():
+        with os.fdopen(write_end, "wb") as pipe:
+            pipe.write(b"[" * (50 * 1024 * 1024) + b"\n")
+            pipe.write(b'{"in": 1, "pan": 30}\n')
+
+    thread = threading.Thread(target=writer, daemon=True)
+    thread.start()
+    with os.fdopen(read_end, "rb") as pipe:
+        lines = list(capped_lines(pipe))
+    thread.join()
+    assert [len(x) for x in lines] == [MAX_LINE_BYTES + 1, 21]
+    assert lines[1] == b'{"in": 1, "pan": 30}\n'
+
+
+def test_a_long_line_is_refused_unparsed_and_counted(follower, monkeypatch):
+    from trajgen import keyframe_lines
+    from trajgen.keyframe_lines import MAX_LINE_BYTES
+
+    parsed = []
+    loads = keyframe_lines.json.loads
+    monkeypatch.setattr(keyframe_lines.json, "loads", lambda s: parsed.append(len(s)) or loads(s))
+    long = b'{"in": 1, "pan": ' + b"1" * MAX_LINE_BYTES
+    follower.read([long, b'{"in": 1, "pan": 30}\n'])
+    assert follower.skipped == [
+        f"stdin: line 1: longer than {MAX_LINE_BYTES} bytes; a keyframe line is short"
+    ]
+    assert parsed == [21] and [k["line"] for k in follower.keyframes] == [2]
+
+
+def test_binary_noise_is_refused_line_by_line_and_the_stream_goes_on(follower, rng):
+    noise = rng.integers(0, 256, 20_000, dtype=np.uint8).tobytes()
+    lines = [x + b"\n" for x in noise.split(b"\n")] + [b'{"in": 1, "pan": 30}\n']
+    follower.read(lines)
+    # Every line but the last refused, each under its own number (blank ones are no line).
+    blank = {n for n, x in enumerate(lines, start=1) if not x.strip()}
+    expected = [n for n in range(1, len(lines)) if n not in blank]
+    assert [int(m.split(":")[1].split()[1]) for m in follower.skipped] == expected
+    for message in follower.skipped:
+        assert "not UTF-8 text" in message or "invalid JSON" in message or "expected" in message
+    assert [k["line"] for k in follower.keyframes] == [len(lines)]
+
+
+@pytest.mark.parametrize(
+    "line, message",
+    [
+        ('{"in": "soon", "pan": 1}', "line 1: field 'in': expected a finite number, got 'soon'"),
+        ('{"t": "soon", "pan": 1}', "line 1: field 't': expected a finite number, got 'soon'"),
+        ('{"in": 1e999, "pan": 1}', "line 1: field 'in': expected a finite number, got inf"),
+        (b'{"in": 1, "pan": "\xff"}', r"line 1: not UTF-8 text \(byte 0xff at column 19\)"),
+        ("[" * 60_000, "line 1: invalid JSON: nested too deeply"),
+        ('{"in": 1, "pan": ' + "1" * 5000 + "}", "line 1: invalid JSON: Exceeds the limit"),
+    ],
+)
+def test_a_line_names_its_field_and_number(follower, line, message):
+    follower.read([line])
+    assert len(follower.skipped) == 1
+    assert re.search(message, follower.skipped[0]), follower.skipped[0]
+
+
+def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
+    tmp_path, monkeypatch, capsys, rng
+):
+    import io
+
+    lines = rng.integers(0, 256, 3000, dtype=np.uint8).tobytes().replace(b"\n", b" ") + b"\n"
+    lines += b"x" * 200_000 + b"\n" + b'{"in": 0.8, "pan": 10}\n'
+    stdin = tmp_path / "stdin"
+    stdin.write_bytes(lines)
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(open(stdin, "rb")))  # noqa: SIM115
+    out = tmp_path / "follow.json"
+    keys = tmp_path / "keys.toml"
+    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\n")
+    assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "trajgen: follow: stdin: line 1: not UTF-8 text" in err
+    assert "trajgen: follow: stdin: line 2: longer than 65536 bytes" in err
+    result = json.loads(out.read_text())["follow"]
+    assert result["accepted"] == 1 and result["keyframes"][0]["line"] == 3
+
+
+def test_noise_prints_twenty_refusals_then_counts_the_rest(capsys):
+    from trajgen.cli.follow import SHOWN_SKIPS, _skipped
+
+    show = _skipped()
+    for n in range(1, 100):
+        show(f"stdin: line {n}: invalid JSON")
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == SHOWN_SKIPS + 1 and err[0].endswith("line 1: invalid JSON (line skipped)")
+    assert err[-1] == "trajgen: follow: 20 lines skipped; more are counted, not shown"

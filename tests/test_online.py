@@ -421,7 +421,7 @@ def test_log_of_a_local_curve_in_floats_matches_the_jet(rng, local):
     at T_1, in floats, against the jet reference, near the identity (series) and far."""
     from trajgen import derivatives as D
     from trajgen import jet as J
-    from trajgen.online import _log_of_curve
+    from trajgen.online_splice import log_of_curve as _log_of_curve
     from trajgen.spline import BlendingSpline
 
     for spread in (1e-5, 1e-3, 1e-2, 0.1, 0.4, 0.8):
@@ -497,20 +497,20 @@ def test_apply_refuses_a_change_prepared_on_an_older_path_or_before_a_streamed_t
 
 
 def test_a_change_ahead_keeps_the_block_the_stream_evaluated(monkeypatch, rng):
-    from trajgen import online
+    from trajgen import online_plan as online
     from trajgen.stream import stream_frames
 
     s = _moving(rng)  # blended from t = 0
     frames = stream_frames(s, 100.0)
     got = [next(frames) for _ in range(3)]  # frames of the first 16-frame block
     calls = []
-    space_rates = online._Piece.space_rates
+    space_rates = online.Piece.space_rates
 
     def counted(piece, t, max_order):
         calls.append(len(t))
         return space_rates(piece, t, max_order)
 
-    monkeypatch.setattr(online._Piece, "space_rates", counted)
+    monkeypatch.setattr(online.Piece, "space_rates", counted)
     s.retarget(random_quats(rng, 1), [1.3], at=got[-1].t + 0.1)
     nxt = next(frames)
     assert nxt.index == 3 and calls == []  # the block evaluated before the change is kept

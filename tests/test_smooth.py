@@ -1,4 +1,4 @@
-"""SmoothSpline against SPEC.md section 8: exactness, C3, rest ends, the knot solve."""
+"""SmoothSpline against docs/algorithm.md §8: exactness, C3, rest ends, the knot solve."""
 
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""The blending spline against SPEC.md: exactness, continuity, derivatives, ends, degenerates."""
+"""The blending spline against docs/algorithm.md: exactness, continuity, derivatives, ends."""
 
 import numpy as np
 import pytest

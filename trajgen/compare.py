@@ -1,4 +1,4 @@
-"""Comparison methods for benchmarks (SPEC section 7); not defaults.
+"""Comparison methods for benchmarks (docs/algorithm.md §7); not defaults.
 
 Each is an :class:`~trajgen.path.OrientationPath` built from ``(quats, times)``
 with exact derivatives, so the simulator can race them on equal terms:
@@ -23,6 +23,7 @@ import numpy as np
 
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .path import FRAMES, OrientationPath, Samples, check_times
 from .validate import check_choice
 
@@ -30,10 +31,10 @@ __all__ = ["PiecewiseSlerp", "Squad", "SphericalBezier", "PiecewiseCircles", "Sc
 
 
 def _signed_keys(quats, times) -> tuple[np.ndarray, np.ndarray]:
-    """Validated keyframes, signs walked so neighbours are on one hemisphere (SPEC 1)."""
+    """Validated keyframes, signs walked so neighbours are on one hemisphere (algorithm.md §1)."""
     q = Q.as_quats(quats, "quats")
     if len(q) < 2:
-        raise ValueError(f"Expected at least 2 keyframes, got {len(q)}.")
+        raise BadArgument(f"Expected at least 2 keyframes, got {len(q)}.")
     t = check_times(times, len(q))
     for i in range(1, len(q)):
         if q[i] @ q[i - 1] < 0:
@@ -211,7 +212,7 @@ class ScipyRotationSpline(OrientationPath):
 
     def evaluate(self, t, *, max_order: int = 2, frame: str = "space") -> Samples:
         if max_order not in (0, 1, 2):
-            raise ValueError("scipy's RotationSpline gives no jerk: `max_order` must be 0..2.")
+            raise BadArgument("scipy's RotationSpline gives no jerk: `max_order` must be 0..2.")
         check_choice("frame", frame, FRAMES)
         _, ta = self._segment(np.atleast_1d(np.asarray(t, dtype=float)))
         q = self._spline(ta).as_quat(scalar_first=True)

@@ -297,7 +297,7 @@ def slerp_steps(p: list, q: list, f: list):
     the result. ``p``, ``q`` are derivative lists of unit quaternions (4, M), ``f`` of scalars
     (M,). The classical form ``(sin((1 - f) phi) p + sin(f phi) q) / sin(phi)``,
     ``phi`` the angle between ``p`` and ``q``; it equals ``exp(f log(q p*)) p``
-    (SPEC 3). The angle is taken from the chord ``z = |q - p|^2``, which is
+    (docs/algorithm.md §3). The angle is taken from the chord ``z = |q - p|^2``, which is
     accurate where the two points meet (at the knots); below ``SERIES_BELOW`` the
     weights are series in ``phi^2`` (``sin(f phi) / sin(phi) = f sinc(f phi) / sinc(phi)``).
     """

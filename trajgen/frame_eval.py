@@ -30,6 +30,7 @@ import math
 import numpy as np
 
 from . import quat as Q
+from .errors import BadArgument
 from .gimbal import TWO_PI, GimbalKinematics, angles_of, joint_rates, rates_of
 from .jet import _COS, _SINC, SERIES_BELOW
 from .per_sample import hamilton
@@ -98,7 +99,7 @@ def exp_frame(rx, ry, rz, vx, vy, vz, ax, ay, az, base) -> tuple[tuple, tuple, t
     """Orientation, angular velocity and acceleration of ``q = exp(r) q_b`` at one time.
 
     ``E = exp(r) = (C(x), S(x) r)``, ``x = r . r``; ``omega = 2 vec(E' E*)`` and
-    ``alpha = 2 vec(E'' E*)``, as ``SmoothSpline._space_rates`` (SPEC section 8).
+    ``alpha = 2 vec(E'' E*)``, as ``SmoothSpline._space_rates`` (algorithm.md §8).
 
     Parameters
     ----------
@@ -148,8 +149,8 @@ class SmoothFrames:
     """A :class:`~trajgen.smooth.SmoothSpline` at one time per call, in floats.
 
     On segment i the path is ``q = E q_i``, ``E = exp(r_i(u)) = (C(x), S(x) r)``,
-    ``x = r . r``; ``omega = 2 vec(E' E*)`` and ``alpha = 2 vec(E'' E*)`` (SPEC
-    section 8). Times are expected mostly increasing, as in a stream: the segment
+    ``x = r . r``; ``omega = 2 vec(E' E*)`` and ``alpha = 2 vec(E'' E*)`` (docs/
+    algorithm.md §8). Times are expected mostly increasing, as in a stream: the segment
     is looked up only when the time leaves the current one, and its row of the
     coefficient table is converted to floats then.
 
@@ -188,7 +189,7 @@ class SmoothFrames:
             t = self._t0 + (t - self._t0) % (self._t1 - self._t0)
         elif not self._t0 <= t <= self._t1:
             if not self._t0 - self._eps <= t <= self._t1 + self._eps:
-                raise ValueError(
+                raise BadArgument(
                     f"Time {t!r} s is outside the path's range [{self._t0}, {self._t1}] s."
                 )
             t = min(max(t, self._t0), self._t1)

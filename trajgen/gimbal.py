@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen import quat
-from trajgen.errors import KinematicsError
+from trajgen.errors import BadArgument, KinematicsError
 from trajgen.validate import check_number
 
 TWO_PI = 2.0 * math.pi
@@ -62,11 +62,11 @@ def as_angles(angles, name: str = "angles", *, single: bool = False) -> np.ndarr
     except (TypeError, ValueError) as e:
         raise TypeError(f"Expected `{name}` to be numeric, got {type(angles).__name__}.") from e
     if single and a.shape != (3,):
-        raise ValueError(f"Expected `{name}` to have shape (3,), got {a.shape}.")
+        raise BadArgument(f"Expected `{name}` to have shape (3,), got {a.shape}.")
     if a.ndim == 0 or a.shape[-1] != 3:
-        raise ValueError(f"Expected `{name}` to have shape (..., 3), got {a.shape}.")
+        raise BadArgument(f"Expected `{name}` to have shape (..., 3), got {a.shape}.")
     if not np.isfinite(a).all():
-        raise ValueError(f"Expected `{name}` to be finite, got {a[~np.isfinite(a)][0]}.")
+        raise BadArgument(f"Expected `{name}` to be finite, got {a[~np.isfinite(a)][0]}.")
     return a
 
 
@@ -79,7 +79,7 @@ def _as_times(times, n: int, like: str) -> np.ndarray | None:
     except (TypeError, ValueError) as e:
         raise TypeError(f"Expected `times` to be numeric, got {type(times).__name__}.") from e
     if t.shape != (n,):
-        raise ValueError(f"Expected `times` to have shape ({n},) like `{like}`, got {t.shape}.")
+        raise BadArgument(f"Expected `times` to have shape ({n},) like `{like}`, got {t.shape}.")
     return t
 
 
@@ -200,7 +200,7 @@ def joint_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
     w = as_angles(omega, "omega")
     dw = as_angles(alpha, "alpha")
     if not a.shape == w.shape == dw.shape:
-        raise ValueError(
+        raise BadArgument(
             "Expected `angles`, `omega` and `alpha` to have the same shape, "
             f"got {a.shape}, {w.shape}, {dw.shape}."
         )
@@ -254,16 +254,16 @@ class GimbalKinematics:
                 f"Expected `limits_rad` to be numeric, got {type(self.limits_rad).__name__}."
             ) from e
         if lim.shape != (3, 2):
-            raise ValueError(f"Expected `limits_rad` to have shape (3, 2), got {lim.shape}.")
+            raise BadArgument(f"Expected `limits_rad` to have shape (3, 2), got {lim.shape}.")
         if not np.isfinite(lim).all():
-            raise ValueError(f"Expected `limits_rad` to be finite, got {lim.tolist()}.")
+            raise BadArgument(f"Expected `limits_rad` to be finite, got {lim.tolist()}.")
         for name, (low, high) in zip(JOINT_NAMES, lim, strict=True):
             if not low < high:
-                raise ValueError(
+                raise BadArgument(
                     f"Expected `limits_rad` {name} low < high, got [{low:.6g}, {high:.6g}] rad."
                 )
         if lim[1, 0] < -math.pi / 2 or lim[1, 1] > math.pi / 2:
-            raise ValueError(
+            raise BadArgument(
                 "Expected `limits_rad` tilt within [-pi/2, pi/2], "
                 f"got [{lim[1, 0]:.6g}, {lim[1, 1]:.6g}] rad."
             )
@@ -352,7 +352,7 @@ class GimbalKinematics:
         """
         a = as_angles(angles)
         if a.ndim != 2:
-            raise ValueError(f"Expected `angles` to have shape (N, 3), got {a.shape}.")
+            raise BadArgument(f"Expected `angles` to have shape (N, 3), got {a.shape}.")
         times = _as_times(times, len(a), "angles")
         lock_limit = math.pi / 2 - self.lock_margin_rad
         locked = np.abs(a[:, 1]) > lock_limit

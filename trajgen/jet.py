@@ -18,6 +18,8 @@ from math import factorial
 
 import numpy as np
 
+from .errors import BadArgument
+
 #: Squared size below which exp/log use their series (|angle| < 0.1 rad).
 SERIES_BELOW = 1e-2
 
@@ -135,7 +137,7 @@ def compose(a: Jet, d: list[np.ndarray]) -> Jet:
     """
     K = a.order
     if K > 4:
-        raise ValueError(f"Jets are implemented up to order 4, got {K}.")
+        raise BadArgument(f"Jets are implemented up to order 4, got {K}.")
     x = a.c
     c = np.empty(x.shape)
     c[0] = d[0]

@@ -64,7 +64,7 @@ DEFAULT_RATE_HZ = 200.0
 
 SPLINE_KEYS = ("method", "k", "boundary", "local", "reparam", "knots")
 #: ``[spline] method`` -> spline class. The default is chosen by the torque race
-#: (README, "The torque race, part 2").
+#: (docs/results.md, "The torque race, part 2").
 METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
 DEFAULT_METHOD = "smooth"
 #: Keys only the blending spline takes; a file giving one without ``method`` gets it.

@@ -1,4 +1,4 @@
-"""Local curves through three keyframes (Kim & Nam 1995, SPEC section 2).
+"""Local curves through three keyframes (Kim & Nam 1995, docs/algorithm.md §2).
 
 Each interior keyframe ``i`` gets a curve ``C_i(t)`` on S^3 through
 ``q_{i-1}, q_i, q_{i+1}`` at ``t_{i-1}, t_i, t_{i+1}``. The curves of one spline
@@ -8,10 +8,10 @@ column) so that any mix of curves is evaluated in one vectorised pass.
 Kinds:
 
 - ``POINT``: a held keyframe (the end curves of ``boundary="rest"``).
-- ``CIRCLE``: the circle on S^3 through the three points (SPEC 2a), with the
+- ``CIRCLE``: the circle on S^3 through the three points (algorithm.md §2a), with the
   time-to-angle map ``theta = a3 g(s)``.
-- ``PARABOLA``: ``exp(v(t)) q_i``, ``v`` the quadratic through the logs (SPEC 2b).
-- ``GEODESIC``: a repeated keyframe (SPEC 2c): the geodesic between the two
+- ``PARABOLA``: ``exp(v(t)) q_i``, ``v`` the quadratic through the logs (algorithm.md §2b).
+- ``GEODESIC``: a repeated keyframe (algorithm.md §2c): the geodesic between the two
   distinct points, flat on the repeated part.
 """
 
@@ -25,6 +25,7 @@ import numpy as np
 from . import derivatives as D
 from . import jet as J
 from . import quat as Q
+from .errors import NoCircleError
 from .path import run_steps
 
 POINT, CIRCLE, PARABOLA, GEODESIC = range(4)
@@ -35,10 +36,6 @@ G_POLY, G_POWER, G_RATIONAL = range(3)
 
 #: Keyframes closer than this on S^3 (chord) count as the same.
 SAME_POINT = 1e-9
-
-
-class NoCircleError(ValueError):
-    """Three keyframes admit no usable circle (a reversal)."""
 
 
 @dataclass
@@ -69,7 +66,7 @@ def _same(p: np.ndarray, q: np.ndarray) -> bool:
 
 
 def circle_through(p1, p2, p3):
-    """The oriented circle through three distinct points of S^3 (SPEC 2a).
+    """The oriented circle through three distinct points of S^3 (docs/algorithm.md §2a).
 
     Returns
     -------
@@ -104,7 +101,7 @@ def circle_through(p1, p2, p3):
 
 
 def angle_map(s_i: float, phi: float, reparam: str) -> tuple[int, np.ndarray]:
-    """``g: [0, 1] -> [0, 1]``, increasing, ``g(s_i) = phi`` (SPEC 2a, time to angle).
+    """``g: [0, 1] -> [0, 1]``, increasing, ``g(s_i) = phi`` (docs/algorithm.md §2a).
 
     Returns the kind and coefficients: ``G_POLY`` with cubic coefficients
     ``(c0, c1, c2, c3)`` in s, ``G_POWER`` with ``(alpha,)`` for ``s ** alpha``,
@@ -185,7 +182,7 @@ def build_curves(qs: np.ndarray, ts: np.ndarray, *, k: int, local: str, reparam:
     Parameters
     ----------
     qs : ndarray, shape (C, 3, 4)
-        Keyframe triples ``(q_{i-1}, q_i, q_{i+1})``, unit, signs walked (SPEC 1).
+        Keyframe triples ``(q_{i-1}, q_i, q_{i+1})``, unit, signs walked (docs/algorithm.md §1).
     ts : ndarray, shape (C, 3)
         Their times (s). A triple of one repeated keyframe gives a held ``POINT``.
     k, local, reparam
@@ -226,7 +223,7 @@ def build_curves(qs: np.ndarray, ts: np.ndarray, *, k: int, local: str, reparam:
     rise, power = np.zeros(C, dtype=int), np.zeros(C)
     # Each kind's block runs only if the kind is present (a few keyframes, as an online
     # change builds, pay for no empty quaternion products).
-    if geodesic.any():  # SPEC 2c: from the repeated keyframe to the other one, or back.
+    if geodesic.any():  # algorithm.md §2c: from the repeated keyframe to the other one, or back.
         start = np.where(same12[:, None], p2, p1)
         end = np.where(same12[:, None], p3, p2)
         A[geodesic] = Q.log(Q.mul(end[geodesic], Q.conj(start[geodesic])))
@@ -234,13 +231,13 @@ def build_curves(qs: np.ndarray, ts: np.ndarray, *, k: int, local: str, reparam:
         rise[geodesic] = np.where(same12[geodesic], 1, -1)
         power[geodesic] = k + 1
     m = parabola
-    if m.any():  # SPEC 2b: v(tau) = A tau + B tau^2 through (tm, Lm), (0, 0), (tp, Lp).
+    if m.any():  # algorithm.md §2b: v(tau) = A tau + B tau^2 through (tm, Lm), (0, 0), (tp, Lp).
         tm, tp = (ts[m, 0] - ts[m, 1])[:, None], (ts[m, 2] - ts[m, 1])[:, None]
         Lm, Lp = Q.log(Q.mul(np.stack([p1[m], p3[m]]), Q.conj(p2[m])))
         det = tm * tp * (tp - tm)
         A[m] = (Lm * tp**2 - Lp * tm**2) / det
         B[m] = (Lp * tm - Lm * tp) / det
-    # CIRCLE (SPEC 2a).
+    # CIRCLE (docs/algorithm.md §2a).
     centre, e1, e2 = np.zeros((C, 4)), np.zeros((C, 4)), np.zeros((C, 4))
     radius, a3 = np.zeros(C), np.zeros(C)
     g_kind, g_coef = np.full(C, G_POLY), np.zeros((C, 4))
@@ -512,7 +509,7 @@ class LocalCurves:
 
     def _geodesic(self, ids, t, order):
         """``C = exp(h A) q = cos(h |A|) q + sin(h |A|) (A / |A|) q`` with ``h`` flat on the
-        repeated part (SPEC 2c)."""
+        repeated part (docs/algorithm.md §2c)."""
         s, rate = self._s(ids, t)
         s_i = (self.t[ids, 1] - self.t[ids, 0]) * rate
         rise = self.rise[ids] > 0

@@ -63,23 +63,22 @@ quaternion curves", Computer-Aided Design 27(5), 1995 (the blending spline).
 
 from __future__ import annotations
 
-import math
 import threading
 from dataclasses import dataclass
-from functools import cached_property
 from math import comb, factorial
 
 import numpy as np
 
-from . import derivatives as D
-from . import jet as J
-from . import per_sample as P
 from . import quat as Q
-from .errors import TrajgenError
-from .frame_eval import exp_frame
-from .path import OrientationPath, Steps, check_times, run_steps
-from .spline import CONJ, LOCALS, REPARAMS, BlendingSpline, blend_polynomial
+from .errors import BadArgument, TrajgenError
+from .online_frames import PlanFrames
+from .online_plan import Piece, Plan
+from .online_splice import Splice, hermite_matrix, log_near_identity, log_of_curve
+from .path import OrientationPath, check_times, run_steps
+from .spline import LOCALS, REPARAMS, BlendingSpline, blend_polynomial
 from .validate import check_choice, check_number
+
+__all__ = ["MIN_LEAD_S", "MODES", "Change", "ChangeTooLate", "OnlineSpline", "PlanFrames"]
 
 #: Shortest time (s) from ``at`` to the first new keyframe. Peaks of the spliced
 #: piece grow like 1 / lead^2 (acceleration) and 1 / lead^3 (jerk); measured after
@@ -90,429 +89,9 @@ MIN_LEAD_S = 0.2
 
 MODES = ("extend", "retarget")
 
-#: ``C(j, n)`` for the Taylor shift of a splice's polynomial (degree 2k + 2 <= 8), (9, 9).
-_BINOMIAL = np.array([[comb(j, n) for j in range(9)] for n in range(9)], float)
-
 
 class ChangeTooLate(TrajgenError):
     """A change at a time that a stream has already used (see :meth:`OnlineSpline.commit`)."""
-
-
-class _Splice(OrientationPath):
-    """A spliced segment: ``exp(r(u)) q_a``, ``u = (t - s) / h``, ``r`` a polynomial in ``u``."""
-
-    def __init__(self, s: float, h: float, q_a: np.ndarray, coef: np.ndarray):
-        self.s, self.h = s, h
-        self.q_a = q_a  # (4,)
-        self.coef = coef  # (2k + 3, 3), power basis in u
-        self.times = np.array([s, s + h])
-
-    def _jet(self, t: np.ndarray, seg, order: int) -> J.Jet:
-        u = (J.Jet.variable(t, order) - self.s) * (1.0 / self.h)
-        r = J.Jet(np.stack([J.polyval(self.coef[:, i], u).c for i in range(3)], axis=1))
-        return J.qmul(J.qexp(r), self.q_a)
-
-    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``:
-        ``r`` shifted to ``t`` and ``exp`` as one series (no array of samples)."""
-        # r^(n)(t) / n! = h^-n sum_j C(j, n) u^(j - n) coef_j: the polynomial shifted to u.
-        u = (t - self.s) / self.h
-        n, j = np.ogrid[: order + 1, : len(self.coef)]
-        shift = _BINOMIAL[: order + 1, : len(self.coef)] * u ** np.maximum(j - n, 0)
-        r = (shift @ self.coef) * (1.0 / self.h) ** n  # (order + 1, 3)
-        e = _qexp_series(J.Jet(r))  # (order + 1, 4)
-        e0 = e[:1].T  # (4, 1)
-        return D.hamilton(e0, self.q_a[:, None])[:, 0], D.hamilton(e.T, e0 * CONJ).T
-
-    def _space_rates(self, t, seg, max_order):
-        """The same path as :meth:`_jet`, in closed form (as the spline's blends): ``r`` and
-        its time derivatives from the powers of ``u``, ``exp`` by the rules of
-        :mod:`trajgen.derivatives`; the rates are those of ``exp(r)`` (``q_a`` is fixed)."""
-        u = (t - self.s) * (1.0 / self.h)
-        powers = u[:, None] ** np.arange(len(self.coef))  # (M, 2k + 3)
-        r = [(powers[:, : len(c)] @ c).T for c in self._derivative_coefs[: max_order + 1]]
-        cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
-        e = [np.concatenate([ca[None], v]) for ca, v in zip(cos_a, D.product(sinc, r), strict=True)]
-        _, rates = _rates_of(e)
-        q = D.hamilton(e[0], self.q_a[:, None])
-        return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
-
-    def frame(self, t: float) -> tuple[tuple, tuple, tuple]:
-        """Orientation, angular velocity (rad/s) and acceleration (rad/s^2) at one time
-        ``t`` (s), in floats (:func:`~trajgen.frame_eval.exp_frame`): the per-frame
-        counterpart of :meth:`_space_rates`."""
-        return exp_frame(*self._r_values(t, 3), self._q_a_floats)
-
-    def rates(self, t: float) -> tuple[np.ndarray, list[np.ndarray]]:
-        """``q`` (4,) and the space-frame angular velocity, acceleration and jerk (each
-        (3,)) at one time ``t`` (s), in floats (:mod:`trajgen.per_sample`)."""
-        v = self._r_values(t, 4)
-        E = P.exp_of(*(tuple(v[3 * n + i] for n in range(4)) for i in range(3)))
-        out = np.empty((3, 1, 3))
-        P.space_rates(E, 0, out)
-        q = P.hamilton(tuple(e[0] for e in E), self._q_a_floats)
-        return np.array(q), list(out[:, 0])
-
-    def _r_values(self, t: float, orders: int) -> list[float]:
-        """``r`` and its first ``orders - 1`` time derivatives per axis at ``t`` (s), by
-        Horner, order-major (``r_x, r_y, r_z, r'_x, ...``)."""
-        u = (t - self.s) * (1.0 / self.h)
-        values = []
-        for row in self._rows[: 3 * orders]:
-            acc = 0.0
-            for c in row:
-                acc = acc * u + c
-            values.append(acc)
-        return values
-
-    @cached_property
-    def _rows(self) -> list[list[float]]:
-        """Power-basis coefficients of ``r`` and its time derivatives up to order 3 per
-        axis (12 rows, order-major), highest power first."""
-        return [c[::-1, i].tolist() for c in self._derivative_coefs for i in range(3)]
-
-    @cached_property
-    def _q_a_floats(self) -> list[float]:
-        return self.q_a.tolist()
-
-    @cached_property
-    def _derivative_coefs(self) -> list[np.ndarray]:
-        """Power-basis coefficients in ``u`` of ``d^n r / dt^n``, n = 0..3, each (D - n, 3)."""
-        out, c = [self.coef], self.coef
-        for _ in range(3):
-            c = c[1:] * (np.arange(1.0, len(c))[:, None] / self.h)
-            out.append(c)
-        return out
-
-
-def _rates_of(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:
-    """Unit quaternions (M, 4) and space-frame rates of orders 1..K, each (M, 3), from the
-    derivative list ``[Q, Q', ...]`` (each (4, M)) of a unit quaternion path, K <= 3:
-    ``omega = 2 vec(Q' Q*)``, ``alpha = 2 vec(Q'' Q*)``, ``jerk = 2 vec(Q''' Q* + Q'' Q'*)``."""
-    q = derivs[0] / np.sqrt(D.vdot(derivs[:1], derivs[:1])[0])
-    q_conj = q * CONJ
-    rates = [2.0 * D.hamilton_vec(d, q_conj) for d in derivs[1:]]
-    if len(rates) >= 3:
-        rates[2] += 2.0 * D.hamilton_vec(derivs[2], derivs[1] * CONJ)
-    return q.T, [x.T for x in rates]
-
-
-def _taylor_from_rates(rates: list) -> np.ndarray:
-    """Taylor coefficients (K + 1, 4) of ``d(tau) = q(t + tau) q(t)*`` from the space-frame
-    rates ``omega, alpha, jerk`` at ``t`` (each (3,), K = len(rates) <= 3), using
-    ``d' = omega d / 2`` (``omega`` as a pure quaternion) differentiated: ``d(0) = 1``,
-    ``d^(n+1) = 1/2 sum_j C(n, j) omega^(j) d^(n-j)``. Plain floats: a handful of
-    quaternion products, each far cheaper than a numpy call."""
-    w = [(0.0, *map(float, x)) for x in rates]
-    d = [(1.0, 0.0, 0.0, 0.0)]
-    for n in range(len(rates)):
-        acc = [0.0, 0.0, 0.0, 0.0]
-        for j in range(n + 1):
-            c = 0.5 * comb(n, j)
-            for i, x in enumerate(P.hamilton(w[j], d[n - j])):
-                acc[i] += c * x
-        d.append(tuple(acc))
-    return np.array(d) / np.array([factorial(n) for n in range(len(d))])[:, None]
-
-
-@dataclass(frozen=True)
-class _Piece:
-    """One piece of the plan, used on ``(start, next piece's start]``.
-
-    ``spline`` is a rest BlendingSpline, ``splice`` a spliced segment that replaces
-    its first segment (or, without a spline, leads to ``q_end`` on its own); with
-    neither, the piece holds ``q_end`` from ``start``. After ``t_end`` the piece
-    holds ``q_end``.
-    """
-
-    start: float
-    spline: BlendingSpline | None
-    splice: _Splice | None
-    q_end: np.ndarray  # (4,)
-
-    @property
-    def key_times(self) -> np.ndarray:
-        if self.spline is not None:
-            return self.spline.times
-        return self.splice.times if self.splice is not None else np.array([self.start])
-
-    @property
-    def key_quats(self) -> np.ndarray:
-        if self.spline is not None:
-            return self.spline.quats
-        if self.splice is not None:
-            return np.stack([self.splice.q_a, self.q_end])
-        return self.q_end[None]
-
-    @property
-    def t_end(self) -> float:
-        return float(self.key_times[-1])
-
-    def _parts(self, t: np.ndarray):
-        """Masks (M,) of the held, spliced and blended times; the blended ones' segments."""
-        hold = t >= self.t_end
-        spliced = np.zeros(len(t), bool)
-        if self.splice is not None:
-            spliced = ~hold & (t < self.splice.times[1])
-        blended = ~hold & ~spliced
-        times = self.spline.times if self.spline is not None else t[:0]
-        seg = np.clip(np.searchsorted(times, t[blended], side="right") - 1, 0, len(times) - 2)
-        return hold, spliced, blended, seg
-
-    def jet(self, t: np.ndarray, order: int) -> J.Jet:
-        """The piece as a quaternion jet (order + 1, 4, M): exact, for splicing."""
-        out = np.zeros((order + 1, 4, len(t)))
-        hold, spliced, blended, seg = self._parts(t)
-        out[0, :, hold] = self.q_end
-        if spliced.any():
-            out[:, :, spliced] = self.splice._jet(t[spliced], None, order).c
-        if blended.any():
-            out[:, :, blended] = self.spline._jet(t[blended], seg, order).c
-        return J.Jet(out)
-
-    def taylor_steps(self, t: float, order: int):
-        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``
-        (``d(0) = 1``), order <= 4: what a splice at ``t`` starts from. A generator of
-        steps (those of the spline's evaluation, in a blended segment); its return
-        value is the pair."""
-        hold, spliced, blended, seg = self._parts(np.array([t]))
-        if hold[0]:
-            d = np.zeros((order + 1, 4))
-            d[0, 0] = 1.0
-            return self.q_end, d
-        if order <= 3:  # the closed-form rates (in floats, or the compiled kernel)
-            if spliced[0]:
-                q, rates = self.splice.rates(t)
-            else:
-                q, rates = yield from self.spline._space_rate_steps(np.array([t]), seg, order)
-                q, rates = q[0], [x[0] for x in rates]
-            return q, _taylor_from_rates(rates[:order])
-        if spliced[0]:  # order 4: only the jets go that far
-            return self.splice.taylor(t, order)
-        old = self.spline._jet(np.array([t]), seg, order)  # order 4: only the jets go that far
-        q = old.value[:, 0] / np.linalg.norm(old.value[:, 0])
-        d = J.qmul(old, Q.conj(q)).c[:, :, 0]
-        d[0] = (1.0, 0.0, 0.0, 0.0)
-        return q, d
-
-    def space_rates(self, t: np.ndarray, max_order: int):
-        """Unit quaternions (M, 4) and space-frame rates of orders 1..max_order (M, 3),
-        the blended part by the spline's own (compiled, where enabled) evaluation."""
-        hold, spliced, blended, seg = self._parts(t)
-        for mask, path, s in ((spliced, self.splice, None), (blended, self.spline, seg)):
-            if len(t) and mask.all():  # one part (the usual case): no masks
-                return path._space_rates(t, s, max_order)
-        q = np.empty((len(t), 4))
-        rates = [np.zeros((len(t), 3)) for _ in range(max_order)]
-        q[hold] = self.q_end
-        for mask, path, s in ((spliced, self.splice, None), (blended, self.spline, seg)):
-            if mask.any():
-                q[mask], part = path._space_rates(t[mask], s, max_order)
-                for r, p in zip(rates, part, strict=True):
-                    r[mask] = p
-        return q, rates
-
-
-class _Plan(OrientationPath):
-    """An immutable list of pieces: the path at one moment, from ``t_start`` on."""
-
-    def __init__(self, pieces: tuple[_Piece, ...]):
-        self.pieces = pieces
-        self.starts = np.array([p.start for p in pieces])
-        self.times = np.unique(np.concatenate([[pieces[0].start], pieces[-1].key_times]))
-
-    @property
-    def t_start(self) -> float:
-        return float(self.starts[0])
-
-    @property
-    def t_end(self) -> float:
-        return self.pieces[-1].t_end
-
-    def _segment(self, t):
-        t0 = self.t_start
-        if (t < t0 - 1e-12 * max(1.0, abs(t0))).any():
-            raise ValueError(
-                f"Time {float(t[t < t0][0])!r} s is before the path's kept range, which "
-                f"starts at {t0} s (changes drop what lies before them)."
-            )
-        piece = np.searchsorted(self.starts, t, side="left") - 1
-        return np.clip(piece, 0, len(self.pieces) - 1), np.maximum(t, t0)
-
-    def frames(self, t0: float, rate_hz: float, previous=None) -> PlanFrames:
-        """This path at one stream time per call, in floats (see :class:`PlanFrames`)."""
-        return PlanFrames(self, t0, rate_hz, previous)
-
-    def _jet(self, t, seg, order):
-        out = np.empty((order + 1, 4, len(t)))
-        for j in np.unique(seg):
-            m = seg == j
-            out[:, :, m] = self.pieces[j].jet(t[m], order).c
-        return J.Jet(out)
-
-    def _space_rates(self, t, seg, max_order):
-        if len(t) and (seg == seg[0]).all():  # one piece (the usual case): no masks
-            return self.pieces[seg[0]].space_rates(t, max_order)
-        q = np.empty((len(t), 4))
-        rates = [np.empty((len(t), 3)) for _ in range(max_order)]
-        for j in np.unique(seg):
-            m = seg == j
-            q[m], part = self.pieces[j].space_rates(t[m], max_order)
-            for r, p in zip(rates, part, strict=True):
-                r[m] = p
-        return q, rates
-
-
-class PlanFrames:
-    """One snapshot of an :class:`OnlineSpline` at one stream time per call, in floats.
-
-    What :func:`trajgen.stream.stream_frames` evaluates per frame: a spliced segment
-    in floats (:meth:`_Splice.frame`, a few microseconds), a hold as its constant,
-    and a blended segment (a BlendingSpline's, which has no per-frame form) with
-    numpy, ``BLOCK_FRAMES`` stream times at a time, the next block's evaluation
-    spread in steps over the frames of the one before (as ``stream_frames`` does
-    for an offline BlendingSpline). The part holding a time is
-    looked up with the numpy evaluation's own rules, only when the time leaves the
-    current part (or lies on its boundary), so every frame equals ``evaluate``'s.
-
-    Parameters
-    ----------
-    plan : the path from :meth:`OnlineSpline.snapshot`
-    t0 : float
-        The stream's first time (s); its times are ``t0 + i / rate_hz``.
-    rate_hz : float
-        The stream's rate (Hz), > 0.
-    previous : PlanFrames, optional
-        The same stream's evaluator of an earlier snapshot: its blocks of the pieces
-        this plan keeps are used, not evaluated again.
-    """
-
-    #: Stream times evaluated at once in a blended segment.
-    BLOCK_FRAMES = 16
-
-    def __init__(self, plan: _Plan, t0: float, rate_hz: float, previous: PlanFrames | None = None):
-        self._plan, self._t0, self._rate = plan, t0, rate_hz
-        self._lo, self._hi = math.inf, -math.inf  # the current part's open interval
-        self._part = None
-        # The current block, (piece, first frame, times (B,), q (B, 4), omega, alpha), and
-        # the next, (piece, first frame, Steps evaluating it). Blocks are a piece's, and
-        # pieces are immutable and shared by the plans before and after a change: an
-        # earlier snapshot's blocks stay valid where their piece is kept.
-        self._block = previous._block if previous else None
-        self._ahead = previous._ahead if previous else None
-
-    def __call__(self, t: float) -> tuple[tuple, tuple, tuple]:
-        """Orientation (w, x, y, z), space-frame angular velocity (rad/s) and
-        acceleration (rad/s^2) at stream time ``t`` (s), each a tuple of floats."""
-        if not self._lo < t < self._hi:
-            self._enter(t)
-        return self._part(t)
-
-    def _enter(self, t: float) -> None:
-        plan = self._plan
-        j = int(plan._segment(np.array([t]))[0][0])  # raises before the kept range
-        piece = plan.pieces[j]
-        lo = float(plan.starts[j]) if j else plan.t_start
-        hi = float(plan.starts[j + 1]) if j + 1 < len(plan.pieces) else math.inf
-        hold, spliced, _, seg = piece._parts(np.array([t]))
-        if hold[0]:
-            q, zero = tuple(piece.q_end.tolist()), (0.0, 0.0, 0.0)
-            lo, self._part = max(lo, piece.t_end), lambda _: (q, zero, zero)
-        elif spliced[0]:
-            hi, self._part = min(hi, float(piece.splice.times[1])), piece.splice.frame
-        else:
-            times = piece.spline.times
-            lo = max(lo, float(times[seg[0]]))
-            hi = min(hi, float(times[seg[0] + 1]))
-            self._part = lambda x: self._blended(piece, x)
-        self._lo, self._hi = lo, hi
-
-    def _blended(self, piece: _Piece, t: float) -> tuple[tuple, tuple, tuple]:
-        i = round((t - self._t0) * self._rate)
-        block = self._block
-        if block is None or block[0] is not piece or not 0 <= i - block[1] < self.BLOCK_FRAMES:
-            ahead = self._ahead
-            if ahead is not None and ahead[0] is piece and ahead[1] == i:
-                samples = ahead[2].finish()
-                q, omega, alpha = samples.q, samples.omega, samples.alpha
-            else:  # the first block of this segment: at once
-                q, (omega, alpha) = piece.space_rates(self._block_times(i), 2)
-            block = self._block = (piece, i, self._block_times(i), q, omega, alpha)
-            # The next block, a step per frame of this one.
-            times = np.clip(self._block_times(i + self.BLOCK_FRAMES), *piece.spline.times[[0, -1]])
-            steps = piece.spline.evaluation_steps(times, max_order=2)
-            self._ahead = (piece, i + self.BLOCK_FRAMES, Steps(steps))
-        else:
-            self._ahead[2].step()
-        _, first, times, q, omega, alpha = block
-        k = i - first
-        if times[k] != t:  # not on the stream's grid: this time alone
-            q1, (w1, a1) = piece.space_rates(np.array([t]), 2)
-            return tuple(q1[0].tolist()), tuple(w1[0].tolist()), tuple(a1[0].tolist())
-        return tuple(q[k].tolist()), tuple(omega[k].tolist()), tuple(alpha[k].tolist())
-
-    def _block_times(self, i: int) -> np.ndarray:
-        """Stream times (s) of frames ``i .. i + BLOCK_FRAMES - 1``."""
-        return self._t0 + np.arange(i, i + self.BLOCK_FRAMES) / self._rate
-
-
-def _qexp_series(r: J.Jet) -> np.ndarray:
-    """:func:`trajgen.jet.qexp` for one vector series ``r`` (K + 1, 3), K <= 4: Taylor
-    coefficients (K + 1, 4) of ``(cos |r|, sin|r| r / |r|)``, with only the branch
-    (series or closed form in ``x = |r|^2``) that its value needs."""
-    x = J.dot(r, r)
-    K = x.order
-    x0 = np.atleast_1d(x.value)
-    both = (D._cos_sinc_series if x0[0] < J.SERIES_BELOW else D._cos_sinc_closed)([x0], K)
-    cos_a = J.compose(x, [v[0] for v in both[: K + 1]])
-    sinc = J.compose(x, [v[0] for v in both[K + 1 :]])
-    return np.concatenate([cos_a.c[:, None], J.scale(sinc, r).c], axis=1)
-
-
-def _log_near_identity(d: np.ndarray) -> np.ndarray:
-    """Taylor coefficients (K + 1, 3) of ``log d(tau)`` from those (K + 1, 4) of a unit
-    quaternion ``d`` with ``d(0) = 1``, K <= 4.
-
-    ``log d = atan(|y|) y / |y|`` with ``y = vec(d) / w(d)``, and ``atan(x) / x =
-    1 - x^2 / 3 + O(x^4)``: as ``y = O(tau)``, the ``x^4`` term is ``O(tau^5)``.
-    """
-    if len(d) > 5:
-        raise ValueError(f"Expected at most 5 Taylor coefficients, got {len(d)}.")
-    y = J.scale(J.reciprocal(J.Jet(d[:, 0])), J.Jet(d[:, 1:]))
-    return (y - J.scale(J.dot(y, y), y) * (1.0 / 3.0)).c
-
-
-def _log_of_curve(tab: np.ndarray, c: int, t: float, q_a: np.ndarray) -> np.ndarray:
-    """Taylor coefficients (4, 3) at ``t`` (s) of ``log(C(t) q_a*)``, ``C`` curve ``c`` of
-    a local-curve table (:attr:`~trajgen.local_curves.LocalCurves.kernel_table`) with
-    ``C(t) . q_a >= 0``, in floats: the curve by :func:`trajgen.per_sample.curve`, the
-    ``log`` as :func:`trajgen.jet.qlog` writes it, ``atan(z) / (z w)`` with
-    ``z^2 = |xyz|^2 / w^2`` (a series in ``z^2`` near the identity)."""
-    curve = P.curve(c, t, tab)  # w, x, y, z, each (value, d/dt, d2/dt2, d3/dt3)
-    a = (float(q_a[0]), -float(q_a[1]), -float(q_a[2]), -float(q_a[3]))
-    d = list(zip(*(P.hamilton(tuple(x[n] for x in curve), a) for n in range(4)), strict=True))
-    w, xyz = d[0], d[1:]
-    s2 = P.add(P.add(P.prod(xyz[0], xyz[0]), P.prod(xyz[1], xyz[1])), P.prod(xyz[2], xyz[2]))
-    z2 = P.quot(s2, P.prod(w, w))
-    if z2[0] < J.SERIES_BELOW:
-        atanc = P.series(J._ATANC, z2[0])
-    else:  # atan(sqrt y) / sqrt y = H(y): 2 y H' = 1 / (1 + y) - H, differentiated
-        y = z2[0]
-        c0, inv2y = 1.0 / (1.0 + y), 0.5 / y
-        h0 = math.atan(math.sqrt(y)) / math.sqrt(y)
-        h1 = (c0 - h0) * inv2y
-        h2 = (-c0 * c0 - 3.0 * h1) * inv2y
-        atanc = (h0, h1, h2, (2.0 * c0**3 - 5.0 * h2) * inv2y)
-    g = P.quot(P.chain(*atanc, z2), w)
-    taylor = np.array([P.prod(g, v) for v in xyz]).T  # (4, 3) time derivatives
-    return taylor / np.array([1.0, 1.0, 2.0, 6.0])[:, None]
-
-
-def _hermite_matrix(k: int) -> np.ndarray:
-    """Inverse of the map from the top coefficients ``a_{k+2..2k+2}`` of ``r(u)`` to its
-    Taylor coefficients of orders 0..k at ``u = 1``."""
-    m = np.array([[comb(k + 2 + i, j) for i in range(k + 1)] for j in range(k + 1)], float)
-    return np.linalg.inv(m)
 
 
 @dataclass(frozen=True)
@@ -531,7 +110,7 @@ class Change:
 
     version: int
     at: float
-    path: _Plan
+    path: Plan
 
 
 class OnlineSpline:
@@ -581,20 +160,20 @@ class OnlineSpline:
             q0 = np.reshape(q0, (1, 4))
         q = Q.as_quats(q0, "q0")
         if q.shape[0] != 1:
-            raise ValueError(f"Expected `q0` to be one quaternion, got shape {q.shape}.")
+            raise BadArgument(f"Expected `q0` to be one quaternion, got shape {q.shape}.")
         t0 = check_number("t0", t0)
         # Splices match the old path's jet to order k + 1; jets go to order 4.
         self.k = check_number("k", k, integer=True, low=1, high=3)
         self.local = check_choice("local", local, LOCALS)
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         self.min_lead_s = check_number("min_lead_s", min_lead_s, low=MIN_LEAD_S)
-        self._hermite = _hermite_matrix(self.k)
+        self._hermite = hermite_matrix(self.k)
         # Taylor coefficients at u = 1 of the terms u^0..u^(k+1).
         self._low = np.array(
             [[comb(i, j) for i in range(self.k + 2)] for j in range(self.k + 1)], float
         )
         self._factorials = np.array([factorial(n) for n in range(self.k + 2)], float)
-        self._plan = _Plan((_Piece(t0, None, None, q[0]),))
+        self._plan = Plan((Piece(t0, None, None, q[0]),))
         self._version = 0
         self._committed = -np.inf
         self._last_at = t0
@@ -747,13 +326,13 @@ class OnlineSpline:
         with self._swap:
             version, plan = self._version, self._plan
         if self._closed:
-            raise ValueError("The spline is closed: no more changes.")
+            raise BadArgument("The spline is closed: no more changes.")
         if at < self._last_at:
-            raise ValueError(f"`at` = {at} s is before the previous change at {self._last_at} s.")
+            raise BadArgument(f"`at` = {at} s is before the previous change at {self._last_at} s.")
         self._check_not_streamed(at)
         lead = t[0] - at
         if lead < self.min_lead_s - 1e-9:
-            raise ValueError(
+            raise BadArgument(
                 f"The first new keyframe (t = {t[0]} s) is {lead:.4g} s after `at` = {at} s; "
                 f"it must be at least {self.min_lead_s} s after it."
             )
@@ -763,7 +342,7 @@ class OnlineSpline:
         # stream still needs the path from there).
         drop = min(at, self._committed) if self._committed > -np.inf else at
         first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
-        return Change(version, at, _Plan((*kept[first:], piece)))
+        return Change(version, at, Plan((*kept[first:], piece)))
 
     def apply(self, change: Change) -> None:
         """Make a change built by :meth:`prepare`, if the path is still the one it was
@@ -779,7 +358,7 @@ class OnlineSpline:
         """
         with self._swap:
             if self._closed:
-                raise ValueError("The spline is closed: no more changes.")
+                raise BadArgument("The spline is closed: no more changes.")
             if change.version != self._version:
                 raise ChangeTooLate(
                     f"The path changed since this change was prepared (version "
@@ -801,12 +380,12 @@ class OnlineSpline:
         if at < self._committed:
             raise ChangeTooLate(f"`at` = {at} s is before the streamed time {self._committed} s.")
 
-    def _new_piece(self, plan: _Plan, mode: str, q, t, at: float):
+    def _new_piece(self, plan: Plan, mode: str, q, t, at: float):
         """The change's piece, in steps (a generator; its return value is the piece)."""
         last = plan.pieces[-1]
         kt, kq = last.key_times, last.key_quats
         if mode == "extend" and t[0] <= kt[-1]:
-            raise ValueError(
+            raise BadArgument(
                 f"extend: the first new keyframe (t = {t[0]} s) must come after the last "
                 f"keyframe kept (t = {kt[-1]} s)."
             )
@@ -818,7 +397,7 @@ class OnlineSpline:
                 i = len(kt) - 2
                 j = max(i - 1, 0)
                 spline = self._spline(np.vstack([kq[j:], q]), np.concatenate([kt[j:], t]))
-                return _Piece(float(kt[i]), spline, None, spline.quats[-1])
+                return Piece(float(kt[i]), spline, None, spline.quats[-1])
             if kt[-1] - at < self.min_lead_s:  # too close to splice: go on from its rest
                 return self._rest_piece(kq[-1], float(kt[-1]), q, t)
             q, t = np.vstack([kq[-1:], q]), np.concatenate([kt[-1:], t])
@@ -829,22 +408,22 @@ class OnlineSpline:
             q, t, k=self.k, boundary="rest", local=self.local, reparam=self.reparam
         )
 
-    def _rest_piece(self, q0: np.ndarray, t0: float, q, t) -> _Piece:
+    def _rest_piece(self, q0: np.ndarray, t0: float, q, t) -> Piece:
         """From rest at ``q0`` (4,) at ``t0`` through keyframes ``q`` (N, 4) at ``t`` (N,)."""
         if len(t) == 1:  # the rest spline's one segment, exp(f_(k+1)(u) log(q_1 q0*)) q0
             q1 = q[0] if q[0] @ q0 >= 0 else -q[0]  # the short way round, as the spline goes
             coef = blend_polynomial(self.k + 1)[:, None] * Q.log(Q.mul(q1, Q.conj(q0)))
-            return _Piece(t0, None, _Splice(t0, float(t[0]) - t0, q0, coef), q1)
+            return Piece(t0, None, Splice(t0, float(t[0]) - t0, q0, coef), q1)
         spline = self._spline(np.vstack([q0, q]), np.concatenate([[t0], t]))
-        return _Piece(t0, spline, None, spline.quats[-1])
+        return Piece(t0, spline, None, spline.quats[-1])
 
-    def _splice_piece(self, plan: _Plan, q, t, at: float):
+    def _splice_piece(self, plan: Plan, q, t, at: float):
         """A splice at ``at`` onto ``plan``, through keyframes ``q`` (N, 4) at ``t`` (N,), in
         two steps (a generator; its return value is the piece)."""
         piece = plan.pieces[int(plan._segment(np.array([at]))[0][0])]
         q_a, d = yield from piece.taylor_steps(at, self.k + 1)
         yield
-        return (yield from self._spliced(at, q_a, _log_near_identity(d), q, t))
+        return (yield from self._spliced(at, q_a, log_near_identity(d), q, t))
 
     def _spliced(self, s: float, q_a: np.ndarray, p: np.ndarray, q, t):
         """The piece that leaves ``q_a`` (4,) at ``s`` with Taylor coefficients ``p``
@@ -856,7 +435,7 @@ class OnlineSpline:
         if len(t) >= 2:  # C_1 through (q_a, q_1, q_2): curve 0 of the spline
             spline = self._spline(np.vstack([q_a, q]), np.concatenate([[s], t]))
             yield
-            r = _log_of_curve(spline._curves.kernel_table, 0, float(t[0]), q_a)[: k + 1]
+            r = log_of_curve(spline._curves.kernel_table, 0, float(t[0]), q_a)[: k + 1]
             q_end = spline.quats[-1]
         else:  # the rest point q_1, on the short way round (as the spline takes it)
             spline = None
@@ -868,4 +447,4 @@ class OnlineSpline:
         coef[: k + 2] = powers[: k + 2] * p
         # Taylor coefficients at u = 1 of the known low part, then solve for the top.
         coef[k + 2 :] = self._hermite @ (powers[: k + 1] * r - self._low @ coef[: k + 2])
-        return _Piece(s, spline, _Splice(s, h, q_a, coef), q_end)
+        return Piece(s, spline, Splice(s, h, q_a, coef), q_end)

@@ -14,6 +14,7 @@ import numpy as np
 
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .sampling import sample_times
 from .validate import check_choice, check_number
 
@@ -42,13 +43,13 @@ def check_times(times, n: int) -> np.ndarray:
     except (TypeError, ValueError) as e:
         raise TypeError(f"Expected `times` to be numeric, got {type(times).__name__}.") from e
     if t.shape != (n,):
-        raise ValueError(f"Expected `times` to have shape ({n},) to match `quats`, got {t.shape}.")
+        raise BadArgument(f"Expected `times` to have shape ({n},) to match `quats`, got {t.shape}.")
     if not np.isfinite(t).all():
-        raise ValueError(f"`times` must be finite, got {t[~np.isfinite(t)][0]}.")
+        raise BadArgument(f"`times` must be finite, got {t[~np.isfinite(t)][0]}.")
     dt = np.diff(t)
     if (dt <= 0).any():
         i = int(np.argmax(dt <= 0))
-        raise ValueError(
+        raise BadArgument(
             f"`times` must be strictly increasing, got times[{i}] = {t[i]} "
             f"and times[{i + 1}] = {t[i + 1]}."
         )
@@ -91,7 +92,7 @@ class OrientationPath:
             eps = 1e-12 * max(1.0, abs(t0), abs(t1))
             bad = (t < t0 - eps) | (t > t1 + eps)
             if bad.any():
-                raise ValueError(
+                raise BadArgument(
                     f"Time {float(t[bad][0])!r} s is outside the path's range [{t0}, {t1}] s."
                 )
             t = np.minimum(np.maximum(t, t0), t1)
@@ -264,5 +265,5 @@ def _as_times(t) -> np.ndarray:
     except (TypeError, ValueError) as e:
         raise TypeError(f"Expected `t` to be numeric, got {type(t).__name__}.") from e
     if not np.isfinite(ta).all():
-        raise ValueError("Expected `t` to be finite.")
+        raise BadArgument("Expected `t` to be finite.")
     return ta

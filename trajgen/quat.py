@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .errors import BadArgument
+
 #: Below this rotation angle (rad) ``exp`` and ``log`` use their Taylor series.
 SMALL_ANGLE = 1e-4
 
@@ -44,13 +46,13 @@ def as_quats(quats, name: str = "quats") -> np.ndarray:
     except (TypeError, ValueError) as e:
         raise TypeError(f"Expected `{name}` to be numeric, got {type(quats).__name__}.") from e
     if q.ndim != 2 or q.shape[1] != 4:
-        raise ValueError(f"Expected `{name}` to have shape (N, 4), got {q.shape}.")
+        raise BadArgument(f"Expected `{name}` to have shape (N, 4), got {q.shape}.")
     bad = ~np.isfinite(q).all(axis=1)
     if bad.any():
-        raise ValueError(f"`{name}` row {int(np.argmax(bad))} is not finite: {q[bad][0]}.")
+        raise BadArgument(f"`{name}` row {int(np.argmax(bad))} is not finite: {q[bad][0]}.")
     norm = np.linalg.norm(q, axis=1)
     if (norm < 1e-12).any():
-        raise ValueError(f"`{name}` row {int(np.argmax(norm < 1e-12))} has zero norm.")
+        raise BadArgument(f"`{name}` row {int(np.argmax(norm < 1e-12))} has zero norm.")
     return q / norm[:, None]
 
 

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .errors import PlanTooLarge
+from .errors import BadArgument, PlanTooLarge
 from .validate import check_number
 
 #: The most samples a plan holds in memory by default: 5 million rows (about
@@ -103,7 +103,7 @@ def sample_time_blocks(
     """
     rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
     if not t_end > t_start:
-        raise ValueError(f"Expected t_end > t_start, got {t_start} .. {t_end}.")
+        raise BadArgument(f"Expected t_end > t_start, got {t_start} .. {t_end}.")
     total = check_sample_count(t_start, t_end, rate_hz, max_samples)
     period = 1.0 / rate_hz
     step = total if block is None else block

@@ -1,4 +1,4 @@
-"""A C3 orientation spline with globally chosen knot rates (SPEC section 8).
+"""A C3 orientation spline with globally chosen knot rates (docs/algorithm.md §8).
 
 The blending spline's knot jerk is ``3 f''(0) |dw| / h^2``, ``dw`` the gap between
 the two local curves' angular velocities at the knot. :class:`SmoothSpline`
@@ -11,7 +11,7 @@ Because any knot data give a C3 path, the knot choice is an option: ``knots =
 "end-minimax"`` keeps the quintic's knot data but for the jerk at the two rest
 ends, chosen to lower the peak jerk of the end segments, where the quintic choice
 puts it; ``knots = "joint-minimax"`` then moves the knot data, a few knots at a
-time, to lower the peak jerk of the gimbal's joints (the torque race in the README
+time, to lower the peak jerk of the gimbal's joints (the torque race in docs/results.md
 measures all three).
 
 Evaluation is closed form and vectorised: ``r(u)`` is a degree-7 polynomial per
@@ -31,13 +31,14 @@ from . import derivatives as dv
 from . import fast
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .gimbal import angles_of
 from .path import OrientationPath, check_times
 from .spline import BOUNDARIES, check_closed
 from .validate import check_choice
 
-#: Knot choices: "quintic", the knot conditions of the flat C4 quintic spline (SPEC
-#: 8.2); "end-minimax", the same with the jerk at each rest end chosen to minimise
+#: Knot choices: "quintic", the knot conditions of the flat C4 quintic spline (docs/
+#: algorithm.md §8.2); "end-minimax", the same with the jerk at each rest end chosen to minimise
 #: the peak jerk of its end segment; "joint-minimax", end-minimax's knot data improved
 #: window by window to lower the peak joint-space jerk of the gimbal.
 KNOTS = ("quintic", "end-minimax", "joint-minimax")
@@ -217,7 +218,7 @@ def _with_time_derivatives(coef: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
-    """Blocks of the knot-rate system (SPEC 8.2), symmetric positive definite.
+    """Blocks of the knot-rate system (docs/algorithm.md §8.2), symmetric positive definite.
 
     The unknowns at each free knot are ``(v, a)``; the rows are the snap condition
     (``S0_i - S1_{i-1} = 0``) and the jerk condition (``J1_{i-1} - J0_i = 0``), the
@@ -360,7 +361,7 @@ class SmoothSpline(OrientationPath):
     The angular rates and accelerations at the knots are those of the flat C4
     quintic spline through the segment increments (one block-tridiagonal solve,
     O(N)); each segment is a septic Hermite curve ``exp(r(u)) q_i`` matching the
-    knot jets of order 3 at both ends (SPEC section 8).
+    knot jets of order 3 at both ends (docs/algorithm.md §8).
 
     Parameters
     ----------
@@ -377,7 +378,7 @@ class SmoothSpline(OrientationPath):
         solve is cyclic; times outside the range wrap). Default "rest".
     knots : {"quintic", "end-minimax", "joint-minimax"}, optional
         How the knot data are chosen. ``"quintic"``: the knot conditions of the
-        flat C4 quintic spline (SPEC 8.2). ``"end-minimax"`` (``boundary="rest"``
+        flat C4 quintic spline (algorithm.md §8.2). ``"end-minimax"`` (``boundary="rest"``
         only): the same rates and accelerations everywhere and the same jerk at
         the interior knots, but the jerk at each rest end chosen, per axis of the
         space frame, to minimise the peak of that axis' tangent-space jerk over its
@@ -391,7 +392,7 @@ class SmoothSpline(OrientationPath):
         the sampled peak joint jerk never exceeds end-minimax's (see
         ``_joint_minimax``). It costs 0.1-1 s for 5-20 keyframes (linear in N:
         minutes for 10,000). Default: "end-minimax" when ``boundary`` is "rest"
-        (the torque race chose it, see the README), else "quintic".
+        (the torque race chose it, docs/results.md), else "quintic".
 
     Raises
     ------
@@ -406,14 +407,14 @@ class SmoothSpline(OrientationPath):
 
     References
     ----------
-    ``SPEC.md`` section 8 in the project's shared notes states the construction.
+    ``docs/algorithm.md`` §8 states the construction.
     """
 
     def __init__(self, quats, times, *, boundary="rest", knots=None):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
-            raise ValueError(f"Expected at least 2 keyframes, got {n}.")
+            raise BadArgument(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
         if knots is None:
@@ -421,18 +422,18 @@ class SmoothSpline(OrientationPath):
         #: The knot choice, one of :data:`KNOTS`.
         self.knots = check_choice("knots", knots, KNOTS)
         if knots != "quintic" and boundary != "rest":
-            raise ValueError(
+            raise BadArgument(
                 f"knots={knots!r} needs boundary='rest' (the ends it chooses the jerk "
                 f"at), got boundary={boundary!r}."
             )
         if boundary == "natural" and n < 3:
             # One segment with free ends: every parabola has zero jerk and snap,
             # so the knot rates are not determined.
-            raise ValueError(f"boundary='natural' needs at least 3 keyframes, got {n}.")
+            raise BadArgument(f"boundary='natural' needs at least 3 keyframes, got {n}.")
         if boundary == "closed":
             check_closed(q)
         self.periodic = boundary == "closed"
-        # SPEC 1: one sign per consecutive pair, the shortest geodesic: q_i flips by
+        # docs/algorithm.md §1: one sign per consecutive pair, the shortest geodesic: q_i flips by
         # the product of the signs of q_j . q_{j-1} up to i.
         flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0
         q[1:] *= np.cumprod(np.where(flips, -1.0, 1.0))[:, None]

@@ -4,7 +4,7 @@ References
 ----------
 M.-J. Kim, M.-S. Kim, S. Y. Shin / M.-S. Kim, K.-W. Nam, "Interpolating solid
 orientations with circular blending quaternion curves", Computer-Aided Design
-27(5), 1995. ``SPEC.md`` in the project's shared notes states the algorithm.
+27(5), 1995. ``docs/algorithm.md`` states the algorithm.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from . import derivatives as D
 from . import fast
 from . import jet as J
 from . import quat as Q
+from .errors import BadArgument
 from .local_curves import KIND_NAMES, NoCircleError, build_curves
 from .path import OrientationPath, check_times, run_steps
 from .validate import check_choice, check_number
@@ -44,10 +45,10 @@ def check_closed(quats: np.ndarray) -> None:
     """Refuse keyframes (N, 4) that cannot make a closed loop: N < 3, or a last
     keyframe more than :data:`CLOSED_TOLERANCE` away from the first."""
     if len(quats) < 3:
-        raise ValueError(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
+        raise BadArgument(f"A closed spline needs at least 3 keyframes, got {len(quats)}.")
     gap = float(Q.distance(quats[0], quats[-1]))
     if gap > CLOSED_TOLERANCE:
-        raise ValueError(
+        raise BadArgument(
             "boundary='closed' needs the last keyframe to repeat the first; they are "
             f"{np.degrees(gap):.4g} deg apart."
         )
@@ -138,7 +139,7 @@ class BlendingSpline(OrientationPath):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
-            raise ValueError(f"Expected at least 2 keyframes, got {n}.")
+            raise BadArgument(f"Expected at least 2 keyframes, got {n}.")
         self.times = check_times(times, n)
         self.k = check_number("k", k, integer=True, low=1, high=MAX_K)
         self.boundary = check_choice("boundary", boundary, BOUNDARIES)
@@ -146,7 +147,7 @@ class BlendingSpline(OrientationPath):
         self.reparam = check_choice("reparam", reparam, REPARAMS)
         if boundary == "closed":
             check_closed(q)
-        # SPEC 1: one sign per consecutive pair, the shortest geodesic: q_i flips when
+        # docs/algorithm.md §1: one sign per consecutive pair, the shortest geodesic: q_i flips when
         # q_i . q_{i-1} < 0 with q_{i-1} already flipped, i.e. by the product of the signs so far.
         flips = np.einsum("ij,ij->i", q[1:], q[:-1]) < 0
         q[1:] *= np.where(np.cumsum(flips) % 2 == 1, -1.0, 1.0)[:, None]
@@ -186,7 +187,7 @@ class BlendingSpline(OrientationPath):
             self._curves = build_curves(triples, times, k=k, local=self.local, reparam=self.reparam)
         except NoCircleError as e:
             ts = times[e.index]
-            raise ValueError(
+            raise BadArgument(
                 f"The keyframes at t = {ts[0]:g} s and t = {ts[2]:g} s coincide around the "
                 f"one at t = {ts[1]:g} s (a reversal): no circle passes through them; "
                 "use local='auto' or 'parabola'."
@@ -251,7 +252,7 @@ class BlendingSpline(OrientationPath):
                 acc = acc * u + coef[j] * fall[j]
             f.append(acc * rate**n if n else acc)
         yield
-        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
+        # algorithm.md §3: Q = exp(f log(C_{i+1} C_i*)) C_i, the slerp from C_i to C_{i+1} at f.
         Q = yield from D.slerp_steps(c_left, c_right, f)
         yield
         q = Q[0] / np.sqrt(D.vdot(Q[:1], Q[:1])[0])
@@ -279,6 +280,6 @@ class BlendingSpline(OrientationPath):
         h = self.times[seg + 1] - self.times[seg]
         u = (J.Jet.variable(t, order) - self.times[seg]) * (1.0 / h)
         f = J.polyval(self._blend[seg].T, u)
-        # SPEC 3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
+        # algorithm.md §3: Q = exp(f log(C_{i+1} C_i*)) C_i, one slerp with a moving weight.
         v = J.qlog(J.qmul(c_right, J.qconj(c_left)))
         return J.qmul(J.qexp(J.scale(f, v)), c_left)

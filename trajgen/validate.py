@@ -7,7 +7,8 @@ arrived.
 
 Two message forms, one per audience:
 
-- library calls (``error=None``): ``TypeError`` for a wrong type, ``ValueError``
+- library calls (``error=None``): ``TypeError`` for a wrong type,
+  :class:`~trajgen.errors.BadArgument` (a ``TrajgenError``, so a ``ValueError``)
   for a wrong value, ``"Expected `k` to be an integer in 1..10, got 30."``;
 - files (``error=`` a callable taking the problem text and returning the
   exception, e.g. a ``KeyframeFileError`` prefixed with file and field):
@@ -20,6 +21,8 @@ import math
 from collections.abc import Callable
 
 import numpy as np
+
+from .errors import BadArgument
 
 ErrorFactory = Callable[[str], Exception] | None
 
@@ -78,8 +81,8 @@ def check_number(
     ------
     TypeError
         Not a number (``error`` not given).
-    ValueError
-        Not finite or out of range (``error`` not given).
+    BadArgument
+        Not finite or out of range (``error`` not given); a ``ValueError``.
     """
     kind = (int, np.integer) if integer else (int, float, np.integer, np.floating)
     what = ("an integer" if integer else "a finite number") + _range_text(
@@ -88,11 +91,11 @@ def check_number(
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, kind):
         _raise(name, what, value, error, TypeError)
     if not math.isfinite(value):
-        _raise(name, what, value, error, ValueError)
+        _raise(name, what, value, error, BadArgument)
     if (low is not None and (value < low or (low_open and value == low))) or (
         high is not None and (value > high or (high_open and value == high))
     ):
-        _raise(name, what, value, error, ValueError)
+        _raise(name, what, value, error, BadArgument)
     return int(value) if integer else float(value)
 
 
@@ -112,7 +115,7 @@ def check_numbers(
             what,
             value,
             error,
-            TypeError if not isinstance(value, (list, tuple)) else ValueError,
+            TypeError if not isinstance(value, (list, tuple)) else BadArgument,
         )
     return tuple(
         check_number(
@@ -132,7 +135,7 @@ def check_choice(name: str, value, allowed, *, error: ErrorFactory = None) -> st
     if not isinstance(value, str) or value not in allowed:
         if error is not None:
             raise error(f"expected one of {', '.join(allowed)}, got {value!r}")
-        raise ValueError(f"Expected `{name}` to be one of {tuple(allowed)}, got {value!r}.")
+        raise BadArgument(f"Expected `{name}` to be one of {tuple(allowed)}, got {value!r}.")
     return value
 
 

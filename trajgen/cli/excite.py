@@ -1,9 +1,9 @@
 """The ``trajgen excite`` command: stream a multi-sine excitation with telemetry.
 
 The excitation (``sim.excite.Multisine``, about the file's first keyframe) is
-handed to the ``stream`` command as the path to stream, so bring-up, the
-approach, the fixed-rate loop, telemetry and the safe stop are the stream
-command's own.
+the path a ``trajgen.drivers.session.Session`` streams, as ``trajgen stream``
+runs it, so bring-up, the approach, the fixed-rate loop, telemetry and the safe
+stop are the stream's own.
 
 This module imports quickly: MuJoCo, dynamixel-sdk and pyserial load inside
 :func:`run_excite`.
@@ -20,7 +20,6 @@ from trajgen.cli.common import (
     EXIT_OK,
     add_file_argument,
     add_lead_argument,
-    bad_input,
     baud_rate,
     check_output_path,
     load_checked,
@@ -154,28 +153,14 @@ def run_excite(args) -> int:
     """Run ``trajgen excite``; returns the exit status."""
     from trajgen.cli import stream
 
-    try:
+    def make_plan(args):
+        from trajgen.drivers.config import bus_config_from_tables
+
         source = excitation_file(args)
-    except (ValueError, TypeError, OSError) as e:
-        return bad_input(e)
-    # The stream command's own arguments, with its defaults, streaming the excitation.
-    parser = argparse.ArgumentParser(prog="trajgen")
-    stream.register(parser.add_subparsers())
-    argv = ["stream", str(source.path), "--telemetry", args.telemetry]
-    options = (
-        ("--port", args.port),
-        ("--baud", args.baud),
-        ("--json", args.json),
-        ("--lead", args.lead),
-    )
-    for flag, value in options:
-        if value is not None:
-            argv += [flag, str(value)]
-    if args.virtual:
-        argv.append("--virtual")
-    stream_args = parser.parse_args(argv)
-    stream_args.file = source
-    status = stream_args.func(stream_args)
+        config = bus_config_from_tables(source.tables, source.path)
+        return stream.planned(source, config, source.rate_hz, args, {"telemetry": args.telemetry})
+
+    status = stream.run_plan(args, make_plan, stream.stream_source)
     if status == EXIT_OK:
         print(f"next: trajgen identify {args.file} {args.telemetry} --out FITTED.toml")
     return status

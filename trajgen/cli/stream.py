@@ -1,10 +1,11 @@
-"""The ``trajgen stream`` command.
+"""The ``trajgen stream`` command: arguments and printing around a library session.
 
-One function per stage, so each can be read (and tested) on its own:
-``plan`` (everything that can fail on bad input, before any hardware),
-``open_port`` (the serial port, or a virtual bus), ``bring_up_servos`` (the
-same ``drivers.bringup.bring_up`` the tests exercise), ``stream_plan`` and
-``report`` (terminal lines and ``--json``, written on every stop).
+``plan`` (everything that can fail on bad input, before any hardware: the file,
+the options, the joint stream) and :func:`run_plan` (a
+``trajgen.drivers.session.Session`` with the options, on the port or a virtual
+bus around the simulated gimbal; then the terminal lines, the torque report with
+--virtual and --json, written on every stop). ``trajgen follow`` and ``trajgen
+excite`` run the same two with their own plan and session call.
 
 SIGINT, SIGTERM and SIGHUP are handled alike: the servos are stopped safely
 (hold, or released with ``--torque-off``), the telemetry and the JSON report
@@ -19,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
 import sys
 import warnings
 from contextlib import contextmanager
@@ -36,11 +36,9 @@ from trajgen.cli.common import (
     check_plot_path,
     check_timing,
     load_checked,
-    open_bus,
     positive_float,
     servo_ids,
 )
-from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 STREAM_DESCRIPTION = """\
@@ -73,8 +71,6 @@ period per frame received, and then prints the torque report.
 exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
 2 bad input, 128 + signal number when stopped by a signal (130 SIGINT,
 143 SIGTERM, 129 SIGHUP)."""
-
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
 def _limits(text: str) -> tuple[str, float, float]:
@@ -161,50 +157,161 @@ def add_stream_arguments(p) -> None:
     )
 
 
-# -- signals -----------------------------------------------------------------
+# -- plan --------------------------------------------------------------------
 
 
-class _StopSignals:
-    """SIGINT, SIGTERM and SIGHUP as ``Interrupted``, raised only while ``armed``.
+@dataclass
+class Plan:
+    """Everything decided before any hardware is touched.
 
-    Outside the armed stretch (planning, reporting), a signal is remembered and
-    acted on at the next ``arm`` or in the exit status; while the safe stop
-    runs, a second signal is ignored so that the stop completes.
+    Attributes
+    ----------
+    source : KeyframeFile or ExcitationFile
+        What is streamed (``path``, ``tables``, ``spline()``).
+    config : BusConfig
+        The file's [bus] table with the flags applied (an ideal joint map with --virtual).
+    rate_hz : float
+    trajectory : JointTrajectory
+        The joint stream planned from the path's own start (the virtual gimbal powers
+        up at its first frame; a session plans again from where the servos are).
+    virtual : bool
+    options : dict
+        ``Session`` keywords from the flags.
+    lead : str
+        How goals are led ahead of the plan (--lead, [stream] lead, default model).
+    gimbal : GimbalConfig
+        The simulated gimbal of the file's [gimbal] tables, whose loops set the lead.
     """
 
-    def __init__(self) -> None:
-        self.received: int | None = None
-        self._armed = False
+    source: object
+    config: object
+    rate_hz: float
+    trajectory: object
+    virtual: bool
+    options: dict = field(default_factory=dict)
+    lead: str = "model"
+    gimbal: object = None
 
-    def _handle(self, signum, frame) -> None:
-        from trajgen.drivers.errors import Interrupted
 
-        first = self.received is None
-        self.received = signum if first else self.received
-        if self._armed and first:
-            self._armed = False
-            raise Interrupted(signum)
+def plan(args) -> Plan:
+    """The stream command's plan; no hardware.
 
-    @contextmanager
-    def installed(self):
-        previous = {s: signal.signal(s, self._handle) for s in STOP_SIGNALS}
-        try:
-            yield self
-        finally:
-            for s, handler in previous.items():
-                signal.signal(s, handler)
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
+    """
+    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
+    check_output_path("--json", args.json, (".json",))
+    check_plot_path(args.plot)
+    checked = load_checked(args.file)
+    kf = checked.keyframes
+    rate = kf.stream_rate(args.rate)
+    check_timing(kf, rate)
+    if args.virtual and args.port:
+        raise ValueError("--port and --virtual exclude each other")
+    if args.plot and not args.virtual:
+        raise ValueError("--plot needs --virtual (it plots the simulated torque report)")
+    set_limits = {
+        JOINTS.index(joint): (math.radians(low), math.radians(high))
+        for joint, low, high in args.set_limits or ()
+    }
+    options = {
+        "on_stop": "torque_off" if args.torque_off else "hold",
+        "telemetry": args.telemetry,
+        "max_delay_s": args.max_delay,
+        "max_approach_rad": math.radians(args.max_approach),
+        "set_limits_rad": set_limits,
+    }
+    return planned(kf, checked.bus, rate, args, options)
 
-    @contextmanager
-    def armed(self):
-        from trajgen.drivers.errors import Interrupted
 
-        if self.received is not None:
-            raise Interrupted(self.received)
-        self._armed = True
-        try:
-            yield
-        finally:
-            self._armed = False
+def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
+    """A :class:`Plan` of ``source`` with --port, --baud, --ids and --virtual applied to
+    the file's [bus] ``config``; plans the joint stream.
+
+    Raises
+    ------
+    ValueError
+        No port, or a plan the gimbal cannot follow (KinematicsError).
+    """
+    from dataclasses import replace
+
+    from trajgen.drivers.units import JointMap
+    from trajgen.stream import plan_joint_trajectory
+
+    joints = config.joints
+    if args.virtual:
+        joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
+    elif not (args.port or config.port):
+        raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
+    if getattr(args, "ids", None):
+        joints = JointMap(args.ids, joints.directions, joints.zeros)
+    config = replace(
+        config, port=args.port or config.port, baud=args.baud or config.baud, joints=joints
+    )
+    from trajgen.lead import DEFAULT_LEAD
+    from trajgen.sim.lead import lead_trajectory
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    lead = getattr(args, "lead", None) or getattr(source, "lead", None) or DEFAULT_LEAD
+    gimbal = gimbal_config_from_tables(source.tables, source.path)
+    planned_q = plan_joint_trajectory(source.spline(), rate_hz)
+    # The goals a session will send (it leads them again from where the servos are).
+    trajectory, _, notes = lead_trajectory(planned_q, gimbal, lead)
+    for note in notes:
+        print(f"trajgen: note: {note}", file=sys.stderr)
+    return Plan(source, config, rate_hz, trajectory, bool(args.virtual), options, lead, gimbal)
+
+
+def session_for(p: Plan, signals):
+    """The library session of a plan (around the simulated gimbal of the file's
+    [gimbal] table, powered up at the first frame, with --virtual); returns
+    ``(session, plant or None)``.
+
+    Raises
+    ------
+    ValueError, TypeError
+        A bad --set-limits, or a simulated gimbal that cannot be built from the file.
+    """
+    from trajgen.drivers.session import Session
+    from trajgen.lead import sent_q
+    from trajgen.sim.lead import Leader
+
+    plant = registers = None
+    if p.virtual:
+        from trajgen.sim.plant import GimbalPlant
+
+        # Parked at the first goal (the plan's first angles; the lead's static gravity
+        # term ramps in from there), so the stream needs no approach.
+        plant = GimbalPlant(p.gimbal, initial_rad=sent_q(p.trajectory)[0])
+        # The servos power up with the gains the file states ([gimbal.<joint>]).
+        registers = dict(zip(p.config.joints.ids, plant.initial_registers(), strict=True))
+    options = dict(p.options)
+    limits = options.pop("set_limits_rad", {})
+    try:
+        session = Session(
+            p.config,
+            plant=plant,
+            plant_registers=registers,
+            stop_signals=signals,
+            set_limits_rad=limits,
+            leader=Leader(p.gimbal, p.lead),
+            **options,
+        )
+    except ValueError as e:
+        raise ValueError(f"--set-limits {_set_limits_text(limits, e)}") from None
+    return session, plant
+
+
+def _set_limits_text(limits: dict, error: Exception) -> str:
+    """``JOINT=MIN:MAX: problem`` for the joint a Session refused (its message names it)."""
+    joint, problem = str(error).split(" limits: ", 1)
+    low, high = (math.degrees(v) for v in limits[JOINTS.index(joint)])
+    return f"{joint}={low:g}:{high:g}: {problem}"
+
+
+# -- run and report ----------------------------------------------------------
 
 
 @contextmanager
@@ -220,354 +327,115 @@ def _warnings_to_stderr():
         yield
 
 
-# -- stages ------------------------------------------------------------------
+def run_stream(args) -> int:
+    """Run ``trajgen stream``; returns the exit status."""
+    return run_plan(args, plan, stream_source)
 
 
-@dataclass
-class Plan:
-    """Everything decided before any hardware is touched."""
-
-    kf: object
-    config: object
-    joints: object
-    rate_hz: float
-    trajectory: object
-    set_limits: dict[int, tuple[int, int]]
-    #: How goals are led ahead of the plan (``trajgen.lead``), and the simulated
-    #: gimbal of the file's [gimbal] tables whose loop parameters set the lead.
-    lead: str = "model"
-    gimbal: object = None
+def stream_source(session, p: Plan):
+    """Stream the plan's path with the session (planned again from where the servos are)."""
+    return session.stream_path(p.source.spline(), p.rate_hz)
 
 
-@dataclass
-class Outcome:
-    """What happened, for the report: filled in as the stages run."""
+def run_plan(args, make_plan, go, extra=None) -> int:
+    """Plan, then run the session under the stop signals and report; returns the exit status.
 
-    status: int = EXIT_OK
-    stopped_by: str = ""
-    untouched: bool = False
-    refused: bool = False
-    bring_up: dict | None = None
-    streamer: object = None
-    stop_errors: list[str] = field(default_factory=list)
-    torque_report: object = None
-
-
-def _plan(args):
-    """Everything that can fail on bad input, before any hardware is touched.
-
-    Shared with ``trajgen follow``. Returns ``(kf, config, joints, rate, trajectory)``.
-
-    Raises
-    ------
-    ValueError, TypeError, OSError
-        Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
+    Parameters
+    ----------
+    args : argparse.Namespace
+        With ``json`` and (optionally) ``plot``, ``torque_off``.
+    make_plan : callable
+        ``make_plan(args)`` returns a :class:`Plan` (or raises on bad input).
+    go : callable
+        ``go(session, plan)`` runs the session and returns its ``Outcome``.
+    extra : callable, optional
+        ``extra()`` gives entries for the JSON report.
     """
-    from trajgen.drivers.config import bus_config_from_tables
-    from trajgen.drivers.units import JointMap
-    from trajgen.keyframes import DEFAULT_RATE_HZ
-    from trajgen.stream import plan_joint_trajectory
+    from trajgen.drivers.signals import StopSignals
 
-    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
-    check_output_path("--json", args.json, (".json",))
-    check_plot_path(args.plot)
-    if hasattr(args.file, "spline"):
-        # ``trajgen excite`` passes an already planned source (``cli.excite.ExcitationFile``).
-        kf = args.file
-        config = bus_config_from_tables(kf.tables, kf.path)
-        rate = args.rate or kf.rate_hz or DEFAULT_RATE_HZ
+    signals = StopSignals()
+    with signals.installed(), _warnings_to_stderr():
+        try:
+            p = make_plan(args)
+            session, plant = session_for(p, signals)
+            outcome = go(session, p)
+        except (ValueError, TypeError, OSError) as e:  # TrajgenError: re-planning at start
+            return bad_input(e)
+        if outcome.virtual_error is not None:
+            print(f"trajgen: virtual bus stopped: {outcome.virtual_error}", file=sys.stderr)
+        if outcome.stage == "open" and outcome.signal is None:
+            return bad_input(outcome.stopped_by)  # the port did not open
+        status = report(args, p, plant, outcome, extra=None if extra is None else extra())
+    if signals.received is not None and outcome.signal is None:
+        # A signal after the stream ended: everything was done and reported.
+        status = 128 + signals.received
+    return status
+
+
+def _state(outcome, on_stop: str) -> str:
+    """What the servos were left doing, as a clause for the terminal."""
+    from trajgen.drivers.session import HOLDING, RELEASED, UNTOUCHED
+
+    states = outcome.servo_states
+    asked = RELEASED if on_stop == "torque_off" else HOLDING
+    if states and all(s == UNTOUCHED for s in states.values()):
+        return "no servo was touched"
+    if outcome.refused:
+        return "bring-up refused before torque on: no servo was moved"
+    if on_stop == "torque_off":
+        state = "the servos were released (torque off)"
     else:
-        checked = load_checked(args.file)
-        kf, config = checked.keyframes, checked.bus
-        rate = kf.stream_rate(args.rate)
-        check_timing(kf, rate)
-    joints = config.joints
-    if args.virtual:
-        if args.port:
-            raise ValueError("--port and --virtual exclude each other")
-        joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
-    elif args.plot:
-        raise ValueError("--plot needs --virtual (it plots the simulated torque report)")
-    elif not (args.port or config.port):
-        raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
-    if args.ids:
-        joints = JointMap(args.ids, joints.directions, joints.zeros)
-    trajectory = plan_joint_trajectory(kf.spline(), rate)
-    return kf, config, joints, rate, trajectory
+        state = "the servos hold their last goal"
+    others = [f"servo {i} {s}" for i, s in states.items() if s != asked]
+    if others:
+        state += f" (except {', '.join(others)}: see the warnings above)"
+    return state
 
 
-def _set_limits(args, joints) -> dict[int, tuple[int, int]]:
-    """``--set-limits`` as servo id -> (min, max) ticks, through each joint's mapping.
-
-    Raises
-    ------
-    ValueError
-        If a limit falls outside the registers' range 0..4095.
-    """
-    import numpy as np
-
-    from trajgen.drivers.units import TICKS_PER_REV
-
-    limits = {}
-    for joint, low_deg, high_deg in args.set_limits or ():
-        j = JOINTS.index(joint)
-        angles = np.zeros((2, len(JOINTS)))
-        angles[:, j] = np.radians([low_deg, high_deg])
-        ticks = sorted(int(v) for v in joints.to_ticks(angles)[:, j])
-        if not 0 <= ticks[0] < ticks[1] <= TICKS_PER_REV - 1:
-            raise ValueError(
-                f"--set-limits {joint}={low_deg:g}:{high_deg:g}: ticks {ticks[0]}..{ticks[1]} "
-                f"fall outside the registers' range 0..{TICKS_PER_REV - 1}"
-            )
-        limits[joints.ids[j]] = (ticks[0], ticks[1])
-    return limits
-
-
-def plan(args) -> Plan:
-    """The stream command's plan (``_plan``) and its ``--set-limits``; no hardware.
-
-    Raises
-    ------
-    ValueError, TypeError, OSError
-        Bad input.
-    """
-    from trajgen.lead import DEFAULT_LEAD
-    from trajgen.sim.model import gimbal_config_from_tables
-
-    kf, config, joints, rate, trajectory = _plan(args)
-    lead = getattr(args, "lead", None) or getattr(kf, "lead", None) or DEFAULT_LEAD
-    gimbal = gimbal_config_from_tables(kf.tables, kf.path)
-    p = Plan(kf, config, joints, rate, trajectory, _set_limits(args, joints), lead, gimbal)
-    p.trajectory = lead_plan(p, trajectory)
-    return p
-
-
-def lead_plan(p: Plan, trajectory, *, quiet: bool = False):
-    """``trajectory`` with the goals to send (``sim.lead.lead_trajectory``: the same goals
-    ``trajgen sim`` simulates), led by ``p.lead`` with the loop parameters of the file's
-    [gimbal] tables; notes why a joint gets no lead."""
-    from trajgen.sim.lead import lead_trajectory
-
-    led, _, notes = lead_trajectory(trajectory, p.gimbal, p.lead)
-    for note in () if quiet else notes:
-        print(f"trajgen: note: {note}", file=sys.stderr)
-    return led
-
-
-def open_port(args, p: Plan):
-    """Start the virtual bus (with ``--virtual``); returns (port, virtual bus, plant).
-
-    Raises
-    ------
-    ValueError, TypeError
-        If the simulated gimbal cannot be built from the file.
-    """
-    if not args.virtual:
-        return args.port or p.config.port, None, None
-    from trajgen.lead import sent_q
-
-    # Parked at the first goal (the plan's first angles plus the lead's static gravity
-    # term), so the stream needs no approach.
-    virtual, plant = start_virtual(p.kf, p.config, p.joints, p.rate_hz, sent_q(p.trajectory)[0])
-    return virtual.port, virtual, plant
-
-
-def start_virtual(kf, config, joints, rate, first_q):
-    """The simulated gimbal of the file's [gimbal] table, powered up at ``first_q``
-    (rad, as a gimbal parked at the first frame would be), behind a virtual bus in
-    lock-step with the stream; returns ``(virtual_bus, plant)``."""
-    from trajgen.drivers.virtual.bus import VirtualBus
-    from trajgen.sim.model import gimbal_config_from_tables
-    from trajgen.sim.plant import GimbalPlant
-
-    plant = GimbalPlant(gimbal_config_from_tables(kf.tables, kf.path), initial_rad=first_q)
-    virtual = VirtualBus(
-        plant,
-        ids=joints.ids,
-        models=config.models,
-        lockstep_dt_s=1.0 / rate,
-        # The servos power up with the gains the file states ([gimbal.<joint>]).
-        registers=dict(zip(joints.ids, plant.initial_registers(), strict=True)),
-    )
-    return virtual.start(), plant
-
-
-def bring_up_servos(bus, args, p: Plan, *, plan_from=None):
-    """``drivers.bringup.bring_up``, planning from where the servos are.
-
-    Planning with ``start`` = the present joint angles puts pan and roll on the
-    2 pi branch nearest to where the servos are, so the move to the first
-    frame never unwinds a turn. ``plan_from(present)`` replaces that plan (what
-    bring-up checks against the servos), e.g. the range an online plan may use.
-    The default plans from the present position and leads the goals
-    (:func:`lead_plan`): bring-up checks the goals that will be sent.
-    """
-    from trajgen.drivers.bringup import bring_up
-    from trajgen.stream import plan_joint_trajectory
-
-    if plan_from is None:
-
-        def plan_from(present):
-            # Bring-up checks the goals that will be sent (led), not only the plan.
-            planned = plan_joint_trajectory(p.kf.spline(), p.rate_hz, start=present)
-            return lead_plan(p, planned, quiet=True)
-
-    setup = bring_up(
-        bus,
-        p.joints,
-        p.config.models,
-        plan_from,
-        watchdog_s=p.config.watchdog_s,
-        joint_names=JOINTS,
-        set_limits=p.set_limits,
-        max_approach_rad=math.radians(args.max_approach),
-    )
-    p.trajectory = setup.trajectory
-    return setup
-
-
-def stream_plan(bus, args, p: Plan, setup, outcome: Outcome, *, frames=None, clock=None) -> None:
-    """Stream the brought-up plan (the streamer's statistics go in ``outcome``).
-
-    ``frames`` (default ``p.trajectory``) is any iterable of joint frames at
-    ``p.rate_hz``; ``clock`` defaults to simulated time with --virtual (lock-step,
-    as fast as the simulation runs), else the wall clock.
-    """
-    from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
-    from trajgen.drivers.streamer import Streamer
-
-    if clock is None:
-        # Lock-step: simulated time moves with the frames, so do not wait for them.
-        clock = SimulatedClock() if args.virtual else WALL_CLOCK
-
-    outcome.streamer = Streamer(
-        bus,
-        p.joints,
-        telemetry=args.telemetry,
-        joint_names=JOINTS,
-        on_stop="torque_off" if args.torque_off else "hold",
-        max_approach_rad=math.radians(args.max_approach),
-        goal_bounds_ticks=setup.goal_bounds_ticks,
-        max_delay_s=args.max_delay,
-        clock=clock,
-    )
-    try:
-        outcome.streamer.run(p.trajectory if frames is None else frames, rate_hz=p.rate_hz)
-    finally:
-        outcome.stop_errors += outcome.streamer.stop_errors
-
-
-def _bring_up_summary(setup) -> dict:
-    return {
-        joint: {
-            "servo": s.servo_id,
-            "drive_mode": s.drive_mode,
-            "operating_mode": mode,
-            "position_limits": [int(low), int(high)],
-            "start_tick": int(tick),
-        }
-        for joint, s, mode, (low, high), tick in zip(
-            JOINTS,
-            setup.installed,
-            setup.operating_modes,
-            setup.limits_ticks,
-            setup.present_ticks,
-            strict=True,
-        )
-    }
-
-
-def _run(args, signals: _StopSignals, outcome: Outcome, stages=None):
-    """Open, bring up, stream; returns (plan, plant) for the report, or an int on bad input.
-
-    ``stages`` is ``(plan, bring_up_servos, stream_plan)`` or replacements with
-    the same arguments (``trajgen follow`` streams an online plan).
-    """
-    from trajgen.drivers.errors import BringUpError, DriverError, Interrupted
-    from trajgen.drivers.streamer import safe_stop
-
-    make_plan, bring_up, stream = stages or (plan, bring_up_servos, stream_plan)
-    try:
-        p = make_plan(args)
-        port, virtual, plant = open_port(args, p)
-    except (ValueError, TypeError, OSError) as e:
-        return bad_input(e)
-    on_stop = "torque_off" if args.torque_off else "hold"
-    bus = None
-    try:
-        with signals.armed():
-            bus = open_bus(port, args.baud or p.config.baud)
-            setup = bring_up(bus, args, p)
-            outcome.bring_up = _bring_up_summary(setup)
-            stream(bus, args, p, setup, outcome)
-    except (DriverError, Interrupted) as e:
-        if bus is None and not isinstance(e, Interrupted):
-            return bad_input(e)  # the port did not open
-        outcome.stopped_by = str(e)
-        outcome.status = 128 + e.signum if isinstance(e, Interrupted) else EXIT_FAILED
-        streamed = outcome.streamer is not None and outcome.streamer.stats is not None
-        outcome.untouched = bus is None
-        outcome.refused = isinstance(e, BringUpError) and not streamed
-        if bus is not None and not streamed and not outcome.refused:
-            # Stopped during bring-up, possibly after it changed something: stop safely.
-            outcome.stop_errors += safe_stop(bus, p.joints.ids, on_stop)
-    except TrajgenError as e:  # re-planning from the present position (KinematicsError)
-        return bad_input(e)
-    finally:
-        if bus is not None:
-            bus.close()
-        if virtual is not None:
-            virtual.stop()
-            if virtual.error is not None:
-                print(f"trajgen: virtual bus stopped: {virtual.error}", file=sys.stderr)
-    return p, plant
-
-
-def report(args, p: Plan, plant, outcome: Outcome, extra: dict | None = None) -> int:
+def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
     """Print the statistics and what the servos were left doing; write ``--json`` (with
-    ``extra`` entries added)."""
-    stats = None if outcome.streamer is None else outcome.streamer.stats
+    ``extra`` entries added); returns the exit status."""
+    status = (
+        EXIT_OK
+        if outcome.ok
+        else (128 + outcome.signal if outcome.signal is not None else EXIT_FAILED)
+    )
+    stats = outcome.stats
     if stats is not None:
         print(stats.format())
     for message in outcome.stop_errors:
         print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
-    if outcome.untouched:
-        state = "no servo was touched"
-    elif outcome.refused:
-        state = "bring-up refused before torque on: no servo was moved"
-    elif args.torque_off:
-        state = "the servos were released (torque off)"
-    else:
-        state = "the servos hold their last goal"
-    if outcome.stop_errors:
-        state += " (except where the safe stop failed: see the warnings above)"
+    on_stop = p.options.get("on_stop", "hold")
+    state = _state(outcome, on_stop)
     if outcome.stopped_by:
-        kind = "interrupted" if outcome.status > EXIT_FAILED else "stream failed"
+        kind = "interrupted" if outcome.signal is not None else "stream failed"
         print(f"trajgen: {kind}: {outcome.stopped_by}; {state}", file=sys.stderr)
     else:
         print(f"servos: {state.removeprefix('the servos ')}")
-    if args.telemetry and stats is not None:
-        print(f"telemetry: {args.telemetry}")
+    telemetry = p.options.get("telemetry")
+    if telemetry and stats is not None:
+        print(f"telemetry: {telemetry}")
     result = {
-        "status": outcome.status,
+        "status": status,
         "stopped_by": outcome.stopped_by,
-        "on_stop": "torque_off" if args.torque_off else "hold",
+        "on_stop": on_stop,
         "stop_errors": outcome.stop_errors,
-        "bring_up": outcome.bring_up,
+        "servos": {str(i): s for i, s in outcome.servo_states.items()},
+        "bring_up": outcome.bring_up_summary(JOINTS),
         "stream": None if stats is None else stats.to_json_dict(),
         **(extra or {}),
     }
-    if plant is not None and outcome.status == EXIT_OK:
-        outcome.status, outcome.torque_report = torque_report(
-            plant, p.trajectory, args, result, lead=p.lead
+    if plant is not None and status == EXIT_OK:
+        status, outcome.torque_report = torque_report(
+            plant, outcome.trajectory, getattr(args, "plot", None), result, lead=p.lead
         )
-        result["status"] = outcome.status
-    return write_json(args, result, outcome.status)
+        result["status"] = status
+    return write_json(args.json, result, status)
 
 
-def torque_report(plant, trajectory, args, result: dict, *, lead: str = "none"):
-    """Print (and plot with --plot) the torque report of ``trajectory`` as streamed to
-    ``plant``; add it to ``result``; return the exit status and the report (or None)."""
+def torque_report(plant, trajectory, plot_path, result: dict, *, lead: str = "none"):
+    """Print (and plot to ``plot_path``) the torque report of ``trajectory`` as streamed
+    to ``plant``; add it to ``result``; return the exit status and the report (or None)."""
     from trajgen.sim.errors import SimError
 
     try:
@@ -578,43 +446,23 @@ def torque_report(plant, trajectory, args, result: dict, *, lead: str = "none"):
     print(report.format())
     result["torque"] = report.to_json_dict()
     status = EXIT_OK if report.ok else EXIT_FAILED
-    if args.plot:
+    if plot_path:
         from trajgen.sim.plot import plot_report
 
         try:
-            print(f"plot: {plot_report(report, args.plot)}")
+            print(f"plot: {plot_report(report, plot_path)}")
         except (OSError, ValueError) as e:
             return bad_input(e), report
     return status, report
 
 
-def write_json(args, result: dict, status: int) -> int:
-    """Write ``result`` to --json if given; return ``status`` (or bad input)."""
-    if args.json:
+def write_json(path, result: dict, status: int) -> int:
+    """Write ``result`` to ``path`` (--json) if given; return ``status`` (or bad input)."""
+    if path:
         try:
-            with open(args.json, "w", encoding="utf-8") as f:
+            with open(path, "w", encoding="utf-8") as f:
                 json.dump(result, f, indent=2)
         except OSError as e:
             return bad_input(e)
-        print(f"json: {args.json}")
-    return status
-
-
-def run_stream(args) -> int:
-    """Run ``trajgen stream``; returns the exit status."""
-    return run_stages(args, Outcome())
-
-
-def run_stages(args, outcome: Outcome, stages=None, extra=None) -> int:
-    """Plan, open, bring up, stream and report under the stop signals; returns the exit
-    status. ``stages`` as for ``_run``; ``extra()`` gives entries for the JSON report."""
-    signals = _StopSignals()
-    with signals.installed(), _warnings_to_stderr():
-        ran = _run(args, signals, outcome, stages)
-        if isinstance(ran, int):
-            return ran
-        status = report(args, *ran, outcome, extra=None if extra is None else extra())
-    if signals.received is not None and not outcome.stopped_by:
-        # A signal after the stream ended: everything was done and reported.
-        status = 128 + signals.received
+        print(f"json: {path}")
     return status

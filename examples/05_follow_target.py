@@ -1,16 +1,18 @@
-"""Follow a wandering target through the virtual servo bus, changing the plan while moving.
+"""Follow live keyframes: a wandering target, the plan changed while the gimbal moves.
 
 A scripted target wanders in pan and tilt and changes its mind every 0.3-1 s.
-Each time it does, the script sends one keyframe line to ``trajgen follow``
-("be where the target is 0.6 s from now", a retarget), exactly as a tracker
-would on stdin. The gimbal is the simulated one behind the virtual bus; the
-stream, the checks and the torque report are those of the command line.
+Each time it does, the script hands one keyframe line to a
+``trajgen.follower.Follower`` ("be where the target is 0.6 s from now", a
+retarget), exactly as a tracker writes them to ``trajgen follow`` on stdin.
+``Session.follow`` streams the follower's plan, here to the simulated gimbal
+behind the virtual bus (real time: the lines do), and the torque report says
+what the servos made of it.
 
 Writes ``out/follow_target.png``: the commanded joint angles with every
 keyframe drawn from the moment it arrived to the time it asked for, the joint
 speeds, and the planned and simulated torque against the servo's envelope.
 
-Run: .venv/bin/python examples/follow_target.py [--seconds 8] [--out out/follow_target.png]
+Run: .venv/bin/python examples/05_follow_target.py [--seconds 8] [--out out/follow_target.png]
 """
 
 from __future__ import annotations
@@ -22,10 +24,13 @@ from pathlib import Path
 
 import numpy as np
 
+from trajgen import load_keyframe_file, plan_joint_trajectory
 from trajgen import quat as Q
-from trajgen.cli import build_parser
-from trajgen.cli.follow import follow
+from trajgen.drivers.config import bus_config_from_tables
+from trajgen.drivers.session import Session
+from trajgen.follower import Follower, load_compiled_kernel, online_spline
 from trajgen.gimbal import forward
+from trajgen.sim import GimbalPlant, gimbal_config_from_tables
 
 HERE = Path(__file__).parent
 LEAD_S = 0.6  # each keyframe asks to be there this long after it arrives
@@ -117,7 +122,7 @@ def plot(follower, report, path: Path) -> Path:
         ax.legend(unique.values(), unique.keys(), fontsize=8, loc=where)
     s = follower.summary()
     fig.suptitle(
-        f"trajgen follow --virtual: {s['accepted']} keyframes while moving, line to frame "
+        f"Session.follow, virtual bus: {s['accepted']} keyframes while moving, line to frame "
         f"p50 {1e3 * s['latency_s']['p50']:.0f} ms; torque check "
         f"{'OK' if report.ok else 'FAILED'}"
     )
@@ -139,17 +144,34 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=8.0, help="how long the target wanders")
     parser.add_argument("--out", type=Path, default=Path("out/follow_target.png"))
+    parser.add_argument("--no-plot", action="store_true", help="skip the plot (and matplotlib)")
     options = parser.parse_args()
+
+    keyframes = load_keyframe_file(HERE / "follow_target.toml")
+    rate_hz = keyframes.stream_rate()
+    follower = Follower(online_spline(keyframes), rate_hz, on_skip=print)
+    load_compiled_kernel()  # where numba is installed: the spline's evaluations run compiled
+
+    bus = bus_config_from_tables(keyframes.tables, keyframes.path)
+    first = plan_joint_trajectory(keyframes.spline(), rate_hz).q[0]
+    gimbal = gimbal_config_from_tables(keyframes.tables, keyframes.path)
+    plant = GimbalPlant(gimbal, initial_rad=first)
+    registers = dict(zip(bus.joints.ids, plant.initial_registers(), strict=True))
     # The stream runs in real time beside the simulation; on a busy shared machine it
     # can fall behind its plan (it shifts, never catches up): allow more than 1 s.
-    command = ["follow", str(HERE / "follow_target.toml"), "--virtual", "--max-delay", "10"]
-    args = build_parser().parse_args(command)
-    status, follower, report = follow(args, wandering_target(options.seconds))
-    if report is not None:
+    session = Session(bus, plant=plant, plant_registers=registers, max_delay_s=10.0)
+    outcome = session.follow(follower, wandering_target(options.seconds))
+    print(follower.format())
+    print(f"servos: {outcome.servo_states}  (stopped by: {outcome.stopped_by or 'the end'})")
+    if not outcome.ok:
+        return 1
+    report = plant.report(outcome.trajectory)
+    print(report.format())
+    if not options.no_plot:
         print(f"plot: {plot(follower, report, options.out)}")
-        gap = Q.distance(forward(follower.trajectory().q[-1]), follower.keyframes[-1]["quat"])
-        print(f"the stream ends {np.degrees(gap):.1e} deg from the last keyframe, at rest")
-    return status
+    gap = Q.distance(forward(outcome.trajectory.q[-1]), follower.keyframes[-1]["quat"])
+    print(f"the stream ends {np.degrees(gap):.1e} deg from the last keyframe, at rest")
+    return 0 if report.ok else 1
 
 
 if __name__ == "__main__":

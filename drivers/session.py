@@ -1,0 +1,435 @@
+"""A streaming session: a plan in; the port (or a virtual bus) opened, the servos
+brought up, the stream sent, the servos stopped safely; an outcome out.
+
+:class:`Session` is what ``trajgen stream``, ``trajgen excite`` and ``trajgen
+follow`` run, for a Python program to run without the command line::
+
+    from trajgen.drivers.config import BusConfig
+    from trajgen.drivers.session import Session
+
+    outcome = Session(BusConfig(port="/dev/ttyUSB0")).stream_path(spline, rate_hz=200)
+    print(outcome.stats.format(), outcome.servo_states)
+
+Stages, in order: open the port (or start a virtual bus on a pseudo-terminal,
+in lock-step with the stream, around a plant); bring up (``bringup.bring_up``:
+every check before any servo is changed; the plan made from where the servos
+are); stream (``streamer.Streamer``: the approach, then one frame per period);
+on every stop (the end, a fault, a stop signal) the servos hold their last goal
+or are released, per servo, and the port closes. SIGINT, SIGTERM and SIGHUP
+stop the stream while the servos are being touched (``signals.StopSignals``);
+their number is in the outcome.
+
+Nothing here reads a file or prints: the command line does both.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from trajgen.gimbal import JOINT_NAMES
+from trajgen.stream import plan_joint_trajectory
+
+from . import bringup
+from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
+from .clock import WALL_CLOCK, SimulatedClock
+from .config import BusConfig
+from .control_table import Register
+from .defaults import MAX_DELAY_S
+from .errors import BringUpError, DriverError, Interrupted
+from .signals import StopSignals
+from .streamer import Streamer, safe_stop
+
+#: What a servo was left doing, per ``Outcome.servo_states``.
+UNTOUCHED = "untouched"  # nothing was written to it
+NOT_MOVED = "not moved"  # bring-up refused before torque on
+HOLDING = "holding"  # reads torque on after the safe stop: holds its goal, no Bus Watchdog
+RELEASED = "released"  # reads torque off after the safe stop
+UNKNOWN = "unknown"  # did not answer after the safe stop: see ``stop_errors``
+
+
+@dataclass
+class Outcome:
+    """What a session did, filled in as its stages run.
+
+    Attributes
+    ----------
+    stopped_by : str
+        Why the stream ended early ("" if it ran to its end).
+    signal : int or None
+        The stop signal that ended it (the command line exits ``128 + signal``).
+    stage : str
+        Where it stopped early: "open" (the port did not open), "bring-up",
+        "stream"; "" if it did not.
+    bring_up : BringUp or None
+        What bring-up found and set (None if it did not finish).
+    stats : StreamStats or None
+        The streamer's statistics (also after a fault).
+    stop_errors : list of str
+        What the safe stop could not do.
+    servo_states : dict of int to str
+        Per servo id: ``UNTOUCHED``, ``NOT_MOVED``, or after a safe stop its
+        Torque Enable as read back, ``HOLDING`` or ``RELEASED`` (``UNKNOWN`` if it
+        did not answer).
+    trajectory : JointTrajectory or JointRange or None
+        The plan bring-up checked (for a stream, what was streamed).
+    virtual_error : Exception or None
+        What stopped the virtual bus, if it failed.
+    """
+
+    stopped_by: str = ""
+    signal: int | None = None
+    stage: str = ""
+    bring_up: BringUp | None = None
+    stats: object = None
+    stop_errors: list[str] = field(default_factory=list)
+    servo_states: dict[int, str] = field(default_factory=dict)
+    trajectory: object = None
+    virtual_error: Exception | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Whether the stream ran to its end."""
+        return not self.stopped_by
+
+    @property
+    def refused(self) -> bool:
+        """Whether bring-up refused the plan before any servo moved."""
+        return (
+            self.stage == "bring-up"
+            and bool(self.servo_states)
+            and all(s in (NOT_MOVED, UNTOUCHED) for s in self.servo_states.values())
+        )
+
+    def bring_up_summary(self, joint_names=JOINT_NAMES) -> dict | None:
+        """Per joint: servo id, Drive Mode, Operating Mode, position limits and start tick."""
+        setup = self.bring_up
+        if setup is None:
+            return None
+        return {
+            joint: {
+                "servo": s.servo_id,
+                "drive_mode": s.drive_mode,
+                "operating_mode": mode,
+                "position_limits": [int(low), int(high)],
+                "start_tick": int(tick),
+            }
+            for joint, s, mode, (low, high), tick in zip(
+                joint_names,
+                setup.installed,
+                setup.operating_modes,
+                setup.limits_ticks,
+                setup.present_ticks,
+                strict=True,
+            )
+        }
+
+
+class Session:
+    """Stream joint frames to the servos of one bus, from bring-up to a safe stop.
+
+    Parameters
+    ----------
+    config : BusConfig, optional
+        Port, baud rate, joint map (ids, directions, zeros), models and Bus
+        Watchdog period; default ``BusConfig()`` (ids 1, 2, 3, no port).
+    on_stop : {"hold", "torque_off"}, optional
+        What the servos do when the stream stops, however it stops.
+    telemetry : str or Path, optional
+        Per-frame telemetry file (``.csv`` or ``.npz``).
+    max_delay_s : float or None, optional
+        Fail the stream once host stalls put it this far (s) behind its plan.
+    max_approach_rad : float, optional
+        Refuse to start when a joint is farther (rad) than this from the first frame.
+    set_limits_rad : mapping of int to (float, float), optional
+        Joint index -> (low, high) joint angles (rad) to write as that servo's
+        Min / Max Position Limit during bring-up; the user's explicit choice.
+        Without it the installed limits are only read.
+    plant : drivers.virtual.plant.Plant, optional
+        Stream to a virtual bus around this plant (e.g. ``sim.plant.GimbalPlant``)
+        instead of ``config.port``; the bus advances one period per frame.
+    plant_registers : mapping of int to mapping of str to int, optional
+        With ``plant``: register values per servo id at power-up (e.g.
+        ``GimbalPlant.initial_registers()`` by id).
+    stop_signals : StopSignals, optional
+        Stop signals the caller has installed (and may act on around the
+        session); default a new one, installed for each run (on the main thread).
+    leader : optional
+        Leads the goals ahead of the plan by the servos' lag (``trajgen.sim.lead.Leader``:
+        ``trajectory(planned)`` attaches the goals to a planned stream,
+        ``frames(frames, rate_hz, bounds_rad)`` leads a live one); None sends the
+        plan as it is. Bring-up checks, and the streamer sends, the goals.
+
+    Raises
+    ------
+    ValueError
+        If a ``set_limits_rad`` entry falls outside the registers' range 0..4095
+        (the message names the joint).
+    """
+
+    def __init__(
+        self,
+        config: BusConfig | None = None,
+        *,
+        on_stop: Literal["hold", "torque_off"] = "hold",
+        telemetry: str | Path | None = None,
+        max_delay_s: float | None = MAX_DELAY_S,
+        max_approach_rad: float = MAX_APPROACH_RAD,
+        set_limits_rad: Mapping[int, tuple[float, float]] | None = None,
+        plant=None,
+        plant_registers: Mapping[int, Mapping[str, int]] | None = None,
+        stop_signals: StopSignals | None = None,
+        leader=None,
+    ) -> None:
+        self.config = BusConfig() if config is None else config
+        self.leader = leader
+        self.on_stop = on_stop
+        self.telemetry = telemetry
+        self.max_delay_s = max_delay_s
+        self.max_approach_rad = float(max_approach_rad)
+        self.plant = plant
+        self.plant_registers = plant_registers
+        self.stop_signals = stop_signals
+        joints = self.config.joints
+        self.set_limits: dict[int, tuple[int, int]] = {}
+        for j, (low, high) in (set_limits_rad or {}).items():
+            try:
+                self.set_limits[joints.ids[j]] = joints.limit_ticks(j, low, high)
+            except ValueError as e:
+                name = JOINT_NAMES[j] if len(joints) == len(JOINT_NAMES) else f"joint {j}"
+                raise ValueError(f"{name} limits: {e}") from None
+
+    # -- the two kinds of stream -------------------------------------------
+
+    def stream_path(self, path, rate_hz: float, *, kinematics=None, clock=None) -> Outcome:
+        """Stream an orientation path, planned from where the servos are.
+
+        Parameters
+        ----------
+        path : spline-like
+            ``t_start``, ``t_end`` (s), ``evaluate(t, max_order=2)`` (a ``BlendingSpline``).
+        rate_hz : float
+            Stream rate (Hz).
+        kinematics : GimbalKinematics, optional
+            Joint limits and the gimbal-lock margin.
+        clock : optional
+            Default simulated time with a virtual bus (lock-step, as fast as the
+            simulation runs), else the wall clock.
+
+        Returns
+        -------
+        Outcome
+
+        Raises
+        ------
+        KinematicsError
+            If the path, planned from the present position, leaves the joint
+            limits or nears gimbal lock (nothing was changed on any servo).
+        """
+
+        def plan(present):
+            # From where the servos are: pan and roll take the nearest 2 pi branch,
+            # so the move to the first frame never unwinds a turn.
+            planned = plan_joint_trajectory(path, rate_hz, kinematics, start=present)
+            # Led goals attached (bring-up checks and the streamer sends them).
+            return planned if self.leader is None else self.leader.trajectory(planned)
+
+        return self.run(plan, rate_hz, clock=clock)
+
+    def run(
+        self,
+        plan,
+        rate_hz: float,
+        *,
+        frames: Callable[[BringUp], Iterable] | None = None,
+        clock=None,
+    ) -> Outcome:
+        """Open, bring up, stream, stop safely; returns what happened.
+
+        Parameters
+        ----------
+        plan : JointTrajectory or JointRange, or callable
+            What bring-up checks, or a function of the present joint angles
+            (rad, shape (n,)) returning it (see ``bringup.bring_up``).
+        rate_hz : float
+            Stream rate (Hz).
+        frames : callable, optional
+            ``frames(setup)`` returns the joint frames to stream (anything with
+            ``t`` and ``q`` per frame, at ``rate_hz``); default the checked
+            trajectory itself. This is the one place frames enter the stream.
+        clock : optional
+            As for :meth:`stream_path`.
+
+        Returns
+        -------
+        Outcome
+            ``stage`` "open" when the port did not open (nothing touched).
+
+        Raises
+        ------
+        TrajgenError
+            If ``plan`` refuses the present position (nothing changed).
+        ValueError, TypeError
+            If the virtual bus cannot be built around ``plant``.
+        """
+        outcome = Outcome()
+        signals = self.stop_signals
+        if signals is None:
+            signals = StopSignals()
+            with signals.installed():
+                self._run(plan, rate_hz, frames, clock, signals, outcome)
+        else:
+            self._run(plan, rate_hz, frames, clock, signals, outcome)
+        if signals.received is not None and outcome.signal is None and outcome.stopped_by:
+            outcome.signal = signals.received
+        return outcome
+
+    def follow(self, follower, lines, *, clock=WALL_CLOCK) -> Outcome:
+        """Stream a follower's plan while keyframe lines change it.
+
+        Bring-up checks where the stream starts and the whole range the
+        follower's joint limits allow against the servos' installed limits
+        (the frames are not known in advance). The lines are read on a thread
+        of their own; the stream ends at the end of ``lines``, once the last
+        keyframe is reached.
+
+        Parameters
+        ----------
+        follower : trajgen.follower.Follower
+            The plan, its rate and its kinematics.
+        lines : iterable of str or bytes, or callable
+            The keyframe lines (see ``Follower.read``), or a function of the
+            follower returning them (to time them against the stream).
+        clock : optional
+            The wall clock by default, with a virtual bus too: lines arrive in
+            real time.
+
+        Returns
+        -------
+        Outcome
+            ``trajectory`` is what was streamed.
+        """
+        limits = np.asarray(follower.kinematics.limits_rad, float)
+
+        def plan(present):
+            return JointRange(np.asarray(present, float), limits)
+
+        def frames(setup):
+            source = lines(follower) if callable(lines) else lines
+            threading.Thread(target=follower.read, args=(source,), daemon=True).start()
+            frames = follower.frames(start=self.config.joints.to_rad(setup.present_ticks))
+            if self.leader is None:
+                return frames
+            # Goals led from the live plan's own frames, inside the range bring-up checked.
+            return self.leader.frames(frames, follower.rate_hz, limits)
+
+        outcome = self.run(plan, follower.rate_hz, frames=frames, clock=clock)
+        outcome.trajectory = follower.trajectory()
+        if follower.fault and outcome.ok:
+            outcome.stopped_by = f"a frame the gimbal cannot take: {follower.fault}"
+            outcome.stage = "stream"
+        return outcome
+
+    # -- stages ------------------------------------------------------------
+
+    def _open_virtual(self, rate_hz: float):
+        from .virtual.bus import VirtualBus
+
+        return VirtualBus(
+            self.plant,
+            ids=self.config.joints.ids,
+            models=self.config.models,
+            lockstep_dt_s=1.0 / rate_hz,
+            registers=self.plant_registers,
+        ).start()
+
+    def _run(self, plan, rate_hz, frames, clock, signals, outcome: Outcome) -> None:
+        from .bus import ServoBus
+
+        virtual = None if self.plant is None else self._open_virtual(rate_hz)
+        port = self.config.port if virtual is None else virtual.port
+        ids = self.config.joints.ids
+        bus = None
+        try:
+            with signals.armed():
+                outcome.stage = "open"
+                bus = ServoBus(port, baud=self.config.baud).open()
+                outcome.stage = "bring-up"
+                setup = bringup.bring_up(
+                    bus,
+                    self.config.joints,
+                    self.config.models,
+                    plan,
+                    watchdog_s=self.config.watchdog_s,
+                    joint_names=JOINT_NAMES,
+                    set_limits=self.set_limits,
+                    max_approach_rad=self.max_approach_rad,
+                )
+                outcome.bring_up, outcome.trajectory = setup, setup.trajectory
+                outcome.stage = "stream"
+                source = setup.trajectory if frames is None else frames(setup)
+                self._stream(bus, setup, source, rate_hz, clock, outcome)
+            outcome.stage = ""
+            self._states(bus, ids, outcome)
+        except (DriverError, Interrupted) as e:
+            outcome.stopped_by = str(e)
+            if isinstance(e, Interrupted):
+                outcome.signal = e.signum
+            if bus is None:
+                outcome.servo_states = dict.fromkeys(ids, UNTOUCHED)
+            elif outcome.stats is None and isinstance(e, BringUpError):
+                # Refused before torque on: bring-up changes nothing before its checks pass,
+                # and leaves torque off when a last check fails.
+                outcome.servo_states = dict.fromkeys(ids, NOT_MOVED)
+            else:
+                if outcome.stats is None:
+                    # Stopped during bring-up, possibly after it changed something.
+                    outcome.stop_errors += safe_stop(bus, ids, self.on_stop)
+                self._states(bus, ids, outcome)
+        finally:
+            if bus is not None:
+                bus.close()
+            if virtual is not None:
+                virtual.stop()
+                outcome.virtual_error = virtual.error
+
+    def _stream(self, bus, setup: BringUp, source, rate_hz, clock, outcome: Outcome) -> None:
+        if clock is None:
+            # Lock-step: simulated time moves with the frames, so do not wait for them.
+            clock = WALL_CLOCK if self.plant is None else SimulatedClock()
+        streamer = Streamer(
+            bus,
+            self.config.joints,
+            telemetry=self.telemetry,
+            joint_names=JOINT_NAMES,
+            on_stop=self.on_stop,
+            max_approach_rad=self.max_approach_rad,
+            goal_bounds_ticks=setup.goal_bounds_ticks,
+            max_delay_s=self.max_delay_s,
+            clock=clock,
+        )
+        try:
+            outcome.stats = streamer.run(source, rate_hz=rate_hz)
+        finally:
+            outcome.stats = streamer.stats
+            outcome.stop_errors += streamer.stop_errors
+
+    def _states(self, bus, ids, outcome: Outcome) -> None:
+        """Each servo's state after the safe stop, as it reads back: Torque Enable 1 is
+        holding (the Bus Watchdog was cleared), 0 released; a servo that does not answer
+        is unknown."""
+        states = {}
+        for servo_id in ids:
+            try:
+                on = bus.read(servo_id, Register.TORQUE_ENABLE)
+            except DriverError as e:
+                states[servo_id] = UNKNOWN
+                outcome.stop_errors.append(f"state unknown: {e}")
+            else:
+                states[servo_id] = HOLDING if on else RELEASED
+        outcome.servo_states = states

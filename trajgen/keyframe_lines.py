@@ -1,0 +1,134 @@
+"""Keyframes as JSON lines: read with a length cap, parsed, checked.
+
+One keyframe per line, as a tracker writes them to ``trajgen follow``::
+
+    {"in": 0.8, "pan": 20, "tilt": 5}          reach this 0.8 s from now
+    {"t": 12.5, "quat": [1, 0, 0, 0]}          ... at stream time 12.5 s
+    {"in": 1, "pan": -10, "mode": "extend"}    after the keyframes still planned
+
+:func:`capped_lines` reads lines as bytes and never holds more than
+``MAX_LINE_BYTES`` of one (a 50 MB line or binary noise costs memory and time
+in bounded pieces); :func:`parse_line` refuses, with a message naming the line
+and the field, anything that is not a keyframe.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+
+from .errors import KeyframeFileError
+from .keyframes import check_keyframes
+from .online import MODES
+from .validate import check_number
+
+#: Longest line (bytes, newline included) parsed; a longer one is refused unread past
+#: this. A keyframe line is under 200 bytes.
+MAX_LINE_BYTES = 64 * 1024
+
+#: The fields a line may have.
+LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
+
+
+def capped_lines(file, max_bytes: int = MAX_LINE_BYTES) -> Iterator[bytes | str]:
+    """The lines of ``file``, each cut at ``max_bytes + 1`` (the rest of a longer line
+    is read and dropped in pieces of ``max_bytes``).
+
+    Parameters
+    ----------
+    file : binary (or text) file
+        Anything with ``readline(limit)``, e.g. ``sys.stdin.buffer``.
+    max_bytes : int, optional
+        Longest line kept whole.
+
+    Yields
+    ------
+    bytes or str
+        One per line, as ``file`` returns them; a line longer than ``max_bytes``
+        comes as its first ``max_bytes + 1`` bytes (see :func:`decode_line`).
+    """
+    while True:
+        line = file.readline(max_bytes + 1)
+        if not line:
+            return
+        if len(line) > max_bytes and line[-1:] not in (b"\n", "\n"):
+            while True:  # drop the rest of the line, a bounded piece at a time
+                rest = file.readline(max_bytes)
+                if not rest or rest[-1:] in (b"\n", "\n"):
+                    break
+        yield line
+
+
+def decode_line(line: bytes | str, where: str, max_bytes: int = MAX_LINE_BYTES) -> str:
+    """A line as text.
+
+    Raises
+    ------
+    KeyframeFileError
+        ``"{where}: longer than N bytes"`` or ``"{where}: not UTF-8 text ..."``.
+    """
+    if len(line) > max_bytes:
+        raise KeyframeFileError(f"{where}: longer than {max_bytes} bytes; a keyframe line is short")
+    if isinstance(line, str):
+        return line
+    try:
+        return line.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise KeyframeFileError(
+            f"{where}: not UTF-8 text (byte {line[e.start]:#04x} at column {e.start + 1})"
+        ) from None
+
+
+def parse_line(text: str, where: str):
+    """One JSON line as a checked keyframe.
+
+    Parameters
+    ----------
+    text : str
+        The line.
+    where : str
+        What messages start with, e.g. ``"stdin: line 7"``.
+
+    Returns
+    -------
+    mode : {"retarget", "extend"}
+    quat : ndarray, shape (4,)
+        Unit quaternion (w, x, y, z).
+    t : float
+        Keyframe time (s): stream time, or from now when ``relative``.
+    relative : bool
+        Whether the line gave ``"in"`` (from now) rather than ``"t"``.
+
+    Raises
+    ------
+    KeyframeFileError
+        ``"{where}: ..."``, naming the field that is wrong.
+    """
+
+    def error(problem: str) -> KeyframeFileError:
+        return KeyframeFileError(f"{where}: {problem}")
+
+    try:
+        entry = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise error(f"invalid JSON: {e}") from None
+    except RecursionError:
+        raise error("invalid JSON: nested too deeply") from None
+    except ValueError as e:  # an integer of more digits than Python converts
+        raise error(f"invalid JSON: {e}") from None
+    if not isinstance(entry, dict):
+        raise error(f"expected a JSON object, got {text.strip()[:80]!r}")
+    for key in entry:
+        if key not in LINE_KEYS:
+            raise error(f"unknown field {key[:40]!r} (known: {', '.join(LINE_KEYS)})")
+    mode = entry.get("mode", "retarget")
+    if mode not in MODES:
+        raise error(f"field 'mode': expected one of {MODES}, got {mode!r}")
+    if ("t" in entry) == ("in" in entry):
+        raise error("give exactly one of 't' (stream time) or 'in' (from now), s")
+    name = "in" if "in" in entry else "t"
+    t = check_number(name, entry[name], error=lambda p: error(f"field '{name}': {p} (seconds)"))
+    keyframe = {k: v for k, v in entry.items() if k not in ("mode", "in")}
+    keyframe["t"] = t
+    _, q = check_keyframes([keyframe], where, minimum=1)
+    return mode, q[0], t, name == "in"
