@@ -165,10 +165,10 @@ def describe_hardware_error(status: int) -> str:
 #
 # Addresses and sizes come from the SDK's model files (``layout`` above and
 # ``control_items``); what those files lack is stated here from the e-Manual
-# X-series control tables (XM430-W350, XL430-W250, XH430-W350, XM540-W270 pages:
-# access, initial value, range). A range that depends on another register (Goal
-# Position within the position limits, Goal PWM within PWM Limit...) is in
-# ``LIMITED_BY``.
+# X-series control tables (access, range) and, per model, from its servo-table
+# entry (factory values, ranges that differ, indirect blocks). A range that
+# depends on another register (Goal Position within the position limits, Goal
+# PWM within PWM Limit...) is in ``LIMITED_BY``.
 
 
 @dataclass(frozen=True)

@@ -48,7 +48,7 @@ from .streamer import Streamer, safe_stop
 #: What a servo was left doing, per ``Outcome.servo_states``.
 UNTOUCHED = "untouched"  # nothing was written to it
 NOT_MOVED = "not moved"  # bring-up refused before torque on
-HOLDING = "holding"  # reads torque on after the safe stop: holds its goal, no Bus Watchdog
+HOLDING = "holding"  # reads torque on after the safe stop: it holds its last goal
 RELEASED = "released"  # reads torque off after the safe stop
 UNKNOWN = "unknown"  # did not answer after the safe stop: see ``stop_errors``
 
@@ -106,6 +106,19 @@ class Outcome:
             and all(s in (NOT_MOVED, UNTOUCHED) for s in self.servo_states.values())
         )
 
+    def to_json_dict(self, joint_names=JOINT_NAMES) -> dict:
+        """What happened, as plain JSON types: ``stopped_by``, ``signal``, ``stage``,
+        ``stop_errors``, ``servos`` (state per servo id), ``bring_up`` and ``stream``."""
+        return {
+            "stopped_by": self.stopped_by,
+            "signal": self.signal,
+            "stage": self.stage,
+            "stop_errors": self.stop_errors,
+            "servos": {str(i): s for i, s in self.servo_states.items()},
+            "bring_up": self.bring_up_summary(joint_names),
+            "stream": None if self.stats is None else self.stats.to_json_dict(),
+        }
+
     def bring_up_summary(self, joint_names=JOINT_NAMES) -> dict | None:
         """Per joint: servo id, Drive Mode, Operating Mode, position limits and start tick."""
         setup = self.bring_up
@@ -153,9 +166,9 @@ class Session:
     plant : drivers.virtual.plant.Plant, optional
         Stream to a virtual bus around this plant (e.g. ``sim.plant.GimbalPlant``)
         instead of ``config.port``; the bus advances one period per frame.
-    plant_registers : mapping of int to mapping of str to int, optional
-        With ``plant``: register values per servo id at power-up (e.g.
-        ``GimbalPlant.initial_registers()`` by id).
+    plant_registers : sequence or mapping of dict, optional
+        With ``plant``: register values at power-up, per joint (as
+        ``GimbalPlant.initial_registers()`` gives them) or per servo id.
     stop_signals : StopSignals, optional
         Stop signals the caller has installed (and may act on around the
         session); default a new one, installed for each run (on the main thread).
@@ -182,7 +195,7 @@ class Session:
         max_approach_rad: float = MAX_APPROACH_RAD,
         set_limits_rad: Mapping[int, tuple[float, float]] | None = None,
         plant=None,
-        plant_registers: Mapping[int, Mapping[str, int]] | None = None,
+        plant_registers=None,
         stop_signals: StopSignals | None = None,
         leader=None,
     ) -> None:
@@ -193,6 +206,8 @@ class Session:
         self.max_delay_s = max_delay_s
         self.max_approach_rad = float(max_approach_rad)
         self.plant = plant
+        if plant_registers is not None and not isinstance(plant_registers, Mapping):
+            plant_registers = dict(zip(self.config.joints.ids, plant_registers, strict=True))
         self.plant_registers = plant_registers
         self.stop_signals = stop_signals
         joints = self.config.joints

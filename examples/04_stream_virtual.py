@@ -36,9 +36,8 @@ def main() -> int:
     first = plan_joint_trajectory(spline, rate_hz).q[0]
     gimbal = gimbal_config_from_tables(keyframes.tables, keyframes.path)
     plant = GimbalPlant(gimbal, initial_rad=first)
-    registers = dict(zip(bus.joints.ids, plant.initial_registers(), strict=True))
 
-    session = Session(bus, plant=plant, plant_registers=registers, on_stop="hold")
+    session = Session(bus, plant=plant, plant_registers=plant.initial_registers(), on_stop="hold")
     outcome = session.stream_path(spline, rate_hz)
     print(outcome.stats.format())
     print(f"servos: {outcome.servo_states}  (stopped by: {outcome.stopped_by or 'the end'})")

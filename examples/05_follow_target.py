@@ -156,10 +156,9 @@ def main() -> int:
     first = plan_joint_trajectory(keyframes.spline(), rate_hz).q[0]
     gimbal = gimbal_config_from_tables(keyframes.tables, keyframes.path)
     plant = GimbalPlant(gimbal, initial_rad=first)
-    registers = dict(zip(bus.joints.ids, plant.initial_registers(), strict=True))
     # The stream runs in real time beside the simulation; on a busy shared machine it
     # can fall behind its plan (it shifts, never catches up): allow more than 1 s.
-    session = Session(bus, plant=plant, plant_registers=registers, max_delay_s=10.0)
+    session = Session(bus, plant=plant, plant_registers=plant.initial_registers(), max_delay_s=10.0)
     outcome = session.follow(follower, wandering_target(options.seconds))
     print(follower.format())
     print(f"servos: {outcome.servo_states}  (stopped by: {outcome.stopped_by or 'the end'})")
@@ -169,6 +168,9 @@ def main() -> int:
     print(report.format())
     if not options.no_plot:
         print(f"plot: {plot(follower, report, options.out)}")
+    if not follower.keyframes:
+        print("no keyframe line was accepted (see the messages above)")
+        return 1
     gap = Q.distance(forward(outcome.trajectory.q[-1]), follower.keyframes[-1]["quat"])
     print(f"the stream ends {np.degrees(gap):.1e} deg from the last keyframe, at rest")
     return 0 if report.ok else 1

@@ -4,14 +4,15 @@ Two parts, both per joint:
 
 (a) Plan: the torque the plan needs (``mj_inverse`` on the planned ``q, qd, qdd``)
     must stay within ``torque_margin * tau_max(qd)``, where
-    ``tau_max(w) = tau_stall (1 - |w| / w0)`` at 12 V.
+    ``tau_max(w) = tau_stall (1 - |w| / w0)`` at the servo's rated voltage
+    (``trajgen.servo_table``: 12 V for the 430 and 540 cases, 5 V for the 330s).
 (b) Simulation: the stream is played to the simulated servos (goal positions
     in whole ticks, zero-order hold, 1 ms physics, the firmware's position loop
     with the configured gains); no step may reach the servo's torque limit (the
-    12 V drive, or the stall-torque clamp when braking), and the joints must
-    stay within ``max_tracking_error_rad`` of the planned path (the plan, not
-    the goals sent). With default gains (P 800) an X-series servo lags a
-    moving goal by about speed x 45 ms (``lag_time_s``); the goals sent are
+    drive at the rated voltage, or the stall-torque clamp when braking), and the
+    joints must stay within ``max_tracking_error_rad`` of the planned path (the
+    plan, not the goals sent). With default gains (P 800) an X-series servo lags
+    a moving goal by about speed x 45 ms (``lag_time_s``); the goals sent are
     led ahead of the plan by that lag (``trajgen.lead``, default ``"model"``:
     about 1 mrad of error left), and must stay inside the plan's own range
     widened by the static gravity/friction offset.
@@ -34,6 +35,7 @@ from trajgen.lead import DEFAULT_LEAD, check_lead, sent_q
 from trajgen.sim.errors import TorqueLimitExceeded
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
+from trajgen.sim.servos import servo_by_name
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,7 @@ class JointReport:
     peak_speed_rad_s : float
         Max |planned joint speed| (rad/s).
     steps_at_limit : int
-        Physics steps at the torque limit: the drive at 12 V, or the
+        Physics steps at the torque limit: the drive at the rated voltage, or the
         stall-torque clamp when braking.
     ok : bool
     reasons : tuple of str
@@ -156,12 +158,18 @@ class TorqueReport:
             "joints": joints,
         }
 
+    @property
+    def envelope_volts(self) -> str:
+        """The supply voltage(s) of the joints' envelopes, e.g. ``"12 V"`` or ``"5 V / 12 V"``."""
+        volts = sorted({servo_by_name(j.servo).voltage_v for j in self.joints.values()})
+        return " / ".join(f"{v:g} V" for v in volts)
+
     def format(self) -> str:
         """A readable table of the per-joint figures and the verdict."""
         verdict = "OK" if self.ok else "FAILED"
         lines = [
             f"torque check: {verdict} ({self.duration_s:.2f} s at {self.rate_hz:g} Hz, "
-            f"margin {self.torque_margin:g} of the 12 V envelope, "
+            f"margin {self.torque_margin:g} of the {self.envelope_volts} envelope, "
             f"tracking limit {math.degrees(self.max_tracking_error_rad):.1f} deg; "
             f"lead {self.lead})",
             f"{'joint':<6}{'servo':<12}{'plan':>8}{'sim':>8}{'rate':>9}{'rms':>8}"
@@ -327,8 +335,8 @@ def build_report(
         if at_limit:
             first = record.t[np.argmax(record.at_limit[:, j])]
             reasons.append(
-                f"{name}: {at_limit} physics steps at the torque limit (12 V drive or "
-                f"stall clamp), the first at t = {first:.3f} s"
+                f"{name}: {at_limit} physics steps at the torque limit "
+                f"({servo.voltage_v:g} V drive or stall clamp), the first at t = {first:.3f} s"
             )
         k = int(np.argmax(error))
         if error[k] > config.max_tracking_error_rad:

@@ -13,7 +13,8 @@ estimate close to ROBOTIS FR12 brackets); the camera is a uniform 60 x 40 x 40 m
 box of ``payload_kg``. Each joint's reflected rotor inertia (``armature``, about
 0.045 kg m^2 for an XM430) dwarfs the links (below 1e-3 kg m^2 about any axis).
 
-Each joint is driven by a ``<dcmotor>`` at 12 V (``nominal = "12 stall no_load"``,
+Each joint is driven by a ``<dcmotor>`` at its servo's rated voltage
+(``nominal = "volts stall no_load"`` from ``trajgen.servo_table``,
 so the compiler derives the motor constant and resistance from the ratings)
 whose on-board controller is the servo firmware's position loop on the goal
 position alone (``input="pos"``, gains from the Position P/I/D Gain registers,

@@ -93,6 +93,7 @@ class GimbalPlant:
         self._goal = None
         self._goal_times: list[float] = []
         self._kt = np.array([s.torque_constant_nm_a for s in self.config.servos])
+        self._supply_v = np.array([s.voltage_v for s in self.config.servos])
         self._log: list[np.ndarray] = []
         self._record = bool(record)
         self._pending_s = 0.0
@@ -274,8 +275,7 @@ class GimbalPlant:
         tau = kp * (data.ctrl - data.qpos) - kd * w + ki * integral
         volts = np.clip(r / k * tau + k * w, -vmax, vmax)
         enabled = (model.opt.disableactuator >> np.arange(3)) & 1 == 0
-        supply = np.array([s.voltage_v for s in self.config.servos])
-        return np.where(enabled, volts / supply, 0.0)
+        return np.where(enabled, volts / self._supply_v, 0.0)
 
     def report(self, trajectory, *, lead: str = "none"):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.

@@ -309,7 +309,7 @@ def report_figure(report):
     verdict = "OK" if report.ok else f"FAILED: {failed_checks(report)}"
     fig.suptitle(
         f"torque check: {verdict}\n({report.duration_s:.2f} s at {report.rate_hz:g} Hz, "
-        f"margin {margin:g} of the 12 V envelope, lead {report.lead})"
+        f"margin {margin:g} of the {report.envelope_volts} envelope, lead {report.lead})"
     )
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     return fig

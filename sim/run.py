@@ -34,7 +34,7 @@ class SimRecord:
         The planned path at ``t`` (rad): cubic Hermite through the stream's
         ``(q, qd)`` samples.
     at_limit : ndarray of bool, shape (K, 3)
-        The servo gave all the torque it had: drive voltage at 12 V or torque
+        The servo gave all the torque it had: drive at the rated voltage or torque
         at the stall-torque clamp.
     timestep_s : float
         Physics time step (s).

@@ -21,6 +21,16 @@ from trajgen.servo_table import SERVOS as _SPECS
 from trajgen.servo_table import ServoSpec, servo_spec
 
 
+def _from_spec(attribute: str, doc: str) -> property:
+    """A read-only property that reads ``attribute`` of the entry."""
+    return property(lambda self: getattr(self.spec, attribute), doc=doc)
+
+
+def _factory(register: str) -> property:
+    """A read-only property: the entry's factory value of ``register`` (register units)."""
+    return property(lambda self: self.spec.defaults[register], doc=f"Factory {register}.")
+
+
 @dataclass(frozen=True)
 class ServoModel:
     """One Dynamixel model as the simulator uses it: a view of its table entry.
@@ -28,80 +38,25 @@ class ServoModel:
     Attributes
     ----------
     spec : trajgen.servo_table.ServoSpec
-        The entry; every property below reads it.
+        The entry; every other attribute reads it.
     """
 
     spec: ServoSpec
 
-    @property
-    def name(self) -> str:
-        """Model name, e.g. ``"XM430-W350"``."""
-        return self.spec.name
-
-    @property
-    def voltage_v(self) -> float:
-        """Supply voltage (V) the motor is simulated at: the rated voltage of the ratings."""
-        return self.spec.voltage_v
-
-    @property
-    def stall_torque_nm(self) -> float:
-        """Stall torque (N m) at ``voltage_v``."""
-        return self.spec.stall_torque_nm
-
-    @property
-    def stall_current_a(self) -> float:
-        """Stall current (A) at ``voltage_v``."""
-        return self.spec.stall_current_a
-
-    @property
-    def no_load_speed_rad_s(self) -> float:
-        """No-load speed (rad/s) at ``voltage_v``."""
-        return self.spec.no_load_speed_rad_s
-
-    @property
-    def mass_kg(self) -> float:
-        """Servo mass (kg)."""
-        return self.spec.mass_kg
-
-    @property
-    def size_m(self) -> tuple[float, float, float]:
-        """Housing width, height, depth (m); the horn axis runs along the depth."""
-        return self.spec.size_m
-
-    @property
-    def gear_ratio(self) -> float:
-        """Gear reduction."""
-        return self.spec.gear_ratio
-
-    @property
-    def armature(self) -> float:
-        """Reflected rotor inertia (kg m^2), an estimate (``trajgen.servo_table``)."""
-        return self.spec.armature
-
-    @property
-    def damping(self) -> float:
-        """Viscous gear friction (N m s/rad), an estimate; the motor's back-EMF is apart."""
-        return self.spec.damping
-
-    @property
-    def frictionloss(self) -> float:
-        """Coulomb friction (N m), an estimate."""
-        return self.spec.frictionloss
-
-    @property
-    def position_p_gain(self) -> int:
-        """Factory Position P Gain (84), register units."""
-        return self.spec.defaults["Position P Gain"]
-
-    @property
-    def position_i_gain(self) -> int:
-        """Factory Position I Gain (82), register units."""
-        return self.spec.defaults["Position I Gain"]
-
-    @property
-    def position_d_gain(self) -> int:
-        """Factory Position D Gain (80), register units."""
-        return self.spec.defaults["Position D Gain"]
+    name = _from_spec("name", 'Model name, e.g. ``"XM430-W350"``.')
+    voltage_v = _from_spec("voltage_v", "Supply (V) the motor is simulated at: the rated one.")
+    stall_torque_nm = _from_spec("stall_torque_nm", "Stall torque (N m) at ``voltage_v``.")
+    stall_current_a = _from_spec("stall_current_a", "Stall current (A) at ``voltage_v``.")
+    no_load_speed_rad_s = _from_spec("no_load_speed_rad_s", "No-load speed (rad/s).")
+    mass_kg = _from_spec("mass_kg", "Servo mass (kg).")
+    size_m = _from_spec("size_m", "Housing width, height, depth (m); horn axis along depth.")
+    gear_ratio = _from_spec("gear_ratio", "Gear reduction.")
+    armature = _from_spec("armature", "Reflected rotor inertia (kg m^2), an estimate.")
+    damping = _from_spec("damping", "Viscous gear friction (N m s/rad), an estimate.")
+    frictionloss = _from_spec("frictionloss", "Coulomb friction (N m), an estimate.")
+    position_p_gain = _factory("Position P Gain")
+    position_i_gain = _factory("Position I Gain")
+    position_d_gain = _factory("Position D Gain")
 
     @property
     def torque_constant_nm_a(self) -> float:

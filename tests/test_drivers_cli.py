@@ -236,6 +236,8 @@ def test_stop_signal_stops_safely_and_keeps_every_record(
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["status"] == status and result["stopped_by"] == f"interrupted by {name}"
     assert result["on_stop"] == ("torque_off" if torque_off else "hold")
+    # Each servo's state as read back after the safe stop.
+    assert result["servos"] == dict.fromkeys("123", "released" if torque_off else "holding")
     assert result["stream"]["frames_sent"] == received
     assert len(np.load(tmp_path / "t.npz")["frame"]) == received
 

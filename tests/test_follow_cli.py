@@ -352,6 +352,10 @@ def test_binary_noise_is_refused_line_by_line_and_the_stream_goes_on(follower, r
         (b'{"in": 1, "pan": "\xff"}', r"line 1: not UTF-8 text \(byte 0xff at column 19\)"),
         ("[" * 60_000, "line 1: invalid JSON: nested too deeply"),
         ('{"in": 1, "pan": ' + "1" * 5000 + "}", "line 1: invalid JSON: Exceeds the limit"),
+        (
+            '{"in": 1, "pan": "' + "x" * 5000 + '"}',
+            r"^stdin: line 1: field 'pan': .*x\[\.\.\.\] \(50",
+        ),
     ],
 )
 def test_a_line_names_its_field_and_number(follower, line, message):
@@ -390,3 +394,12 @@ def test_noise_prints_twenty_refusals_then_counts_the_rest(capsys):
     err = capsys.readouterr().err.splitlines()
     assert len(err) == SHOWN_SKIPS + 1 and err[0].endswith("line 1: invalid JSON (line skipped)")
     assert err[-1] == "trajgen: follow: 20 lines skipped; more are counted, not shown"
+
+
+def test_capped_lines_reads_a_text_file_alike():
+    import io
+
+    from trajgen.keyframe_lines import capped_lines
+
+    lines = list(capped_lines(io.StringIO("a\n" + "b" * 50 + "\nc"), max_bytes=10))
+    assert lines == ["a\n", "b" * 11, "c"]

@@ -191,6 +191,7 @@ def test_the_existing_four_keep_their_simulation_parameters():
     # Menagerie OP3 (XM430-W350): armature 0.045, frictionloss 0.03; the others
     # by gear ratio squared and stall torque, as before the table was merged.
     xm = SIM_SERVOS["XM430-W350"]
+    assert (T._REF_GEAR, T._REF_STALL_NM) == (xm.gear_ratio, xm.stall_torque_nm)
     assert (xm.armature, xm.frictionloss, xm.damping) == (0.045, 0.03, 0.01)
     assert SIM_SERVOS["XH430-W350"].armature == 0.045
     assert SIM_SERVOS["XL430-W250"].armature == pytest.approx(0.045 * (258.5 / 353.5) ** 2)
@@ -276,3 +277,54 @@ def test_overload_bit_is_not_spelled_out_in_the_driver_or_simulator():
             if tok.type == tokenize.NUMBER and tok.string.lower() == "0x20":
                 found.append(f"{rel}:{tok.start[0]}")
     assert not found, found
+
+
+@pytest.mark.parametrize("name", ["XL330-M288", "XL330-M077", "XC330-M288", "XH540-W270"])
+def test_virtual_bus_serves_a_new_model_from_its_entry(name):
+    # Through ServoBus -> dynamixel-sdk -> pty: the virtual servo answers with
+    # the entry's Model Number and factory values, at the SDK's addresses.
+    from dynamixel_sdk import PacketHandler, PortHandler
+
+    from trajgen.drivers.bringup import check_servos
+    from trajgen.drivers.bus import ServoBus
+    from trajgen.drivers.errors import BringUpError
+    from trajgen.drivers.units import JointMap
+    from trajgen.drivers.virtual.bus import VirtualBus
+    from trajgen.drivers.virtual.plant import FirstOrderPlant
+
+    spec = T.SERVOS[name]
+    items = control_items(spec)
+    with VirtualBus(FirstOrderPlant(), models=name, lockstep_dt_s=0.01) as virtual:
+        with ServoBus(virtual.port) as bus:
+            assert bus.ping(1) == spec.number
+            check_servos(bus, JointMap(), [name] * 3)
+            with pytest.raises(BringUpError, match=rf"model number {spec.number} \({name}\), exp"):
+                check_servos(bus, JointMap(), ["XM430-W350"] * 3)
+        port, packets = PortHandler(virtual.port), PacketHandler(2.0)
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        try:
+            for register in ("Position P Gain", "Position I Gain", "Velocity Limit", "Shutdown"):
+                address, size = items[register]
+                read = {
+                    1: packets.read1ByteTxRx,
+                    2: packets.read2ByteTxRx,
+                    4: packets.read4ByteTxRx,
+                }
+                value, result, error = read[size](port, 2, address)
+                assert (result, error) == (0, 0)
+                assert value == spec.defaults[register], register
+        finally:
+            port.closePort()
+
+
+def test_keyframe_files_take_every_model_per_joint():
+    # [gimbal] servo (one name, or one per joint) and [bus] models read the same table.
+    from trajgen.drivers.config import bus_config_from_tables
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    names = sorted(T.SERVOS)
+    for pan, tilt, roll in zip(names, names[1:] + names[:1], names[2:] + names[:2], strict=True):
+        tables = {"gimbal": {"servo": {"pan": pan.lower(), "tilt": f" {tilt} ", "roll": roll}}}
+        config = gimbal_config_from_tables(tables, "f.toml")
+        assert [s.spec for s in config.servos] == [T.SERVOS[n] for n in (pan, tilt, roll)]
+        assert bus_config_from_tables(tables, "f.toml").models == (pan, tilt, roll)

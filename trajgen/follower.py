@@ -160,6 +160,7 @@ class Follower:
             The lines, e.g. ``keyframe_lines.capped_lines(sys.stdin.buffer)``:
             bytes are decoded here, and a line longer than ``MAX_LINE_BYTES`` is
             refused without being parsed.
+
         Notes
         -----
         Lines are numbered as they come (blank ones too), so messages name the
@@ -194,7 +195,7 @@ class Follower:
         """
         arrival = time.monotonic()
         where = f"line {number}"
-        mode, q, t, relative = self._parse(text, where)
+        mode, q, t, relative = parse_line(text, self._where(number))
         now = self._now()
         t = now + t if relative else t
         self._change_time(t, now, where)  # now, so that a line too late fails fast
@@ -254,9 +255,6 @@ class Follower:
             )
             return
         raise self._error(where, "the stream ran past three attempts to change it (busy?)")
-
-    def _parse(self, text: str, where: str):
-        return parse_line(text, f"{self.source}: {where}")
 
     def _where(self, number: int) -> str:
         return f"{self.source}: line {number}"
@@ -415,7 +413,7 @@ def online_spline(kf) -> OnlineSpline:
 
     Raises
     ------
-    ValueError
+    KeyframeFileError
         If the file's [spline] table asks for something the online plan does not
         do (a boundary other than "rest", k above 3) or its second keyframe is
         closer than 0.2 s to the first.
@@ -423,12 +421,14 @@ def online_spline(kf) -> OnlineSpline:
     options = dict(kf.spline_options)
     options.pop("knots", None)  # the smooth spline's knot choice; follow plans the blending one
     if options.pop("boundary", "rest") != "rest":
-        raise ValueError(f"{kf.path}: [spline] boundary: follow needs 'rest'")
+        raise KeyframeFileError(f"{kf.path}: [spline] boundary: follow needs 'rest'")
     if options.get("k", 2) > 3:
-        raise ValueError(f"{kf.path}: [spline] k: follow takes k in 1..3, got {options['k']}")
+        raise KeyframeFileError(
+            f"{kf.path}: [spline] k: follow takes k in 1..3, got {options['k']}"
+        )
     spline = OnlineSpline(kf.quats[0], kf.times[0], **options)
     try:
         spline.extend(kf.quats[1:], kf.times[1:], at=kf.times[0])
     except ValueError as e:
-        raise ValueError(f"{kf.path}: {e}") from None
+        raise KeyframeFileError(f"{kf.path}: {e}") from None
     return spline

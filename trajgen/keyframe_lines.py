@@ -26,6 +26,9 @@ from .validate import check_number
 #: this. A keyframe line is under 200 bytes.
 MAX_LINE_BYTES = 64 * 1024
 
+#: Longest message (characters) about a refused line: what arrived is cut to fit.
+MAX_MESSAGE_CHARS = 200
+
 #: The fields a line may have.
 LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
 
@@ -105,6 +108,17 @@ def parse_line(text: str, where: str):
         ``"{where}: ..."``, naming the field that is wrong.
     """
 
+    try:
+        return _parse(text, where)
+    except KeyframeFileError as e:
+        # One keyframe a line: "keyframe 1" says nothing; a value 60 KB long is cut.
+        message = str(e).replace(f"{where}: keyframe 1: ", f"{where}: ", 1)
+        if len(message) > MAX_MESSAGE_CHARS:
+            message = f"{message[: MAX_MESSAGE_CHARS - 5]}[...] ({len(message)} characters)"
+        raise KeyframeFileError(message) from None
+
+
+def _parse(text: str, where: str):
     def error(problem: str) -> KeyframeFileError:
         return KeyframeFileError(f"{where}: {problem}")
 

@@ -149,7 +149,7 @@ def hardware_error_mask(name: str) -> int:
 
 _OP3_ARMATURE = 0.045
 _OP3_FRICTIONLOSS = 0.03
-_REF_GEAR = 353.5
+_REF_GEAR = 353.5  # the XM430-W350 entry's gear ratio and stall torque (a test holds them equal)
 _REF_STALL_NM = 4.1
 _DAMPING = 0.01
 
@@ -171,8 +171,9 @@ def _friction_by_stall(stall_nm: float) -> float:
 class ServoSpec:
     """One model's published figures, register defaults and simulation estimates.
 
-    Ratings are those the e-Manual prints in bold: at the rated (recommended)
-    voltage ``voltage_v``.
+    Ratings are the e-Manual's at ``voltage_v``: the recommended voltage (bold
+    on the page), except the XL430 models, whose page recommends 11.1 V and
+    whose 12 V figures are used (``note`` says so).
 
     Attributes
     ----------

@@ -31,7 +31,7 @@ Stream a multi-sine excitation to the gimbal with telemetry every frame, for
 `trajgen identify`: each joint a sum of five sines between 0.3 and 2 Hz (its
 own frequencies), faded in and out so it starts and ends at rest, about the
 file's first keyframe. Planned like any stream (joint limits, the gimbal-lock
-guard) and checked against the torque envelope (torque_margin x the 12 V
+guard) and checked against the torque envelope (torque_margin x the rated-voltage
 torque-speed line) before anything moves; then streamed exactly as `trajgen
 stream` does (bring-up, approach, telemetry, safe stop).
 

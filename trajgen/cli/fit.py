@@ -25,7 +25,7 @@ _PROGRESS_AFTER_S = 1.0
 DESCRIPTION = """\
 Find the fastest timing of a keyframe file's keyframes (same orientations, order
 and spline options) that passes `trajgen sim`'s torque check (planned torque within
-torque_margin x the 12 V torque-speed envelope, no simulated step at the torque
+torque_margin x the rated-voltage torque-speed envelope, no simulated step at the torque
 limit, tracking within the limit) and the file's optional [limits] table:
 
   [limits]

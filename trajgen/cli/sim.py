@@ -32,7 +32,7 @@ Plan the joint stream of a keyframe file, play it to a simulated pan-tilt-roll
 gimbal of Dynamixel servos (MuJoCo, 1 ms physics; goal positions in whole ticks
 held for one stream period, followed by each servo's own firmware position
 loop) and check torque: the planned torque (inverse dynamics) must stay within
-torque_margin x the 12 V torque-speed envelope tau_stall (1 - |w| / w0), no
+torque_margin x the rated-voltage torque-speed envelope tau_stall (1 - |w| / w0), no
 simulated step may reach the servo's torque limit, and the tracking error must stay
 below the limit (with default gains a servo lags its goal by about speed x
 45 ms, so each goal is sent ahead of the plan: --lead, [stream] lead, default

@@ -286,7 +286,7 @@ def session_for(p: Plan, signals):
         # term ramps in from there), so the stream needs no approach.
         plant = GimbalPlant(p.gimbal, initial_rad=sent_q(p.trajectory)[0])
         # The servos power up with the gains the file states ([gimbal.<joint>]).
-        registers = dict(zip(p.config.joints.ids, plant.initial_registers(), strict=True))
+        registers = plant.initial_registers()
     options = dict(p.options)
     limits = options.pop("set_limits_rad", {})
     try:
@@ -300,13 +300,17 @@ def session_for(p: Plan, signals):
             **options,
         )
     except ValueError as e:
+        if not limits:
+            raise
         raise ValueError(f"--set-limits {_set_limits_text(limits, e)}") from None
     return session, plant
 
 
 def _set_limits_text(limits: dict, error: Exception) -> str:
     """``JOINT=MIN:MAX: problem`` for the joint a Session refused (its message names it)."""
-    joint, problem = str(error).split(" limits: ", 1)
+    joint, _, problem = str(error).partition(" limits: ")
+    if joint not in JOINTS or JOINTS.index(joint) not in limits:
+        return str(error)
     low, high = (math.degrees(v) for v in limits[JOINTS.index(joint)])
     return f"{joint}={low:g}:{high:g}: {problem}"
 
@@ -415,16 +419,7 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
     telemetry = p.options.get("telemetry")
     if telemetry and stats is not None:
         print(f"telemetry: {telemetry}")
-    result = {
-        "status": status,
-        "stopped_by": outcome.stopped_by,
-        "on_stop": on_stop,
-        "stop_errors": outcome.stop_errors,
-        "servos": {str(i): s for i, s in outcome.servo_states.items()},
-        "bring_up": outcome.bring_up_summary(JOINTS),
-        "stream": None if stats is None else stats.to_json_dict(),
-        **(extra or {}),
-    }
+    result = {"status": status, "on_stop": on_stop, **outcome.to_json_dict(JOINTS), **(extra or {})}
     if plant is not None and status == EXIT_OK:
         status, outcome.torque_report = torque_report(
             plant, outcome.trajectory, getattr(args, "plot", None), result, lead=p.lead
