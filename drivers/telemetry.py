@@ -50,6 +50,9 @@ def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
         "current_a",
     ):
         columns += [f"{prefix}_{name}" for name in joint_names]
+    # Read at a low rate (``Streamer(health_s=...)``): NaN in the rows between.
+    for prefix in ("voltage_v", "temperature_c"):
+        columns += [f"{prefix}_{name}" for name in joint_names]
     return columns
 
 
