@@ -115,7 +115,8 @@ def test_follow_sends_goals_led_from_the_live_plan(monkeypatch, tmp_path):
     monkeypatch.setattr(follow, "Follower", SpyFollower)
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # no lines: the file's plan
     keys = tmp_path / "keys.toml"
-    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\n")
+    # configure: the follow range needs Extended Position Mode
+    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n")
     log = tmp_path / "follow.csv"
     argv = ["follow", str(keys), "--virtual", "--max-delay", "60", "--telemetry", str(log)]
     assert main(argv) == 0
