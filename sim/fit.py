@@ -390,7 +390,9 @@ class _Fitter:
         """The full check (:func:`trajgen.sim.check.check_torque`) of the law ``(c, z)``."""
         from trajgen.sim.check import check_torque
 
-        return check_torque(self.trajectory(self.law(c, z)), config=self.config)
+        return check_torque(
+            self.trajectory(self.law(c, z)), config=self.config, lead=self.source.lead
+        )
 
     def fit_to_simulation(self, c, z):
         """Stage 2: local slow-downs where the check fails, re-planned, then (if that has not
@@ -438,7 +440,9 @@ class _Fitter:
             reasons = plan_reasons(self.retimed(trial), *self._plan_args())
             if not simulate:
                 return reasons, None
-            trial_report = check_torque(self.trajectory(trial), config=self.config)
+            trial_report = check_torque(
+                self.trajectory(trial), config=self.config, lead=self.source.lead
+            )
             return reasons + trial_report.reasons, trial_report
 
         for _ in range(_TIGHT_BISECTIONS):

@@ -262,13 +262,17 @@ def test_cli_refusal_and_bad_input(tmp_path, capsys):
 
 
 def test_too_fast_motion_is_slowed_to_what_the_servos_track(tmp_path):
-    """Default tracking budget (0.05 rad): the firmware loop's lag binds; fit slows it, tight."""
-    text = KEYS.replace("max_tracking_error_rad = 0.3\n", "")
+    """Default tracking budget (0.05 rad) and unled goals (``lead = "none"``, which the fit
+    judges by, as the stream sends): the firmware loop's lag binds; fit slows it, tight."""
+    text = KEYS.replace("max_tracking_error_rad = 0.3\n", "").replace(
+        "rate_hz = 100\n", 'rate_hz = 100\nlead = "none"\n'
+    )
     path = _write(tmp_path, text)
     result = fit_timing(path)
     out = _write(tmp_path, result.toml(), "out.toml")
-    assert check_torque(out).ok
-    assert not check_torque(_scaled(result, FASTER), rate_hz=100.0, config=result.report.config).ok
+    assert check_torque(out, lead="none").ok
+    faster = _scaled(result, FASTER)
+    assert not check_torque(faster, rate_hz=100.0, config=result.report.config, lead="none").ok
     assert result.tight
     assert any("tracking" in s.binding for s in result.segments), result.format()
 

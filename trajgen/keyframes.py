@@ -96,7 +96,7 @@ METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
 DEFAULT_METHOD = "smooth"
 #: Keys only the blending spline takes; a file giving one without ``method`` gets it.
 BLENDING_ONLY = ("k", "local", "reparam")
-STREAM_KEYS = ("rate_hz",)
+STREAM_KEYS = ("rate_hz", "lead")
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 #: Keyframe angle fields (degrees), one per gimbal joint.
 ANGLE_KEYS = JOINT_NAMES
@@ -143,6 +143,10 @@ class KeyframeFile:
         The ``[stream]`` rate, if given.
     tables : dict
         Every other top-level table, as parsed (``tables.get("gimbal", {})``).
+    method : str
+        ``[spline] method``.
+    lead : str or None
+        The ``[stream] lead`` (``trajgen.lead.LEADS``), if given.
     """
 
     path: Path
@@ -156,6 +160,7 @@ class KeyframeFile:
     #: ``[timing]``: the path's own keyframe times (N,) and the time law that plays
     #: it (:class:`~trajgen.timelaw.TimeLaw`), or None (the keyframe times are the clock).
     timing: tuple | None = None
+    lead: str | None = None
 
     @property
     def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
@@ -237,11 +242,15 @@ def load_keyframe_file(path) -> KeyframeFile:
         columns = _keyframe_columns(data.get("keyframes"), path)
     options = _spline_options(data.get("spline", {}), path, len(columns["t"]))
     method = options.pop("method", DEFAULT_METHOD)
-    rate_hz = _stream_rate(data.get("stream", {}), path)
+    stream = data.get("stream", {})
+    rate_hz = _stream_rate(stream, path)
     times, quats = _keyframes(columns, path)
     timing = _timing(data["timing"], times, path) if "timing" in data else None
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method, timing=timing)
+    lead = _stream_lead(stream, path)
+    return KeyframeFile(
+        path, times, quats, options, rate_hz, tables, method=method, timing=timing, lead=lead
+    )
 
 
 def read_text(path) -> str:
@@ -461,6 +470,15 @@ def _timing(table, times: np.ndarray, path: Path) -> tuple[np.ndarray, TimeLaw]:
             f"it at {passed[i]:.6f} s (delete [timing] to time the keyframes by hand)"
         )
     return s, law
+
+
+def _stream_lead(table, path: Path) -> str | None:
+    """The ``[stream] lead`` (checked by :func:`_stream_rate` to be in a table), or None."""
+    if "lead" not in table:
+        return None
+    from .lead import LEADS
+
+    return check_choice("lead", table["lead"], LEADS, error=_error(path, "[stream] lead"))
 
 
 # --- keyframes -----------------------------------------------------------------------
