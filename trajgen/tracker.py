@@ -59,7 +59,11 @@ MAX_ARRIVAL_S = 60.0
 TWO_PI = 2.0 * math.pi
 
 #: Via-point counts tried, in order, when the direct path crosses the lock margin.
-VIA_COUNTS = (1, 2, 4)
+VIA_COUNTS = (1, 2, 4, 8)
+
+#: How far (rad) inside the lock margin a clamped tilt is put: room for the path between
+#: via points, which cuts a little towards the lock.
+CLAMP_INSET_RAD = math.radians(0.5)
 
 
 def look_at_angles(point) -> np.ndarray:
@@ -293,6 +297,8 @@ class Tracker:
                 [d / limits[0], 2 * np.sqrt(d / limits[1]), 2 * np.cbrt(d / limits[2])]
             )
         h = max(lo, float(guess) if np.isfinite(guess) else lo)
+        if h > MAX_ARRIVAL_S:  # a lower bound on any arrival (a rest-to-rest move)
+            return None
         result = yield from self._attempt(quats, now, at, h, limits)
         if result == "path":
             return None
@@ -337,8 +343,8 @@ class Tracker:
         times = at + h * np.arange(1, n + 1) / n
         change = yield from self.spline.prepare_steps("retarget", quats, times, at=at)
         yield
-        q, qd, qdd, jerk = self.joint_motion(change.path, at, times[-1], now)
-        try:
+        try:  # joint_motion raises at the lock itself, check() near it
+            q, qd, qdd, jerk = self.joint_motion(change.path, at, times[-1], now)
             self.kinematics.check(q)
         except KinematicsError:
             return "path"
@@ -394,14 +400,15 @@ class Tracker:
         nearest the current goal that fits), and a message if it had to be clamped."""
         lim = np.array(self.kinematics.limits_rad)
         lock = math.pi / 2 - self.kinematics.lock_margin_rad
-        lim[1] = np.clip(lim[1], -lock, lock)
+        lim[1] = np.clip(lim[1], -lock + CLAMP_INSET_RAD, lock - CLAMP_INSET_RAD)
         goal = raw.copy()
         for j in (0, 2):
             k = np.arange(-3, 4)
             cands = raw[j] + 2 * math.pi * (np.round((self.goal[j] - raw[j]) / (2 * math.pi)) + k)
             inside = cands[(cands >= lim[j, 0]) & (cands <= lim[j, 1])]
             pool = inside if len(inside) else cands
-            goal[j] = pool[np.argmin(np.abs(pool - self.goal[j]))]
+            # nearest the current goal; of two as near, the one nearer 0
+            goal[j] = pool[np.lexsort((np.abs(pool), np.round(np.abs(pool - self.goal[j]), 9)))[0]]
         clipped = np.clip(goal, lim[:, 0], lim[:, 1])
         names = ("pan", "tilt", "roll")
         moved = [
