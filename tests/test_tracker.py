@@ -168,3 +168,22 @@ def test_exactly_one_target():
         tracker().set_target([1, 0, 0, 0], look_at=[1, 0, 0], at=0.0)
     with pytest.raises(ValueError, match="Expected `limits`"):
         Tracker(OnlineSpline([1, 0, 0, 0]), [[1, 2], [3, 4]])
+
+
+def test_follow_lines_without_a_time_go_to_the_tracker():
+    from trajgen.follower import Follower
+
+    sp = OnlineSpline(forward([0, 0, 0]), 0.0)
+    f = Follower(sp, 200.0, limits=LIMITS)
+    f.feed('{"pan": 20, "tilt": -5}', 1)
+    f.feed('{"look_at": [1, 1, 0], "max_speed": 60}', 2)
+    assert [k["mode"] for k in f.keyframes] == ["track", "track"]
+    assert f.tracker.goal == pytest.approx([D(45), 0, 0])
+    assert f.keyframes[1]["t"] > f.keyframes[1]["at"] + 0.2
+    f.feed('{"look_at": [1, 1, 0]}', 3)  # the same target: within the dead band
+    assert len(f.keyframes) == 2
+    f.feed('{"in": 1, "pan": -10}', 4)  # a timed line, then a target near its goal
+    f.feed('{"pan": -10}', 5)
+    assert len(f.keyframes) == 3
+    with pytest.raises(ValueError, match=r"stdin: line 6: field 'max_speed': expected"):
+        f.feed('{"pan": 3, "max_speed": 0}', 6)

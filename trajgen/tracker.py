@@ -200,10 +200,15 @@ class Tracker:
         self.dead_band_rad = check_number("dead_band_rad", dead_band_rad, low=0.0)
         self.envelope = envelope
         self.rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
-        q_end = spline(np.array([spline.t_end]))[0]
-        self._start = None if start is None else np.asarray(start, dtype=float)
-        self.goal = self._unwrapped(q_end, self._start)
-        self.arrival = float(spline.t_end)
+        self.goal = None if start is None else np.asarray(start, dtype=float)
+        self._sync()
+
+    def _sync(self) -> None:
+        """Take the goal from the plan's end, where others changed it since (timed lines)."""
+        q_end = self.spline(np.array([self.spline.t_end]))[0]
+        self.goal = self._unwrapped(q_end, self.goal)
+        self.arrival = float(self.spline.t_end)
+        self._version = self.spline.version
 
     # -- targets ---------------------------------------------------------------
 
@@ -264,6 +269,8 @@ class Tracker:
         else:
             q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")[0]
             raw = np.array(angles_of(*q, math.atan2, math.hypot))
+        if self.spline.version != self._version:
+            self._sync()
         goal, clamped = self._clamp(raw)
         if np.max(np.abs(goal - self.goal)) < self.dead_band_rad:
             return TargetResult(False, at, self.arrival, self.goal.copy(), clamped)
@@ -276,7 +283,7 @@ class Tracker:
             if found is not None:
                 change, h, peaks = found
                 self.spline.apply(change)
-                self.goal, self.arrival = goal, at + h
+                self.goal, self.arrival, self._version = goal, at + h, self.spline.version
                 return TargetResult(True, at, at + h, goal.copy(), clamped, vias, peaks)
         raise KinematicsError(
             f"no path from {np.degrees(now).round(1).tolist()} deg to "
