@@ -40,7 +40,7 @@ from trajgen.gimbal import JOINT_NAMES
 from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, ServoModel, servo_by_name
-from trajgen.validate import check_number, check_numbers
+from trajgen.validate import check_keys, check_number, check_numbers
 
 GIMBAL_TABLE_KEYS = (
     "servo",
@@ -52,7 +52,7 @@ GIMBAL_TABLE_KEYS = (
     *JOINT_NAMES,
 )
 #: Keys of a ``[gimbal.<joint>]`` table.
-JOINT_TABLE_KEYS = ("armature", "frictionloss", "damping", "position_p_gain")
+JOINT_TABLE_KEYS = ("armature", "frictionloss", "damping", "position_p_gain", "p_divisor")
 
 _PAN_HEIGHT_M = 0.05  # pan horn above the base plate
 _TILT_HEIGHT_M = 0.07  # tilt (and roll) axis above the pan horn
@@ -74,6 +74,9 @@ class JointParams:
         Viscous friction (N m s/rad), >= 0, besides the motor's back-EMF.
     position_p_gain, position_i_gain, position_d_gain : int
         Position P / I / D Gain registers (register units, as on the servo), 0..16383.
+    p_divisor : float or None
+        This servo's P scale, ``KP = P / p_divisor`` (> 0), e.g. fitted by
+        ``trajgen identify --p-scale``; None: the gimbal's ``p_divisor``.
 
     Raises
     ------
@@ -87,9 +90,12 @@ class JointParams:
     position_p_gain: int
     position_i_gain: int = 0
     position_d_gain: int = 0
+    p_divisor: float | None = None
 
     def __post_init__(self):
         for name, bounds in _JOINT_BOUNDS.items():
+            if name == "p_divisor" and self.p_divisor is None:
+                continue
             object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
 
     @classmethod
@@ -112,6 +118,7 @@ _JOINT_BOUNDS = {
     "frictionloss": {"low": 0.0},
     "damping": {"low": 0.0},
     **{f"position_{g}_gain": {"low": 0, "high": GAIN_MAX, "integer": True} for g in "pid"},
+    "p_divisor": {"low": 0.0, "low_open": True},
 }
 
 
@@ -200,7 +207,7 @@ class GimbalConfig:
             params.position_p_gain,
             params.position_i_gain,
             params.position_d_gain,
-            p_divisor=self.p_divisor,
+            p_divisor=self.p_divisor if params.p_divisor is None else params.p_divisor,
         )
 
 
@@ -222,8 +229,9 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
     default XM430-W350), ``payload_kg``, ``payload_offset_m`` (3 numbers),
     ``torque_margin``, ``max_tracking_error_rad``, ``p_divisor``, and per-joint
     tables ``[gimbal.pan]``, ``[gimbal.tilt]``, ``[gimbal.roll]`` with
-    ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping`` (N m s/rad) and
-    ``position_p_gain`` (register units), overriding the servo's defaults.
+    ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping`` (N m s/rad),
+    ``position_p_gain`` (register units) and ``p_divisor`` (that servo's P
+    scale), overriding the servo's defaults.
 
     Parameters
     ----------
@@ -246,10 +254,7 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
     table = tables.get("gimbal", {})
     if not isinstance(table, dict):
         raise _file_error(path, f"[gimbal]: expected a table, got {table!r}")
-    unknown = sorted(set(table) - set(GIMBAL_TABLE_KEYS))
-    if unknown:
-        known = ", ".join(GIMBAL_TABLE_KEYS)
-        raise _file_error(path, f"[gimbal] unknown key '{unknown[0]}' (known: {known})")
+    check_keys(table, GIMBAL_TABLE_KEYS, error=lambda p: _file_error(path, f"[gimbal]: {p}"))
     kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
     kwargs["joints"] = tuple(_joint_from_table(table.get(j, {}), j, path) for j in JOINT_NAMES)
     for key in ("payload_kg", "torque_margin", "max_tracking_error_rad", "p_divisor"):
@@ -269,10 +274,7 @@ def _joint_from_table(value, joint: str, path) -> dict:
     where = f"[gimbal.{joint}]"
     if not isinstance(value, dict):
         raise _file_error(path, f"{where}: expected a table, got {value!r}")
-    unknown = sorted(set(value) - set(JOINT_TABLE_KEYS))
-    if unknown:
-        known = ", ".join(JOINT_TABLE_KEYS)
-        raise _file_error(path, f"{where} unknown key '{unknown[0]}' (known: {known})")
+    check_keys(value, JOINT_TABLE_KEYS, error=lambda p: _file_error(path, f"{where}: {p}"))
     return {
         key: check_number(
             key,
@@ -288,12 +290,12 @@ def _servos_from_table(value, path) -> tuple[ServoModel, ServoModel, ServoModel]
     if isinstance(value, str):
         return (_servo_or_error(value, "servo", path),) * 3
     if isinstance(value, dict):
-        unknown = sorted(set(value) - set(JOINT_NAMES))
-        if unknown:
-            raise _file_error(
-                path,
-                f"[gimbal] servo.{unknown[0]}: unknown joint (known: {', '.join(JOINT_NAMES)})",
-            )
+        check_keys(
+            value,
+            JOINT_NAMES,
+            error=lambda p: _file_error(path, f"[gimbal] servo: {p}"),
+            kind="joint",
+        )
         return tuple(
             _servo_or_error(value.get(j, DEFAULT_SERVO.name), f"servo.{j}", path)
             for j in JOINT_NAMES

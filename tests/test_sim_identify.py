@@ -123,12 +123,14 @@ def test_excite_then_identify_recovers_a_simulated_gimbal(tmp_path, capsys):
 
 
 def test_a_gentle_move_does_not_excite_damping(tmp_path, capsys):
-    # A slow pan-only move: tilt and roll never move, so nothing about them is known.
+    # A slow pan-only move: tilt and roll never move, so nothing about them is known
+    # (sent as planned: a led goal would move them a little against pan's coupling).
     path = _write(tmp_path / "gentle.toml")
     log = tmp_path / "gentle.csv"
     from trajgen.cli import stream
 
-    assert _run(stream, ["stream", path, "--virtual", "--telemetry", log]) == 0
+    argv = ["stream", path, "--virtual", "--telemetry", log, "--lead", "none"]
+    assert _run(stream, argv) == 0
     capsys.readouterr()
     assert _run(identify, ["identify", path, log, "--out", tmp_path / "f.toml"]) == 0
     out = capsys.readouterr().out
@@ -157,8 +159,8 @@ def test_bad_logs_and_options_exit_2(tmp_path, capsys):
     with pytest.raises(IdentifyError, match=r"no column 'frame'"):
         (tmp_path / "x.csv").write_text("a\n1\n")
         load_telemetry(tmp_path / "x.csv")
-    assert _run(excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.npz"]) == 2
-    assert "': expected a .csv or .mcap file" in capsys.readouterr().err
+    assert _run(excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.txt"]) == 2
+    assert "': expected a .csv or .npz or .mcap file" in capsys.readouterr().err
     status = _run(
         excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.csv", "--seconds", 2]
     )
