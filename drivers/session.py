@@ -154,7 +154,7 @@ class Session:
     on_stop : {"hold", "torque_off"}, optional
         What the servos do when the stream stops, however it stops.
     telemetry : str or Path, optional
-        Per-frame telemetry file (``.csv`` or ``.npz``).
+        Per-frame telemetry file (``.csv``, ``.npz`` or ``.mcap``).
     max_delay_s : float or None, optional
         Fail the stream once host stalls put it this far (s) behind its plan.
     max_approach_rad : float, optional

@@ -253,7 +253,7 @@ class Streamer:
     joints : JointMap
         Joint-to-servo mapping.
     telemetry : str or Path or None, optional
-        ``.csv`` or ``.npz`` file for per-frame telemetry.
+        ``.csv``, ``.npz`` or ``.mcap`` file for per-frame telemetry.
     joint_names : sequence of str, optional
         Names of the joints (telemetry columns, messages); default pan, tilt,
         roll for three joints.
@@ -398,7 +398,10 @@ class Streamer:
         failed_before = self.bus.failed_tries
         try:
             if self.telemetry_path is not None:
-                self._writer = writer = TelemetryWriter(self.telemetry_path, self.joint_names)
+                models = [self.bus.models[i] for i in self.joints.ids]
+                self._writer = writer = TelemetryWriter(
+                    self.telemetry_path, self.joint_names, models
+                )
             self._choose_read_method()
             present = self._read_state()[0]
             check_start(
@@ -525,7 +528,7 @@ class Streamer:
             finally:  # the goal went out: its row is written even if the read failed
                 if self._writer is not None:
                     self._writer.write(
-                        [self._frame_no - 1, phase, t, sent - start, sent - planned - shift]
+                        [self._frame_no - 1, phase, t, sent - start, sent - planned - shift, sent]
                         + list(q)
                         + ticks.tolist()
                         + [*state[0], *state[1], *state[2]]

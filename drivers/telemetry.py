@@ -1,8 +1,13 @@
 """Telemetry written as the stream runs, so a fault keeps everything up to it.
 
-CSV (``.csv``): one row per frame, flushed as written. NPZ (``.npz``): the same
-columns as arrays, written when the stream stops (on any stop, faults and stop
-signals included; only SIGKILL loses it). Until then NPZ rows are spooled to
+The writer is chosen by the file's extension. CSV (``.csv``): one row per
+frame, flushed as written. MCAP (``.mcap``, the ``mcap`` extra): ROS 2
+messages per frame, encoded and written by a process of its own
+(``drivers.mcap_telemetry``; layout in ``trajgen.telemetry_mcap``), readable
+up to its last chunk even after SIGKILL; :func:`add_report` then adds the
+run's report and log. NPZ (``.npz``): the same columns as arrays, written
+when the stream stops (on any stop, faults and stop signals included; only
+SIGKILL loses it). Until then NPZ rows are spooled to
 an anonymous temporary file as binary doubles, so memory stays constant
 however long the stream; the file is assembled one column at a time.
 """
@@ -13,49 +18,71 @@ import csv
 import math
 import struct
 import tempfile
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+# Loaded here, not when a stream opens its log: the Bus Watchdog is already
+# running then. It imports ``mcap`` only in its writer process.
+from trajgen.drivers import mcap_telemetry
+from trajgen.servo_table import LOAD_UNIT
+
 
 def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
-    """Column names: frame bookkeeping, then per joint goal / present values."""
-    columns = ["frame", "phase", "t_s", "sent_s", "lateness_s"]
+    """Column names: frame bookkeeping, then per joint goal / present values.
+
+    ``sent_s`` counts from the start of the frame's phase (approach, stream);
+    ``clock_s`` is the stream clock's reading when the goal went out (s).
+    """
+    columns = ["frame", "phase", "t_s", "sent_s", "lateness_s", "clock_s"]
     for prefix in ("goal_rad", "goal_tick", "position_rad", "velocity_rad_s", "current_a"):
         columns += [f"{prefix}_{name}" for name in joint_names]
     return columns
 
 
 class TelemetryWriter:
-    """Rows of per-frame telemetry to a CSV or NPZ file.
+    """Rows of per-frame telemetry to a CSV, NPZ or MCAP file.
 
     Parameters
     ----------
     path : str or Path
-        Output file, ``.csv`` or ``.npz``.
+        Output file, ``.csv``, ``.npz`` or ``.mcap``.
     joint_names : sequence of str
         Joint names for the column headers.
+    models : sequence of drivers.control_table.Model, optional
+        Each joint's servo model: MCAP states the present effort (N m) with
+        its torque constant (stall torque / stall current at 12 V).
 
     Raises
     ------
     ValueError
-        If the suffix is neither ``.csv`` nor ``.npz``.
+        If the suffix is none of ``.csv``, ``.npz``, ``.mcap``.
     OSError
         If the file cannot be created.
+    McapMissing
+        For ``.mcap`` without the ``mcap`` extra.
     """
 
-    def __init__(self, path: str | Path, joint_names: Sequence[str]) -> None:
+    def __init__(self, path: str | Path, joint_names: Sequence[str], models=None) -> None:
         self.path = Path(path)
-        if self.path.suffix not in (".csv", ".npz"):
-            raise ValueError(f"Expected a telemetry path ending .csv or .npz, got {str(path)!r}.")
+        if self.path.suffix not in SUFFIXES:
+            raise ValueError(
+                f"Expected a telemetry path ending {', '.join(SUFFIXES)}, got {str(path)!r}."
+            )
         self.columns = telemetry_columns(joint_names)
         self.rows = 0
         self._file = None
         self._writer = None
         self._spool = None
-        if self.path.suffix == ".csv":
+        self._mcap = None
+        if self.path.suffix == ".mcap":
+            kt = None if models is None else [m.stall_torque_nm / m.stall_current_a for m in models]
+            scale = None if models is None else [_current_scale(m) for m in models]
+            self._mcap = mcap_telemetry.McapRunLog(self.path, self.columns, joint_names, kt, scale)
+        elif self.path.suffix == ".csv":
             self._file = open(self.path, "w", newline="")  # noqa: SIM115 (closed in close())
             self._writer = csv.writer(self._file)
             self._writer.writerow(self.columns)
@@ -67,7 +94,9 @@ class TelemetryWriter:
 
     def write(self, row: Sequence) -> None:
         """Append one row (values in ``columns`` order; NaN where not measured)."""
-        if self._writer is not None:
+        if self._mcap is not None:
+            self._mcap.write(row)
+        elif self._writer is not None:
             self._writer.writerow("" if isinstance(v, float) and math.isnan(v) else v for v in row)
             self._file.flush()
         else:
@@ -80,8 +109,18 @@ class TelemetryWriter:
         self.rows += 1
 
     def close(self) -> None:
-        """Flush and close (NPZ: write the file now, one column at a time)."""
-        if self._file is not None:
+        """Flush and close (NPZ: write the file now, one column at a time).
+
+        MCAP: wait for the writer process to finish the file; if it failed
+        (the file could not be written), a ``RuntimeWarning`` says so (the
+        stream's safe stop still follows).
+        """
+        if self._mcap is not None:
+            try:
+                self._mcap.close()
+            except (OSError, ImportError) as e:  # after the stream: say it, stop safely
+                warnings.warn(str(e), RuntimeWarning, stacklevel=2)
+        elif self._file is not None:
             self._file.close()
             self._file = None
             self._writer = None
@@ -106,6 +145,35 @@ class TelemetryWriter:
             self._spool.close()
             self._spool = None
 
+
+def _current_scale(model) -> str:
+    """How a model's register 126 became the current column (A)."""
+    if model.current_unit_a is None:
+        return (
+            f"{model.name}: Present Load, {LOAD_UNIT:g} x stall current "
+            f"({model.stall_current_a:g} A) per unit"
+        )
+    return f"{model.name}: Present Current, {1e3 * model.current_unit_a:g} mA per unit"
+
+
+def add_report(path: str | Path, report: dict, progress=None) -> None:
+    """Add a run's report (and its faults and stop reason) to its telemetry file.
+
+    MCAP: a metadata record and ``/rosout`` log messages
+    (``drivers.mcap_telemetry.add_report``; ``progress`` is called with the
+    fraction done). CSV and NPZ hold rows only: nothing.
+
+    Raises
+    ------
+    OSError
+        If the MCAP file cannot be rewritten.
+    """
+    if Path(path).suffix == ".mcap":
+        mcap_telemetry.add_report(path, report, progress)
+
+
+#: Telemetry file extensions, one writer each.
+SUFFIXES = (".csv", ".npz", ".mcap")
 
 _COLUMNS = {name: k for k, name in enumerate(telemetry_columns(()))}
 _PHASE = _COLUMNS["phase"]

@@ -91,7 +91,7 @@ class TelemetryLog:
 
 
 def load_telemetry(path) -> TelemetryLog:
-    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv or .npz).
+    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv, .npz or .mcap).
 
     Raises
     ------
@@ -101,7 +101,15 @@ def load_telemetry(path) -> TelemetryLog:
         If it cannot be read.
     """
     path = Path(path)
-    if path.suffix == ".npz":
+    if path.suffix == ".mcap":
+        from trajgen.ros2_messages import McapMissing
+        from trajgen.telemetry_mcap import read_columns
+
+        try:
+            columns = read_columns(path)
+        except (ValueError, McapMissing) as e:
+            raise IdentifyError(str(e)) from None
+    elif path.suffix == ".npz":
         with np.load(path) as f:
             columns = {k: np.asarray(f[k]) for k in f.files}
     else:

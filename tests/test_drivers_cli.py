@@ -145,7 +145,7 @@ def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
         (["--port", "/dev/x", "--plot", "p.png"], "--plot needs --virtual"),
         (
             ["--virtual", "--telemetry", "t.txt"],
-            "--telemetry 't.txt': expected a .csv or .npz file",
+            "--telemetry 't.txt': expected a .csv or .npz or .mcap file",
         ),
         (
             ["--virtual", "--telemetry", "/no/dir/t.csv"],

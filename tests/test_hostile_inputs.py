@@ -936,7 +936,7 @@ CASES = [
         ["stream", "--virtual", "--telemetry", "{tmp}/t.txt"],
         None,
         2,
-        r"--telemetry '.*t.txt': expected a \.csv or \.npz file",
+        r"--telemetry '.*t.txt': expected a \.csv or \.npz or \.mcap file",
         "ok",
     ),
     (

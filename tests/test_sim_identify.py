@@ -158,7 +158,7 @@ def test_bad_logs_and_options_exit_2(tmp_path, capsys):
         (tmp_path / "x.csv").write_text("a\n1\n")
         load_telemetry(tmp_path / "x.csv")
     assert _run(excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.npz"]) == 2
-    assert "': expected a .csv file" in capsys.readouterr().err
+    assert "': expected a .csv or .mcap file" in capsys.readouterr().err
     status = _run(
         excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.csv", "--seconds", 2]
     )

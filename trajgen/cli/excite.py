@@ -61,7 +61,9 @@ def register(subparsers) -> None:
     where.add_argument(
         "--virtual", action="store_true", help="excite the simulated gimbal on a virtual bus"
     )
-    p.add_argument("--telemetry", metavar="LOG.csv", required=True, help="telemetry file (.csv)")
+    p.add_argument(
+        "--telemetry", metavar="LOG.csv", required=True, help="telemetry file (.csv or .mcap)"
+    )
     p.add_argument(
         "--seconds", type=positive_float, default=8.0, help="duration (s), >= 3; default 8"
     )
@@ -114,12 +116,13 @@ def excitation_file(args) -> ExcitationFile:
         Bad input: the file, the options, or an excitation that leaves the
         joint limits, nears gimbal lock or leaves the torque envelope.
     """
+    from trajgen.cli.stream import check_telemetry_path
     from trajgen.gimbal import GimbalKinematics
     from trajgen.sim.check import check_planned_torque
     from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
     from trajgen.stream import plan_joint_trajectory
 
-    check_output_path("--telemetry", args.telemetry, (".csv",))
+    check_telemetry_path(args.telemetry, (".csv", ".mcap"))
     check_output_path("--json", args.json, (".json",))
     checked = load_checked(args.file)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal

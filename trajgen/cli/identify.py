@@ -49,7 +49,7 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", metavar="FILE", help="keyframe file of the gimbal (TOML)")
-    p.add_argument("logs", metavar="LOG", nargs="+", help="telemetry logs (.csv or .npz)")
+    p.add_argument("logs", metavar="LOG", nargs="+", help="telemetry logs (.csv, .npz or .mcap)")
     p.add_argument("--out", metavar="FITTED.toml", required=True, help="write the fit here")
     p.add_argument("--no-current", action="store_true", help="do not fit the logged current")
     p.add_argument(

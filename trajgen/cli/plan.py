@@ -13,10 +13,12 @@ import numpy as np
 
 from trajgen.cli.common import (
     EXIT_OK,
+    BadInput,
     Progress,
     add_file_argument,
     add_rate_argument,
     bad_input,
+    check_module,
     check_output_path,
     check_timing,
     load_checked,
@@ -41,6 +43,9 @@ def run_plan(args) -> int:
 
 def _plan(args) -> int:
     check_output_path("--out", args.out)
+    to_mcap = bool(args.out) and args.out.lower().endswith(".mcap")
+    if to_mcap:
+        check_module("--out", "mcap_ros2", "'trajgen[mcap]'")
     checked = load_checked(args.file)
     kf = checked.keyframes
     rate = kf.stream_rate(args.rate)
@@ -49,6 +54,15 @@ def _plan(args) -> int:
     except PlanTooLarge as e:
         raise PlanTooLarge(f"{e}; --max-samples N raises the limit") from None
     spline = checked.spline
+    if to_mcap:
+        from trajgen.plan_mcap import MAX_SAMPLES as MAX_MCAP_SAMPLES
+
+        if total > MAX_MCAP_SAMPLES:
+            raise BadInput(
+                f"--out {args.out}: {total:,} samples; an MCAP plan is one JointTrajectory "
+                f"message of at most {MAX_MCAP_SAMPLES:,} samples: lower --rate, or write CSV"
+            )
+        return _plan_mcap(args, kf, spline, rate)
     progress = Progress(f"trajgen plan: writing {total:,} rows") if args.out else None
     out = open(args.out, "w", newline="") if args.out else sys.stdout
     peak_w = peak_a = 0.0
@@ -81,6 +95,22 @@ def _plan(args) -> int:
     return EXIT_OK
 
 
+def _plan_mcap(args, kf, spline, rate) -> int:
+    """``--out plan.mcap``: the exact joint plan and the orientation (``trajgen.plan_mcap``)."""
+    from trajgen.plan_mcap import write_plan_mcap
+
+    progress = Progress(f"trajgen plan: writing {args.out}")
+    plan = write_plan_mcap(args.out, spline, rate, progress=progress)
+    print(
+        f"planned {kf.path.name}: {len(plan)} samples at {rate:g} Hz over "
+        f"{plan.duration_s:.3f} s; peak |qd| {np.abs(plan.qd).max():.4g} rad/s, "
+        f"peak |qdd| {np.abs(plan.qdd).max():.4g} rad/s^2; wrote {args.out} "
+        "(JointTrajectory, orientation, plan)",
+        file=sys.stderr,
+    )
+    return EXIT_OK
+
+
 def register(subparsers) -> None:
     """Add the ``plan`` subcommand to an argparse ``subparsers`` object."""
     plan = subparsers.add_parser(
@@ -95,7 +125,12 @@ def register(subparsers) -> None:
     )
     add_file_argument(plan)
     add_rate_argument(plan, "sample rate")
-    plan.add_argument("--out", metavar="FILE.csv", help="write the CSV here (default: stdout)")
+    plan.add_argument(
+        "--out",
+        metavar="FILE.csv",
+        help="write the CSV here (default: stdout); FILE.mcap: the joint plan as a ROS 2 "
+        "trajectory_msgs/JointTrajectory and the orientation as quaternions (trajgen[mcap])",
+    )
     plan.add_argument(
         "--max-samples",
         type=_count,

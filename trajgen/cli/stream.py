@@ -28,9 +28,11 @@ from dataclasses import dataclass, field
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    Progress,
     add_file_argument,
     bad_input,
     baud_rate,
+    check_module,
     check_output_path,
     check_plot_path,
     check_timing,
@@ -118,7 +120,10 @@ def add_stream_arguments(p) -> None:
         help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
     )
     p.add_argument(
-        "--telemetry", metavar="OUT", help="write per-frame telemetry to OUT (.csv or .npz)"
+        "--telemetry",
+        metavar="OUT",
+        help="write per-frame telemetry to OUT (.csv, .npz, or .mcap: ROS 2 messages for "
+        "Foxglove, needs trajgen[mcap])",
     )
     p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
     p.add_argument(
@@ -185,6 +190,14 @@ class Plan:
     options: dict = field(default_factory=dict)
 
 
+def check_telemetry_path(path: str | None, suffixes: tuple[str, ...]) -> None:
+    """Refuse ``--telemetry PATH`` up front: writable, a known suffix, and for
+    ``.mcap`` the ``mcap`` extra installed."""
+    check_output_path("--telemetry", path, suffixes)
+    if path and path.lower().endswith(".mcap"):
+        check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
+
+
 def plan(args) -> Plan:
     """The stream command's plan; no hardware.
 
@@ -193,7 +206,7 @@ def plan(args) -> Plan:
     ValueError, TypeError, OSError
         Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
     """
-    check_output_path("--telemetry", args.telemetry, (".csv", ".npz"))
+    check_telemetry_path(args.telemetry, (".csv", ".npz", ".mcap"))
     check_output_path("--json", args.json, (".json",))
     check_plot_path(args.plot)
     checked = load_checked(args.file)
@@ -404,7 +417,19 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
             plant, outcome.trajectory, getattr(args, "plot", None), result
         )
         result["status"] = status
+    if telemetry and stats is not None:
+        add_telemetry_report(telemetry, result)
     return write_json(args.json, result, status)
+
+
+def add_telemetry_report(path: str, result: dict) -> None:
+    """Add the report to the telemetry file where it holds one (MCAP); warn if it cannot."""
+    from trajgen.drivers.telemetry import add_report
+
+    try:
+        add_report(path, result, Progress(f"trajgen: adding the report to {path}"))
+    except OSError as e:
+        print(f"trajgen: warning: telemetry {path}: report not added: {e}", file=sys.stderr)
 
 
 def torque_report(plant, trajectory, plot_path, result: dict):
