@@ -37,6 +37,7 @@ from pathlib import Path
 
 from trajgen.errors import KeyframeFileError
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.keyframe_axes import axes_from_table, is_default
 from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, ServoModel, servo_by_name
@@ -49,6 +50,8 @@ GIMBAL_TABLE_KEYS = (
     "torque_margin",
     "max_tracking_error_rad",
     "p_divisor",
+    "axes",  # read by trajgen.keyframe_axes
+    "joints",
     *JOINT_NAMES,
 )
 #: Keys of a ``[gimbal.<joint>]`` table.
@@ -214,7 +217,7 @@ _FIELD_BOUNDS = {
 }
 
 
-def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
+def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> GimbalConfig:
     """Build a :class:`GimbalConfig` from a keyframe file's ``[gimbal]`` table.
 
     Keys (all optional): ``servo`` (a model name for every joint, or a table
@@ -232,6 +235,9 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
         (``KeyframeFile.tables``); only ``tables["gimbal"]`` is read.
     path : str or Path
         The file, named in error messages.
+    any_axes : bool
+        Accept ``axes`` / ``joints`` other than pan-tilt-roll (``trajgen plan``);
+        the simulated gimbal is pan-tilt-roll, so otherwise they are refused.
 
     Returns
     -------
@@ -250,6 +256,19 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
     if unknown:
         known = ", ".join(GIMBAL_TABLE_KEYS)
         raise _file_error(path, f"[gimbal] unknown key '{unknown[0]}' (known: {known})")
+    axes = axes_from_table(table, path)
+    if not (any_axes or is_default(axes)):
+        if axes.n == 2:
+            what = f"[gimbal] axes = {axes.sequence!r}: 2-axis gimbals"
+        elif axes.sequence != "zyx":
+            what = f"[gimbal] axes = {axes.sequence!r}: axes other than 'zyx'"
+        else:
+            what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
+        raise _file_error(
+            path,
+            f"{what}: the simulator and the drivers need pan-tilt-roll (axes = 'zyx'), "
+            "not yet; trajgen plan takes any axes",
+        )
     kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
     kwargs["joints"] = tuple(_joint_from_table(table.get(j, {}), j, path) for j in JOINT_NAMES)
     for key in ("payload_kg", "torque_margin", "max_tracking_error_rad", "p_divisor"):

@@ -525,3 +525,207 @@ def test_two_axis_joint_jerk_is_continuous_at_every_knot(rng, axes):
     e = kin.look_direction(a)
     err = np.arctan2(np.linalg.norm(np.cross(d, e), axis=1), np.sum(d * e, axis=1))
     assert err.max() < 1e-9
+
+
+# ---------------------------------------------------------------- keyframe files
+
+HEAD = """\
+[gimbal]
+axes = "zy"
+joints = ["yaw", "pitch"]
+
+[[keyframes]]
+t = 0.0
+yaw = 0.0
+
+[[keyframes]]
+t = 1.0
+yaw = 50.0
+pitch = 20.0
+
+[[keyframes]]
+t = 2.5
+look = [1.0, -2.0, 0.5]
+
+[[keyframes]]
+t = 4.0
+yaw = 170.0
+pitch = -35.0
+
+[[keyframes]]
+t = 5.0
+yaw = 200.0
+pitch = 0.0
+"""
+
+
+def keyframe_looks():
+    """The look directions (5, 3) the HEAD file asks for, worked out by hand."""
+
+    def pointing(yaw, pitch):
+        y, p = math.radians(yaw), math.radians(pitch)
+        return [math.cos(p) * math.cos(y), math.cos(p) * math.sin(y), -math.sin(p)]
+
+    look = np.array([1.0, -2.0, 0.5]) / math.sqrt(5.25)
+    return np.array([pointing(0, 0), pointing(50, 20), look, pointing(170, -35), pointing(200, 0)])
+
+
+def test_a_two_axis_file_gives_the_gimbals_orientations(tmp_path):
+    from trajgen.keyframes import load_keyframe_file
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    kf = load_keyframe_file(f)
+    assert kf.axes == AxisSequence("zy", ("yaw", "pitch"))
+    np.testing.assert_allclose(quat.rotate(kf.quats, kf.axes.look), keyframe_looks(), atol=1e-15)
+    # Angle keyframes are the gimbal's own orientation, roll and all.
+    np.testing.assert_allclose(kf.quats[1], kf.axes.forward(np.radians([50.0, 20.0])), atol=0)
+
+
+def test_plan_of_a_two_axis_file_points_exactly_at_every_keyframe(tmp_path, capsys):
+    from trajgen.cli import main
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    out = tmp_path / "head.csv"
+    assert main(["plan", str(f), "--rate", "100", "--out", str(out)]) == 0
+    header = out.read_text().splitlines()[0].split(",")
+    assert header[11:] == [
+        "look_x",
+        "look_y",
+        "look_z",
+        "yaw_rad",
+        "pitch_rad",
+        "yaw_rad_s",
+        "pitch_rad_s",
+        "yaw_rad_s2",
+        "pitch_rad_s2",
+    ]
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    at = np.searchsorted(rows[:, 0], [0.0, 1.0, 2.5, 4.0, 5.0])
+    want = keyframe_looks()
+    for got in (rows[at, 11:14], AxisSequence("zy").look_direction(rows[at, 14:16])):
+        err = np.arctan2(np.linalg.norm(np.cross(got, want), axis=1), np.sum(got * want, axis=1))
+        assert err.max() < 1e-9
+    # The yaw is unwrapped: from the look keyframe (yaw -63.4 deg) the shorter way
+    # round to 170 deg is through -180 deg, so the path reaches -190 deg, then
+    # -160 deg (200 deg written): a turn apart from the file's, never a jump.
+    np.testing.assert_allclose(np.degrees(rows[at[-2:], 14]), [-190.0, -160.0], atol=1e-9)
+    assert np.abs(np.diff(rows[:, 14])).max() < 0.05
+
+
+def test_joint_jerk_of_a_two_axis_file_is_continuous_at_every_knot(tmp_path):
+    from trajgen.keyframes import load_keyframe_file
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    kf = load_keyframe_file(f)
+    kin = GimbalKinematics(axes=kf.axes.sequence, joints=kf.axes.joints)
+    assert knot_jerk_gaps(kf.spline(), kin).max() < 1e-4
+
+
+@pytest.mark.parametrize(
+    "gimbal, keyframe, message",
+    [
+        (
+            'axes = "zy"',
+            "pitch = 3.0",
+            "keyframe 1: unknown field 'pitch' (known: t, pan, tilt, look)",
+        ),
+        (
+            'axes = "zy"\njoints = ["yaw", "pitch"]',
+            "pan = 3.0",
+            "keyframe 1: unknown field 'pan' (known: t, yaw, pitch, look)",
+        ),
+        (
+            'axes = "zy"',
+            "roll = 3.0",
+            "keyframe 1: unknown field 'roll' (known: t, pan, tilt, look)",
+        ),
+        (
+            'axes = "zy"',
+            "quat = [1.0, 0.0, 0.0, 0.0]",
+            "keyframe 1: field 'quat': a 2-axis gimbal (zy) cannot hold every orientation; give "
+            "'look' = [x, y, z] or pan/tilt (degrees)",
+        ),
+        (
+            'axes = "zy"',
+            "look = [0.0, 0.0, 0.0]",
+            "keyframe 1: field 'look': expected a non-zero direction, got [0.0, 0.0, 0.0]",
+        ),
+        ('axes = "zy"', "look = [1.0, 0.0]", "keyframe 1: field 'look': expected [x, y, z]"),
+        (
+            'axes = "zy"',
+            "pan = 1.0\nlook = [1.0, 0.0, 0.0]",
+            "keyframe 1: give either 'look' or pan/tilt, not both",
+        ),
+        ('axes = "zy"', "pan = 'a'", "keyframe 1: field 'pan': "),
+        (
+            'axes = "xyz"',
+            "look = [1.0, 0.0, 0.0]",
+            "keyframe 1: unknown field 'look' (known: t, joint1, joint2, joint3, quat)",
+        ),
+        ('axes = "zq"', "pan = 1.0", "[gimbal] axes: Expected `axes` to be 2 or 3 letters"),
+        (
+            'axes = "zy"\njoints = ["a"]',
+            "a = 1.0",
+            "[gimbal] joints: Expected `joints` to name the 2 axes of 'zy', got 1: ['a'].",
+        ),
+        (
+            'axes = "zy"\njoints = "a"',
+            "a = 1.0",
+            "[gimbal] joints: expected a list of names, got 'a'",
+        ),
+    ],
+)
+def test_bad_two_axis_keyframes_are_refused_naming_the_key(tmp_path, gimbal, keyframe, message):
+    from trajgen.errors import KeyframeFileError
+    from trajgen.keyframes import load_keyframe_file
+
+    f = tmp_path / "bad.toml"
+    f.write_text(
+        f"[gimbal]\n{gimbal}\n\n[[keyframes]]\nt = 0.0\n{keyframe}\n\n[[keyframes]]\nt = 1.0\n"
+    )
+    with pytest.raises(KeyframeFileError, match=re.escape(f"{f}: {message}")):
+        load_keyframe_file(f)
+
+
+@pytest.mark.parametrize("command", ["sim", "stream"])
+def test_the_simulator_and_drivers_refuse_other_axes_in_one_line(tmp_path, capsys, command):
+    from trajgen.cli import main
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    args = [command, str(f)] + (["--virtual"] if command == "stream" else [])
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"trajgen: error: {f}: [gimbal] axes = 'zy': 2-axis gimbals: the simulator and the "
+        "drivers need pan-tilt-roll (axes = 'zyx'), not yet; trajgen plan takes any axes\n"
+    )
+
+
+def test_an_explicit_default_gimbal_is_todays(tmp_path):
+    from trajgen.keyframes import load_keyframe_file
+
+    plain = (
+        "[[keyframes]]\nt = 0.0\npan = 10.0\n\n[[keyframes]]\nt = 1.0\ntilt = 20.0\nroll = 5.0\n"
+    )
+    a, b = tmp_path / "a.toml", tmp_path / "b.toml"
+    a.write_text(plain)
+    b.write_text('[gimbal]\naxes = "ZYX"\njoints = ["pan", "tilt", "roll"]\n\n' + plain)
+    ka, kb = load_keyframe_file(a), load_keyframe_file(b)
+    np.testing.assert_array_equal(ka.quats, kb.quats)
+    assert ka.axes == kb.axes == AxisSequence()
+
+
+def test_the_pan_tilt_head_example_plans(tmp_path):
+    from pathlib import Path
+
+    from trajgen.cli import main
+
+    example = Path(__file__).parents[1] / "examples" / "pan_tilt_head.toml"
+    out = tmp_path / "head.csv"
+    assert main(["plan", str(example), "--out", str(out)]) == 0
+    rows = np.loadtxt(out, delimiter=",", skiprows=1)
+    assert rows.shape[1] == 11 + 3 + 6

@@ -26,6 +26,8 @@ quat = [1.0, 0.0, 0.0, 0.0]   # (w, x, y, z), instead of pan / tilt / roll
 Other top-level tables (``[gimbal]`` and ``[limits]`` for the simulator, ``[bus]``
 for the drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
 (``trajgen.cli.common.load_checked`` checks them all before any command works).
+``[gimbal] axes`` and ``joints`` are read here too: keyframes then give angles by
+those joint names (:mod:`trajgen.keyframe_axes`).
 Keyframes are counted from 1 in messages, as a person reading the file would.
 
 Large files: ``tomllib`` takes about 100 s and 0.6 GB for a 70 MB file of a
@@ -49,8 +51,10 @@ from pathlib import Path
 import numpy as np
 
 from . import quat as Q
+from .axes import AxisSequence
 from .errors import KeyframeFileError
 from .gimbal import JOINT_NAMES
+from .keyframe_axes import axes_from_table, axis_keyframes, is_default
 from .smooth import KNOTS, SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .validate import check_choice, check_keys, check_number
@@ -119,6 +123,9 @@ class KeyframeFile:
     tables: dict = field(default_factory=dict)
     #: ``[spline] method``: "smooth" or "blending".
     method: str = DEFAULT_METHOD
+    #: ``[gimbal] axes`` and ``joints`` (:mod:`trajgen.keyframe_axes`); ``quats`` are
+    #: the orientations this gimbal has at the keyframes.
+    axes: AxisSequence = field(default_factory=AxisSequence)
 
     @property
     def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
@@ -197,11 +204,15 @@ def load_keyframe_file(path) -> KeyframeFile:
     options = _spline_options(data.get("spline", {}), path)
     method = options.pop("method", DEFAULT_METHOD)
     rate_hz = _stream_rate(data.get("stream", {}), path)
+    axes = axes_from_table(data.get("gimbal", {}), path)
+    if not is_default(axes):  # keyframes by the gimbal's joint names (trajgen.keyframe_axes)
+        entries = (data if columns is None else _toml(text, path)).get("keyframes")
+        columns = _keyframe_columns(axis_keyframes(entries, axes, path), path)
     if columns is None:
         columns = _keyframe_columns(data.get("keyframes"), path)
     times, quats = _keyframes(columns, path)
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method)
+    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method, axes=axes)
 
 
 def _toml(text: str, path: Path) -> dict:

@@ -164,12 +164,20 @@ class CheckedFile:
         return self.keyframes.spline()
 
 
-def load_checked(path) -> CheckedFile:
+def load_checked(path, *, any_axes: bool = False) -> CheckedFile:
     """Load a keyframe file and check every table of it, whatever the command.
 
     ``plan`` does not use ``[gimbal]`` or ``[bus]``, but a mistake in them is
     refused by every command alike, so a file that plans also simulates and
     streams.
+
+    Parameters
+    ----------
+    path : str or Path
+    any_axes : bool
+        Accept a ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll (only
+        ``trajgen plan`` does so far); otherwise such a file is refused in one line
+        (``trajgen.sim.model.gimbal_config_from_tables``).
 
     Raises
     ------
@@ -181,7 +189,7 @@ def load_checked(path) -> CheckedFile:
     from trajgen.sim.model import gimbal_config_from_tables
 
     kf = load_keyframe_file(path)
-    gimbal = gimbal_config_from_tables(kf.tables, kf.path)
+    gimbal = gimbal_config_from_tables(kf.tables, kf.path, any_axes=any_axes)
     bus = bus_config_from_tables(kf.tables, kf.path)
     limits = limits_from_tables(kf.tables, kf.path)
     return CheckedFile(kf, gimbal, bus, limits)
