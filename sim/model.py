@@ -256,19 +256,6 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
     if unknown:
         known = ", ".join(GIMBAL_TABLE_KEYS)
         raise _file_error(path, f"[gimbal] unknown key '{unknown[0]}' (known: {known})")
-    axes = axes_from_table(table, path)
-    if not (any_axes or is_default(axes)):
-        if axes.n == 2:
-            what = f"[gimbal] axes = {axes.sequence!r}: 2-axis gimbals"
-        elif axes.sequence != "zyx":
-            what = f"[gimbal] axes = {axes.sequence!r}: axes other than 'zyx'"
-        else:
-            what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
-        raise _file_error(
-            path,
-            f"{what}: the simulator and the drivers need pan-tilt-roll (axes = 'zyx'), "
-            "not yet; trajgen plan takes any axes",
-        )
     kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
     kwargs["joints"] = tuple(_joint_from_table(table.get(j, {}), j, path) for j in JOINT_NAMES)
     for key in ("payload_kg", "torque_margin", "max_tracking_error_rad", "p_divisor"):
@@ -280,7 +267,28 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
         kwargs["payload_offset_m"] = check_numbers(
             "payload_offset_m", table["payload_offset_m"], 3, error=error
         )
+    if not any_axes:
+        _refuse_other_axes(table, path)
     return GimbalConfig(**kwargs)
+
+
+def _refuse_other_axes(table: dict, path) -> None:
+    """Refuse ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll in one line: the
+    simulated gimbal (and the drivers' joint map) is pan-tilt-roll."""
+    axes = axes_from_table(table, path)
+    if is_default(axes):
+        return
+    if axes.n == 2:
+        what = f"[gimbal] axes = {axes.sequence!r}: 2-axis gimbals"
+    elif axes.sequence != "zyx":
+        what = f"[gimbal] axes = {axes.sequence!r}: axes other than 'zyx'"
+    else:
+        what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
+    raise _file_error(
+        path,
+        f"{what}: the simulator and the drivers need pan-tilt-roll (axes = 'zyx'), "
+        "not yet; trajgen plan takes any axes",
+    )
 
 
 def _joint_from_table(value, joint: str, path) -> dict:
