@@ -262,7 +262,7 @@ class AxisSequence:
         """
         a = self._check(angles)
         e = np.moveaxis(self.joint_axes(a), -1, 0)  # (n, ..., 3)
-        cross = np.cross
+        cross = _cross
         if self.n == 2:
             d = self.look_direction(a)
             g1, g2 = cross(e[0], d), cross(e[1], d)  # orthogonal; |g2| = 1
@@ -282,6 +282,13 @@ class AxisSequence:
         jdot = v[0] * v[1] * cross(e[0], e[1]) + v[2] * cross(v[0] * e[0] + v[1] * e[1], e[2])
         qdd = np.einsum("...ij,...j->...i", rows, alpha - jdot) / det
         return qd, qdd
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``u x v`` over the last axis (..., 3): ``np.cross`` costs ~10x more on one frame."""
+    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]
+    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
 
 
 def _parity(i: int, j: int, k: int) -> float:
