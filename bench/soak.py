@@ -105,7 +105,7 @@ def soak(
         plant, lockstep_dt_s=1 / rate_hz, timing=WireTiming(baud=BAUD), goal_log_size=1000
     ) as virtual:
         with ServoBus(virtual.port, baud=BAUD, latency_ms=latency_ms) as bus:
-            bring_up(bus, joints, ("XM430-W350",) * 3, path, watchdog_s=watchdog_s)
+            bring_up(bus, joints, ("XM430-W350",) * 3, path, watchdog_s=watchdog_s, configure=True)
             streamer = Streamer(bus, joints, telemetry_every=read_every, max_delay_s=None)
             rss_start = rss_mb()
             start = time.monotonic()

@@ -3,8 +3,9 @@
 Streams a smooth 3-joint trajectory at 100, 500 and 1000 Hz through the real
 driver, dynamixel-sdk and pyserial to the virtual bus on a pseudo-terminal,
 which adds byte time at 1 and 4 Mbps (10 bits a byte), a 20 us servo
-turnaround and Return Delay 0 (set by bring-up). Telemetry (present current,
-velocity, position by fast sync read) every frame, or every 10th frame.
+turnaround and Return Delay 0 (set by bring-up, asked with ``configure=True``).
+Telemetry (present current, velocity, position by fast sync read) every
+frame, or every 10th frame.
 
 Prints a markdown table: achieved rate, period error p50 / p99 / max, overruns,
 communication errors, and bytes per cycle on the wire against the minimum from
@@ -49,7 +50,7 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float) -> dict:
     timing = WireTiming(baud=baud)
     with VirtualBus(plant, lockstep_dt_s=1 / rate_hz, timing=timing) as virtual:
         with ServoBus(virtual.port, baud=baud) as bus:
-            bring_up(bus, joints, ("XM430-W350",) * 3, traj)
+            bring_up(bus, joints, ("XM430-W350",) * 3, traj, configure=True)  # Return Delay 0
             streamer = Streamer(bus, joints, telemetry_every=read_every)
             before = virtual.bytes_received + virtual.bytes_sent
             stats = streamer.run(traj)

@@ -39,7 +39,7 @@ def stream_once(kf, trajectory, clock):
     start_wall, start_cpu = time.perf_counter(), time.process_time()
     with VirtualBus(plant, lockstep_dt_s=1.0 / trajectory.rate_hz) as virtual:
         with ServoBus(virtual.port) as bus:
-            bring_up(bus, joints, ("XM430-W350",) * 3, trajectory)
+            bring_up(bus, joints, ("XM430-W350",) * 3, trajectory, configure=True)
             Streamer(bus, joints, clock=clock).run(trajectory)
         goals = np.array(virtual.goal_log)
     wall, cpu = time.perf_counter() - start_wall, time.process_time() - start_cpu

@@ -3,6 +3,8 @@
 ``ServoBus`` wraps the SDK's ``PortHandler`` and ``Protocol2PacketHandler``.
 What it adds to them (see docs/dynamixel.md for why):
 
+- the port opened exclusively (pyserial ``exclusive=True``, an ``flock``): a
+  second program on the same port is refused with a message that says so;
 - any baud rate, 4.5 Mbps included (``getCFlagBaud`` accepts any rate and
   pyserial sets it with BOTHER), and packet timeouts from the adapter's real
   latency timer instead of the SDK's fixed 16 ms;
@@ -54,6 +56,24 @@ def _make_port(port_name: str, latency_ms: float):
     from dynamixel_sdk import PortHandler
 
     class _Port(PortHandler):
+        def setupPort(self, cflag_baud):  # noqa: N802 (SDK name)
+            # The SDK's own, with the port locked (flock) against a second program.
+            import serial
+
+            if self.is_open:
+                self.closePort()
+            self.ser = serial.Serial(
+                port=self.port_name,
+                baudrate=self.baudrate,
+                bytesize=serial.EIGHTBITS,
+                timeout=0,
+                exclusive=True,
+            )
+            self.is_open = True
+            self.ser.reset_input_buffer()
+            self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+            return True
+
         def getCFlagBaud(self, baudrate):  # noqa: N802 (SDK name)
             return baudrate if baudrate > 0 else -1
 
@@ -204,6 +224,12 @@ class ServoBus:
     failed_tries : int
         Transaction tries that failed so far (timeouts, corrupt replies, port
         errors), retried or not.
+    torque_written : dict of int to int
+        Per servo id, the last Torque Enable value written to it through this
+        bus (acknowledged or not): what the driver did to each servo's torque,
+        for the per-servo outcome (``drivers.outcome``).
+    driven : set of int
+        Servos sent a Goal Position through this bus (write or sync write).
 
     Notes
     -----
@@ -228,6 +254,8 @@ class ServoBus:
         self.latency_ms = latency_ms
         self.models: dict[int, Model] = {}
         self.failed_tries = 0
+        self.torque_written: dict[int, int] = {}
+        self.driven: set[int] = set()
         self._port = None
         self._ph = None
 
@@ -252,6 +280,11 @@ class ServoBus:
             ok = self._port.setBaudRate(self.baud)
         except (serial.SerialException, OSError, ValueError) as e:
             self._port = None
+            if "exclusively lock" in str(e):
+                raise CommError(
+                    f"{self.port_name}: in use by another program (it holds the port's lock); "
+                    "stop it first: two programs on one bus garble each other's packets"
+                ) from e
             raise CommError(f"{self.port_name}: cannot open at {self.baud} baud: {e}") from e
         if not ok:
             self._port = None
@@ -467,6 +500,10 @@ class ServoBus:
         address, size = self._address(servo_id, register)
         data = list(to_unsigned(int(value), size).to_bytes(size, "little"))
         what = f"write {register.value} = {value}"
+        if register is Register.TORQUE_ENABLE:
+            self.torque_written[servo_id] = int(value)
+        elif register is Register.GOAL_POSITION:
+            self.driven.add(servo_id)
         _, error = self._unicast(servo_id, what, self._ph.writeTxRx, address, size, data)
         self._check_status(servo_id, error, what)
 
@@ -495,6 +532,8 @@ class ServoBus:
         """
         ids = list(values)
         address, size = self._address(ids[0], register)
+        if register is Register.GOAL_POSITION:
+            self.driven.update(ids)
         param = []
         for servo_id, value in values.items():
             param.append(servo_id)

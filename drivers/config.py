@@ -10,6 +10,8 @@ Keys (all optional)::
     zeros = [2048, 2048, 2048] # tick at joint angle 0
     models = "XM430-W350"      # or one per joint; default: [gimbal] servo
     watchdog_s = 0.1           # Bus Watchdog period, 0.02 .. 2.54 s
+    configure = false          # let bring-up change EEPROM settings (docs/safety_registers.md)
+    restore = false            # write back, on exit, what bring-up changed
 
 Errors are ``trajgen.keyframes.KeyframeFileError`` with a one-line message
 ``"{path}: [bus] ids: expected ..., got ..."``.
@@ -25,9 +27,19 @@ from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.units import ZERO_TICK, JointMap
 from trajgen.gimbal import JOINT_NAMES
 from trajgen.servo_table import DEFAULT_SERVO, servo_spec
-from trajgen.validate import check_number, check_numbers
+from trajgen.validate import check_keys, check_number, check_numbers
 
-BUS_KEYS = ("port", "baud", "ids", "directions", "zeros", "models", "watchdog_s")
+BUS_KEYS = (
+    "port",
+    "baud",
+    "ids",
+    "directions",
+    "zeros",
+    "models",
+    "watchdog_s",
+    "configure",
+    "restore",
+)
 
 
 @dataclass(frozen=True)
@@ -46,6 +58,12 @@ class BusConfig:
         Expected servo model per joint.
     watchdog_s : float
         Bus Watchdog period (s).
+    configure : bool
+        Whether bring-up may change EEPROM settings (Operating Mode, Return
+        Delay Time) it needs changed; False: it says what it would change and
+        refuses where streaming needs the change.
+    restore : bool
+        Whether the settings bring-up changed are written back on exit.
     """
 
     port: str | None = None
@@ -53,6 +71,8 @@ class BusConfig:
     joints: JointMap = field(default_factory=JointMap)
     models: tuple[str, ...] = (DEFAULT_SERVO,) * 3
     watchdog_s: float = 0.1
+    configure: bool = False
+    restore: bool = False
 
 
 def _error(path, key: str):
@@ -94,9 +114,7 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
     table = tables.get("bus", {})
     if not isinstance(table, dict):
         raise _error(path, "")(f"expected a table, got {table!r}")
-    for key in table:
-        if key not in BUS_KEYS:
-            raise _error(path, key)(f"unknown key (known: {', '.join(BUS_KEYS)})")
+    check_keys(table, BUS_KEYS, error=_error(path, ""))
     port = table.get("port")
     if port is not None and (not isinstance(port, str) or not port):
         raise _error(path, "port")(f"expected a device path string, got {port!r}")
@@ -150,7 +168,13 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
         high=127 * WATCHDOG_UNIT_S,
         error=_error(path, "watchdog_s"),
     )
-    return BusConfig(port, baud, joints, models, watchdog_s)
+    flags = {}
+    for key in ("configure", "restore"):
+        value = table.get(key, False)
+        if not isinstance(value, bool):
+            raise _error(path, key)(f"expected true or false, got {value!r}")
+        flags[key] = value
+    return BusConfig(port, baud, joints, models, watchdog_s, **flags)
 
 
 def baud_rates_text() -> str:

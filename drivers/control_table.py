@@ -63,25 +63,40 @@ class Register(Enum):
     RETURN_DELAY_TIME = "Return Delay Time"
     DRIVE_MODE = "Drive Mode"
     OPERATING_MODE = "Operating Mode"
+    SECONDARY_ID = "Secondary(Shadow) ID"
+    TEMPERATURE_LIMIT = "Temperature Limit"
+    MAX_VOLTAGE_LIMIT = "Max Voltage Limit"
+    MIN_VOLTAGE_LIMIT = "Min Voltage Limit"
     MAX_POSITION_LIMIT = "Max Position Limit"
     MIN_POSITION_LIMIT = "Min Position Limit"
     SHUTDOWN = "Shutdown"
     TORQUE_ENABLE = "Torque Enable"
     STATUS_RETURN_LEVEL = "Status Return Level"
     HARDWARE_ERROR_STATUS = "Hardware Error Status"
+    VELOCITY_I_GAIN = "Velocity I Gain"
+    VELOCITY_P_GAIN = "Velocity P Gain"
+    POSITION_D_GAIN = "Position D Gain"
+    POSITION_I_GAIN = "Position I Gain"
+    POSITION_P_GAIN = "Position P Gain"
+    FEEDFORWARD_2ND_GAIN = "Feedforward 2nd Gain"
+    FEEDFORWARD_1ST_GAIN = "Feedforward 1st Gain"
     BUS_WATCHDOG = "Bus Watchdog"
+    GOAL_PWM = "Goal PWM"
     PROFILE_ACCELERATION = "Profile Acceleration"
     PROFILE_VELOCITY = "Profile Velocity"
     GOAL_POSITION = "Goal Position"
     PRESENT_CURRENT = "Present Current"  # XL430: "Present Load" at the same address
     PRESENT_VELOCITY = "Present Velocity"
     PRESENT_POSITION = "Present Position"
+    PRESENT_INPUT_VOLTAGE = "Present Input Voltage"
+    PRESENT_TEMPERATURE = "Present Temperature"
 
 
 # Registers holding two's-complement values (e-Manual: range includes negatives).
 SIGNED = frozenset(
     {
         Register.BUS_WATCHDOG,
+        Register.GOAL_PWM,
         Register.GOAL_POSITION,
         Register.MAX_POSITION_LIMIT,
         Register.MIN_POSITION_LIMIT,
@@ -97,6 +112,41 @@ Model = ServoSpec
 
 #: Every supported model, by canonical name (the servo table's entries).
 MODELS = SERVOS
+
+# What a change of Operating Mode resets to its initial value (e-Manual,
+# "Operating Mode (11)"; Goal Current too, on the models that have it).
+MODE_RESETS = (
+    Register.VELOCITY_I_GAIN,
+    Register.VELOCITY_P_GAIN,
+    Register.POSITION_D_GAIN,
+    Register.POSITION_I_GAIN,
+    Register.POSITION_P_GAIN,
+    Register.FEEDFORWARD_2ND_GAIN,
+    Register.FEEDFORWARD_1ST_GAIN,
+    Register.GOAL_PWM,
+    Register.PROFILE_ACCELERATION,
+    Register.PROFILE_VELOCITY,
+)
+
+# Operating Mode values (e-Manual, "Operating Mode (11)"; 3 and 4 in trajgen.servo_table).
+CURRENT_MODE = 0
+VELOCITY_MODE = 1
+CURRENT_BASED_POSITION_MODE = 5
+PWM_MODE = 16
+OPERATING_MODE_NAMES = {
+    CURRENT_MODE: "current control",
+    VELOCITY_MODE: "velocity control",
+    POSITION_MODE: "position control",
+    EXTENDED_POSITION_MODE: "extended position control",
+    CURRENT_BASED_POSITION_MODE: "current-based position control",
+    PWM_MODE: "PWM control",
+}
+
+# Secondary ID (12) value that turns it off (e-Manual: 253..255 disable it).
+SECONDARY_ID_OFF = 255
+
+# Present Input Voltage and the voltage limits are in 0.1 V; temperatures in 1 deg C.
+VOLTAGE_UNIT_V = 0.1
 
 
 def model_named(name: str) -> Model:

@@ -28,6 +28,10 @@ class WatchdogTripped(ServoError):
     """A servo's Bus Watchdog expired; it refuses new goals until cleared."""
 
 
+class ServoReset(ServoError):
+    """A servo's torque went off by itself mid-stream: it rebooted, lost power or shut down."""
+
+
 class BringUpError(DriverError):
     """The servos on the bus do not match the configuration (missing, wrong model)."""
 

@@ -254,3 +254,8 @@ class PacketReader:
                 return found
             found.append(bytes(self._buffer[:total]))
             del self._buffer[:total]
+
+
+def word(params: bytes, k: int) -> int:
+    """The little-endian 16-bit word at ``params[k]``."""
+    return params[k] | params[k + 1] << 8

@@ -39,7 +39,6 @@ from . import bringup
 from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
 from .clock import WALL_CLOCK, SimulatedClock
 from .config import BusConfig
-from .control_table import Register
 from .defaults import MAX_DELAY_S
 from .errors import BringUpError, DriverError, Interrupted
 from .signals import StopSignals
@@ -51,6 +50,7 @@ NOT_MOVED = "not moved"  # bring-up refused before torque on
 HOLDING = "holding"  # reads torque on after the safe stop: it holds its last goal
 RELEASED = "released"  # reads torque off after the safe stop
 UNKNOWN = "unknown"  # did not answer after the safe stop: see ``stop_errors``
+OFF_BY_ITSELF = "off by itself"  # torque off although it was driven: rebooted, shut down
 
 
 @dataclass
@@ -74,8 +74,11 @@ class Outcome:
         What the safe stop could not do.
     servo_states : dict of int to str
         Per servo id: ``UNTOUCHED``, ``NOT_MOVED``, or after a safe stop its
-        Torque Enable as read back, ``HOLDING`` or ``RELEASED`` (``UNKNOWN`` if it
-        did not answer).
+        state as read back, ``HOLDING``, ``RELEASED``, ``OFF_BY_ITSELF``
+        (``UNKNOWN`` if it did not answer soundly).
+    servos : tuple of drivers.outcome.ServoOutcome
+        The same after a safe stop, with the goal held and the likely cause of a
+        silence (``format()`` gives one line per servo); empty when not read back.
     trajectory : JointTrajectory or JointRange or None
         The plan bring-up checked (for a stream, what was streamed).
     virtual_error : Exception or None
@@ -89,6 +92,7 @@ class Outcome:
     stats: object = None
     stop_errors: list[str] = field(default_factory=list)
     servo_states: dict[int, str] = field(default_factory=dict)
+    servos: tuple = ()
     trajectory: object = None
     virtual_error: Exception | None = None
 
@@ -108,13 +112,18 @@ class Outcome:
 
     def to_json_dict(self, joint_names=JOINT_NAMES) -> dict:
         """What happened, as plain JSON types: ``stopped_by``, ``signal``, ``stage``,
-        ``stop_errors``, ``servos`` (state per servo id), ``bring_up`` and ``stream``."""
+        ``stop_errors``, ``servos`` (state per servo id), ``servo_outcomes`` (per joint, as
+        read back), ``changes`` (what bring-up wrote), ``bring_up`` and ``stream``."""
         return {
             "stopped_by": self.stopped_by,
             "signal": self.signal,
             "stage": self.stage,
             "stop_errors": self.stop_errors,
             "servos": {str(i): s for i, s in self.servo_states.items()},
+            "servo_outcomes": {o.joint: o.to_json_dict() for o in self.servos},
+            "changes": []
+            if self.bring_up is None
+            else [c.describe() for c in self.bring_up.changes],
             "bring_up": self.bring_up_summary(joint_names),
             "stream": None if self.stats is None else self.stats.to_json_dict(),
         }
@@ -357,6 +366,7 @@ class Session:
         port = self.config.port if virtual is None else virtual.port
         ids = self.config.joints.ids
         bus = None
+        log = bringup.BringUpLog()
         try:
             with signals.armed():
                 outcome.stage = "open"
@@ -371,6 +381,8 @@ class Session:
                     joint_names=JOINT_NAMES,
                     set_limits=self.set_limits,
                     max_approach_rad=self.max_approach_rad,
+                    configure=self.config.configure,
+                    log=log,
                 )
                 outcome.bring_up, outcome.trajectory = setup, setup.trajectory
                 outcome.stage = "stream"
@@ -384,14 +396,18 @@ class Session:
                 outcome.signal = e.signum
             if bus is None:
                 outcome.servo_states = dict.fromkeys(ids, UNTOUCHED)
-            elif outcome.stats is None and isinstance(e, BringUpError):
-                # Refused before torque on: bring-up changes nothing before its checks pass,
-                # and leaves torque off when a last check fails.
+            elif (
+                outcome.stats is None
+                and isinstance(e, BringUpError)
+                and not (log.changes or bus.torque_written or bus.driven)
+            ):
+                # Refused before any change: bring-up changes nothing before its checks pass.
                 outcome.servo_states = dict.fromkeys(ids, NOT_MOVED)
             else:
                 if outcome.stats is None:
                     # Stopped during bring-up, possibly after it changed something.
-                    outcome.stop_errors += safe_stop(bus, ids, self.on_stop)
+                    restore = log.changes if self.config.restore else ()
+                    outcome.stop_errors += safe_stop(bus, ids, self.on_stop, restore)
                 self._states(bus, ids, outcome)
         finally:
             if bus is not None:
@@ -413,6 +429,9 @@ class Session:
             max_approach_rad=self.max_approach_rad,
             goal_bounds_ticks=setup.goal_bounds_ticks,
             max_delay_s=self.max_delay_s,
+            start_ticks=setup.present_ticks,
+            power_limits=setup.power_limits,
+            restore=setup.changes if self.config.restore else (),
             clock=clock,
         )
         try:
@@ -422,16 +441,15 @@ class Session:
             outcome.stop_errors += streamer.stop_errors
 
     def _states(self, bus, ids, outcome: Outcome) -> None:
-        """Each servo's state after the safe stop, as it reads back: Torque Enable 1 is
-        holding (the Bus Watchdog was cleared), 0 released; a servo that does not answer
-        is unknown."""
-        states = {}
-        for servo_id in ids:
-            try:
-                on = bus.read(servo_id, Register.TORQUE_ENABLE)
-            except DriverError as e:
-                states[servo_id] = UNKNOWN
-                outcome.stop_errors.append(f"state unknown: {e}")
-            else:
-                states[servo_id] = HOLDING if on else RELEASED
-        outcome.servo_states = states
+        """Each servo's state after the safe stop, as it reads back
+        (``outcome.servo_outcomes``): holding, released, off by itself (torque off
+        although it was driven), not moved (never torqued), untouched; a servo that does
+        not answer soundly is unknown, its likely cause in ``stop_errors``."""
+        from .outcome import servo_outcomes
+
+        outcome.servos = servo_outcomes(bus, self.config.joints, JOINT_NAMES)
+        named = {"never torqued": NOT_MOVED}
+        outcome.servo_states = {o.servo_id: named.get(o.state, o.state) for o in outcome.servos}
+        for o in outcome.servos:
+            if o.state == UNKNOWN:
+                outcome.stop_errors.append(f"state unknown: {o.detail}")

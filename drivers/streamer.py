@@ -7,7 +7,20 @@ ones (no drift). Per frame: one Sync Write of Goal Position. Every ``telemetry_e
 frames: one group read of present current, velocity and position (Fast Sync
 Read, or Sync Read where the servos do not answer it: said with a
 ``RuntimeWarning``), whose ERR bytes reveal a hardware error (Alert bit).
-About every ``poll_s``: a group read of the Bus Watchdog.
+About every ``poll_s``: a group read of Torque Enable, Hardware Error Status
+and Bus Watchdog (64..98): a servo whose torque went off or whose Bus Watchdog
+no longer holds what it held at the start has rebooted (its RAM was reset) or
+shut down, and the stream stops naming it. About every ``health_s``: a group
+read of Present Input Voltage and Present Temperature (144..146), into the
+telemetry, checked against the servo's own limits (``drivers.health``): a
+warning near them, a stop before the servo's own shutdown.
+
+Present Position is never trusted from one read: the stream starts from the
+goal each servo held at torque on (``start_ticks``, which the first read must
+agree with), or from two reads that agree; mid-stream, a read further from the
+last plausible one than the servo could have moved is a glitch: counted,
+warned, left out of the telemetry, and ``MAX_GLITCHES`` in a row stop the
+stream.
 
 Stalls (the host paused: GC, a busy machine, SIGSTOP): a frame more than
 ``stall_s`` (default half a period) past its deadline is never sent early to
@@ -37,23 +50,47 @@ from typing import Literal
 
 import numpy as np
 
-from trajgen.drivers.bringup import MAX_APPROACH_RAD, check_start, joint_names_for
+from trajgen.drivers.bringup import (
+    HOLD_TOLERANCE_TICKS,
+    MAX_APPROACH_RAD,
+    POSITION_NOISE_TICKS,
+    check_start,
+    joint_names_for,
+    restore_settings,
+)
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import WALL_CLOCK
-from trajgen.drivers.control_table import Register
+from trajgen.drivers.control_table import VOLTAGE_UNIT_V, Register
 from trajgen.drivers.defaults import MAX_DELAY_S
 from trajgen.drivers.errors import (
+    BringUpError,
     CommError,
     DriverError,
     OutsideLimits,
+    ServoError,
+    ServoReset,
     StreamLagging,
     WatchdogTripped,
 )
+from trajgen.drivers.health import PowerLimits, health_problem
 from trajgen.drivers.telemetry import TelemetryWriter
-from trajgen.drivers.units import JointMap
+from trajgen.drivers.units import RAD_PER_TICK, JointMap
 from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
+_STATUS = (Register.TORQUE_ENABLE, Register.HARDWARE_ERROR_STATUS, Register.BUS_WATCHDOG)
+_POWER = (Register.PRESENT_INPUT_VOLTAGE, Register.PRESENT_TEMPERATURE)
+_POWER_LIMITS = (
+    Register.MIN_VOLTAGE_LIMIT,
+    Register.MAX_VOLTAGE_LIMIT,
+    Register.TEMPERATURE_LIMIT,
+)
+
+#: A read further from the last plausible one than this factor times the
+#: servo's no-load speed (at 12 V; a higher supply is faster) allows is a glitch.
+GLITCH_SPEED_FACTOR = 1.5
+#: This many glitched Present Position reads in a row of one servo stop the stream.
+MAX_GLITCHES = 3
 
 
 class RunningQuantiles:
@@ -128,6 +165,10 @@ class StreamStats:
         (each stall's lateness plus the Bus Watchdog poll that follows it).
     reads : int
         Telemetry group reads done.
+    position_glitches : int
+        Present Position reads not trusted (a jump faster than the servo can move).
+    warnings : list of str
+        Power, heat and glitch warnings given during the stream (each once).
     comm_errors : int
         Transactions that failed (retried, or fatal).
     read_method : str
@@ -152,6 +193,8 @@ class StreamStats:
     stall_max_s: float = 0.0
     delay_s: float = 0.0
     reads: int = 0
+    position_glitches: int = 0
+    warnings: list[str] = field(default_factory=list)
     comm_errors: int = 0
     read_method: str = "fast sync read"
     read_fallback: str = ""
@@ -207,6 +250,8 @@ class StreamStats:
             f"stream ended {ms(self.delay_s)} behind its plan)",
             f"telemetry reads: {self.reads} ({self.read_method}); comm errors: {self.comm_errors}",
         ]
+        if self.position_glitches:
+            lines.append(f"position reads not trusted (glitches): {self.position_glitches}")
         if self.fault:
             lines.append(f"stopped by fault: {self.fault}")
         return "\n".join(lines)
@@ -283,6 +328,18 @@ class Streamer:
     max_delay_s : float or None, optional
         Fail the stream (``StreamLagging``) when the total shift passes this
         (s); None: no bound (stalls are still counted).
+    start_ticks : array_like of int, shape (n,), optional
+        The Goal Position each servo holds at the start (``BringUp.present_ticks``):
+        the stream starts from it, and the first position read must agree with
+        it. None: two position reads that agree.
+    health_s : float, optional
+        Read supply voltage and temperature about this often (s).
+    power_limits : sequence of PowerLimits, optional
+        Each servo's voltage and temperature limits (``BringUp.power_limits``);
+        None: read from the servos at the start.
+    restore : sequence of Change, optional
+        Settings bring-up changed (``BringUp.changes``), written back by the
+        safe stop (``restore_settings``); empty: nothing is restored.
     clock : object with ``now()`` and ``sleep_until(deadline_s)``, optional
         What the deadlines run on: the host's monotonic clock, or a
         ``drivers.clock.SimulatedClock`` against a lock-step virtual bus (the
@@ -317,12 +374,23 @@ class Streamer:
         goal_bounds_ticks: np.ndarray | None = None,
         stall_s: float | None = None,
         max_delay_s: float | None = MAX_DELAY_S,
+        start_ticks: np.ndarray | None = None,
+        health_s: float = 0.5,
+        power_limits: Sequence[PowerLimits] | None = None,
+        restore: Sequence = (),
         clock=WALL_CLOCK,
     ) -> None:
         positive = {"low": 0.0, "low_open": True}
         telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
         check_choice("on_stop", on_stop, ("hold", "torque_off"))
         poll_s = check_number("poll_s", poll_s, **positive)
+        health_s = check_number("health_s", health_s, **positive)
+        if start_ticks is not None:
+            start_ticks = np.asarray(start_ticks, dtype=np.int64)
+            if start_ticks.shape != (len(joints),):
+                raise ValueError(
+                    f"Expected `start_ticks` of shape ({len(joints)},), got {start_ticks.shape}."
+                )
         approach_speed_rad_s = check_number(
             "approach_speed_rad_s", approach_speed_rad_s, **positive
         )
@@ -351,6 +419,10 @@ class Streamer:
         self.goal_bounds_ticks = goal_bounds_ticks
         self.stall_s = stall_s
         self.max_delay_s = max_delay_s
+        self.start_ticks = start_ticks
+        self.health_s = health_s
+        self.power_limits = None if power_limits is None else tuple(power_limits)
+        self.restore = tuple(restore)
         self.clock = clock
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []
@@ -375,10 +447,14 @@ class Streamer:
             If no rate is known or the stream is empty.
         BringUpError
             If a joint reads farther than ``max_approach_rad`` from the first
-            frame (nothing is sent; the servos hold or are released).
+            frame, or its position reads do not agree with ``start_ticks`` (or
+            with each other) (nothing is sent; the servos hold or are released).
         CommError, ServoError, WatchdogTripped, StreamLagging, OutsideLimits
             On a fault, after the safe stop; ``self.stats`` holds the statistics
             and ``self.stop_errors`` anything the safe stop could not do.
+            ``ServoReset`` (a ``ServoError``): a servo rebooted or lost power;
+            ``ServoError`` also for supply or temperature at the stop margins,
+            and for ``MAX_GLITCHES`` implausible position reads in a row.
         KeyboardInterrupt
             On Ctrl-C (or ``errors.Interrupted``: a stop signal), after the safe stop.
         """
@@ -395,6 +471,11 @@ class Streamer:
         self.stop_errors = []
         self._writer = writer = None
         self._frame_no = 0
+        self._last_position: tuple[float, np.ndarray] | None = None
+        self._max_speed = GLITCH_SPEED_FACTOR * np.array(
+            [self.bus.models[i].no_load_speed_rad_s for i in self.joints.ids]
+        )
+        self._glitches = np.zeros(len(self.joints), dtype=int)
         failed_before = self.bus.failed_tries
         try:
             if self.telemetry_path is not None:
@@ -403,7 +484,10 @@ class Streamer:
                     self.telemetry_path, self.joint_names, models
                 )
             self._choose_read_method()
-            present = self._read_state()[0]
+            self._status_at_start = self._read_status()
+            if self.power_limits is None:
+                self.power_limits = self._read_power_limits()
+            present = self._start_position()
             check_start(
                 present, np.asarray(first.q, float), self.max_approach_rad, self.joint_names
             )
@@ -415,7 +499,7 @@ class Streamer:
             self._loop(((f.t, f.q) for f in chain([first], frames)), "stream", timed=True)
         except (DriverError, KeyboardInterrupt) as e:
             stats.fault = str(e) or type(e).__name__
-            self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop)
+            self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop, self.restore)
             raise
         finally:
             stats.comm_errors = self.bus.failed_tries - failed_before
@@ -424,7 +508,7 @@ class Streamer:
                 writer.close()
         if planned == 0:
             stats.frames_planned = stats.frames_sent
-        self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop)
+        self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop, self.restore)
         return stats
 
     # -- reading -----------------------------------------------------------
@@ -461,20 +545,162 @@ class Streamer:
         raw = np.array([[block.values[i][r] for r in _STATE] for i in ids], dtype=float)
         current = np.array([self.bus.models[i].current_a(block.values[i][_STATE[0]]) for i in ids])
         return (
-            self.joints.to_rad(raw[:, 2]),
+            self._plausible(raw[:, 2]),
             self.joints.velocity_to_rad_s(raw[:, 1]),
             self.joints.signed_joint(current),
         )
 
-    def _poll_watchdog(self, when: str) -> None:
-        block = self.bus.read_block(self.joints.ids, (Register.BUS_WATCHDOG,), fast=self._use_fast)
+    def _plausible(self, ticks: np.ndarray) -> np.ndarray:
+        """Joint angles (rad) of a position read, NaN where it jumped implausibly far.
+
+        A read is compared with the last plausible one: a servo cannot move
+        faster than ``GLITCH_SPEED_FACTOR`` times its no-load speed.
+
+        Raises
+        ------
+        ServoError
+            After ``MAX_GLITCHES`` implausible reads in a row of one servo.
+        """
+        now = self.clock.now()
+        position = self.joints.to_rad(ticks)
+        if self._last_position is None:
+            self._last_position = (now, position)
+            return position
+        then, last = self._last_position
+        allowed = self._max_speed * max(now - then, 0.0)
+        allowed += POSITION_NOISE_TICKS * RAD_PER_TICK
+        jumped = np.abs(position - last) > allowed
+        self._glitches = np.where(jumped, self._glitches + 1, 0)
+        for j in np.flatnonzero(jumped):
+            self.stats.position_glitches += 1
+            who = f"servo {self.joints.ids[j]} ({self.joint_names[j]})"
+            jump = math.degrees(position[j] - last[j])
+            if self._glitches[j] >= MAX_GLITCHES:
+                raise ServoError(
+                    f"{who}: Present Position implausible {MAX_GLITCHES} reads in a row (the "
+                    f"last {jump:+.1f} deg from the last plausible read, faster than it can "
+                    f"move) at frame {self._frame_no}: encoder fault, or it was moved by force"
+                )
+            self._warn(
+                f"{who}: Present Position jumped {jump:+.1f} deg in one read at frame "
+                f"{self._frame_no}, faster than it can move: not trusted (left out of the "
+                "telemetry)"
+            )
+        keep = ~jumped
+        last = np.where(keep, position, last)
+        self._last_position = (now, last)
+        return np.where(keep, position, math.nan)
+
+    def _warn(self, message: str) -> None:
+        """A ``RuntimeWarning`` during the stream, kept in ``stats.warnings`` (each once)."""
+        key = message.split(" at frame ")[0]
+        if any(w.split(" at frame ")[0] == key for w in self.stats.warnings):
+            return
+        self.stats.warnings.append(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=4)
+
+    def _start_position(self) -> np.ndarray:
+        """Joint angles (rad) the stream starts from; never one unchecked read.
+
+        With ``start_ticks``: those goals, once a position read agrees with
+        them (up to 3 reads). Without: the second of two reads that agree.
+
+        Raises
+        ------
+        BringUpError
+            If no read agrees.
+        """
+        reads = []
+        for _ in range(3):
+            ticks = self._raw_positions()
+            reads.append(ticks)
+            if self.start_ticks is not None:
+                if np.all(np.abs(ticks - self.start_ticks) <= HOLD_TOLERANCE_TICKS):
+                    return self.joints.to_rad(self.start_ticks)
+            elif len(reads) >= 2 and np.all(np.abs(ticks - reads[-2]) <= POSITION_NOISE_TICKS):
+                return self.joints.to_rad(ticks)
+        reference = self.start_ticks if self.start_ticks is not None else reads[0]
+        j = int(np.argmax(np.max(np.abs(np.array(reads) - reference), axis=0)))
+        values = ", ".join(str(int(r[j])) for r in reads)
+        against = (
+            f"the Goal Position {int(self.start_ticks[j])} it held at torque on"
+            if self.start_ticks is not None
+            else "each other"
+        )
+        raise BringUpError(
+            f"servo {self.joints.ids[j]} ({self.joint_names[j]}): Present Position reads "
+            f"{values}, which do not agree with {against}; refusing to start from it"
+        )
+
+    def _raw_positions(self) -> np.ndarray:
+        block = self.bus.read_block(self.joints.ids, _STATE, fast=self._use_fast)
         self.bus.check_block(block, "streaming")
-        for servo_id, values in block.values.items():
-            if values[Register.BUS_WATCHDOG] == -1:
+        return np.array([block.values[i][Register.PRESENT_POSITION] for i in self.joints.ids])
+
+    def _read_status(self) -> dict[int, dict[Register, int]]:
+        block = self.bus.read_block(self.joints.ids, _STATUS, fast=self._use_fast)
+        self.bus.check_block(block, "streaming")
+        return block.values
+
+    def _read_power_limits(self) -> tuple[PowerLimits, ...]:
+        return tuple(
+            PowerLimits.from_registers(*(self.bus.read(i, r) for r in _POWER_LIMITS))
+            for i in self.joints.ids
+        )
+
+    def _poll_health(self) -> tuple[np.ndarray, np.ndarray]:
+        """Supply voltage (V) and temperature (deg C) per servo, checked against its limits.
+
+        Raises
+        ------
+        ServoError
+            If a servo is at its voltage or temperature stop margin.
+        """
+        block = self.bus.read_block(self.joints.ids, _POWER, fast=self._use_fast)
+        self.bus.check_block(block, "streaming")
+        ids = self.joints.ids
+        volts = np.array([block.values[i][_POWER[0]] * VOLTAGE_UNIT_V for i in ids])
+        temps = np.array([float(block.values[i][_POWER[1]]) for i in ids])
+        for j, limits in enumerate(self.power_limits):
+            who = f"servo {ids[j]} ({self.joint_names[j]})"
+            problem = health_problem(who, limits, volts[j], temps[j])
+            if problem is not None and problem[0] == "stop":
+                raise ServoError(f"{problem[1]} (frame {self._frame_no})")
+            if problem is not None:
+                self._warn(f"{problem[1]} at frame {self._frame_no}")
+        return volts, temps
+
+    def _poll_watchdog(self, when: str) -> None:
+        """Torque, hardware error and Bus Watchdog of every servo, against the start.
+
+        Raises
+        ------
+        WatchdogTripped
+            If a Bus Watchdog reads -1.
+        ServoReset
+            If a servo's torque went off or its Bus Watchdog changed: it
+            rebooted (RAM reset) or shut down.
+        ServoError
+            If a servo reports a hardware error (Alert bit).
+        """
+        status = self._read_status()
+        for j, servo_id in enumerate(self.joints.ids):
+            values, start = status[servo_id], self._status_at_start[servo_id]
+            who = f"servo {servo_id} ({self.joint_names[j]})"
+            watchdog = values[Register.BUS_WATCHDOG]
+            if watchdog == -1:
                 raise WatchdogTripped(
                     f"servo {servo_id}: Bus Watchdog tripped (register 98 = -1) {when} "
                     f"frame {self._frame_no}: it stopped and refuses goals until the watchdog is "
                     "cleared (the bus was silent longer than its watchdog period)"
+                )
+            torque, torque_was = values[Register.TORQUE_ENABLE], start[Register.TORQUE_ENABLE]
+            if watchdog != start[Register.BUS_WATCHDOG] or torque != torque_was:
+                raise ServoReset(
+                    f"{who} reset itself {when} frame {self._frame_no}: Torque Enable "
+                    f"{torque} (was {torque_was}), Bus Watchdog {watchdog} (was "
+                    f"{start[Register.BUS_WATCHDOG]}): it rebooted or lost power (its RAM "
+                    "is back to the defaults) and does not hold its goal"
                 )
 
     # -- the loop ----------------------------------------------------------
@@ -498,6 +724,7 @@ class Streamer:
         period = 1.0 / stats.rate_hz
         stall_s = 0.5 * period if self.stall_s is None else self.stall_s
         poll_every = max(1, round(self.poll_s * stats.rate_hz))
+        health_every = max(1, round(self.health_s * stats.rate_hz))
         clock = self.clock
         start = clock.now() + period
         shift = 0.0  # this phase's clock shift (s), from stalls
@@ -520,11 +747,14 @@ class Streamer:
             if timed:
                 stats._sent(sent, planned, planned + shift)
             state = (nan, nan, nan)
+            power = (nan, nan)
             try:
                 if k % self.telemetry_every == 0:
                     state = self._read_state()
                 if k % poll_every == poll_every - 1:
                     self._poll_watchdog("before")
+                if k % health_every == health_every // 2:
+                    power = self._poll_health()
             finally:  # the goal went out: its row is written even if the read failed
                 if self._writer is not None:
                     self._writer.write(
@@ -532,6 +762,7 @@ class Streamer:
                         + list(q)
                         + ticks.tolist()
                         + [*state[0], *state[1], *state[2]]
+                        + [*power[0], *power[1]]
                     )
 
     def _stall(self, late_s: float) -> None:
@@ -550,21 +781,24 @@ class Streamer:
         self._poll_watchdog(f"after a {1e3 * late_s:.1f} ms stall, before")
 
 
-def safe_stop(bus: ServoBus, ids: Sequence[int], on_stop: str) -> list[str]:
+def safe_stop(bus: ServoBus, ids: Sequence[int], on_stop: str, restore: Sequence = ()) -> list[str]:
     """Hold the last goal (clear the Bus Watchdog) or release the servos (torque off).
 
-    Best effort, one try per servo.
+    Best effort, one try per servo. Then, if ``restore`` lists changes, write
+    back what bring-up changed (``drivers.bringup.restore_settings``).
 
     Parameters
     ----------
     bus : ServoBus
     ids : sequence of int
     on_stop : {"hold", "torque_off"}
+    restore : sequence of Change, optional
 
     Returns
     -------
     list of str
-        What could not be done (e.g. a servo that no longer answers).
+        What could not be done (e.g. a servo that no longer answers, a
+        setting left changed).
     """
     errors = []
     retries, bus.retries = bus.retries, 0
@@ -579,4 +813,6 @@ def safe_stop(bus: ServoBus, ids: Sequence[int], on_stop: str) -> list[str]:
                 errors.append(str(e))
     finally:
         bus.retries = retries
+    if restore:
+        errors += restore_settings(bus, restore)
     return errors

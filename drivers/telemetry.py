@@ -40,6 +40,9 @@ def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
     columns = ["frame", "phase", "t_s", "sent_s", "lateness_s", "clock_s"]
     for prefix in ("goal_rad", "goal_tick", "position_rad", "velocity_rad_s", "current_a"):
         columns += [f"{prefix}_{name}" for name in joint_names]
+    # Read at a low rate (``Streamer(health_s=...)``): NaN in the rows between.
+    for prefix in ("voltage_v", "temperature_c"):
+        columns += [f"{prefix}_{name}" for name in joint_names]
     return columns
 
 

@@ -113,7 +113,7 @@ def load_telemetry(path) -> TelemetryLog:
         with np.load(path) as f:
             columns = {k: np.asarray(f[k]) for k in f.files}
     else:
-        with open(path, newline="", encoding="utf-8") as f:
+        with open(path, newline="", encoding="utf-8-sig") as f:  # a spreadsheet's BOM
             rows = list(csv.DictReader(f))
         columns = {k: np.array([r[k] for r in rows]) for k in (rows[0] if rows else {})}
     names = ["frame", "t_s"] + [

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from trajgen.sim.model import JOINT_NAMES
-from trajgen.validate import check_number
+from trajgen.validate import check_keys, check_number
 
 #: ``[limits]`` keys and the quantity each bounds.
 LIMIT_KEYS = {
@@ -89,13 +89,10 @@ def limits_from_tables(tables: dict, path) -> JointLimits:
     if not isinstance(table, dict):
         raise KeyframeFileError(f"{Path(path)}: [limits]: expected a table, got {table!r}")
     kwargs = {}
+    check_keys(table, LIMIT_KEYS, error=lambda p: KeyframeFileError(f"{Path(path)}: [limits]: {p}"))
     for key, value in table.items():
-        if key not in LIMIT_KEYS:
-            raise error(f"unknown key '{key}' (known: {', '.join(LIMIT_KEYS)})")
         if isinstance(value, dict):
-            unknown = sorted(set(value) - set(JOINT_NAMES))
-            if unknown:
-                raise error(f"{key}.{unknown[0]}: unknown joint (known: {', '.join(JOINT_NAMES)})")
+            check_keys(value, JOINT_NAMES, error=lambda p, k=key: error(f"{k}: {p}"), kind="joint")
             value = tuple(value.get(j, math.inf) for j in JOINT_NAMES)
         try:
             kwargs[key] = getattr(JointLimits(**{key: value}), key)

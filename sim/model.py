@@ -41,7 +41,7 @@ from trajgen.keyframe_axes import axes_from_table, is_default
 from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, ServoModel, servo_by_name
-from trajgen.validate import check_number, check_numbers
+from trajgen.validate import check_keys, check_number, check_numbers
 
 GIMBAL_TABLE_KEYS = (
     "servo",
@@ -252,10 +252,7 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
     table = tables.get("gimbal", {})
     if not isinstance(table, dict):
         raise _file_error(path, f"[gimbal]: expected a table, got {table!r}")
-    unknown = sorted(set(table) - set(GIMBAL_TABLE_KEYS))
-    if unknown:
-        known = ", ".join(GIMBAL_TABLE_KEYS)
-        raise _file_error(path, f"[gimbal] unknown key '{unknown[0]}' (known: {known})")
+    check_keys(table, GIMBAL_TABLE_KEYS, error=lambda p: _file_error(path, f"[gimbal]: {p}"))
     kwargs = {"servos": _servos_from_table(table.get("servo", DEFAULT_SERVO.name), path)}
     kwargs["joints"] = tuple(_joint_from_table(table.get(j, {}), j, path) for j in JOINT_NAMES)
     for key in ("payload_kg", "torque_margin", "max_tracking_error_rad", "p_divisor"):
@@ -296,10 +293,7 @@ def _joint_from_table(value, joint: str, path) -> dict:
     where = f"[gimbal.{joint}]"
     if not isinstance(value, dict):
         raise _file_error(path, f"{where}: expected a table, got {value!r}")
-    unknown = sorted(set(value) - set(JOINT_TABLE_KEYS))
-    if unknown:
-        known = ", ".join(JOINT_TABLE_KEYS)
-        raise _file_error(path, f"{where} unknown key '{unknown[0]}' (known: {known})")
+    check_keys(value, JOINT_TABLE_KEYS, error=lambda p: _file_error(path, f"{where}: {p}"))
     return {
         key: check_number(
             key,
@@ -315,12 +309,12 @@ def _servos_from_table(value, path) -> tuple[ServoModel, ServoModel, ServoModel]
     if isinstance(value, str):
         return (_servo_or_error(value, "servo", path),) * 3
     if isinstance(value, dict):
-        unknown = sorted(set(value) - set(JOINT_NAMES))
-        if unknown:
-            raise _file_error(
-                path,
-                f"[gimbal] servo.{unknown[0]}: unknown joint (known: {', '.join(JOINT_NAMES)})",
-            )
+        check_keys(
+            value,
+            JOINT_NAMES,
+            error=lambda p: _file_error(path, f"[gimbal] servo: {p}"),
+            kind="joint",
+        )
         return tuple(
             _servo_or_error(value.get(j, DEFAULT_SERVO.name), f"servo.{j}", path)
             for j in JOINT_NAMES

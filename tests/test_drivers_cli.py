@@ -64,7 +64,7 @@ def test_bus_table_defaults_and_values():
 @pytest.mark.parametrize(
     ("table", "match"),
     [
-        ({"speed": 1}, r"f.toml: \[bus\] speed: unknown key \(known: port, baud"),
+        ({"speed": 1}, r"f.toml: \[bus\]: unknown key 'speed' \(known: port, baud"),
         ({"baud": "fast"}, r"f.toml: \[bus\] baud: expected an integer, got 'fast'"),
         ({"ids": [1, 1, 2]}, r"\[bus\] ids: expected 3 distinct ids, got \[1, 1, 2\]"),
         ({"ids": [1, 2]}, r"\[bus\] ids: expected a list of 3 integers, got \[1, 2\]"),
@@ -116,7 +116,11 @@ def test_stream_virtual_from_a_pose_away_from_zero_and_across_180_deg(tmp_path, 
         "[[keyframes]]\nt = 2.0\npan = 100.0\ntilt = 5.0\n"
         "[[keyframes]]\nt = 4.0\npan = 200.0\n"
     )
+    # Across 180 deg: Extended Position Mode, an EEPROM change, made only when asked.
     status = _run(["stream", path, "--virtual", "--json", tmp_path / "r.json"])
+    assert status == 1
+    assert "Operating Mode (register 11) is 3 (position control)" in capsys.readouterr().err
+    status = _run(["stream", path, "--virtual", "--configure", "--json", tmp_path / "r.json"])
     out = capsys.readouterr().out
     assert status == 0, out
     result = json.loads((tmp_path / "r.json").read_text())
@@ -140,7 +144,6 @@ def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--port", "/dev/x", "--virtual"], "--port and --virtual exclude each other"),
         ([], "no serial port: give --port, set [bus] port, or use --virtual"),
         (["--port", "/dev/x", "--plot", "p.png"], "--plot needs --virtual"),
         (
@@ -165,6 +168,12 @@ def test_stream_bad_input_exits_2_with_one_line(tmp_path, capsys, argv, message)
 def test_stream_missing_file_exits_2(tmp_path, capsys):
     assert _run(["stream", tmp_path / "none.toml", "--virtual"]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_port_and_virtual_exclude_each_other_in_the_parser(capsys):
+    with pytest.raises(SystemExit):
+        _run(["stream", "--port", "/dev/x", "--virtual"])
+    assert "argument --virtual: not allowed with argument --port" in capsys.readouterr().err
 
 
 def test_ids_flag_is_checked(capsys):
@@ -218,7 +227,7 @@ def test_stop_signal_stops_safely_and_keeps_every_record(
     path = _write(tmp_path / "k.toml")
     argv = ["stream", path, "--telemetry", tmp_path / "t.npz", "--json", tmp_path / "r.json"]
     argv += ["--torque-off"] if torque_off else []
-    with VirtualBus(_SignalAtFrame(80, signum), lockstep_dt_s=0.01) as virtual:
+    with VirtualBus(_SignalAtFrame(150, signum), lockstep_dt_s=0.01) as virtual:
         assert _run([*argv, "--port", virtual.port]) == status
         torque = [servo.torque_on for servo in virtual.servos.values()]
         watchdog = [servo.get(Register.BUS_WATCHDOG) for servo in virtual.servos.values()]
@@ -232,7 +241,7 @@ def test_stop_signal_stops_safely_and_keeps_every_record(
     assert torque == [not torque_off] * 3
     if not torque_off:
         assert watchdog == [0, 0, 0]  # held goals are not dropped by a watchdog later
-    assert 20 <= received < 81  # stopped mid-stream (bring-up reads too)
+    assert 20 <= received < 151  # stopped mid-stream (bring-up reads too)
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["status"] == status and result["stopped_by"] == f"interrupted by {name}"
     assert result["on_stop"] == ("torque_off" if torque_off else "hold")

@@ -78,7 +78,7 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         BUILTIN_EXAMPLE.read_text().replace(
             "[gimbal]\n", "[gimbal]\nmax_tracking_error_rad = 0.15\n", 1
         )
-        + "\n[bus]\nwatchdog_s = 0.5\n"
+        + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n"  # Extended Position Mode
     )
     assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
     thread.join(timeout=5)
@@ -150,8 +150,9 @@ def test_read_reports_bad_lines_and_goes_on(follower):
 
 
 def test_follow_bad_input_exit_2(tmp_path, capsys):
-    assert main(["follow", "--virtual", "--port", "/dev/null"]) == 2
-    assert "--port and --virtual exclude each other" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # refused by the parser, as on every command
+        main(["follow", "--virtual", "--port", "/dev/null"])
+    assert "argument --port: not allowed with argument --virtual" in capsys.readouterr().err
     natural = tmp_path / "natural.toml"
     text = BUILTIN_EXAMPLE.read_text().replace('boundary = "rest"', 'boundary = "natural"')
     natural.write_text(text)
@@ -191,7 +192,7 @@ def test_follow_stops_safely_on_sigterm_while_waiting_for_lines(tmp_path):
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + signal.SIGTERM, err
-    assert "trajgen: interrupted" in err and "hold their last goal" in err
+    assert "trajgen follow: interrupted" in err and "hold their last goal" in err
 
 
 def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, monkeypatch, capsys):
@@ -203,7 +204,7 @@ def test_a_smooth_spline_file_is_followed_with_the_blending_spline(tmp_path, mon
         "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.5\npan = 5.0\n"
     )
     monkeypatch.setattr(sys, "stdin", io.StringIO(""))  # no lines: the file's plan, then rest
-    assert main(["follow", str(keys), "--virtual", "--max-delay", "60"]) == 0
+    assert main(["follow", str(keys), "--virtual", "--configure", "--max-delay", "60"]) == 0
     err = capsys.readouterr().err
     assert "follow plans with the blending spline" in err and "method = 'smooth'" in err
 
@@ -373,11 +374,11 @@ def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(open(stdin, "rb")))  # noqa: SIM115
     out = tmp_path / "follow.json"
     keys = tmp_path / "keys.toml"
-    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\n")
+    keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nwatchdog_s = 0.5\nconfigure = true\n")
     assert main(["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "trajgen: follow: stdin: line 1: not UTF-8 text" in err
-    assert "trajgen: follow: stdin: line 2: longer than 65536 bytes" in err
+    assert "trajgen follow: stdin: line 1: not UTF-8 text" in err
+    assert "trajgen follow: stdin: line 2: longer than 65536 bytes" in err
     result = json.loads(out.read_text())["follow"]
     assert result["accepted"] == 1 and result["keyframes"][0]["line"] == 3
 
@@ -390,7 +391,7 @@ def test_noise_prints_twenty_refusals_then_counts_the_rest(capsys):
         show(f"stdin: line {n}: invalid JSON")
     err = capsys.readouterr().err.splitlines()
     assert len(err) == SHOWN_SKIPS + 1 and err[0].endswith("line 1: invalid JSON (line skipped)")
-    assert err[-1] == "trajgen: follow: 20 lines skipped; more are counted, not shown"
+    assert err[-1] == "trajgen follow: 20 lines skipped; more are counted, not shown"
 
 
 def test_capped_lines_reads_a_text_file_alike():

@@ -7,13 +7,14 @@ Each row is ``(name, argv, file, status, message, before)``:
 - ``status``: 2 bad input (one line on stderr naming the option or the
   file/keyframe/field, no traceback), 1 a failed check, 0 accepted;
 - ``message``: a regular expression the output must match;
-- ``before``: what the same input did before issue 8 was fixed, measured on
-  the earlier command line: ``"ok"`` (already a clear refusal), ``"crash"``
-  (a traceback), ``"silent"`` (accepted, or refused only after planning,
-  simulating or streaming, or a wrong result), ``"hang"`` (no answer in
-  90 s), ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more
-  than one line, or a message that did not name the option), ``"new"`` (an
-  option or table that did not exist then).
+- ``before``: what the same input did before the issue that fixed it (issue 8,
+  or issue 20 for the rows under its headings), on the earlier command line:
+  ``"ok"`` (already a clear refusal), ``"crash"`` (a traceback), ``"silent"``
+  (accepted, or refused only after planning, simulating or streaming, or a wrong
+  result), ``"hang"`` (no answer in 90 s, or growing without bound),
+  ``"wrong"`` (a valid input refused), ``"unclear"`` (exit 2 but more than one
+  line, or a message that did not name the option), ``"new"`` (an option or
+  table that did not exist then).
 
 Every row runs in-process through :func:`trajgen.cli.main`; nothing here
 touches a serial port (``stream`` refuses before opening one).
@@ -27,6 +28,10 @@ import re
 import pytest
 
 from trajgen.cli import main
+
+#: Every subcommand: its errors start "trajgen <command>:".
+COMMANDS = ("plan", "sim", "fit", "sweep", "stream", "follow", "scan", "virtual-bus", "excite")
+COMMANDS += ("identify",)
 
 # Three keyframes, 2 s apart: a gentle pan and tilt.
 KEYS = """
@@ -189,7 +194,7 @@ CASES = [
         ["plan", "{file}"],
         b"\xff\xfe\x00\x01",
         2,
-        r"cannot read: 'utf-8' codec",
+        r"keys.toml: binary data \(a NUL byte\), not a TOML text file",
         "ok",
     ),
     (
@@ -197,7 +202,7 @@ CASES = [
         ["plan", "{file}"],
         "[camera]\nfov = 60\n" + KEYS,
         2,
-        r"unknown table \[camera\] \(known: spline, keyframes, stream, gimbal, bus",
+        r"keys.toml: unknown table 'camera' \(known: spline, keyframes, stream, gimbal, bus",
         "ok",
     ),
     # --- [spline] ----------------------------------------------------------------
@@ -278,7 +283,7 @@ CASES = [
         ["plan", "{file}"],
         "[spline]\norder = 2\n" + KEYS,
         2,
-        r"\[spline\] unknown key 'order' \(known: method, k, boundary",
+        r"\[spline\]: unknown key 'order' \(known: method, k, boundary",
         "ok",
     ),
     (
@@ -360,7 +365,7 @@ CASES = [
         ["plan", "{file}"],
         "[stream]\nrate = 100\n" + KEYS,
         2,
-        r"\[stream\] unknown key 'rate' \(known: rate_hz\)",
+        r"\[stream\]: unknown key 'rate' \(known: rate_hz\)",
         "ok",
     ),
     (
@@ -394,7 +399,8 @@ CASES = [
         ["plan", "{file}"],
         "keyframes = 5\n",
         2,
-        r"\[\[keyframes\]\]: at least 2 are needed, got not a list of tables",
+        r"keyframes: expected a list of tables, each starting with a line \[\[keyframes\]\] "
+        r"\(two brackets\), got 5",
         "ok",
     ),
     (
@@ -611,7 +617,7 @@ CASES = [
         ["plan", "{file}"],
         "[gimbal]\nmass = 1\n" + KEYS,
         2,
-        r"\[gimbal\] unknown key 'mass'",
+        r"\[gimbal\]: unknown key 'mass'",
         "silent",
     ),
     (
@@ -635,7 +641,7 @@ CASES = [
         ["sim", "{file}"],
         '[gimbal]\nservo = {yaw = "XM430-W350"}\n' + KEYS,
         2,
-        r"\[gimbal\] servo.yaw: unknown joint \(known: pan, tilt, roll\)",
+        r"\[gimbal\] servo: unknown joint 'yaw' \(known: pan, tilt, roll\)",
         "ok",
     ),
     (
@@ -724,7 +730,7 @@ CASES = [
         ["plan", "{file}"],
         "[bus]\nspeed = 3\n" + KEYS,
         2,
-        r"\[bus\] speed: unknown key",
+        r"\[bus\]: unknown key 'speed' \(known: port, baud",
         "silent",
     ),
     (
@@ -740,7 +746,7 @@ CASES = [
         ["plan", "{file}"],
         "[limits]\nspeed = 1\n" + KEYS,
         2,
-        r"\[limits\] unknown key 'speed'",
+        r"\[limits\]: unknown key 'speed'",
         "new",
     ),
     (
@@ -920,7 +926,7 @@ CASES = [
         ["stream", "--port", "/dev/null", "--virtual"],
         None,
         2,
-        r"--port and --virtual exclude each other",
+        r"trajgen stream: error: argument --virtual: not allowed with argument --port",
         "ok",
     ),
     (
@@ -995,6 +1001,481 @@ CASES = [
         r"the following arguments are required: --port",
         "unclear",
     ),
+    # --- issue 20: the same rules on every command ----------------------------
+    (
+        "plan --rat 100 (a prefix of --rate)",
+        ["plan", "--rat", "100"],
+        None,
+        2,
+        r"^trajgen plan: error: unrecognized arguments: --rat",
+        "silent",
+    ),
+    (
+        "sim --jso (a prefix of --json)",
+        ["sim", "--jso", "{tmp}/r.json"],
+        None,
+        2,
+        r"^trajgen sim: error: unrecognized arguments: --jso",
+        "silent",
+    ),
+    (
+        "excite --virt (a prefix of --virtual)",
+        ["excite", "--virt", "--telemetry", "{tmp}/t.csv"],
+        None,
+        2,
+        r"^trajgen excite: error: unrecognized arguments: --virt",
+        "silent",
+    ),
+    (
+        "excite --port and --virtual",
+        ["excite", "--port", "/dev/null", "--virtual", "--telemetry", "{tmp}/t.csv"],
+        None,
+        2,
+        r"^trajgen excite: error: argument --virtual: not allowed with argument --port",
+        "ok",
+    ),
+    (
+        "excite --telemetry .txt",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.txt"],
+        None,
+        2,
+        r"^trajgen excite: error: --telemetry '.*t.txt': expected a .csv or .npz or .mcap file",
+        "ok",
+    ),
+    (
+        "scan without --port",
+        ["scan", "--baud", "57600"],
+        None,
+        2,
+        r"^trajgen scan: error: the following arguments are required: --port",
+        "unclear",
+    ),
+    (
+        "sweep --threads 0",
+        ["sweep", "--threads", "0"],
+        None,
+        2,
+        r"^trajgen sweep: error: argument --threads: expected a whole number >= 1, got '0'",
+        "ok",
+    ),
+    (
+        "sweep --offset-m nan,0,0",
+        ["sweep", "--offset-m", "nan,0,0"],
+        None,
+        2,
+        r"argument --offset-m: expected 3 finite numbers x,y,z in m, got 'nan,0,0'",
+        "silent",
+    ),
+    (
+        "identify --max-iter 0",
+        ["identify", "{file}", "{file}", "--out", "{tmp}/f.toml", "--max-iter", "0"],
+        KEYS,
+        2,
+        r"argument --max-iter: expected a whole number >= 1, got '0'",
+        "ok",
+    ),
+    (
+        "fit --out not .toml",
+        ["fit", "{file}", "--out", "{tmp}/fitted.csv"],
+        KEYS,
+        2,
+        r"^trajgen fit: error: --out '.*fitted.csv': expected a .toml file",
+        "new",
+    ),
+    # --- issue 20: outputs --------------------------------------------------------
+    (
+        "plan --out the input file",
+        ["plan", "{file}", "--out", "{file}"],
+        KEYS,
+        2,
+        r"--out '.*keys.toml': is the input file '.*keys.toml'; writing it would destroy it",
+        "silent",
+    ),
+    (
+        "plan --out a symbolic link to the input",
+        ["plan", "{file}", "--out", "{link}"],
+        KEYS,
+        2,
+        r"--out '.*link.csv': is the input file '.*keys.toml'",
+        "silent",
+    ),
+    (
+        "plan --out a hard link to the input",
+        ["plan", "{file}", "--out", "{hardlink}"],
+        KEYS,
+        2,
+        r"--out '.*hard.csv': is the input file '.*keys.toml'",
+        "silent",
+    ),
+    (
+        "fit --out the input file",
+        ["fit", "{file}", "--out", "{file}"],
+        KEYS,
+        2,
+        r"^trajgen fit: error: --out '.*keys.toml': is the input file",
+        "silent",
+    ),
+    (
+        "identify --out the keyframe file",
+        ["identify", "{file}", "{empty}", "--out", "{file}"],
+        KEYS,
+        2,
+        r"^trajgen identify: error: --out '.*keys.toml': is the input file",
+        "silent",
+    ),
+    (
+        "sim --json a symbolic link to the input",
+        ["sim", "{file}", "--json", "{link}"],
+        KEYS,
+        2,
+        r"--json '.*link.csv': is the input file",
+        "silent",
+    ),
+    (
+        "plan --out /dev/full",
+        ["plan", "--out", "/dev/full"],
+        None,
+        2,
+        r"^trajgen plan: error: --out '/dev/full': cannot write: No space left on device",
+        "crash",
+    ),
+    ("plan --out /dev/null", ["plan", "--out", "/dev/null"], None, 0, r"wrote /dev/null", "ok"),
+    (
+        "plan --out /proc/...",
+        ["plan", "--out", "/proc/self/plan.csv"],
+        None,
+        2,
+        r"--out '/proc/self/plan.csv': is in /proc, a kernel interface",
+        "crash",
+    ),
+    (
+        "plan --out /sys/...",
+        ["plan", "--out", "/sys/kernel/plan.csv"],
+        None,
+        2,
+        r"--out '/sys/kernel/plan.csv': is in /sys, a kernel interface",
+        "crash",
+    ),
+    (
+        "sweep --json /proc/...",
+        ["sweep", "--json", "/proc/self/r.json"],
+        None,
+        2,
+        r"^trajgen sweep: error: --json '/proc/self/r.json': is in /proc",
+        "silent",
+    ),
+    # --- issue 20: what is read ---------------------------------------------------
+    (
+        "file /dev/zero",
+        ["plan", "/dev/zero"],
+        None,
+        2,
+        r"/dev/zero: more than 128 MiB, the most a keyframe file may hold",
+        "hang",
+    ),
+    (
+        "file /dev/urandom",
+        ["plan", "/dev/urandom"],
+        None,
+        2,
+        r"/dev/urandom: (more than 128 MiB|binary data \(a NUL byte\))",
+        "hang",
+    ),
+    (
+        "file with a UTF-8 byte-order mark",
+        ["plan", "{file}"],
+        "\ufeff" + KEYS,
+        0,
+        r"801 samples at 200 Hz",
+        "wrong",
+    ),
+    (
+        "file not UTF-8",
+        ["plan", "{file}"],
+        b"# caf\xe9\n" + KEYS.encode(),
+        2,
+        r"keys.toml: not UTF-8 text \(byte 0xe9 at offset 5\); save it as UTF-8",
+        "ok",
+    ),
+    (
+        "keyframes a table, not a list",
+        ["plan", "{file}"],
+        "[keyframes]\nt = 0\npan = 0\n",
+        2,
+        r"keys.toml: keyframes: expected a list of tables, each starting with a line "
+        r"\[\[keyframes\]\] \(two brackets\), got one \[keyframes\] table",
+        "unclear",
+    ),
+    (
+        "unknown table [Spline] (a capital)",
+        ["plan", "{file}"],
+        "[Spline]\nk = 2\n" + KEYS,
+        2,
+        r"keys.toml: unknown table 'Spline' \(known: spline, keyframes",
+        "ok",
+    ),
+    (
+        "identify: log missing",
+        ["identify", "{file}", "{tmp}/none.csv", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r"^trajgen identify: error: .*none.csv: no such telemetry log",
+        "unclear",
+    ),
+    (
+        "identify: log empty",
+        ["identify", "{file}", "{empty}", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r"empty.csv: empty telemetry log",
+        "unclear",
+    ),
+    (
+        "identify: log a folder",
+        ["identify", "{file}", "{tmp}", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r": is a directory, not a telemetry log",
+        "unclear",
+    ),
+    (
+        "identify: log a keyframe file",
+        ["identify", "{file}", "{file}", "--out", "{tmp}/f.toml"],
+        KEYS,
+        2,
+        r"keys.toml: not a telemetry log \(no column 'frame'\)",
+        "ok",
+    ),
+    # --- issue 20: work that cannot finish ---------------------------------------
+    (
+        "sweep of 100 x 100 values",
+        [
+            "sweep",
+            "--payload-kg",
+            ",".join(f"{0.01 * (i + 1):g}" for i in range(100)),
+            "--time-scale",
+            ",".join(f"{0.5 + 0.01 * i:g}" for i in range(100)),
+        ],
+        None,
+        2,
+        r"10,000 variants \(100 payloads x 1 offsets x 1 servo sets x 100 time scales\), over "
+        r"the limit of 1,000; --max-variants N raises it",
+        "silent",
+    ),
+    (
+        "joint-minimax through 6,000 keyframes",
+        ["plan", "{file}"],
+        '[spline]\nknots = "joint-minimax"\n'
+        + keys(*(f"t = {i};pan = {10 * (i % 2)}" for i in range(6000))),
+        2,
+        r"knots: 'joint-minimax' through 6,000 keyframes would take about 5 min, over the limit "
+        r"of 5,000 keyframes; use knots = 'end-minimax'",
+        "silent",
+    ),
+    # --- issue 20: keyframe angles the path cannot honour --------------------------
+    (
+        "two turns of pan",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;pan = 720"),
+        2,
+        r"keyframe 2: field 'pan': 720 deg is outside the pan joint's range -360..360 deg",
+        "silent",
+    ),
+    (
+        "one turn of pan between two keyframes",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;pan = 360"),
+        2,
+        r"keyframe 2: field 'pan': 360 deg: 360 deg from keyframe 1's 0: the path turns the "
+        r"shorter way",
+        "silent",
+    ),
+    (
+        "more than half a turn of roll between two keyframes",
+        ["sim", "{file}"],
+        keys("t = 0;roll = -100", "t = 2;roll = 100"),
+        2,
+        r"keyframe 2: field 'roll': 100 deg: 200 deg from keyframe 1's -100",
+        "silent",
+    ),
+    (
+        "pan = 1e300",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 1e300", "t = 2;pan = 1e300"),
+        2,
+        r"keyframe 1: field 'pan': 1e\+300 deg is outside the pan joint's range",
+        "silent",
+    ),
+    (
+        "a first pan the stream reaches on another turn",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 300", "t = 2;pan = 310"),
+        2,
+        r"keyframe 1: field 'pan': 300 deg: the path reaches this orientation with pan at -60 deg",
+        "silent",
+    ),
+    (
+        "pan 0, 150, 300: each step under half a turn",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;pan = 150", "t = 4;pan = 300"),
+        0,
+        r"801 samples",
+        "ok",
+    ),
+    (
+        "plan: tilt = 90",
+        ["plan", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"keyframe 2: field 'tilt': 90 deg is within 10.0 deg of gimbal lock \(\|tilt\| <= 80.0",
+        "silent",
+    ),
+    (
+        "sim: tilt = 90",
+        ["sim", "{file}"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"^trajgen sim: error: .*keyframe 2: field .tilt.: 90 deg is within 10.0 deg of gimbal",
+        "ok",
+    ),
+    (
+        "fit: tilt = 90",
+        ["fit", "{file}", "--out", "{tmp}/f.toml"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"^trajgen fit: error: .*keyframe 2: field .tilt.: 90 deg is within 10.0 deg of gimbal",
+        "unclear",
+    ),
+    (
+        "stream: tilt = 90",
+        ["stream", "{file}", "--virtual"],
+        keys("t = 0;pan = 0", "t = 2;tilt = 90"),
+        2,
+        r"keyframe 2: field .tilt.: 90 deg is within 10.0 deg of gimbal",
+        "ok",
+    ),
+    # --- issue 20: every command's flags, as a careless user types them ----------
+    (
+        "follow --rat (a prefix of --rate)",
+        ["follow", "--rat", "100", "--virtual"],
+        None,
+        2,
+        r"^trajgen follow: error: unrecognized arguments: --rat",
+        "silent",
+    ),
+    (
+        "plan with two files",
+        ["plan", "{file}", "{file}"],
+        KEYS,
+        2,
+        r"^trajgen plan: error: unrecognized arguments: .*keys.toml",
+        "unclear",
+    ),
+    (
+        "stream --max-delay 0",
+        ["stream", "--virtual", "--max-delay", "0"],
+        None,
+        2,
+        r"argument --max-delay: expected a number > 0, got '0'",
+        "ok",
+    ),
+    (
+        "stream --max-approach nan",
+        ["stream", "--virtual", "--max-approach", "nan"],
+        None,
+        2,
+        r"argument --max-approach: expected a number > 0, got 'nan'",
+        "ok",
+    ),
+    (
+        "stream --set-limits reversed",
+        ["stream", "--virtual", "--set-limits", "tilt=10:-10"],
+        None,
+        2,
+        r"argument --set-limits: expected finite MIN < MAX, got 'tilt=10:-10'",
+        "ok",
+    ),
+    (
+        "excite --amplitude 170",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--amplitude", "170"],
+        None,
+        2,
+        r"^trajgen excite: error: the excitation: tilt reaches .* of gimbal lock .*; "
+        r"lower --amplitude",
+        "unclear",
+    ),
+    (
+        "excite --torque-off (a stream option) is honoured",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "3", "--torque-off"],
+        None,
+        0,
+        r"servos: were released \(torque off\)",
+        "new",
+    ),
+    (
+        "excite --seconds 1",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "1"],
+        None,
+        2,
+        r"--seconds: Expected `seconds` >= 3",
+        "ok",
+    ),
+    (
+        "sweep --time-scale 0",
+        ["sweep", "--time-scale", "0"],
+        None,
+        2,
+        r"argument --time-scale: expected a number > 0, got '0'",
+        "unclear",
+    ),
+    (
+        "sweep --servo pan=XM999",
+        ["sweep", "--servo", "pan=XM999"],
+        None,
+        2,
+        r"^trajgen sweep: error: --servo: unknown model 'XM999' \(known: XM430-W350",
+        "unclear",
+    ),
+    (
+        "identify --delay-ms -1",
+        ["identify", "{file}", "{empty}", "--out", "{tmp}/f.toml", "--delay-ms", "-1"],
+        KEYS,
+        2,
+        r"--delay-ms: expected 0 <= ms < 1000, got -1",
+        "ok",
+    ),
+    (
+        "virtual-bus --models of 2",
+        ["virtual-bus", "--models", "XM430-W350,XM430-W350"],
+        None,
+        2,
+        r"argument --models: expected a model or 3 separated by commas",
+        "ok",
+    ),
+    (
+        "[gimbal] payload_kg a string",
+        ["sim", "{file}"],
+        '[gimbal]\npayload_kg = "heavy"\n' + KEYS,
+        2,
+        r"\[gimbal\] payload_kg: expected a finite number",
+        "ok",
+    ),
+    (
+        "[bus] watchdog_s negative",
+        ["stream", "{file}", "--virtual"],
+        "[bus]\nwatchdog_s = -1\n" + KEYS,
+        2,
+        r"\[bus\] watchdog_s: expected",
+        "ok",
+    ),
+    (
+        "[limits] a joint table with a string",
+        ["plan", "{file}"],
+        '[limits]\nspeed_rad_s = {pan = "fast"}\n' + KEYS,
+        2,
+        r"\[limits\] speed_rad_s",
+        "ok",
+    ),
 ]
 
 
@@ -1006,13 +1487,25 @@ def _write(path, content) -> None:
 
 
 def run_case(argv, file, tmp_path, capsys) -> tuple[int, str, str]:
-    """Run one row through ``trajgen.cli.main``; returns (status, stdout, stderr)."""
+    """Run one row through ``trajgen.cli.main``; returns (status, stdout, stderr).
+
+    Besides ``{file}`` and ``{tmp}``, ``argv`` may name ``{link}`` (a symbolic link
+    to the keyframe file), ``{hardlink}`` (a hard link to it) and ``{empty}`` (an
+    empty file).
+    """
     folder = tmp_path / "empty"
     folder.mkdir()
     path = tmp_path / "keys.toml"
     if file is not None:
         _write(path, file)
-    argv = [a.format(file=path, tmp=folder) for a in argv]
+    link, hardlink, empty = tmp_path / "link.csv", tmp_path / "hard.csv", tmp_path / "empty.csv"
+    empty.touch()
+    if file is not None:
+        link.symlink_to(path)
+        os.link(path, hardlink)
+    argv = [
+        a.format(file=path, tmp=folder, link=link, hardlink=hardlink, empty=empty) for a in argv
+    ]
     try:
         status = main(argv)
     except SystemExit as e:  # argparse
@@ -1031,7 +1524,9 @@ def test_bad_input_is_refused_clearly(argv, file, status, message, tmp_path, cap
     assert got == status, err
     if status == 2:
         line = err.strip()
-        assert line.startswith("trajgen") and "\n" not in line, err
+        command = argv[0] if argv and argv[0] in COMMANDS else None
+        assert line.startswith(f"trajgen {command}:" if command else "trajgen:"), err
+        assert "\n" not in line, err
         assert re.search(message, line), line
     else:
         assert re.search(message, out + err), out + err
@@ -1066,3 +1561,99 @@ def test_a_closed_pipe_ends_quietly():
     assert plan.wait(timeout=60) == 0
     err = plan.stderr.read()
     assert b"Traceback" not in err and b"BrokenPipe" not in err
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path):
+    from trajgen.cli.common import output_file
+
+    out = tmp_path / "plan.csv"
+    out.write_text("old")
+    with pytest.raises(RuntimeError, match="half way"):
+        with output_file("--out", str(out)) as f:
+            f.write("new, but only half")
+            raise RuntimeError("half way")
+    assert out.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.csv"]
+
+
+def test_an_output_through_a_symbolic_link_replaces_what_it_names(tmp_path):
+    from trajgen.cli.common import output_file
+
+    target, link = tmp_path / "target.csv", tmp_path / "link.csv"
+    target.write_text("old")
+    target.chmod(0o640)
+    link.symlink_to(target)
+    with output_file("--out", str(link)) as f:
+        f.write("new")
+    assert link.is_symlink() and target.read_text() == "new"
+    assert target.stat().st_mode & 0o777 == 0o640  # the permissions of the file replaced
+
+
+def test_ctrl_c_while_plan_writes_leaves_no_half_csv(tmp_path, monkeypatch, capsys):
+    from trajgen.cli import plan
+
+    written = []
+
+    def interrupted(out, *args):
+        out.write("t_s,qw\n")  # a first block, then Ctrl-C
+        written.append(out.name)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plan, "_write_csv", interrupted)
+    out = tmp_path / "p.csv"
+    assert main(["plan", "--out", str(out)]) == 130
+    assert "trajgen plan: interrupted" in capsys.readouterr().err
+    assert written and not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_ctrl_c_while_the_command_line_loads_is_one_line(monkeypatch, capsys):
+    import builtins
+
+    import trajgen_launch
+
+    real_import = builtins.__import__
+
+    def interrupted(name, *args, **kwargs):
+        if name == "trajgen.cli":
+            raise KeyboardInterrupt  # Ctrl-C in the middle of loading numpy and the commands
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", interrupted)
+    assert trajgen_launch.main() == 130
+    assert capsys.readouterr().err.strip() == "trajgen: interrupted while starting"
+
+
+def test_ctrl_c_in_a_commands_lazy_import_is_one_line(monkeypatch, capsys):
+    from trajgen.cli import sim
+
+    def interrupted_import(args):
+        try:
+            raise KeyboardInterrupt  # Ctrl-C while MuJoCo loads ...
+        except KeyboardInterrupt as e:  # ... which a module turned into an ImportError
+            raise ImportError("cannot import name 'mjModel' (most likely a circular import)") from e
+
+    monkeypatch.setattr(sim, "run_sim", interrupted_import)
+    monkeypatch.setattr(sim, "register", _registering(sim.register, interrupted_import))
+    assert main(["sim"]) == 130
+    assert capsys.readouterr().err.strip() == "trajgen sim: interrupted"
+
+
+def _registering(register, func):
+    """``register`` with ``func`` as the subcommand's function."""
+
+    def wrapped(subparsers):
+        register(subparsers)
+        subparsers.choices["sim"].set_defaults(func=func)
+
+    return wrapped
+
+
+def test_an_import_error_that_is_no_interrupt_still_shows(monkeypatch):
+    from trajgen.cli import sim
+
+    def missing(args):
+        raise ImportError("No module named 'mujoco'")
+
+    monkeypatch.setattr(sim, "register", _registering(sim.register, missing))
+    with pytest.raises(ImportError, match="mujoco"):
+        main(["sim"])

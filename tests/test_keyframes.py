@@ -114,12 +114,12 @@ pan = 0.0
             "[spline]\nboundary = 'free'\n" + KEYS,
             r"\[spline\] boundary: expected one of rest, natural, closed, got 'free'",
         ),
-        ("[spline]\nkk = 2\n" + KEYS, r"\[spline\] unknown key 'kk'"),
+        ("[spline]\nkk = 2\n" + KEYS, r"\[spline\]: unknown key 'kk'"),
         (
             "[stream]\nrate_hz = -5\n" + KEYS,
             r"\[stream\] rate_hz: expected a finite number > 0, got -5",
         ),
-        ("[keyframe]\nt = 1\n", r"unknown table \[keyframe\] \(known: spline, keyframes"),
+        ("[keyframe]\nt = 1\n", r"unknown table 'keyframe' \(known: spline, keyframes"),
         ("[[keyframes]\nt = 1\n", r"invalid TOML"),
         (
             "[spline]\nboundary = 'closed'\n" + KEYS + "\n[[keyframes]]\nt = 1.0\npan = 5.0\n"
@@ -159,7 +159,8 @@ def test_plan_command_bad_file_exits_2_with_one_line(tmp_path):
     )
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [
-        f"trajgen: error: {path}: keyframe 2: unknown field 'tlt' (known: t, pan, tilt, roll, quat)"
+        f"trajgen plan: error: {path}: keyframe 2: unknown field 'tlt' "
+        "(known: t, pan, tilt, roll, quat)"
     ]
     assert "Traceback" not in proc.stderr
 
@@ -216,3 +217,65 @@ def test_the_spline_is_built_once_on_first_use():
     kf = load_keyframe_file(BUILTIN_EXAMPLE)
     assert kf.spline() is kf.spline()
     assert kf.stream_rate() == 200.0 and kf.stream_rate(50.0) == 50.0
+
+
+def test_a_byte_order_mark_is_read_and_a_huge_file_is_refused_unread(tmp_path, monkeypatch):
+    import trajgen.keyframes as keyframes_module
+
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + GOOD.encode())
+    assert len(load_keyframe_file(path).times) == len(
+        load_keyframe_file(write(tmp_path, GOOD)).times
+    )
+    monkeypatch.setattr(keyframes_module, "MAX_FILE_BYTES", 64)
+    with pytest.raises(KeyframeFileError, match=r"bom.toml: more than 0 MiB, the most a keyframe"):
+        load_keyframe_file(path)
+
+
+@pytest.mark.parametrize(
+    ("rows", "match"),
+    [
+        # Two turns of pan are no motion as orientations: refused, not followed as nothing.
+        (
+            ["t = 0.0\npan = 0", "t = 1.0\npan = 720"],
+            r"keyframe 2: field 'pan': 720 deg is outside",
+        ),
+        (
+            ["t = 0.0\npan = 0", "t = 1.0\npan = 360"],
+            r"keyframe 2: field 'pan': 360 deg: 360 deg from",
+        ),
+        (
+            ["t = 0.0\nroll = 100", "t = 1.0\nroll = -90"],
+            r"keyframe 2: field 'roll': -90 deg: 190 deg",
+        ),
+        (
+            ["t = 0.0\npan = 190", "t = 1.0\npan = 180"],
+            r"keyframe 1: field 'pan': 190 deg: the path "
+            r"reaches this orientation with pan at -170 deg",
+        ),
+        (
+            ["t = 0.0\ntilt = -81", "t = 1.0\npan = 3"],
+            r"keyframe 1: field 'tilt': -81 deg is within "
+            r"10.0 deg of gimbal lock",
+        ),
+    ],
+)
+def test_angles_the_path_would_not_follow_as_written_are_refused(tmp_path, rows, match):
+    text = "".join(f"[[keyframes]]\n{row}\n\n" for row in rows)
+    with pytest.raises(KeyframeFileError, match=match):
+        load_keyframe_file(write(tmp_path, text))
+
+
+def test_angles_the_path_follows_are_kept_as_written(tmp_path):
+    from trajgen.stream import plan_joint_trajectory
+
+    rows = [(0.0, 0, 0, 0), (1.0, 150, 20, 0), (2.0, 300, -30, 0), (3.0, 300, 0, -150)]
+    text = "".join(
+        f"[[keyframes]]\nt = {t}\npan = {p}\ntilt = {ti}\nroll = {r}\n\n" for t, p, ti, r in rows
+    )
+    kf = load_keyframe_file(write(tmp_path, text))
+    assert len(kf.times) == 4
+    # The joint stream passes every keyframe at the angles written (pan unwrapped to 300).
+    stream = plan_joint_trajectory(kf.spline(), 100.0)
+    at = np.searchsorted(stream.t, kf.times)
+    np.testing.assert_allclose(np.degrees(stream.q[at]), [r[1:] for r in rows], atol=1e-6)

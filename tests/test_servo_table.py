@@ -207,7 +207,7 @@ FACT_NUMBERS = {885, 16383, 4096, 2048, 0.229, 0.00269, 2.69, 1193, 0.088, 0.023
 #: Literals that equal a fact by coincidence: (path, source line).
 COINCIDENCES = {
     ("trajgen/spline.py", "CHUNK = 4096"),  # samples per evaluation chunk
-    ("drivers/virtual/bus.py", "data = os.read(self._master, 4096)"),  # pty read size
+    ("drivers/virtual/transport.py", "data = os.read(self._master, 4096)"),  # pty read size
 }
 #: Names each defined at module level in exactly one module.
 ONE_DEFINITION = (

@@ -94,7 +94,9 @@ def test_a_follow_loop_runs_without_the_command_line():
     spline = OnlineSpline([1.0, 0, 0, 0])
     follower = Follower(spline, RATE_HZ)
     lines = ['{"t": 0.5, "pan": 10}', "not json", '{"t": 1.0, "pan": -5, "mode": "extend"}']
-    outcome = Session(plant=FirstOrderPlant(), max_delay_s=None).follow(follower, lines)
+    # Pan's range is more than a turn: Extended Position Mode, an EEPROM change asked for.
+    session = Session(BusConfig(configure=True), plant=FirstOrderPlant(), max_delay_s=None)
+    outcome = session.follow(follower, lines)
     assert outcome.ok and outcome.servo_states == dict.fromkeys(IDS, HOLDING)
     assert [k["line"] for k in follower.keyframes] == [1, 3] and len(follower.skipped) == 1
     traj = outcome.trajectory

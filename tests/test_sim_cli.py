@@ -6,7 +6,8 @@ import re
 
 import pytest
 
-from trajgen.cli.sim import register, run_sim
+from trajgen.cli import main
+from trajgen.cli.sim import run_sim
 from trajgen.sim.model import GimbalConfig, JointParams, gimbal_config_from_tables
 
 keyframes = pytest.importorskip("trajgen.keyframes")
@@ -23,10 +24,7 @@ def _write_keyframes(path, time_scale=1.0, extra=""):
 
 
 def _sim(argv):
-    parser = argparse.ArgumentParser(prog="trajgen")
-    register(parser.add_subparsers())
-    args = parser.parse_args(["sim", *map(str, argv)])
-    return args.func(args)
+    return main(["sim", *map(str, argv)])
 
 
 def test_gentle_file_passes_with_json_and_plot(tmp_path, capsys):
@@ -80,13 +78,13 @@ def test_bad_files_exit_2_with_one_line(tmp_path, capsys):
     assert _sim([bad_servo]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (
-        f"trajgen: error: {bad_servo}: [gimbal] servo: unknown model 'XM999' "
+        f"trajgen sim: error: {bad_servo}: [gimbal] servo: unknown model 'XM999' "
         "(known: XM430-W350, XL430-W250, XH430-W350, XM540-W270, XH540-W270, "
         "XL330-M288, XL330-M077, XC330-M288, 2XL430-W250)"
     )
     assert _sim([tmp_path / "missing.toml"]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("trajgen: error: ") and len(err.splitlines()) == 1
+    assert err.startswith("trajgen sim: error: ") and len(err.splitlines()) == 1
 
 
 def test_ctrl_c_exits_130_and_still_writes_the_json(monkeypatch, tmp_path):
@@ -137,7 +135,7 @@ def test_gimbal_table_parses_every_field():
     ("gimbal", "message"),
     [
         ({"servo": "XM999"}, "[gimbal] servo: unknown model 'XM999' (known: XM430-W350, "),
-        ({"servo": {"yaw": "XM430-W350"}}, "[gimbal] servo.yaw: unknown joint (known: pan, "),
+        ({"servo": {"yaw": "XM430-W350"}}, "[gimbal] servo: unknown joint 'yaw' (known: pan, "),
         ({"servo": {"tilt": 3}}, "[gimbal] servo.tilt: expected a model name, got 3"),
         ({"servo": 3}, "[gimbal] servo: expected a model name or a table per joint, got 3"),
         ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a finite number >= 0, got 'abc'"),
@@ -151,9 +149,9 @@ def test_gimbal_table_parses_every_field():
             {"payload_offset_m": [0, 0]},
             "[gimbal] payload_offset_m: expected a list of 3 numbers, got [0, 0]",
         ),
-        ({"payload": 1}, "[gimbal] unknown key 'payload' (known: servo, payload_kg, "),
+        ({"payload": 1}, "[gimbal]: unknown key 'payload' (known: servo, payload_kg, "),
         ({"pan": 3}, "[gimbal.pan]: expected a table, got 3"),
-        ({"tilt": {"stiffness": 3}}, "[gimbal.tilt] unknown key 'stiffness' (known: armature, "),
+        ({"tilt": {"stiffness": 3}}, "[gimbal.tilt]: unknown key 'stiffness' (known: armature, "),
         ({"roll": {"armature": 0}}, "[gimbal.roll] armature: expected a finite number > 0, got 0"),
         (
             {"roll": {"damping": "x"}},

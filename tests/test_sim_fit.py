@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from trajgen.cli.fit import register
-from trajgen.keyframes import load_keyframe_file
+from trajgen.keyframes import KeyframeFileError, load_keyframe_file
 from trajgen.sim import FitError, JointLimits, check_limits, check_torque, fit_timing
 from trajgen.sim.check import resolve_source
 
@@ -147,18 +147,19 @@ def test_pose_too_heavy_to_hold_is_refused(tmp_path):
         fit_timing(path)
 
 
-def test_path_through_gimbal_lock_is_refused(tmp_path):
+def test_a_keyframe_at_gimbal_lock_is_refused_when_loaded(tmp_path):
+    # One rule for every command (issue 20): refused as bad input, before any fit.
     path = _write(tmp_path, KEYS.replace("tilt = 8.0", "tilt = 89.0"))
-    with pytest.raises(FitError, match="no timing can help: .*gimbal lock"):
+    with pytest.raises(KeyframeFileError, match="'tilt': 89 deg is within 10.0 deg of gimbal"):
         fit_timing(path)
 
 
 @pytest.mark.parametrize(
     ("extra", "match"),
     [
-        ("[limits]\nspeed = 1.0\n", r"\[limits\] unknown key 'speed'"),
+        ("[limits]\nspeed = 1.0\n", r"\[limits\]: unknown key 'speed'"),
         ("[limits]\njerk_rad_s3 = -1\n", r"\[limits\] jerk_rad_s3: expected a number > 0"),
-        ("[limits]\nspeed_rad_s = {yaw = 1}\n", r"\[limits\] speed_rad_s.yaw: unknown joint"),
+        ("[limits]\nspeed_rad_s = {yaw = 1}\n", r"\[limits\] speed_rad_s: unknown joint 'yaw'"),
     ],
 )
 def test_bad_limits_table(tmp_path, extra, match):
@@ -205,7 +206,7 @@ def test_cli_refusal_and_bad_input(tmp_path, capsys):
     from trajgen.cli import main
 
     assert main(["fit", str(bad), "--out", str(tmp_path / "o.toml")]) == 2
-    assert "[limits] unknown key 'speed'" in capsys.readouterr().err
+    assert "[limits]: unknown key 'speed'" in capsys.readouterr().err
     assert not (tmp_path / "o.toml").exists()
 
 

@@ -157,8 +157,8 @@ def test_bad_logs_and_options_exit_2(tmp_path, capsys):
     with pytest.raises(IdentifyError, match=r"no column 'frame'"):
         (tmp_path / "x.csv").write_text("a\n1\n")
         load_telemetry(tmp_path / "x.csv")
-    assert _run(excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.npz"]) == 2
-    assert "': expected a .csv or .mcap file" in capsys.readouterr().err
+    assert _run(excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.txt"]) == 2
+    assert "': expected a .csv or .npz or .mcap file" in capsys.readouterr().err
     status = _run(
         excite, ["excite", path, "--virtual", "--telemetry", tmp_path / "t.csv", "--seconds", 2]
     )

@@ -7,14 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from trajgen import quat as Q
-from trajgen.smooth import (
-    END_SAMPLES,
-    SmoothSpline,
-    knot_system,
-    minimax_offset,
-    solve_block_cyclic,
-    solve_block_tridiagonal,
-)
+from trajgen.smooth import END_SAMPLES, SmoothSpline, minimax_offset
+from trajgen.smooth_blocks import knot_system, solve_block_cyclic, solve_block_tridiagonal
 
 
 def ptr(*rows_deg):
@@ -555,7 +549,7 @@ def gimbal_keys(rng, n=7):
 def sampled_joint_motion(s):
     """Per segment: peak |joint acceleration| per joint (n - 1, 3), peak |joint jerk|
     (n - 1,) and peak |tilt| (n - 1,), at JOINT_SAMPLES, from the exact coefficients."""
-    from trajgen.smooth import JOINT_SAMPLES, joint_motion
+    from trajgen.smooth_joint_minimax import JOINT_SAMPLES, joint_motion
 
     acc, jerk, tilt = joint_motion(s._poly, s.quats[:-1], JOINT_SAMPLES)
     return np.abs(acc).max(axis=2), np.abs(jerk).max(axis=(1, 2)), np.abs(tilt).max(axis=1)
@@ -563,7 +557,7 @@ def sampled_joint_motion(s):
 
 def test_joint_motion_matches_differences_of_the_exact_joint_accelerations(rng):
     from trajgen.gimbal import GimbalKinematics, joint_rates
-    from trajgen.smooth import joint_motion
+    from trajgen.smooth_joint_minimax import joint_motion
 
     q, t = gimbal_keys(rng)
     s = SmoothSpline(q, t)
@@ -585,7 +579,7 @@ def test_joint_motion_matches_differences_of_the_exact_joint_accelerations(rng):
 
 
 def test_minimax_step_matches_the_exact_one_variable_minimax_and_a_grid(rng):
-    from trajgen.smooth import minimax_step
+    from trajgen.smooth_joint_minimax import minimax_step
 
     c, b = rng.normal(size=(4, 30)), rng.normal(size=(4, 30))
     x = minimax_step(c, b[..., None])[:, 0]
@@ -623,7 +617,7 @@ def test_joint_minimax_is_exact_c3_and_at_rest(rng):
 
 def test_joint_minimax_is_never_worse_than_end_minimax_and_keeps_its_guards(rng):
     from trajgen.gimbal import angles_of
-    from trajgen.smooth import ACCELERATION_SLACK, TILT_MARGIN_RAD
+    from trajgen.smooth_joint_minimax import ACCELERATION_SLACK, TILT_MARGIN_RAD
 
     lower = 0
     for _ in range(4):
@@ -658,3 +652,15 @@ def test_joint_minimax_leaves_a_motion_it_cannot_improve_bit_for_bit():
     q = ptr([0, 0, 0], [50, 0, 0])
     a, b = (SmoothSpline(q, [0.0, 2.0], knots=k) for k in ("end-minimax", "joint-minimax"))
     np.testing.assert_array_equal(a._poly, b._poly)
+
+
+def test_joint_minimax_reports_its_progress_and_ends_at_one(rng):
+    q, t = gimbal_keys(rng, 5)
+    done = []
+    with_progress = SmoothSpline(q, t, knots="joint-minimax", progress=done.append)
+    assert done and done[-1] == 1.0 and done == sorted(done) and 0 < done[0] <= 1
+    # The progress callback changes nothing of the result.
+    np.testing.assert_array_equal(
+        with_progress.tangent_coefficients,
+        SmoothSpline(q, t, knots="joint-minimax").tangent_coefficients,
+    )

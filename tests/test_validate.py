@@ -5,7 +5,7 @@ import pytest
 
 from trajgen.errors import KeyframeFileError, TrajgenError
 from trajgen.servo_table import SERVOS, servo_spec
-from trajgen.validate import check_choice, check_number, check_numbers
+from trajgen.validate import check_choice, check_keys, check_number, check_numbers
 
 
 @pytest.mark.parametrize(
@@ -62,3 +62,21 @@ def test_one_ratings_table_and_names_in_any_case():
         assert MODELS[name].stall_torque_nm == sim.stall_torque_nm == rating.stall_torque_nm
         assert MODELS[name].no_load_speed_rad_s == SIM_SERVOS[name].no_load_speed_rad_s
         assert MODELS[name].number == rating.number
+
+
+def test_check_keys_one_message_shape_for_every_kind_of_key():
+    def error(problem):
+        return KeyframeFileError(f"f.toml: [gimbal]: {problem}")
+
+    check_keys({"a": 1}, ("a", "b"), error=error)  # known keys pass
+    with pytest.raises(
+        KeyframeFileError, match=r"^f.toml: \[gimbal\]: unknown key 'c' \(known: a, b\)$"
+    ):
+        check_keys({"a": 1, "c": 2}, ("a", "b"), error=error)
+    with pytest.raises(KeyframeFileError, match=r"unknown joint 'yaw' \(known: pan, tilt, roll\)"):
+        check_keys({"yaw": 1}, ("pan", "tilt", "roll"), error=error, kind="joint")
+    # A key of megabytes (a JSON line) is shown cut, not whole.
+    with pytest.raises(
+        KeyframeFileError, match=r"unknown field 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx\.\.\.'"
+    ):
+        check_keys({"x" * 1_000_000: 1}, ("t",), error=error, kind="field")

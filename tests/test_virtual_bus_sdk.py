@@ -504,10 +504,10 @@ def test_virtual_bus_command_serves_until_a_signal(signal_name):
     finally:
         proc.send_signal(getattr(signal, signal_name))
         out, err = proc.communicate(timeout=10)
-    assert proc.returncode == 0, err
+    assert proc.returncode == 128 + getattr(signal, signal_name), err  # as every command
     assert "serving servos 4, 5, 6 (XL430-W250, XL430-W250, XL430-W250), real time" in err
     assert "servo 5 refused a write (Result Fail): tilt: Profile Velocity 50" in err
-    assert "stopped after" in err
+    assert f"stopped by {signal_name} after" in err
 
 
 def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_path):
@@ -532,7 +532,7 @@ def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_
     finally:
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=10)
-    assert proc.returncode == 0, err
+    assert proc.returncode == 130, err
     assert "serving servos 7, 8, 9 (XM430-W350, XM430-W350, XM430-W350), lock-step, 10 ms" in err
 
 

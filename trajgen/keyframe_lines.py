@@ -20,7 +20,7 @@ from collections.abc import Iterator
 from .errors import KeyframeFileError
 from .keyframes import check_keyframes
 from .online import MODES
-from .validate import check_number
+from .validate import check_keys, check_number
 
 #: Longest line (bytes, newline included) parsed; a longer one is refused unread past
 #: this. A keyframe line is under 200 bytes.
@@ -132,9 +132,7 @@ def _parse(text: str, where: str):
         raise error(f"invalid JSON: {e}") from None
     if not isinstance(entry, dict):
         raise error(f"expected a JSON object, got {text.strip()[:80]!r}")
-    for key in entry:
-        if key not in LINE_KEYS:
-            raise error(f"unknown field {key[:40]!r} (known: {', '.join(LINE_KEYS)})")
+    check_keys(entry, LINE_KEYS, error=error, kind="field")
     mode = entry.get("mode", "retarget")
     if mode not in MODES:
         raise error(f"field 'mode': expected one of {MODES}, got {mode!r}")

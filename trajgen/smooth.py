@@ -32,8 +32,9 @@ from . import fast
 from . import jet as J
 from . import quat as Q
 from .errors import BadArgument
-from .gimbal import angles_of
 from .path import OrientationPath, check_times
+from .smooth_blocks import knot_system, solve_block_cyclic, solve_block_tridiagonal
+from .smooth_joint_minimax import joint_minimax
 from .spline import BOUNDARIES, check_closed
 from .validate import check_choice
 
@@ -118,92 +119,6 @@ def minimax_offset(c: np.ndarray, b: np.ndarray, prefer: np.ndarray) -> np.ndarr
     return out
 
 
-#: Where (u in [0, 1]) each segment's joint jerk is sampled for ``knots="joint-minimax"``.
-JOINT_SAMPLES = np.linspace(0.0, 1.0, 33)
-#: Most passes of the knot-by-knot descent over all knots (``knots="joint-minimax"``).
-JOINT_SWEEPS = 4
-#: Widths (knots) of the windows the descent moves together, in turn.
-JOINT_WIDTHS = (1, 2)
-#: Backtracking: a rejected step is retried this many times at half the length.
-JOINT_HALVINGS = 2
-#: How far (rad) a step may take |tilt| beyond the keyframes' largest |tilt|.
-TILT_MARGIN_RAD = np.radians(15.0)
-#: Most samples (segments x JOINT_SAMPLES x perturbed copies) measured at once.
-MEASURE_SAMPLES = 200_000
-#: How far a step may take each joint's peak acceleration beyond the start path's.
-ACCELERATION_SLACK = 1.035
-
-
-def joint_motion(poly: np.ndarray, starts: np.ndarray, u: np.ndarray):
-    """Joint accelerations, jerks and tilts along segments of a :class:`SmoothSpline`,
-    exactly, by jets.
-
-    Parameters
-    ----------
-    poly : ndarray, shape (k, 12, 8)
-        Segment coefficients (:attr:`SmoothSpline.tangent_coefficients` layout).
-    starts : ndarray, shape (k, 4)
-        Each segment's first keyframe ``q_i``.
-    u : ndarray, shape (S,)
-        Where to sample, in [0, 1].
-
-    Returns
-    -------
-    acceleration : ndarray, shape (k, 3, S)
-        Second time derivatives (rad/s^2) of pan, tilt and roll (``Rz Ry Rx``,
-        :mod:`trajgen.gimbal`); only cos and sin of the angles enter, so the branch
-        of pan and roll does not matter.
-    jerk : ndarray, shape (k, 3, S)
-        Third time derivatives (rad/s^3).
-    tilt : ndarray, shape (k, S)
-        Tilt (rad).
-    """
-    k, S = len(poly), len(u)
-    rows = np.einsum("irk,sk->ris", poly, u[:, None] ** np.arange(8))  # (12, k, S)
-    # Taylor coefficients in time: the m-th time derivative over m!.
-    c = rows.reshape(4, 3, k * S) / np.array([1.0, 1.0, 2.0, 6.0])[:, None, None]
-    q = J.qmul(J.qexp(J.Jet(c)), np.repeat(starts, S, axis=0).T)
-    angles = angles_of(
-        *(J.Jet(q.c[:, m]) for m in range(4)), J.arctan2, lambda x, y: J.sqrt(x * x + y * y)
-    )
-    acceleration, jerk = (
-        np.stack([x.derivative(order) for x in angles]).reshape(3, k, S).transpose(1, 0, 2)
-        for order in (2, 3)
-    )
-    return acceleration, jerk, angles[1].value.reshape(k, S)
-
-
-def minimax_step(c: np.ndarray, B: np.ndarray, iterations: int = 100) -> np.ndarray:
-    """Per row, an ``x`` (near-)minimising ``max_s |c_s + B_s . x|``, by Lawson's
-    iteratively reweighted least squares (weights ``w_s <- w_s |r_s|``, normalised),
-    slightly damped.
-
-    Parameters
-    ----------
-    c : ndarray, shape (k, m)
-    B : ndarray, shape (k, m, d)
-    iterations : int
-
-    Returns
-    -------
-    ndarray, shape (k, d)
-    """
-    k, m, d = B.shape
-    w = np.full((k, m), 1.0 / m)
-    Bt = B.transpose(0, 2, 1)
-    scale = np.maximum((B * B).sum(axis=(1, 2)) / m, 1e-300)
-    # Damping, 1e-6 of the mean squared column: directions the samples hardly see get
-    # no step (zero columns none), so the step does not hang on rounding (at 1e-12,
-    # reordering the columns moved single race cases by up to 0.3x the bound).
-    ridge = 1e-6 * scale[:, None, None] * np.eye(d)
-    for _ in range(iterations):
-        Btw = Bt * w[:, None, :]
-        x = np.linalg.solve(Btw @ B + ridge, -(Btw @ c[..., None]))
-        w = w * np.abs(c + (B @ x)[..., 0])
-        w = np.maximum(w / np.maximum(w.sum(axis=1, keepdims=True), 1e-300), 1e-15)
-    return x[..., 0]
-
-
 def _with_time_derivatives(coef: np.ndarray, h: np.ndarray) -> np.ndarray:
     """Segment coefficients of ``r_i(u)`` (n, 8, 3), ``[i, k, axis]`` multiplying
     ``u^k``, with those of its first three time derivatives (``d/dt = (1/h) d/du``),
@@ -215,144 +130,6 @@ def _with_time_derivatives(coef: np.ndarray, h: np.ndarray) -> np.ndarray:
         out[m, :, :-1] = out[m - 1, :, 1:] * power[1:, None] / h[:, None, None]
         out[m, :, -1] = 0.0
     return np.ascontiguousarray(out.transpose(1, 0, 3, 2).reshape(len(h), 12, 8))
-
-
-def knot_system(D: np.ndarray, h: np.ndarray, boundary: str = "rest"):
-    """Blocks of the knot-rate system (docs/algorithm.md §8.2), symmetric positive definite.
-
-    The unknowns at each free knot are ``(v, a)``; the rows are the snap condition
-    (``S0_i - S1_{i-1} = 0``) and the jerk condition (``J1_{i-1} - J0_i = 0``), the
-    gradient of the flat spline's integral of squared jerk, so the matrix is SPD and
-    block elimination needs no pivoting.
-
-    Parameters
-    ----------
-    D : ndarray, shape (n - 1, 3)
-        Segment increments ``log(q_{i+1} q_i*)``.
-    h : ndarray, shape (n - 1,)
-        Segment durations (s).
-    boundary : {"rest", "natural", "closed"}
-        ``"rest"``: ``v = a = 0`` at both ends (free knots 1..n-2); ``"natural"``:
-        free ends with zero jerk and snap (free knots 0..n-1); ``"closed"``: knot
-        n-1 is knot 0 (free knots 0..n-2), and the last segment couples them.
-
-    Returns
-    -------
-    diag : ndarray, shape (m, 2, 2)
-    upper : ndarray, shape (m - 1, 2, 2), or (m, 2, 2) when closed
-        Block coupling knot ``k`` to ``k + 1``; the lower blocks are its transposes.
-        When closed the last one couples knot m - 1 to knot 0.
-    rhs : ndarray, shape (m, 2, 3)
-    """
-    h = h[:, None, None]
-    # Segment i's share of the diagonal block at its left / right knot, its
-    # coupling block (rows: left knot, columns: right knot) and right-hand sides.
-    left = np.concatenate([192 / h**3, 36 / h**2, 36 / h**2, 9 / h], axis=2).reshape(-1, 2, 2)
-    right = left * np.array([[1, -1], [-1, 1]])
-    upper = np.concatenate([168 / h**3, -24 / h**2, 24 / h**2, -3 / h], axis=2).reshape(-1, 2, 2)
-    b_left = np.stack([360 * D / h[..., 0] ** 4, 60 * D / h[..., 0] ** 3], axis=1)
-    b_right = b_left * np.array([1, -1])[:, None]
-    n = len(D) + 1
-    diag = np.zeros((n, 2, 2))
-    diag[:-1] += left
-    diag[1:] += right
-    rhs = np.zeros((n, 2, 3))
-    rhs[:-1] += b_left
-    rhs[1:] += b_right
-    if boundary == "rest":
-        return diag[1:-1], upper[1:-1], rhs[1:-1]
-    if boundary == "closed":
-        diag[0] += diag[-1]
-        rhs[0] += rhs[-1]
-        return diag[:-1], upper, rhs[:-1]
-    return diag, upper, rhs
-
-
-def solve_block_tridiagonal(diag, upper, rhs) -> np.ndarray:
-    """Solve a symmetric block-tridiagonal system with 2x2 blocks by block cyclic
-    reduction, O(m) work in O(log m) vectorised steps.
-
-    Each step eliminates the odd-numbered unknowns from the even-numbered rows
-    (a Schur complement, symmetric positive definite again when the system is),
-    solves the half-size system the same way, then recovers the odd unknowns. For
-    an SPD system this is Gaussian elimination in another order: stable without
-    pivoting.
-
-    Parameters
-    ----------
-    diag : ndarray, shape (m, 2, 2)
-    upper : ndarray, shape (m - 1, 2, 2)
-        Super-diagonal blocks; the sub-diagonal blocks are their transposes.
-    rhs : ndarray, shape (m, 2, c)
-
-    Returns
-    -------
-    ndarray, shape (m, 2, c)
-    """
-    m = len(rhs)
-    if m <= 1:
-        return np.linalg.solve(diag, rhs) if m else rhs.copy()
-    # Couplings of each row to the row after (``right``) and before (``left``),
-    # zero past the ends.
-    right = np.zeros_like(diag)
-    right[:-1] = upper
-    left = np.zeros_like(diag)
-    left[1:] = upper.transpose(0, 2, 1)
-    odd = slice(1, None, 2)
-    inv = np.linalg.inv(diag[odd])
-    to_left, to_right, rest = inv @ left[odd], inv @ right[odd], inv @ rhs[odd]
-    # x_odd = rest - to_left x_before - to_right x_after; padded so that the even
-    # rows at either end see zeros where they have no odd neighbour.
-    pad = np.zeros((1, 2, 2))
-    n_even = (m + 1) // 2
-    before_left, before_right = (np.concatenate([pad, a])[:n_even] for a in (to_left, to_right))
-    after_left, after_right = (np.concatenate([a, pad])[:n_even] for a in (to_left, to_right))
-    before_rest = np.concatenate([np.zeros((1, *rhs.shape[1:])), rest])[:n_even]
-    after_rest = np.concatenate([rest, np.zeros((1, *rhs.shape[1:]))])[:n_even]
-    even = slice(0, None, 2)
-    el, er = left[even], right[even]
-    x_even = solve_block_tridiagonal(
-        diag[even] - el @ before_right - er @ after_left,
-        -(er @ after_right)[:-1],
-        rhs[even] - el @ before_rest - er @ after_rest,
-    )
-    x = np.empty_like(rhs)
-    x[even] = x_even
-    after = np.concatenate([x_even[1:], np.zeros((1, *rhs.shape[1:]))])[: m // 2]
-    x[odd] = rest - to_left @ x_even[: m // 2] - to_right @ after
-    return x
-
-
-def solve_block_cyclic(diag, upper, rhs) -> np.ndarray:
-    """Solve a symmetric block-tridiagonal system with the corner blocks of a loop, O(m).
-
-    ``A = T + E G E^T``: ``T`` the system without the corners (the block solve above), ``E``
-    picks knots 0 and m - 1, ``G = [[0, W^T], [W, 0]]`` with ``W = upper[-1]`` (row
-    knot m - 1, column knot 0). Woodbury: ``x = y - Z (I + G E^T Z)^-1 G E^T y``
-    with ``T y = b``, ``T Z = E``, both from one block solve.
-
-    Parameters
-    ----------
-    diag : ndarray, shape (m, 2, 2)
-    upper : ndarray, shape (m, 2, 2)
-    rhs : ndarray, shape (m, 2, c)
-
-    Returns
-    -------
-    ndarray, shape (m, 2, c)
-    """
-    m, b, c = rhs.shape
-    E = np.zeros((m, b, 2 * b))
-    E[0, :, :b] = np.eye(b)
-    E[-1, :, b:] += np.eye(b)
-    solved = solve_block_tridiagonal(diag, upper[:-1], np.concatenate([rhs, E], axis=2))
-    y, Z = solved[..., :c], solved[..., c:]
-    G = np.zeros((2 * b, 2 * b))
-    G[:b, b:], G[b:, :b] = upper[-1].T, upper[-1]
-    EtZ = np.concatenate([Z[0], Z[-1]])  # (2b, 2b)
-    Ety = np.concatenate([y[0], y[-1]])  # (2b, c)
-    correction = np.linalg.solve(np.eye(2 * b) + G @ EtZ, G @ Ety)
-    return y - np.einsum("kij,jc->kic", Z, correction)
 
 
 class SmoothSpline(OrientationPath):
@@ -390,9 +167,13 @@ class SmoothSpline(OrientationPath):
         window by window to lower the peak jerk of the gimbal's joints (pan, tilt,
         roll, :mod:`trajgen.gimbal`), under guards on joint acceleration and tilt;
         the sampled peak joint jerk never exceeds end-minimax's (see
-        ``_joint_minimax``). It costs 0.1-1 s for 5-20 keyframes (linear in N:
-        minutes for 10,000). Default: "end-minimax" when ``boundary`` is "rest"
-        (the torque race chose it, docs/results.md), else "quintic".
+        :func:`trajgen.smooth_joint_minimax.joint_minimax`). It costs 0.1-1 s for
+        5-20 keyframes (linear in N: minutes for thousands). Default: "end-minimax"
+        when ``boundary`` is "rest" (the torque race chose it, docs/results.md), else
+        "quintic".
+    progress : callable, optional
+        With ``knots="joint-minimax"``: called with the fraction of the optimisation
+        done (0..1), a few dozen times over the build.
 
     Raises
     ------
@@ -410,7 +191,7 @@ class SmoothSpline(OrientationPath):
     ``docs/algorithm.md`` §8 states the construction.
     """
 
-    def __init__(self, quats, times, *, boundary="rest", knots=None):
+    def __init__(self, quats, times, *, boundary="rest", knots=None, progress=None):
         q = Q.as_quats(quats, "quats")
         n = len(q)
         if n < 2:
@@ -445,7 +226,9 @@ class SmoothSpline(OrientationPath):
         if knots != "quintic":
             j, poly = self._end_minimax(h, j, poly)
         if knots == "joint-minimax":
-            v, a, j, poly = self._joint_minimax(D, h, (v, a, j), poly)
+            v, a, j, poly = joint_minimax(
+                q, D, h, (v, a, j), poly, self._segment_coefficients, progress
+            )
         #: Knot angular rate, acceleration and jerk of the tangent-space jets (N, 3).
         self.knot_rates = (v, a, j)
         self._h = h
@@ -514,150 +297,6 @@ class SmoothSpline(OrientationPath):
             coef = h[i] ** 3 * basis[None, :, None] * change[None, None, :]  # (1, 8, 3)
             poly[i] += _with_time_derivatives(coef, h[[i]])[0]
         return j, poly
-
-    def _joint_minimax(self, D, h, knot_data, poly):
-        """Knot data ``(v, a, j)`` (each (N, 3)) and segment coefficients ``poly``
-        improved window by window to lower the peak joint jerk (``knots="joint-minimax"``).
-
-        A knot's data enter only its two adjacent segments, so windows of
-        ``width`` consecutive knots (:data:`JOINT_WIDTHS`) ``width + 1`` knots apart
-        touch disjoint segments and are improved at once and independently. Per
-        window: the sampled joint jerks of the segments it touches (:func:`joint_motion`
-        at :data:`JOINT_SAMPLES`) are linearised in its knot data (forward differences),
-        the linear model's minimax step is taken (:func:`minimax_step`), and the step
-        is kept only if the true sampled peak jerk over those segments drops, their
-        peak acceleration of each joint stays within :data:`ACCELERATION_SLACK` times
-        the start path's (at least 1% of the busiest joint's; or does not grow),
-        and their |tilt| within the keyframes' largest + :data:`TILT_MARGIN_RAD` (or
-        does not grow); else it is halved, at most :data:`JOINT_HALVINGS` times. A
-        window's peak only drops and the segments outside it stay, so the path's
-        sampled peak joint jerk never rises: never worse than the start (end-minimax)
-        on that objective. Passes repeat until no segment's peak drops by 0.1%,
-        at most :data:`JOINT_SWEEPS` times. Rest ends keep ``v = a = 0``.
-        """
-        n = len(h) + 1
-        x = np.stack(knot_data)  # (3, N, 3): [kind, knot, axis]
-        starts = self.quats[:-1]
-
-        def measure(xs):
-            """Per segment, for each of the P sets of knot data ``xs`` (P, 3, N, 3): its
-            peak |acceleration| per joint, its sampled jerks (3 S) and its peak |tilt|."""
-            P = len(xs)
-            poly = self._segment_coefficients(D, h, xs[:, 0], xs[:, 1], xs[:, 2])
-            acc, jerk, tilt = joint_motion(poly, np.tile(starts, (P, 1)), JOINT_SAMPLES)
-            return (
-                np.abs(acc).max(axis=2).reshape(P, n - 1, 3),
-                jerk.reshape(P, n - 1, -1),
-                np.abs(tilt).max(axis=1).reshape(P, n - 1),
-            )
-
-        # A trial through gimbal lock gives NaN or inf, which no comparison accepts.
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            state = [m[0] for m in measure(x[None])]  # acceleration, jerk, tilt per segment
-            # A joint that hardly moves may still reach 1% of the busiest joint's peak.
-            peak_acc = state[0].max(axis=0)
-            caps = (
-                ACCELERATION_SLACK * np.maximum(peak_acc, 1e-2 * peak_acc.max()),
-                np.abs(angles_of(*self.quats.T, np.arctan2, np.hypot)[1]).max() + TILT_MARGIN_RAD,
-            )
-            for _ in range(JOINT_SWEEPS):
-                start_peak = np.abs(state[1]).max(axis=1)
-                for width in JOINT_WIDTHS:
-                    for offset in range(width + 1):
-                        self._joint_window_step(x, state, measure, caps, width, offset)
-                if (np.abs(state[1]).max(axis=1) > 0.999 * start_peak).all():
-                    break
-        # Segments whose knot data did not change keep their coefficients bit for bit.
-        changed = (x != np.stack(knot_data)).any(axis=(0, 2))
-        changed = changed[:-1] | changed[1:]
-        poly = poly.copy()
-        poly[changed] = self._segment_coefficients(D, h, *x)[changed]
-        return *x, poly
-
-    def _joint_window_step(self, x, state, measure, caps, width, offset):
-        """One linearised minimax step for every window of ``width`` consecutive knots
-        starting at ``offset`` modulo ``width + 1`` (windows touch disjoint segments).
-
-        ``x`` (3, N, 3) knot data and ``state`` (per segment: peak |acceleration| (N -
-        1,), sampled jerks (N - 1, 3 S), peak |tilt| (N - 1,)) are updated in place
-        where a window's step is kept; ``caps``: the peak |acceleration| and |tilt| a
-        step may reach.
-        """
-        n = x.shape[1]
-        first = np.arange(offset, n, width + 1)
-        if not len(first):
-            return
-        window = first[:, None] + np.arange(width)  # (K, width) knots
-        valid = window < n
-        window = np.minimum(window, n - 1)
-        # Window k touches segments first[k] - 1 .. first[k] + width - 1: rows first[k]
-        # .. first[k] + width of the per-segment arrays padded with one row before.
-        rows = first[:, None] + np.arange(width + 1)
-
-        def touched(per_segment):
-            pad = np.zeros_like(per_segment[:1])
-            padded = np.concatenate([pad, per_segment, *[pad] * width])
-            return padded[rows].reshape(len(first), -1)
-
-        # Coordinates (position in window, kind: 0 rate, 1 acceleration, 2 jerk, axis);
-        # rest ends move only their jerk.
-        coords = [(p, kind, axis) for p in range(width) for kind in range(3) for axis in range(3)]
-        free = np.stack(
-            [
-                valid[:, p] & ((kind == 2) | ((window[:, p] > 0) & (window[:, p] < n - 1)))
-                for p, kind, _ in coords
-            ],
-            axis=1,
-        )  # (K, d)
-        trials = np.repeat(x[None], len(coords), axis=0)
-        deltas = np.array(
-            [1e-6 * (1.0 + np.abs(x[kind, :, axis]).max()) for _, kind, axis in coords]
-        )
-        for col, (p, kind, axis) in enumerate(coords):
-            trials[col, kind, window[free[:, col], p], axis] += deltas[col]
-        jerk = touched(state[1])
-        # Perturbed paths measured in chunks of at most MEASURE_SAMPLES samples.
-        chunk = max(1, MEASURE_SAMPLES // (n * len(JOINT_SAMPLES)))
-        moved = np.stack(
-            [
-                touched(m)
-                for i in range(0, len(coords), chunk)
-                for m in measure(trials[i : i + chunk])[1]
-            ],
-            axis=2,
-        )  # (K, 3 S (width + 1), d)
-        B = np.where(free[:, None], (moved - jerk[..., None]) / deltas, 0.0)
-        step = minimax_step(jerk, B) * free
-        peak = np.abs(jerk).max(axis=1)
-
-        def joint_peak(acc):
-            """Per window and joint, the peak |acceleration| over its segments (K, 3)."""
-            return acc.reshape(len(first), width + 1, 3).max(axis=1)
-
-        old_acc, old_tilt = joint_peak(touched(state[0])), touched(state[2]).max(axis=1)
-        pending = np.ones(len(first), dtype=bool)
-        for _ in range(JOINT_HALVINGS + 1):
-            trial = x.copy()
-            for col, (p, kind, axis) in enumerate(coords):
-                trial[kind, window[pending, p], axis] += step[pending, col]
-            new = [m[0] for m in measure(trial[None])]
-            acc, tilt = joint_peak(touched(new[0])), touched(new[2]).max(axis=1)
-            ok = (
-                pending
-                & (np.abs(touched(new[1])).max(axis=1) < peak)
-                & ((acc <= caps[0]) | (acc <= old_acc)).all(axis=1)
-                & ((tilt <= caps[1]) | (tilt <= old_tilt))
-            )
-            knots = window[ok][valid[ok]]
-            x[:, knots] = trial[:, knots]
-            segments = (rows[ok] - 1).ravel()
-            segments = segments[(segments >= 0) & (segments < n - 1)]
-            for old, changed in zip(state, new, strict=True):
-                old[segments] = changed[segments]
-            pending &= ~ok
-            step /= 2
-            if not pending.any():
-                break
 
     @staticmethod
     def _right_data(step, v, a, j) -> np.ndarray:

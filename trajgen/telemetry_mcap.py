@@ -56,7 +56,9 @@ STREAM_FRAME = (
         "float64 clock_s\n"
         "string[] name\n"
         "int32[] goal_tick\n"
-        "float64[] current_a\n",
+        "float64[] current_a\n"
+        "float64[] voltage_v\n"
+        "float64[] temperature_c\n",
         *HEADER_TYPES,
     ),
 )
@@ -70,9 +72,11 @@ _JOINT_FIELDS = {
     "position_rad": (PRESENT, "position"),
     "velocity_rad_s": (PRESENT, "velocity"),
     "current_a": (FRAME, "current_a"),
+    "voltage_v": (FRAME, "voltage_v"),  # read at a low rate: NaN between
+    "temperature_c": (FRAME, "temperature_c"),
     "plan_rad": (PLAN, "position"),
 }
-_OPTIONAL = ("plan_rad",)
+_OPTIONAL = ("plan_rad", "voltage_v", "temperature_c")
 
 
 class RowMessages:
@@ -166,6 +170,8 @@ class RowMessages:
             goal_tick=[int(row[k]) for k in self._joint["goal_tick"]],
             current_a=current,
         )
+        for prefix in ("voltage_v", "temperature_c"):
+            bookkeeping[prefix] = joint(prefix) if prefix in self._joint else []
         empty: list[float] = []
         return [
             (GOAL, _state(stamp, names, goal, empty), log_time, frame),

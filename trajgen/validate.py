@@ -26,6 +26,9 @@ from .errors import BadArgument
 
 ErrorFactory = Callable[[str], Exception] | None
 
+#: Most characters of an unknown key a message shows (a JSON line's key may be megabytes).
+_KEY_SHOWN = 40
+
 
 def _raise(name: str, what: str, value, error: ErrorFactory, kind: type) -> None:
     if error is not None:
@@ -139,8 +142,22 @@ def check_choice(name: str, value, allowed, *, error: ErrorFactory = None) -> st
     return value
 
 
-def check_keys(table: dict, known, *, error: Callable[[str], Exception]) -> None:
-    """Refuse the first key of ``table`` not in ``known``, listing the known ones."""
+def check_keys(table: dict, known, *, error: Callable[[str], Exception], kind: str = "key") -> None:
+    """Refuse the first key of ``table`` not in ``known``, listing the known ones.
+
+    The one message shape for every table of every file: ``"unknown {kind} 'x'
+    (known: a, b, c)"``, ``kind`` e.g. "key", "field", "table", "joint".
+
+    Parameters
+    ----------
+    table : dict
+    known : iterable of str
+    error : callable
+        Builds the exception from the message (prefixing file and table).
+    kind : str
+        What a key of this table is, for the message.
+    """
     for key in table:
         if key not in known:
-            raise error(f"unknown key '{key}' (known: {', '.join(known)})")
+            shown = key if len(key) <= _KEY_SHOWN else key[:_KEY_SHOWN] + "..."
+            raise error(f"unknown {kind} '{shown}' (known: {', '.join(known)})")

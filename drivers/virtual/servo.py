@@ -32,6 +32,7 @@ from collections.abc import Iterable, Mapping
 from trajgen.drivers.control_table import (
     EEPROM_END,
     LIMITED_BY,
+    MODE_RESETS,
     POSITION_MODE,
     Model,
     Register,
@@ -45,22 +46,9 @@ from trajgen.drivers.units import TICKS_PER_REV
 #: Goal registers a tripped Bus Watchdog locks.
 _GOALS = ("Goal PWM", "Goal Current", "Goal Velocity", "Goal Position")
 
-#: What changing Operating Mode resets (e-Manual "Operating Mode": gains and
-#: profile to their initial values, Goal PWM / Goal Current to PWM / Current
-#: Limit; models without Goal Current skip it).
-_MODE_RESETS = (
-    "Goal PWM",
-    "Goal Current",
-    "Velocity I Gain",
-    "Velocity P Gain",
-    "Position D Gain",
-    "Position I Gain",
-    "Position P Gain",
-    "Feedforward 2nd Gain",
-    "Feedforward 1st Gain",
-    "Profile Acceleration",
-    "Profile Velocity",
-)
+#: What changing Operating Mode resets (``control_table.MODE_RESETS``, and Goal
+#: Current on the models that have it; Goal PWM / Goal Current go to their limits).
+_MODE_RESETS = (*(r.value for r in MODE_RESETS), "Goal Current")
 
 #: FACTORY_RESET options (Protocol 2.0): what each keeps.
 FACTORY_RESET_KEEPS = {0xFF: (), 0x01: ("ID",), 0x02: ("ID", "Baud Rate")}

@@ -16,11 +16,10 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from trajgen.cli import stream
 from trajgen.cli.common import (
     EXIT_OK,
-    add_file_argument,
-    baud_rate,
-    check_output_path,
+    exit_status_text,
     load_checked,
     positive_float,
 )
@@ -38,10 +37,11 @@ With --virtual the excitation runs on the simulated gimbal of the file's
 [gimbal] tables and the torque report is printed (judged on torque only: an
 excitation is meant to lag).
 
-Then: trajgen identify FILE LOG.csv --out FITTED.toml
+It takes every option of `trajgen stream` (bus, ids, rate, safety, outputs);
+--telemetry is required. An excitation that leaves the envelope or the joint
+limits is bad input (exit status 2), refused before anything moves.
 
-exit status: 0 ok, 1 stream fault, 2 bad input (an excitation that leaves the
-envelope or the limits is bad input), 130 interrupted."""
+Then: trajgen identify FILE LOG.csv --out FITTED.toml"""
 
 #: Tracking budget (rad) of the torque report with --virtual: an excitation lags on purpose.
 _NO_TRACKING_BUDGET = math.pi
@@ -53,19 +53,16 @@ def register(subparsers) -> None:
         "excite",
         help="stream a multi-sine excitation with telemetry (for trajgen identify)",
         description=DESCRIPTION,
+        epilog=exit_status_text(stream.STREAM_FAILED, signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_file_argument(p)
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
-    where.add_argument(
-        "--virtual", action="store_true", help="excite the simulated gimbal on a virtual bus"
-    )
+    stream.add_stream_arguments(p, telemetry_required=True)
     p.add_argument(
-        "--telemetry", metavar="LOG.csv", required=True, help="telemetry file (.csv or .mcap)"
-    )
-    p.add_argument(
-        "--seconds", type=positive_float, default=8.0, help="duration (s), >= 3; default 8"
+        "--seconds",
+        type=positive_float,
+        default=8.0,
+        metavar="S",
+        help="duration (s), >= 3; default 8",
     )
     p.add_argument(
         "--amplitude",
@@ -73,11 +70,6 @@ def register(subparsers) -> None:
         metavar="DEG",
         help="largest excursion of every joint (deg); default pan 25, tilt 15, roll 20",
     )
-    p.add_argument("--baud", type=baud_rate, help="baud rate; default [bus] baud, else 1000000")
-    p.add_argument(
-        "--rate", type=positive_float, metavar="HZ", help="stream rate (Hz); default 200"
-    )
-    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
     p.set_defaults(func=run_excite)
 
 
@@ -116,14 +108,13 @@ def excitation_file(args) -> ExcitationFile:
         Bad input: the file, the options, or an excitation that leaves the
         joint limits, nears gimbal lock or leaves the torque envelope.
     """
-    from trajgen.cli.stream import check_telemetry_path
+    from trajgen.errors import KinematicsError
     from trajgen.gimbal import GimbalKinematics
     from trajgen.sim.check import check_planned_torque
     from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
     from trajgen.stream import plan_joint_trajectory
 
-    check_telemetry_path(args.telemetry, (".csv", ".mcap"))
-    check_output_path("--json", args.json, (".json",))
+    stream.check_stream_outputs(args)
     checked = load_checked(args.file)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal
     center = GimbalKinematics().inverse(kf.quats[:1])[0]
@@ -134,8 +125,11 @@ def excitation_file(args) -> ExcitationFile:
         motion = Multisine(center_rad=center, seconds=args.seconds, amplitude_rad=amplitude)
     except ValueError as e:
         raise ValueError(f"--seconds: {e}") from e
-    rate = args.rate or kf.rate_hz or 200.0
-    trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
+    rate = kf.stream_rate(args.rate)
+    try:
+        trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
+    except KinematicsError as e:
+        raise ValueError(f"the excitation: {e}; lower --amplitude") from None
     reasons = check_planned_torque(trajectory, config)
     if reasons:
         raise ValueError(
@@ -152,14 +146,14 @@ def excitation_file(args) -> ExcitationFile:
 
 def run_excite(args) -> int:
     """Run ``trajgen excite``; returns the exit status."""
-    from trajgen.cli import stream
 
     def make_plan(args):
         from trajgen.drivers.config import bus_config_from_tables
 
         source = excitation_file(args)
         config = bus_config_from_tables(source.tables, source.path)
-        return stream.planned(source, config, source.rate_hz, args, {"telemetry": args.telemetry})
+        # Every stream option applies: --torque-off, --max-delay, --set-limits, ...
+        return stream.planned(source, config, source.rate_hz, args, stream.stream_options(args))
 
     status = stream.run_plan(args, make_plan, stream.stream_source)
     if status == EXIT_OK:

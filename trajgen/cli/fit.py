@@ -12,11 +12,14 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     add_file_argument,
+    add_rate_argument,
     bad_input,
     check_module,
     check_output_path,
+    exit_status_text,
     load_checked,
-    positive_float,
+    output_file,
+    tell,
 )
 from trajgen.errors import TrajgenError
 
@@ -37,10 +40,8 @@ Each segment gets its own duration, all optimised jointly (scipy's SLSQP: pip
 install 'trajgen[fit]'): a segment far from every limit is not slowed for
 another's sake. Prints per segment the old and new duration and the limit that
 binds; checks that the same keyframes 10% faster fail. Writes the fitted file to
---out, keeping every other table of the input (comments are not kept).
-
-exit status: 0 fitted, 1 no timing passes (e.g. a pose the servos cannot hold
-against gravity, a path through gimbal lock), 2 bad input."""
+--out (whole or not at all, never over the input), keeping every other table of
+the input (comments are not kept)."""
 
 
 def register(subparsers) -> None:
@@ -51,16 +52,17 @@ def register(subparsers) -> None:
         "fit",
         help="fit a keyframe file's timing to the servos' torque",
         description=DESCRIPTION,
+        epilog=exit_status_text(
+            "no timing passes the torque check and [limits] (e.g. a pose the servos cannot "
+            "hold against gravity)"
+        ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
-    p.add_argument("--out", metavar="OUT.toml", required=True, help="write the fitted file here")
     p.add_argument(
-        "--rate",
-        type=positive_float,
-        metavar="HZ",
-        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
+        "--out", metavar="OUT.toml", required=True, help="write the fitted file to OUT.toml"
     )
+    add_rate_argument(p)
     p.set_defaults(func=run_fit)
 
 
@@ -84,7 +86,7 @@ def run_fit(args) -> int:
     from trajgen.sim.fit import fit_timing
 
     try:
-        check_output_path("--out", args.out)
+        check_output_path("--out", args.out, (".toml",), [args.file])
         check_module("fit", "scipy", "scipy")  # its SLSQP optimises the durations jointly
         checked = load_checked(args.file)  # every table, [bus] included
         result = fit_timing(
@@ -95,7 +97,7 @@ def run_fit(args) -> int:
             progress=_Progress(),
         )
     except SimError as e:
-        print(f"trajgen: fit refused: {e}", file=sys.stderr)
+        tell(f"fit refused: {e}")
         return EXIT_FAILED
     except TrajgenError as e:
         return bad_input(e)
@@ -105,9 +107,9 @@ def run_fit(args) -> int:
         f"{result.duration_s:.3f} s.\n"
     )
     try:
-        with open(args.out, "w", encoding="utf-8") as f:
+        with output_file("--out", args.out) as f:
             f.write(header + result.toml())
-    except OSError as e:
-        return bad_input(f"--out: {e}")
+    except TrajgenError as e:
+        return bad_input(e)
     print(f"written: {args.out}")
     return EXIT_OK

@@ -13,6 +13,7 @@ import itertools
 import sys
 
 from trajgen.cli import stream as stream_command
+from trajgen.cli.common import exit_status_text, tell
 from trajgen.follower import CHANGE_MARGIN_S, Follower, load_compiled_kernel, online_spline
 from trajgen.keyframe_lines import capped_lines
 
@@ -40,10 +41,7 @@ Bring-up, stop signals, safe stop and report are those of `trajgen stream`;
 bring-up checks the whole range the joint limits allow against the servos'
 installed limits. --virtual streams in real time (the lines do), unlike
 `trajgen stream --virtual`, and ends with the torque report of what was streamed.
-
-exit status: 0 ok, 1 stream fault or torque check failed, 2 bad input,
-128 + the signal number when stopped by SIGINT, SIGTERM or SIGHUP (the servos
-hold their last goal, or are released with --torque-off)."""
+On a signal the servos hold their last goal, or are released with --torque-off."""
 
 
 def register(subparsers) -> None:
@@ -54,6 +52,7 @@ def register(subparsers) -> None:
         "follow",
         help="stream a plan that keyframes arriving on stdin (JSON lines) change",
         description=FOLLOW_DESCRIPTION,
+        epilog=exit_status_text(stream_command.STREAM_FAILED, signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     stream_command.add_stream_arguments(p)
@@ -79,10 +78,10 @@ def _skipped():
     def show(message: str) -> None:
         n = next(count)
         if n <= SHOWN_SKIPS:
-            print(f"trajgen: follow: {message} (line skipped)", file=sys.stderr, flush=True)
+            tell(f"{message} (line skipped)")
         if n == SHOWN_SKIPS:
             print(
-                f"trajgen: follow: {SHOWN_SKIPS} lines skipped; more are counted, not shown",
+                f"trajgen follow: {SHOWN_SKIPS} lines skipped; more are counted, not shown",
                 file=sys.stderr,
                 flush=True,
             )
@@ -101,7 +100,7 @@ def follow(args, lines) -> int:
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
         if p.source.method != "blending":
             print(
-                f"trajgen: note: {p.source.path}: follow plans with the blending spline "
+                f"trajgen follow: note: {p.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "
                 f"{p.source.method!r}",
                 file=sys.stderr,

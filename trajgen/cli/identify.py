@@ -7,10 +7,22 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
+import zipfile
 from pathlib import Path
 
-from trajgen.cli.common import EXIT_FAILED, EXIT_OK, bad_input, check_output_path
+from trajgen.cli.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    BadInput,
+    bad_input,
+    check_output_path,
+    exit_status_text,
+    load_checked,
+    output_path,
+    positive_int,
+    tell,
+)
+from trajgen.errors import TrajgenError
 
 DESCRIPTION = """\
 Fit each joint's armature (kg m^2), Coulomb friction (N m), viscous damping (N
@@ -21,7 +33,8 @@ gimbal (its [gimbal] table: servos, payload) and the starting values. Prints
 fit, 95 % interval and residual per joint and names every parameter the logs
 do not excite enough; writes FITTED.toml: FILE with its [gimbal.pan],
 [gimbal.tilt], [gimbal.roll] tables replaced by the fit (intervals in
-comments), ready for `trajgen sim FITTED.toml`.
+comments), ready for `trajgen sim FITTED.toml` (written whole or not at all;
+never over FILE or a log).
 
 Each row's present values are taken --delay-ms after its goal (default 0: what
 the servo had as the goal arrived, as the virtual bus logs it; on hardware the
@@ -32,9 +45,7 @@ The logged current is fitted too, as torque over the torque constant (stall
 torque / stall current); --fit-current-scale fits a factor between the two (a
 real servo's reading needs one; it widens the intervals, as only the motor's
 back-EMF then fixes the overall scale), --no-current fits positions and
-velocities only.
-
-exit status: 0 fitted, 1 the fit failed, 2 bad input."""
+velocities only."""
 
 _JOINT_HEADER = re.compile(r"^\s*\[\s*gimbal\s*\.\s*(pan|tilt|roll)\s*\]")
 _ANY_HEADER = re.compile(r"^\s*\[")
@@ -46,11 +57,19 @@ def register(subparsers) -> None:
         "identify",
         help="fit the simulated gimbal's friction, inertia and gains to telemetry logs",
         description=DESCRIPTION,
+        epilog=exit_status_text("the fit failed (it did not converge, or a log cannot be fitted)"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", metavar="FILE", help="keyframe file of the gimbal (TOML)")
-    p.add_argument("logs", metavar="LOG", nargs="+", help="telemetry logs (.csv, .npz or .mcap)")
-    p.add_argument("--out", metavar="FITTED.toml", required=True, help="write the fit here")
+    p.add_argument(
+        "logs",
+        metavar="LOG",
+        nargs="+",
+        help="telemetry logs (.csv, .npz or .mcap) of trajgen excite",
+    )
+    p.add_argument(
+        "--out", metavar="FITTED.toml", required=True, help="write the fitted file to FITTED.toml"
+    )
     p.add_argument("--no-current", action="store_true", help="do not fit the logged current")
     p.add_argument(
         "--delay-ms",
@@ -66,7 +85,11 @@ def register(subparsers) -> None:
         help="fit a scale between the logged current and torque / torque constant",
     )
     p.add_argument(
-        "--max-iter", type=int, default=30, metavar="N", help="Gauss-Newton iterations (30)"
+        "--max-iter",
+        type=positive_int,
+        default=30,
+        metavar="N",
+        help="Gauss-Newton iterations (default 30)",
     )
     p.set_defaults(func=run_identify)
 
@@ -94,23 +117,21 @@ def fitted_file_text(source_text: str, tables: str) -> str:
 
 def run_identify(args) -> int:
     """Run ``trajgen identify``; returns the exit status."""
-    from trajgen.keyframes import load_keyframe_file
+    from trajgen.keyframes import load_keyframe_file, read_text
     from trajgen.sim.errors import SimError
-    from trajgen.sim.identify import identify, load_telemetry
+    from trajgen.sim.identify import identify
     from trajgen.sim.model import gimbal_config_from_tables
 
     try:
-        check_output_path("--out", args.out, (".toml",))
+        check_output_path("--out", args.out, (".toml",), [args.file, *args.logs])
         if not 0 <= args.delay_ms < 1000:
             raise ValueError(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
         if args.fit_current_scale and args.no_current:
             raise ValueError("--fit-current-scale needs the current: drop --no-current")
-        if args.max_iter < 1:
-            raise ValueError(f"--max-iter: expected >= 1, got {args.max_iter}")
-        kf = load_keyframe_file(args.file)
-        config = gimbal_config_from_tables(kf.tables, kf.path)
-        logs = [load_telemetry(path) for path in args.logs]
-        source_text = Path(args.file).read_text(encoding="utf-8")
+        checked = load_checked(args.file, spline=False)  # every table, as every command checks them
+        config = checked.gimbal
+        logs = [_load_log(path) for path in args.logs]
+        source_text = read_text(args.file)
         fit = identify(
             config,
             logs,
@@ -123,17 +144,41 @@ def run_identify(args) -> int:
     except (ValueError, TypeError, OSError) as e:  # IdentifyError, KeyframeFileError
         return bad_input(e)
     except SimError as e:
-        print(f"trajgen: identify failed: {e}", file=sys.stderr)
+        tell(f"identify failed: {e}")
         return EXIT_FAILED
     print(fit.format())
     sources = ", ".join(Path(p).name for p in args.logs)
     text = fitted_file_text(source_text, fit.toml(sources))
     try:
-        Path(args.out).write_text(text, encoding="utf-8")
-        # The result must load as the file it claims to be.
-        fitted = load_keyframe_file(args.out)
-        gimbal_config_from_tables(fitted.tables, fitted.path)
+        with output_path("--out", args.out) as tmp:
+            Path(tmp).write_text(text, encoding="utf-8")
+            if Path(tmp).is_file():  # not a device (/dev/null), which cannot be read back
+                # The result must load as the file it claims to be, before it replaces anything.
+                fitted = load_keyframe_file(tmp)
+                gimbal_config_from_tables(fitted.tables, fitted.path)
     except (ValueError, OSError) as e:
         return bad_input(e)
     print(f"fitted: {args.out}")
     return EXIT_OK
+
+
+def _load_log(path: str):
+    """A telemetry log, refused in one line naming it when it is missing, a folder or
+    not a log."""
+    from trajgen.sim.identify import IdentifyError, load_telemetry
+
+    p = Path(path)
+    if not p.exists():
+        raise BadInput(f"{path}: no such telemetry log")
+    if p.is_dir():
+        raise BadInput(f"{path}: is a directory, not a telemetry log")
+    if p.stat().st_size == 0:
+        raise BadInput(f"{path}: empty telemetry log (a log of trajgen excite has a header row)")
+    try:
+        return load_telemetry(p)
+    except UnicodeDecodeError:
+        raise BadInput(f"{path}: not a telemetry log (not UTF-8 text)") from None
+    except (TrajgenError, IdentifyError):
+        raise  # names the file already
+    except (KeyError, IndexError, ValueError, zipfile.BadZipFile) as e:
+        raise BadInput(f"{path}: not a telemetry log of trajgen excite ({e})") from None

@@ -21,8 +21,13 @@ from trajgen.cli.common import (
     check_module,
     check_output_path,
     check_timing,
+    exit_status_text,
     load_checked,
+    output_file,
+    output_path,
+    prefix,
     speed_warning,
+    warn,
 )
 from trajgen.errors import PlanTooLarge, TrajgenError
 from trajgen.sampling import MAX_SAMPLES, sample_time_blocks
@@ -42,7 +47,7 @@ def run_plan(args) -> int:
 
 
 def _plan(args) -> int:
-    check_output_path("--out", args.out)
+    check_output_path("--out", args.out, inputs=[args.file])
     to_mcap = bool(args.out) and args.out.lower().endswith(".mcap")
     if to_mcap:
         check_module("--out", "mcap_ros2", "'trajgen[mcap]'")
@@ -69,29 +74,14 @@ def _plan(args) -> int:
                 f"message of at most {MAX_MCAP_SAMPLES:,} samples: lower --rate, or write CSV"
             )
         return _plan_mcap(args, kf, spline, rate)
-    progress = Progress(f"trajgen plan: writing {total:,} rows") if args.out else None
-    out = open(args.out, "w", newline="") if args.out else sys.stdout
-    peak_w = peak_a = 0.0
-    rows = 0
-    try:
-        writer = csv.writer(out)
-        writer.writerow(CSV_HEADER + ([] if joints is None else joints.header))
-        for t in sample_time_blocks(
-            spline.t_start, spline.t_end, rate, block=BLOCK, max_samples=args.max_samples
-        ):
-            s = spline.evaluate(t, max_order=2)
-            rows += len(t)
-            columns = [s.t, s.q, s.omega, s.alpha]
-            if joints is not None:
-                columns += joints(s)
-            writer.writerows(np.column_stack(columns).round(12).tolist())
-            peak_w = max(peak_w, float(np.linalg.norm(s.omega, axis=1).max()))
-            peak_a = max(peak_a, float(np.linalg.norm(s.alpha, axis=1).max()))
-            if progress is not None:
-                progress(rows / total)
-    finally:
-        if args.out:
-            out.close()
+    if args.out:
+        line = Progress(f"{prefix()}: writing {total:,} rows")
+        with output_file("--out", args.out, newline="") as out:
+            rows, peak_w, peak_a = _write_csv(
+                out, spline, rate, args.max_samples, lambda done: line(done / total), joints
+            )
+    else:
+        rows, peak_w, peak_a = _write_csv(sys.stdout, spline, rate, args.max_samples, None, joints)
     print(
         f"planned {kf.path.name}: {rows} samples at {rate:g} Hz over "
         f"{spline.t_end - spline.t_start:.3f} s; peak |omega| {peak_w:.4g} rad/s, "
@@ -100,8 +90,35 @@ def _plan(args) -> int:
     )
     warning = speed_warning(peak_w)
     if warning:
-        print(f"trajgen: warning: {warning}", file=sys.stderr)
+        warn(warning)
     return EXIT_OK
+
+
+def _write_csv(
+    out, spline, rate: float, max_samples: int, progress, joints=None
+) -> tuple[int, float, float]:
+    """Write the plan's CSV to ``out`` block by block, calling ``progress(rows)`` after
+    each; returns the rows written and the peak |omega| (rad/s) and |alpha| (rad/s^2).
+    ``joints`` (:class:`_JointColumns`) adds the look and joint columns."""
+    total = 0
+    peak_w = peak_a = 0.0
+    writer = csv.writer(out)
+    writer.writerow(CSV_HEADER + ([] if joints is None else joints.header))
+    blocks = sample_time_blocks(
+        spline.t_start, spline.t_end, rate, block=BLOCK, max_samples=max_samples
+    )
+    for t in blocks:
+        s = spline.evaluate(t, max_order=2)
+        total += len(t)
+        columns = [s.t, s.q, s.omega, s.alpha]
+        if joints is not None:
+            columns += joints(s)
+        writer.writerows(np.column_stack(columns).round(12).tolist())
+        peak_w = max(peak_w, float(np.linalg.norm(s.omega, axis=1).max()))
+        peak_a = max(peak_a, float(np.linalg.norm(s.alpha, axis=1).max()))
+        if progress is not None:
+            progress(total)
+    return total, peak_w, peak_a
 
 
 class _JointColumns:
@@ -139,8 +156,9 @@ def _plan_mcap(args, kf, spline, rate) -> int:
     """``--out plan.mcap``: the exact joint plan and the orientation (``trajgen.plan_mcap``)."""
     from trajgen.plan_mcap import write_plan_mcap
 
-    progress = Progress(f"trajgen plan: writing {args.out}")
-    plan = write_plan_mcap(args.out, spline, rate, progress=progress)
+    progress = Progress(f"{prefix()}: writing {args.out}")
+    with output_path("--out", args.out) as tmp:
+        plan = write_plan_mcap(tmp, spline, rate, progress=progress)
     print(
         f"planned {kf.path.name}: {len(plan)} samples at {rate:g} Hz over "
         f"{plan.duration_s:.3f} s; peak |qd| {np.abs(plan.qd).max():.4g} rad/s, "
@@ -163,15 +181,20 @@ def register(subparsers) -> None:
             "for a file whose [gimbal] axes are not 'zyx' (e.g. axes = 'zy', a pan-tilt "
             "head) also the camera's look direction and each joint's angle (rad), velocity "
             "(rad/s) and acceleration (rad/s^2), which point the camera exactly at every "
-            "keyframe. The whole file is checked, [gimbal] and [bus] included."
+            "keyframe. The whole file is checked, [gimbal] and [bus] included. The CSV goes to "
+            "stdout, or is written whole to --out (never half a file)."
+        ),
+        epilog=exit_status_text(
+            "never (plan has no check that fails; a warning says "
+            "when the speed is beyond every servo)"
         ),
     )
     add_file_argument(plan)
     add_rate_argument(plan, "sample rate")
     plan.add_argument(
         "--out",
-        metavar="FILE.csv",
-        help="write the CSV here (default: stdout); FILE.mcap: the joint plan as a ROS 2 "
+        metavar="OUT.csv",
+        help="write the CSV to OUT.csv (default: stdout); OUT.mcap: the joint plan as a ROS 2 "
         "trajectory_msgs/JointTrajectory and the orientation as quaternions (trajgen[mcap])",
     )
     plan.add_argument(

@@ -3,22 +3,20 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 from trajgen.cli.common import (
     EXIT_FAILED,
-    EXIT_INTERRUPTED,
     EXIT_OK,
+    add_bus_arguments,
     bad_input,
-    baud_rate,
+    exit_status_text,
     open_bus,
+    tell,
 )
 
 SCAN_DESCRIPTION = """\
 Broadcast-ping a serial port and list the Dynamixel servos that answer, with
-model and firmware version.
-
-exit status: 0 servos found, 1 none found or the bus failed, 2 bad input."""
+model and firmware version."""
 
 
 def register(subparsers) -> None:
@@ -27,33 +25,33 @@ def register(subparsers) -> None:
         "scan",
         help="list the Dynamixel servos on a serial port",
         description=SCAN_DESCRIPTION,
+        epilog=exit_status_text("no servo answered, or the bus failed"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    s.add_argument("--port", required=True, help="serial device, e.g. /dev/ttyUSB0")
-    s.add_argument("--baud", type=baud_rate, default=1_000_000, help="baud rate; default 1000000")
+    add_bus_arguments(s, virtual=None)
     s.set_defaults(func=run_scan)
 
 
 def run_scan(args) -> int:
     """Run ``trajgen scan``; returns the exit status."""
     from trajgen.drivers.control_table import Model, model_numbered
+    from trajgen.drivers.defaults import DEFAULT_BAUD
     from trajgen.drivers.errors import CommError
 
+    baud = args.baud or DEFAULT_BAUD
     try:
-        bus = open_bus(args.port, args.baud)
+        bus = open_bus(args.port, baud)
     except CommError as e:
         return bad_input(e)
     try:
         found = bus.scan()
     except CommError as e:
-        print(f"trajgen: scan failed: {e}", file=sys.stderr)
+        tell(f"scan failed: {e}")
         return EXIT_FAILED
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
     finally:
-        bus.close()
+        bus.close()  # Ctrl-C: closed here, reported by trajgen.cli.main (130)
     if not found:
-        print(f"no servos answered on {args.port} at {args.baud} baud")
+        print(f"no servos answered on {args.port} at {baud} baud")
         return EXIT_FAILED
     for servo_id, (number, firmware) in found.items():
         model = model_numbered(number)

@@ -7,7 +7,6 @@ This module imports quickly: MuJoCo and matplotlib load inside :func:`run_sim`.
 
 from __future__ import annotations
 
-import json
 import sys
 
 from trajgen.cli.common import (
@@ -16,13 +15,18 @@ from trajgen.cli.common import (
     EXIT_OK,
     Progress,
     add_file_argument,
+    add_json_argument,
     add_rate_argument,
     bad_input,
     check_module,
     check_output_path,
     check_plot_path,
     check_timing,
+    exit_status_text,
     load_checked,
+    output_path,
+    tell,
+    write_json,
 )
 from trajgen.errors import TrajgenError
 
@@ -40,8 +44,8 @@ max_tracking_error_rad and p_divisor; [gimbal.pan], [gimbal.tilt] and
 [gimbal.roll] set armature, frictionloss, damping and position_p_gain per joint
 (trajgen identify fits them).
 
-exit status: 0 every joint within the envelope, 1 a joint outside it (or the
-simulation failed), 2 bad input."""
+Units: keyframe angles in degrees (file), the report in SI units (rad, rad/s,
+N m, s) with the unit in every --json key."""
 
 
 def register(subparsers) -> None:
@@ -52,15 +56,16 @@ def register(subparsers) -> None:
         "sim",
         help="check a keyframe file's torque on a simulated gimbal",
         description=DESCRIPTION,
+        epilog=exit_status_text(
+            "the torque check failed (planned torque beyond torque_margin x the envelope, a "
+            "simulated step at the torque limit, tracking beyond its limit), a [limits] "
+            "check failed, or the simulation failed"
+        ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
     add_rate_argument(p)
-    p.add_argument(
-        "--json",
-        metavar="OUT.json",
-        help="also write the report as JSON to OUT.json (on Ctrl-C: what was done so far)",
-    )
+    add_json_argument(p, "the report (on Ctrl-C: what was done so far)")
     p.add_argument(
         "--plot",
         metavar="OUT.png",
@@ -82,9 +87,10 @@ def check_sim_arguments(args) -> None:
     BadInput
         Naming the option.
     """
-    check_output_path("--json", args.json, (".json",))
-    check_plot_path(args.plot)
-    check_output_path("--video", args.video, (".mp4",))
+    inputs = [args.file]
+    check_output_path("--json", args.json, (".json",), inputs)
+    check_plot_path(args.plot, inputs)
+    check_output_path("--video", args.video, (".mp4",), inputs)
     if args.video:
         check_module("--video", "imageio_ffmpeg", "imageio-ffmpeg")
 
@@ -101,15 +107,18 @@ def run_sim(args) -> int:
         return bad_input(e)
     except KeyboardInterrupt:
         print("", file=sys.stderr)
+        tell("interrupted")
         if args.json:
             done["simulated_fraction"] = round(progress.fraction, 4)
-            _write_json(args.json, {"ok": None, "interrupted": True, **done})
+            try:
+                _write_json(args.json, {"ok": None, "interrupted": True, **done})
+            except TrajgenError as e:
+                bad_input(e)
         return EXIT_INTERRUPTED
 
 
 def _write_json(path: str, data: dict) -> None:
-    with open(path, "w", encoding="utf-8") as f:
-        json.dump(data, f, indent=2)
+    write_json("--json", path, data)
     print(f"json: {path}")
 
 
@@ -127,7 +136,7 @@ def _run(args, progress: Progress, done: dict) -> int:
     try:
         report = check_torque(kf, rate_hz=rate, config=checked.gimbal, progress=progress)
     except SimError as e:
-        print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+        tell(f"simulation failed: {e}")
         return EXIT_FAILED
     from trajgen.sim.limits import check_limits
 
@@ -144,9 +153,13 @@ def _run(args, progress: Progress, done: dict) -> int:
     if args.plot:
         from trajgen.sim.plot import plot_report
 
-        print(f"plot: {plot_report(report, args.plot)}")
+        with output_path("--plot", args.plot) as tmp:
+            plot_report(report, tmp)
+        print(f"plot: {args.plot}")
     if args.video:
         from trajgen.sim.video import render_video
 
-        print(f"video: {render_video(report.record, args.video, report.config)}")
+        with output_path("--video", args.video) as tmp:
+            render_video(report.record, tmp, report.config)
+        print(f"video: {args.video}")
     return EXIT_OK if report.ok and not limit_reasons else EXIT_FAILED

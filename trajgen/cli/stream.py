@@ -18,9 +18,7 @@ This module imports quickly: dynamixel-sdk, pyserial and MuJoCo load inside
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import sys
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -28,18 +26,29 @@ from dataclasses import dataclass, field
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    TELEMETRY_SUFFIXES,
     Progress,
+    add_bus_arguments,
     add_file_argument,
+    add_ids_argument,
+    add_json_argument,
+    add_rate_argument,
+    add_telemetry_argument,
     bad_input,
-    baud_rate,
     check_module,
     check_output_path,
     check_plot_path,
     check_timing,
+    exit_status_text,
     load_checked,
+    output_path,
     positive_float,
-    servo_ids,
+    prefix,
+    tell,
+    warn,
+    write_json,
 )
+from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 STREAM_DESCRIPTION = """\
@@ -69,9 +78,11 @@ on a pseudo-terminal, backed by the MuJoCo gimbal of `trajgen sim` (the file's
 [gimbal] table; ideal assembly: direction +1, zero 2048), advancing one stream
 period per frame received, and then prints the torque report.
 
-exit status: 0 ok, 1 stream fault, refused bring-up or torque check failed,
-2 bad input, 128 + signal number when stopped by a signal (130 SIGINT,
-143 SIGTERM, 129 SIGHUP)."""
+Units: angles in degrees on the command line and in the file (joint degrees for
+--set-limits and --max-approach), seconds for --max-delay."""
+
+#: What gives exit status 1 (the stream and every command that streams).
+STREAM_FAILED = "a stream fault, a refused bring-up, or (with --virtual) a failed torque check"
 
 
 def _limits(text: str) -> tuple[str, float, float]:
@@ -94,38 +105,26 @@ def register(subparsers) -> None:
         "stream",
         help="stream a keyframe file to Dynamixel servos (or a virtual bus)",
         description=STREAM_DESCRIPTION,
+        epilog=exit_status_text(STREAM_FAILED, signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_stream_arguments(p)
     p.set_defaults(func=run_stream)
 
 
-def add_stream_arguments(p) -> None:
-    """The file, bus, rate, output, --virtual and safety options (shared with
-    ``trajgen follow``)."""
+def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
+    """The file, bus, rate, output, --virtual and safety options: what every command
+    that streams accepts (``stream``, ``follow``, ``excite``); see :func:`stream_options`."""
     from trajgen.drivers.defaults import MAX_DELAY_S  # constants only: no SDK, no numpy
 
     add_file_argument(p)
-    p.add_argument("--port", help="serial device, e.g. /dev/ttyUSB0; default [bus] port")
-    p.add_argument(
-        "--baud", type=baud_rate, help="baud rate (up to 4500000); default [bus] baud, else 1000000"
+    add_bus_arguments(
+        p, "stream to a virtual bus backed by the simulated gimbal (instead of --port)"
     )
-    p.add_argument(
-        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
-    )
-    p.add_argument(
-        "--rate",
-        type=positive_float,
-        metavar="HZ",
-        help="stream rate (Hz); default the file's [stream] rate_hz, else 200",
-    )
-    p.add_argument(
-        "--telemetry",
-        metavar="OUT",
-        help="write per-frame telemetry to OUT (.csv, .npz, or .mcap: ROS 2 messages for "
-        "Foxglove, needs trajgen[mcap])",
-    )
-    p.add_argument("--json", metavar="OUT.json", help="write the statistics (and report) as JSON")
+    add_ids_argument(p)
+    add_rate_argument(p)
+    add_telemetry_argument(p, required=telemetry_required)
+    add_json_argument(p, "the statistics (and with --virtual the torque report)")
     p.add_argument(
         "--torque-off", action="store_true", help="release the servos when the stream stops"
     )
@@ -138,11 +137,8 @@ def add_stream_arguments(p) -> None:
         f"(default {MAX_DELAY_S:g} s; stream --virtual runs on simulated time: no stalls)",
     )
     p.add_argument(
-        "--virtual",
-        action="store_true",
-        help="stream to a virtual bus backed by the simulated gimbal (no --port needed)",
+        "--plot", metavar="OUT.png", help="with --virtual: plot the torque report to OUT.png"
     )
-    p.add_argument("--plot", metavar="OUT.png", help="with --virtual: plot the torque report")
     p.add_argument(
         "--set-limits",
         type=_limits,
@@ -152,11 +148,25 @@ def add_stream_arguments(p) -> None:
         "without it the installed limits are only read, and a plan leaving them is refused",
     )
     p.add_argument(
+        "--configure",
+        action="store_true",
+        help="let bring-up change EEPROM settings the stream needs (Operating Mode) or is "
+        "advised (Return Delay Time 0); default [bus] configure, else off: it says what it "
+        "would change and refuses where the stream needs it",
+    )
+    p.add_argument(
+        "--restore",
+        action="store_true",
+        help="on exit, write back the settings bring-up changed (EEPROM ones need "
+        "--torque-off); default [bus] restore, else off",
+    )
+    p.add_argument(
         "--max-approach",
         type=positive_float,
         default=45.0,
         metavar="DEG",
-        help="refuse to start when a joint is farther than this from the first frame (default 45)",
+        help="refuse to start when a joint is farther than DEG (joint degrees) from the first "
+        "frame (default 45)",
     )
 
 
@@ -190,10 +200,10 @@ class Plan:
     options: dict = field(default_factory=dict)
 
 
-def check_telemetry_path(path: str | None, suffixes: tuple[str, ...]) -> None:
-    """Refuse ``--telemetry PATH`` up front: writable, a known suffix, and for
-    ``.mcap`` the ``mcap`` extra installed."""
-    check_output_path("--telemetry", path, suffixes)
+def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=()) -> None:
+    """Refuse ``--telemetry PATH`` up front: writable, a known suffix, not one of
+    ``inputs``, and for ``.mcap`` the ``mcap`` extra installed."""
+    check_output_path("--telemetry", path, suffixes, inputs)
     if path and path.lower().endswith(".mcap"):
         check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
 
@@ -206,9 +216,7 @@ def plan(args) -> Plan:
     ValueError, TypeError, OSError
         Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
     """
-    check_telemetry_path(args.telemetry, (".csv", ".npz", ".mcap"))
-    check_output_path("--json", args.json, (".json",))
-    check_plot_path(args.plot)
+    check_stream_outputs(args)
     checked = load_checked(args.file)
     kf = checked.keyframes
     rate = kf.stream_rate(args.rate)
@@ -217,18 +225,31 @@ def plan(args) -> Plan:
         raise ValueError("--port and --virtual exclude each other")
     if args.plot and not args.virtual:
         raise ValueError("--plot needs --virtual (it plots the simulated torque report)")
+    return planned(kf, checked.bus, rate, args, stream_options(args))
+
+
+def check_stream_outputs(args) -> None:
+    """Refuse unusable --telemetry, --json and --plot paths before any work (an output
+    that is the keyframe file among them)."""
+    inputs = [args.file]
+    check_telemetry_path(args.telemetry, TELEMETRY_SUFFIXES, inputs)
+    check_output_path("--json", args.json, (".json",), inputs)
+    check_plot_path(args.plot, inputs)
+
+
+def stream_options(args) -> dict:
+    """``Session`` keywords from the options of :func:`add_stream_arguments`."""
     set_limits = {
         JOINTS.index(joint): (math.radians(low), math.radians(high))
         for joint, low, high in args.set_limits or ()
     }
-    options = {
+    return {
         "on_stop": "torque_off" if args.torque_off else "hold",
         "telemetry": args.telemetry,
         "max_delay_s": args.max_delay,
         "max_approach_rad": math.radians(args.max_approach),
         "set_limits_rad": set_limits,
     }
-    return planned(kf, checked.bus, rate, args, options)
 
 
 def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
@@ -253,7 +274,12 @@ def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
     if getattr(args, "ids", None):
         joints = JointMap(args.ids, joints.directions, joints.zeros)
     config = replace(
-        config, port=args.port or config.port, baud=args.baud or config.baud, joints=joints
+        config,
+        port=args.port or config.port,
+        baud=args.baud or config.baud,
+        joints=joints,
+        configure=config.configure or bool(getattr(args, "configure", False)),
+        restore=config.restore or bool(getattr(args, "restore", False)),
     )
     trajectory = plan_joint_trajectory(source.spline(), rate_hz)
     return Plan(source, config, rate_hz, trajectory, bool(args.virtual), options)
@@ -312,10 +338,11 @@ def _set_limits_text(limits: dict, error: Exception) -> str:
 
 @contextmanager
 def _warnings_to_stderr():
-    """Print the drivers' RuntimeWarnings as ``trajgen: warning:`` lines when they happen."""
+    """Print the drivers' RuntimeWarnings as ``trajgen <command>: warning:`` lines when
+    they happen."""
 
     def show(message, *args, **kwargs):
-        print(f"trajgen: warning: {message}", file=sys.stderr)
+        warn(message)
 
     with warnings.catch_warnings():
         warnings.simplefilter("always", RuntimeWarning)
@@ -358,7 +385,7 @@ def run_plan(args, make_plan, go, extra=None) -> int:
         except (ValueError, TypeError, OSError) as e:  # TrajgenError: re-planning at start
             return bad_input(e)
         if outcome.virtual_error is not None:
-            print(f"trajgen: virtual bus stopped: {outcome.virtual_error}", file=sys.stderr)
+            tell(f"virtual bus stopped: {outcome.virtual_error}")
         if outcome.stage == "open" and outcome.signal is None:
             return bad_input(outcome.stopped_by)  # the port did not open
         status = report(args, p, plant, outcome, extra=None if extra is None else extra())
@@ -400,14 +427,16 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
     if stats is not None:
         print(stats.format())
     for message in outcome.stop_errors:
-        print(f"trajgen: warning: safe stop: {message}", file=sys.stderr)
+        warn(f"safe stop: {message}")
     on_stop = p.options.get("on_stop", "hold")
     state = _state(outcome, on_stop)
     if outcome.stopped_by:
         kind = "interrupted" if outcome.signal is not None else "stream failed"
-        print(f"trajgen: {kind}: {outcome.stopped_by}; {state}", file=sys.stderr)
+        tell(f"{kind}: {outcome.stopped_by}; {state}")
     else:
         print(f"servos: {state.removeprefix('the servos ')}")
+    for servo in outcome.servos:  # each as read back after the stop
+        print(f"  {servo.format()}")
     telemetry = p.options.get("telemetry")
     if telemetry and stats is not None:
         print(f"telemetry: {telemetry}")
@@ -419,7 +448,7 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
         result["status"] = status
     if telemetry and stats is not None:
         add_telemetry_report(telemetry, result)
-    return write_json(args.json, result, status)
+    return write_report(args.json, result, status)
 
 
 def add_telemetry_report(path: str, result: dict) -> None:
@@ -427,9 +456,9 @@ def add_telemetry_report(path: str, result: dict) -> None:
     from trajgen.drivers.telemetry import add_report
 
     try:
-        add_report(path, result, Progress(f"trajgen: adding the report to {path}"))
+        add_report(path, result, Progress(f"{prefix()}: adding the report to {path}"))
     except OSError as e:
-        print(f"trajgen: warning: telemetry {path}: report not added: {e}", file=sys.stderr)
+        warn(f"telemetry {path}: report not added: {e}")
 
 
 def torque_report(plant, trajectory, plot_path, result: dict):
@@ -440,7 +469,7 @@ def torque_report(plant, trajectory, plot_path, result: dict):
     try:
         report = plant.report(trajectory)
     except SimError as e:
-        print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+        tell(f"simulation failed: {e}")
         return EXIT_FAILED, None
     print(report.format())
     result["torque"] = report.to_json_dict()
@@ -449,19 +478,20 @@ def torque_report(plant, trajectory, plot_path, result: dict):
         from trajgen.sim.plot import plot_report
 
         try:
-            print(f"plot: {plot_report(report, plot_path)}")
+            with output_path("--plot", plot_path) as tmp:
+                plot_report(report, tmp)
+            print(f"plot: {plot_path}")
         except (OSError, ValueError) as e:
             return bad_input(e), report
     return status, report
 
 
-def write_json(path, result: dict, status: int) -> int:
+def write_report(path, result: dict, status: int) -> int:
     """Write ``result`` to ``path`` (--json) if given; return ``status`` (or bad input)."""
     if path:
         try:
-            with open(path, "w", encoding="utf-8") as f:
-                json.dump(result, f, indent=2)
-        except OSError as e:
+            write_json("--json", path, result)
+        except TrajgenError as e:
             return bad_input(e)
         print(f"json: {path}")
     return status

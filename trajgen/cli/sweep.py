@@ -7,21 +7,30 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
-import sys
+import math
 from dataclasses import asdict
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    BadInput,
     Progress,
     add_file_argument,
+    add_json_argument,
+    add_rate_argument,
     bad_input,
     check_output_path,
     check_plot_path,
+    exit_status_text,
     load_checked,
+    output_path,
     positive_float,
+    positive_int,
+    prefix,
+    tell,
+    write_json,
 )
+from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 DESCRIPTION = """\
@@ -36,13 +45,23 @@ examples:
   trajgen sweep shot.toml --servo pan=XM430-W350,XM540-W270 --offset-m 0.03,0,0 \\
       --offset-m 0.06,0,0.02 --plot sweep.png
 
-exit status: 0 the sweep ran (the table says which variants pass), 1 a simulation
-failed, 2 bad input."""
+The number of variants and the motion they simulate are printed before the
+first one starts; more than --max-variants is refused before any work.
+
+A failed variant is a row of the table, not a failure of the command."""
+
+#: Variants a sweep runs without --max-variants (each a whole simulation).
+MAX_VARIANTS = 1_000
 
 
-def _floats(text: str) -> list[float]:
-    """argparse type: comma-separated numbers, each > 0 (a bare 0 is allowed for payloads)."""
+def _masses(text: str) -> list[float]:
+    """argparse type: comma-separated masses (kg), each > 0 or a bare 0 (no payload)."""
     return [0.0 if v.strip() == "0" else positive_float(v) for v in text.split(",")]
+
+
+def _scales(text: str) -> list[float]:
+    """argparse type: comma-separated time multipliers, each > 0."""
+    return [positive_float(v) for v in text.split(",")]
 
 
 def _offset(text: str) -> tuple[float, float, float]:
@@ -50,8 +69,8 @@ def _offset(text: str) -> tuple[float, float, float]:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected x,y,z in m, got {text!r}") from None
-    if len(values) != 3:
-        raise argparse.ArgumentTypeError(f"expected 3 numbers x,y,z in m, got {text!r}")
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected 3 finite numbers x,y,z in m, got {text!r}")
     return values
 
 
@@ -70,10 +89,13 @@ def register(subparsers) -> None:
         "sweep",
         help="torque check over payloads, servos and speeds",
         description=DESCRIPTION,
+        epilog=exit_status_text("a simulation failed (the table says which variants pass)"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
-    p.add_argument("--payload-kg", type=_floats, metavar="M,M,...", help="payload masses (kg)")
+    p.add_argument(
+        "--payload-kg", type=_masses, metavar="M,M,...", help="payload masses (kg; 0: none)"
+    )
     p.add_argument(
         "--offset-m",
         type=_offset,
@@ -90,13 +112,22 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--time-scale",
-        type=_floats,
+        type=_scales,
         default=[0.5, 0.75, 1.0, 1.5],
         metavar="S,S,...",
         help="keyframe time multipliers (default 0.5,0.75,1,1.5)",
     )
-    p.add_argument("--rate", type=positive_float, metavar="HZ", help="stream rate (Hz)")
-    p.add_argument("--threads", type=int, default=2, help="rollout threads (default 2)")
+    add_rate_argument(p)
+    p.add_argument(
+        "--threads", type=positive_int, default=2, metavar="N", help="rollout threads (default 2)"
+    )
+    p.add_argument(
+        "--max-variants",
+        type=positive_int,
+        default=MAX_VARIANTS,
+        metavar="N",
+        help=f"refuse sweeps of more than N variants (default {MAX_VARIANTS:,})",
+    )
     p.add_argument(
         "--dask",
         metavar="ADDRESS",
@@ -104,13 +135,13 @@ def register(subparsers) -> None:
         "needs the dist extra",
     )
     p.add_argument("--plot", metavar="OUT.png", help="plot pass/fail and margin per variant")
-    p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    add_json_argument(p, "the results")
     p.set_defaults(func=run_sweep)
 
 
 def _progress():
     """A ``(done, total)`` callback that drives the shared progress line."""
-    line = Progress("trajgen sweep: variants")
+    line = Progress(f"{prefix()}: variants")
     return lambda done, total: line(done / total)
 
 
@@ -120,8 +151,8 @@ def run_sweep(args) -> int:
     from trajgen.sim.errors import SimError
 
     try:
-        check_plot_path(args.plot)
-        check_output_path("--json", args.json, (".json",))
+        check_plot_path(args.plot, [args.file])
+        check_output_path("--json", args.json, (".json",), [args.file])
         checked = load_checked(args.file)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
         per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
@@ -130,13 +161,23 @@ def run_sweep(args) -> int:
         servo_sets = list(itertools.product(*(per_joint[j] for j in JOINTS)))
         payloads = args.payload_kg or [base.payload_kg]
         offsets = args.offset_m or [base.payload_offset_m]
+        count = len(payloads) * len(offsets) * len(servo_sets) * len(args.time_scale)
+        if count > args.max_variants:
+            raise BadInput(
+                f"{count:,} variants ({len(payloads)} payloads x {len(offsets)} offsets x "
+                f"{len(servo_sets)} servo sets x {len(args.time_scale)} time scales), over the "
+                f"limit of {args.max_variants:,}; --max-variants N raises it"
+            )
         variants = sweep.variants(payloads, offsets, servo_sets, args.time_scale)
         for v in variants:  # unknown servo names fail here, before any work
-            v.config(base)
-        if args.threads < 1:
-            raise ValueError(f"--threads: expected >= 1, got {args.threads}")
+            try:
+                v.config(base)
+            except ValueError as e:
+                raise BadInput(f"--servo: {e}") from None
     except (ValueError, TypeError, OSError, ModuleNotFoundError) as e:
         return bad_input(e)  # every option and table, checked before any simulation
+    seconds = float(source.times[-1] - source.times[0]) * sum(v.time_scale for v in variants)
+    tell(f"{len(variants):,} variants, {seconds:,.1f} s of motion to simulate in all")
     try:
         if args.dask:
             results = _on_dask(args.dask, sweep, source, variants, base, args.rate)
@@ -150,7 +191,7 @@ def run_sweep(args) -> int:
                 progress=_progress(),
             )
     except SimError as e:
-        print(f"trajgen: simulation failed: {e}", file=sys.stderr)
+        tell(f"simulation failed: {e}")
         return EXIT_FAILED
     except OSError as e:  # a Dask scheduler that cannot be reached
         return bad_input(f"--dask {args.dask}: {e}")
@@ -159,12 +200,13 @@ def run_sweep(args) -> int:
         if args.plot:
             from trajgen.sim.sweep_plot import plot_sweep
 
-            print(f"plot: {plot_sweep(results, args.plot)}")
+            with output_path("--plot", args.plot) as tmp:
+                plot_sweep(results, tmp)
+            print(f"plot: {args.plot}")
         if args.json:
-            with open(args.json, "w", encoding="utf-8") as f:
-                json.dump([asdict(r) for r in results], f, indent=1)
+            write_json("--json", args.json, [asdict(r) for r in results])
             print(f"json: {args.json}")
-    except OSError as e:
+    except (OSError, TrajgenError) as e:
         return bad_input(e)
     return EXIT_OK
 

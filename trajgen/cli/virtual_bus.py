@@ -8,18 +8,20 @@ from __future__ import annotations
 
 import argparse
 import signal
-import sys
 import threading
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     add_file_argument,
+    add_ids_argument,
     bad_input,
+    exit_status_text,
     load_checked,
-    servo_ids,
+    tell,
 )
 from trajgen.errors import TrajgenError
+from trajgen.servo_table import DEFAULT_SERVO
 
 VIRTUAL_BUS_DESCRIPTION = """\
 Serve the simulated gimbal of a keyframe file (its [gimbal] table; the built-in
@@ -41,7 +43,8 @@ Extended Position Mode with no profile. A write that asks for anything else
 (another Operating Mode, a non-zero Profile Velocity or Acceleration) is
 refused with Result Fail, and the reason is printed on stderr.
 
-exit status: 0 stopped by a signal, 1 the simulation failed, 2 bad input."""
+It serves until stopped, so a signal is how it ends: exit status 128 + the
+signal number (130 Ctrl-C, 143 SIGTERM), as for every other command."""
 
 
 def model_names(text: str) -> tuple[str, ...]:
@@ -62,17 +65,17 @@ def register(subparsers) -> None:
         "virtual-bus",
         help="serve the simulated gimbal as Dynamixel servos on a pseudo-terminal",
         description=VIRTUAL_BUS_DESCRIPTION,
+        epilog=exit_status_text("the simulation failed", signals=True),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
-    p.add_argument(
-        "--ids", type=servo_ids, metavar="P,T,R", help="servo ids of pan, tilt, roll; default 1,2,3"
-    )
+    add_ids_argument(p)
     p.add_argument(
         "--models",
         type=model_names,
         metavar="MODEL[,MODEL,MODEL]",
-        help="servo model(s); default the file's [bus] models, else XM430-W350",
+        help=f"servo model(s) of pan, tilt, roll; default: the file's [bus] models, else "
+        f"{DEFAULT_SERVO}",
     )
     p.add_argument(
         "--lockstep",
@@ -84,7 +87,7 @@ def register(subparsers) -> None:
 
 def _tell_refusal(servo_id: int, reason: str) -> None:
     """Say on stderr why a servo answered a write with Result Fail."""
-    print(f"trajgen: servo {servo_id} refused a write (Result Fail): {reason}", file=sys.stderr)
+    tell(f"servo {servo_id} refused a write (Result Fail): {reason}")
 
 
 def run_virtual_bus(args) -> int:
@@ -93,7 +96,7 @@ def run_virtual_bus(args) -> int:
     from trajgen.sim.plant import GimbalPlant
 
     try:
-        checked = load_checked(args.file)
+        checked = load_checked(args.file, spline=False)
     except TrajgenError as e:
         return bad_input(e)
     kf, config = checked.keyframes, checked.bus
@@ -105,7 +108,13 @@ def run_virtual_bus(args) -> int:
     models = args.models or config.models
     period_s = 1.0 / kf.stream_rate() if args.lockstep else None
     stop = threading.Event()
-    previous = {s: signal.signal(s, lambda *_: stop.set()) for s in (signal.SIGINT, signal.SIGTERM)}
+    received = []
+
+    def on_signal(signum, frame):
+        received.append(signum)
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     virtual = VirtualBus(
         plant,
         ids=ids,
@@ -118,10 +127,9 @@ def run_virtual_bus(args) -> int:
     try:
         print(virtual.port, flush=True)
         clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
-        print(
-            f"trajgen: serving servos {', '.join(map(str, ids))} ({', '.join(models)}), "
-            f"{clock}; Ctrl-C to stop",
-            file=sys.stderr,
+        tell(
+            f"serving servos {', '.join(map(str, ids))} ({', '.join(models)}), {clock}; "
+            "Ctrl-C to stop"
         )
         while not stop.wait(0.2):
             if virtual.error is not None:
@@ -132,10 +140,8 @@ def run_virtual_bus(args) -> int:
         for s, handler in previous.items():
             signal.signal(s, handler)
     if virtual.error is not None:
-        print(f"trajgen: simulation failed: {virtual.error}", file=sys.stderr)
+        tell(f"simulation failed: {virtual.error}")
         return EXIT_FAILED
-    print(
-        f"trajgen: stopped after {virtual.sim_time_s:.3f} s simulated in {wall_s:.3f} s",
-        file=sys.stderr,
-    )
-    return EXIT_OK
+    name = signal.Signals(received[0]).name if received else "the end"
+    tell(f"stopped by {name} after {virtual.sim_time_s:.3f} s simulated in {wall_s:.3f} s")
+    return 128 + received[0] if received else EXIT_OK

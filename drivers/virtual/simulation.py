@@ -1,0 +1,150 @@
+"""The virtual bus's simulated time: real time or lock-step, present values, the Bus Watchdog.
+
+``SimulatedTime`` (a part of ``VirtualBus``) keeps the plant on the wall clock
+(real time) or advances it one period per goal or poll (lock-step), fills the
+present-value registers from the plant, and runs each servo's Bus Watchdog on
+the wall clock; see ``drivers.virtual.bus``.
+"""
+
+from __future__ import annotations
+
+import select
+import time
+
+from trajgen.drivers.control_table import WATCHDOG_UNIT_S
+from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks
+from trajgen.drivers.virtual.servo import VirtualServo
+from trajgen.servo_table import PWM_FULL_SCALE
+
+# Real time: how often the simulation thread wakes (s), and the most steps it
+# runs per hold of the lock (short holds: a packet may be waiting for it).
+_SIM_WAKE_S = 0.005
+_MAX_STEPS_PER_HOLD = 2
+# The first and last of the motion registers the plant fills (addresses 120..143;
+# a read of them is a poll). Present Input Voltage and Temperature follow them.
+_PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
+# Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
+# the one ROBOTIS' examples use to decide a goal is reached (pulses).
+IN_POSITION_TICKS = 20
+
+
+class SimulatedTime:
+    """The plant's time and present values for a ``VirtualBus``."""
+
+    def _advance(self, dt_s: float) -> None:
+        """Advance the plant by ``dt_s`` (lock held)."""
+        self.plant.advance(dt_s)
+        self.sim_time_s += dt_s
+
+    def _catch_up(self, now_s: float, max_steps: int | None = None) -> None:
+        """Real time: advance the plant by whole steps to ``now_s`` (lock held)."""
+        due = int((now_s - self._started_s) / self.sim_step_s)
+        steps = due - self._steps_done
+        if max_steps is not None:
+            steps = min(steps, max_steps)
+        if steps > 0:
+            self._advance(steps * self.sim_step_s)
+            self._steps_done += steps
+
+    def _simulate(self) -> None:
+        """Real time: keep the plant on the wall clock, whatever the traffic.
+
+        Wakes every ``_SIM_WAKE_S``; a packet brings the plant to its arrival
+        time itself, so a reply waits for at most that much simulation. Steps
+        in short holds of the lock, and not while a packet is waiting.
+        """
+        while not self._stop.is_set():
+            try:
+                waiting = select.select([self._master], [], [], 0)[0]
+            except (OSError, ValueError):
+                return  # the port is gone
+            if waiting:  # a packet first: the serving thread needs the lock now
+                time.sleep(0.0002)
+                continue
+            try:
+                with self.lock:
+                    now = time.monotonic()
+                    self._catch_up(now, _MAX_STEPS_PER_HOLD)
+                    self._check_watchdogs(now)
+                    behind = int((now - self._started_s) / self.sim_step_s) > self._steps_done
+            except Exception as e:  # the plant failed: the port goes away
+                self._fail(e)
+                return
+            time.sleep(0 if behind else _SIM_WAKE_S)
+
+    def _commit_goals(self) -> None:
+        """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
+        if not self._goal_written:
+            return
+        self._goal_written = False
+        if self.lockstep_dt_s is not None:
+            self._advance(self.lockstep_dt_s)
+            self._polled = False
+        self.plant.set_goal(self._goal_rad.copy())
+
+    def _refresh_present(self, *, poll: bool) -> None:
+        """Fill every servo's present-value registers from the plant.
+
+        In lock-step, a poll with no goal written since the previous poll ends
+        a period first.
+        """
+        if poll and self.lockstep_dt_s is not None:
+            if self._polled:
+                self._advance(self.lockstep_dt_s)
+            self._polled = True
+        position, velocity, current = self.plant.read()
+        pwm = self.plant.present_pwm()
+        ticks = rad_to_servo_ticks(position)
+        tick_ms = round(self.sim_time_s * 1000) % 32_768
+        for j, servo_id in enumerate(self.ids):
+            servo = self.servos[servo_id]
+            present = servo.present_ticks(int(ticks[j]))
+            speed = round(velocity[j] / VELOCITY_UNIT_RAD_S)
+            goal = servo.get("Goal Position")
+            servo.set("Realtime Tick", tick_ms)
+            servo.set("Present Position", present)
+            servo.set("Present Velocity", speed)
+            servo.set("Present Current", servo.model.current_raw(current[j]))
+            servo.set("Present PWM", round(pwm[j] * PWM_FULL_SCALE))
+            servo.set("Position Trajectory", goal)
+            servo.set("Velocity Trajectory", 0)
+            servo.set("Moving", abs(speed) > servo.get("Moving Threshold"))
+            servo.set("Moving Status", self._moving_status(servo, goal - present))
+
+    @staticmethod
+    def _moving_status(servo: VirtualServo, error_ticks: int) -> int:
+        """Moving Status (123): bit 0 in position, bits 4-5 the profile's shape.
+
+        The goal is a step (no profile generator is emulated), so Profile
+        Ongoing (bit 1) and Following Error (bit 3) stay 0; bits 4-5 say
+        which profile the registers ask for: 00 step, 01 rectangular
+        (velocity only), 11 trapezoidal.
+        """
+        status = int(abs(error_ticks) <= IN_POSITION_TICKS)
+        if servo.get("Profile Velocity"):
+            status |= 0x30 if servo.get("Profile Acceleration") else 0x10
+        return status
+
+    def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
+        """Whether a read of ``address``.. touches the motion registers (a poll)."""
+        low = servo.items[_PRESENT_FIRST][0]
+        high = sum(servo.items[_PRESENT_LAST])
+        return any(low <= servo.target(a) < high for a in range(address, address + length))
+
+    def _check_watchdogs(self, now_s: float) -> None:
+        for servo_id in self.ids:
+            servo = self.servos[servo_id]
+            period_s = WATCHDOG_UNIT_S * servo.get("Bus Watchdog")
+            if (
+                servo.torque_on
+                and period_s > 0
+                and now_s - self._last_packet_s[servo_id] > period_s
+            ):
+                self._trip_watchdog(servo_id)
+
+    def _trip_watchdog(self, servo_id: int) -> None:
+        """Bus Watchdog -1, and the servo stops where it is (its registers keep their goal)."""
+        self.servos[servo_id].set("Bus Watchdog", -1)
+        j = self._joint[servo_id]
+        self._goal_rad[j] = self.plant.read()[0][j]
+        self.plant.set_goal(self._goal_rad.copy())
