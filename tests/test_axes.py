@@ -700,8 +700,9 @@ def test_the_simulator_and_drivers_refuse_other_axes_in_one_line(tmp_path, capsy
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err == (
-        f"trajgen: error: {f}: [gimbal] axes = 'zy': 2-axis gimbals: the simulator and the "
-        "drivers need pan-tilt-roll (axes = 'zyx'), not yet; trajgen plan takes any axes\n"
+        f"trajgen {command}: error: {f}: [gimbal] axes = 'zy': 2-axis gimbals: the simulator "
+        "and the drivers need pan-tilt-roll (axes = 'zyx'), not yet; trajgen plan takes any "
+        "axes\n"
     )
 
 
