@@ -10,7 +10,7 @@ Keys (all optional)::
     zeros = [2048, 2048, 2048] # tick at joint angle 0
     models = "XM430-W350"      # or one per joint; default: [gimbal] servo
     watchdog_s = 0.1           # Bus Watchdog period, 0.02 .. 2.54 s
-    configure = false          # let bring-up change EEPROM settings (docs/safety_registers.md)
+    configure = false          # let bring-up change EEPROM settings (docs/safety.md)
     restore = false            # write back, on exit, what bring-up changed
 
 Errors are ``trajgen.keyframes.KeyframeFileError`` with a one-line message
