@@ -1,4 +1,7 @@
-"""`fit_timing` against TOPP-RA on the same geometric path with the same torque model.
+"""The keyframe-times fit (``fit_durations``) against TOPP-RA on the same path and torque model.
+
+The retiming fit that replaced it as ``trajgen fit`` is measured by
+``bench/retime_vs_toppra.py`` (which reuses this module's TOPP-RA helpers).
 
 For each motion (the torque race's three, one single segment, then seeded
 random look-arounds; the file's default spline (``method = "smooth"``, its
@@ -6,14 +9,14 @@ default knots unless ``--knots``), rest boundary, 200 Hz, XM430-W350 x 3,
 0.15 kg payload; tracking budget widened to 1 rad so that torque, which is all
 TOPP-RA knows, decides rather than the servo's 45 ms lag):
 
-1. ``trajgen.sim.fit_timing`` fits the keyframe times twice: with the full
+1. ``trajgen.sim.fit_durations.fit_durations`` fits the keyframe times twice: with the full
    check (plan and simulated servo, "full check") and to the plan alone
    (``simulate=False``: the envelope, as TOPP-RA sees it, "plan only"). The
    plan-only fit's joint path is the geometric path given to TOPP-RA.
 2. The floor of the construction (:func:`construction_floor`): the shortest
    plan-only time a global search over all segment durations finds
    (differential evolution, then Nelder-Mead, on
-   ``trajgen.sim.fit.uniform_time_function``). No timing of this spline does
+   ``trajgen.sim.fit_durations.uniform_time_function``). No timing of this spline does
    better, so ``floor / TOPP-RA`` is the part of the gap the spline itself
    causes, and ``ours / floor`` the part the optimiser leaves.
 3. TOPP-RA (``toppra``) re-times that same path (the stream's 200 Hz samples in
@@ -341,7 +344,7 @@ def construction_floor(path, durations: np.ndarray, *, seed: int = 0) -> tuple[f
     """
     from scipy.optimize import differential_evolution, minimize
 
-    from trajgen.sim.fit import uniform_time_function
+    from trajgen.sim.fit_durations import uniform_time_function
 
     start = time.monotonic()
     probe = uniform_time_function(path, probe=True)
@@ -378,8 +381,8 @@ def construction_floor(path, durations: np.ndarray, *, seed: int = 0) -> tuple[f
 def main(argv=None) -> int:
     import torque_race
 
-    from trajgen.sim import fit_timing
     from trajgen.sim.check import resolve_source
+    from trajgen.sim.fit_durations import fit_durations
     from trajgen.smooth import KNOTS
 
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -413,9 +416,9 @@ def main(argv=None) -> int:
             t0 = time.monotonic()
             path = Path(tmp) / "keys.toml"
             path.write_text(keyframe_text(angles, 1.5, args.knots))
-            full = fit_timing(path)
+            full = fit_durations(path)
             fit_start = time.monotonic()
-            fit = fit_timing(path, simulate=False)
+            fit = fit_durations(path, simulate=False)
             fit_s = time.monotonic() - fit_start
             floor, floor_s = construction_floor(path, np.diff(fit.times))
             fitted = Path(tmp) / "fitted.toml"

@@ -73,6 +73,7 @@ from trajgen.drivers.errors import BringUpError, CommError, DriverError
 from trajgen.drivers.health import PowerLimits, health_problem
 from trajgen.drivers.units import RAD_PER_TICK, TICKS_PER_REV, JointMap
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.lead import sent_q
 
 #: Drive Mode bits (e-Manual, "Drive Mode (10)").
 DRIVE_MODE_REVERSE = 0x01
@@ -267,7 +268,8 @@ def _plan_rows(plan) -> tuple[np.ndarray, object]:
         rows = np.vstack([plan.first_rad, np.asarray(plan.limits_rad, float).T])
         return rows, lambda k: "at its start" if k == 0 else "within its joint limits"
     t = np.asarray(plan.t, dtype=float)
-    return np.asarray(plan.q, dtype=float), lambda k: f"at t = {t[k]:.3f} s"
+    # The goals that will be sent (led ahead of the plan, trajgen.lead), not only the plan.
+    return np.asarray(sent_q(plan), dtype=float), lambda k: f"at t = {t[k]:.3f} s"
 
 
 @dataclass(frozen=True)

@@ -181,6 +181,11 @@ class Session:
     stop_signals : StopSignals, optional
         Stop signals the caller has installed (and may act on around the
         session); default a new one, installed for each run (on the main thread).
+    leader : optional
+        Leads the goals ahead of the plan by the servos' lag (``trajgen.sim.lead.Leader``:
+        ``trajectory(planned)`` attaches the goals to a planned stream,
+        ``frames(frames, rate_hz, bounds_rad)`` leads a live one); None sends the
+        plan as it is. Bring-up checks, and the streamer sends, the goals.
 
     Raises
     ------
@@ -201,8 +206,10 @@ class Session:
         plant=None,
         plant_registers=None,
         stop_signals: StopSignals | None = None,
+        leader=None,
     ) -> None:
         self.config = BusConfig() if config is None else config
+        self.leader = leader
         self.on_stop = on_stop
         self.telemetry = telemetry
         self.max_delay_s = max_delay_s
@@ -252,7 +259,9 @@ class Session:
         def plan(present):
             # From where the servos are: pan and roll take the nearest 2 pi branch,
             # so the move to the first frame never unwinds a turn.
-            return plan_joint_trajectory(path, rate_hz, kinematics, start=present)
+            planned = plan_joint_trajectory(path, rate_hz, kinematics, start=present)
+            # Led goals attached (bring-up checks and the streamer sends them).
+            return planned if self.leader is None else self.leader.trajectory(planned)
 
         return self.run(plan, rate_hz, clock=clock)
 
@@ -337,7 +346,11 @@ class Session:
         def frames(setup):
             source = lines(follower) if callable(lines) else lines
             threading.Thread(target=follower.read, args=(source,), daemon=True).start()
-            return follower.frames(start=self.config.joints.to_rad(setup.present_ticks))
+            frames = follower.frames(start=self.config.joints.to_rad(setup.present_ticks))
+            if self.leader is None:
+                return frames
+            # Goals led from the live plan's own frames, inside the range bring-up checked.
+            return self.leader.frames(frames, follower.rate_hz, limits)
 
         outcome = self.run(plan, follower.rate_hz, frames=frames, clock=clock)
         outcome.trajectory = follower.trajectory()

@@ -75,6 +75,7 @@ from trajgen.drivers.errors import (
 from trajgen.drivers.health import PowerLimits, health_problem
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import RAD_PER_TICK, JointMap
+from trajgen.lead import sent_q
 from trajgen.validate import check_choice, check_number
 
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
@@ -433,7 +434,8 @@ class Streamer:
         Parameters
         ----------
         stream : JointTrajectory or iterable of JointFrame
-            Frames with ``t`` (s) and ``q`` (rad, shape (n,)).
+            Frames with ``t`` (s) and ``q`` (rad, shape (n,)); each frame's
+            ``goal`` (``trajgen.lead``) is sent when it has one, else its ``q``.
         rate_hz : float, optional
             Stream rate (Hz); default ``stream.rate_hz``.
 
@@ -488,15 +490,15 @@ class Streamer:
             if self.power_limits is None:
                 self.power_limits = self._read_power_limits()
             present = self._start_position()
-            check_start(
-                present, np.asarray(first.q, float), self.max_approach_rad, self.joint_names
-            )
-            t_ramp, q_ramp = min_jerk_ramp(
-                present, np.asarray(first.q, float), rate_hz, self.approach_speed_rad_s
-            )
+            first_goal = np.asarray(sent_q(first), float)
+            check_start(present, first_goal, self.max_approach_rad, self.joint_names)
+            t_ramp, q_ramp = min_jerk_ramp(present, first_goal, rate_hz, self.approach_speed_rad_s)
             stats.approach_frames = len(t_ramp)
-            self._loop(zip(t_ramp, q_ramp, strict=True), "approach", timed=False)
-            self._loop(((f.t, f.q) for f in chain([first], frames)), "stream", timed=True)
+            self._loop(zip(t_ramp, q_ramp, q_ramp, strict=True), "approach", timed=False)
+            # A frame's goal (led ahead of the plan, trajgen.lead) is sent; its plan is logged.
+            self._loop(
+                ((f.t, sent_q(f), f.q) for f in chain([first], frames)), "stream", timed=True
+            )
         except (DriverError, KeyboardInterrupt) as e:
             stats.fault = str(e) or type(e).__name__
             self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop, self.restore)
@@ -730,7 +732,7 @@ class Streamer:
         shift = 0.0  # this phase's clock shift (s), from stalls
         t_first = None
         nan = np.full(len(ids), math.nan)
-        for k, (t, q) in enumerate(frames):
+        for k, (t, q, plan) in enumerate(frames):
             t_first = t if t_first is None else t_first
             planned = start + (t - t_first)
             clock.sleep_until(planned + shift)
@@ -759,6 +761,7 @@ class Streamer:
                 if self._writer is not None:
                     self._writer.write(
                         [self._frame_no - 1, phase, t, sent - start, sent - planned - shift, sent]
+                        + list(plan)
                         + list(q)
                         + ticks.tolist()
                         + [*state[0], *state[1], *state[2]]

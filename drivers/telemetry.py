@@ -32,13 +32,23 @@ from trajgen.servo_table import LOAD_UNIT
 
 
 def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
-    """Column names: frame bookkeeping, then per joint goal / present values.
+    """Column names: frame bookkeeping, then per joint plan / goal / present values.
 
     ``sent_s`` counts from the start of the frame's phase (approach, stream);
     ``clock_s`` is the stream clock's reading when the goal went out (s).
+    ``plan_rad`` is the planned angle, ``goal_rad`` what was sent (led ahead of
+    the plan, ``trajgen.lead``), ``position_rad`` where the servo was:
+    ``position_rad - plan_rad`` is the real tracking error.
     """
     columns = ["frame", "phase", "t_s", "sent_s", "lateness_s", "clock_s"]
-    for prefix in ("goal_rad", "goal_tick", "position_rad", "velocity_rad_s", "current_a"):
+    for prefix in (
+        "plan_rad",
+        "goal_rad",
+        "goal_tick",
+        "position_rad",
+        "velocity_rad_s",
+        "current_a",
+    ):
         columns += [f"{prefix}_{name}" for name in joint_names]
     # Read at a low rate (``Streamer(health_s=...)``): NaN in the rows between.
     for prefix in ("voltage_v", "temperature_c"):

@@ -15,6 +15,7 @@ from trajgen.sim.dynamics import inverse_dynamics
 from trajgen.sim.errors import SimError, SimulationError, TorqueLimitExceeded
 from trajgen.sim.firmware import PositionLoop, UnsupportedServoSetting
 from trajgen.sim.fit import FitError, FitResult, SegmentFit, fit_timing
+from trajgen.sim.lead import lead_trajectory
 from trajgen.sim.limits import JointLimits, check_limits
 from trajgen.sim.model import (
     GimbalConfig,
@@ -54,6 +55,7 @@ __all__ = [
     "gimbal_config_from_tables",
     "gimbal_mjcf",
     "inverse_dynamics",
+    "lead_trajectory",
     "servo_by_name",
     "simulate",
 ]

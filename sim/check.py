@@ -9,12 +9,13 @@ Two parts, both per joint:
 (b) Simulation: the stream is played to the simulated servos (goal positions
     in whole ticks, zero-order hold, 1 ms physics, the firmware's position loop
     with the configured gains); no step may reach the servo's torque limit (the
-    drive at the rated voltage, or the stall-torque clamp when braking), and the joints must
-    stay within ``max_tracking_error_rad`` of the planned path. With default
-    gains (P 800) an X-series servo lags a moving goal by about speed x 45 ms
-    (``lag_time_s``), so the default 0.05 rad budget holds up to about
-    1.1 rad/s; raise the P gain (on the servos and in ``[gimbal.<joint>]``),
-    slow the motion, or widen the budget.
+    drive at the rated voltage, or the stall-torque clamp when braking), and the
+    joints must stay within ``max_tracking_error_rad`` of the planned path (the
+    plan, not the goals sent). With default gains (P 800) an X-series servo lags
+    a moving goal by about speed x 45 ms (``lag_time_s``); the goals sent are
+    led ahead of the plan by that lag (``trajgen.lead``, default ``"model"``:
+    about 1 mrad of error left), and must stay inside the plan's own range
+    widened by the static gravity/friction offset.
 
 The verdict ``ok`` needs all three. The simulated torque's own margin against
 ``torque_margin x envelope`` is reported but does not decide the verdict.
@@ -30,6 +31,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from trajgen.keyframes import DEFAULT_RATE_HZ
+from trajgen.lead import DEFAULT_LEAD, check_lead, sent_q
 from trajgen.sim.errors import TorqueLimitExceeded
 from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
@@ -112,6 +114,12 @@ class TorqueReport:
     planned_torque_smooth_nm : ndarray, shape (N, 3), or None
         The planned torque without Coulomb friction (N m), which steps by twice
         the friction at every start and reversal whatever the plan.
+    lead : str
+        How the goals sent were led ahead of the plan (``trajgen.lead``).
+    lead_notes : tuple of str
+        Joints that got no lead, and why.
+    goal_bounds_rad : ndarray, shape (3, 2), or None
+        The range the goals had to stay inside (rad).
     """
 
     ok: bool
@@ -126,6 +134,9 @@ class TorqueReport:
     record: SimRecord = field(repr=False)
     config: GimbalConfig = field(repr=False)
     planned_torque_smooth_nm: np.ndarray | None = field(default=None, repr=False)
+    lead: str = "none"
+    lead_notes: tuple[str, ...] = ()
+    goal_bounds_rad: np.ndarray | None = field(default=None, repr=False)
 
     def to_json_dict(self) -> dict:
         """Plain-JSON summary: ``{"ok", "reasons", ..., "joints": {"pan": {...}, ...}}``."""
@@ -142,6 +153,8 @@ class TorqueReport:
             "duration_s": self.duration_s,
             "torque_margin": self.torque_margin,
             "max_tracking_error_rad": self.max_tracking_error_rad,
+            "lead": self.lead,
+            "lead_notes": list(self.lead_notes),
             "joints": joints,
         }
 
@@ -157,7 +170,8 @@ class TorqueReport:
         lines = [
             f"torque check: {verdict} ({self.duration_s:.2f} s at {self.rate_hz:g} Hz, "
             f"margin {self.torque_margin:g} of the {self.envelope_volts} envelope, "
-            f"tracking limit {math.degrees(self.max_tracking_error_rad):.1f} deg)",
+            f"tracking limit {math.degrees(self.max_tracking_error_rad):.1f} deg; "
+            f"lead {self.lead})",
             f"{'joint':<6}{'servo':<12}{'plan':>8}{'sim':>8}{'rate':>9}{'rms':>8}"
             f"{'margin':>9}{'speed':>8}{'error':>8}{'limit':>8}",
             f"{'':<6}{'':<12}{'N m':>8}{'N m':>8}{'N m/s':>9}{'N m':>8}"
@@ -177,9 +191,10 @@ class TorqueReport:
             )
         lines.append(
             "plan/sim: peak |torque|; rate: peak planned torque rate; margin: worst "
-            "(margin x envelope - |planned torque|)"
+            "(margin x envelope - |planned torque|); error: simulated angle - plan"
         )
         lines.extend(f"  - {r}" for r in self.reasons)
+        lines.extend(f"  note: {r}" for r in self.lead_notes)
         return "\n".join(lines)
 
 
@@ -213,13 +228,15 @@ def _envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j) -> str
     )
 
 
-def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
+def check_planned_torque(trajectory, config: GimbalConfig, *, model=None) -> tuple[str, ...]:
     """Part (a) alone: why the plan leaves ``torque_margin x`` the envelope (empty if not).
 
     Parameters
     ----------
     trajectory : JointTrajectory
     config : GimbalConfig
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it already.
 
     Returns
     -------
@@ -229,7 +246,8 @@ def check_planned_torque(trajectory, config: GimbalConfig) -> tuple[str, ...]:
     from trajgen.sim.dynamics import inverse_dynamics
 
     check_trajectory(trajectory)
-    tau = inverse_dynamics(simulation_model(config), trajectory.q, trajectory.qd, trajectory.qdd)
+    model = simulation_model(config) if model is None else model
+    tau = inverse_dynamics(model, trajectory.q, trajectory.qd, trajectory.qdd)
     t = np.asarray(trajectory.t, dtype=float)
     qd = np.asarray(trajectory.qd, dtype=float)
     reasons = []
@@ -257,19 +275,34 @@ def lag_time_s(config: GimbalConfig, joint: int) -> float:
 
 
 def build_report(
-    trajectory, config: GimbalConfig, record: SimRecord, *, model=None
+    trajectory,
+    config: GimbalConfig,
+    record: SimRecord,
+    *,
+    model=None,
+    lead: str = "none",
+    lead_notes: tuple[str, ...] = (),
+    goal_bounds_rad=None,
 ) -> TorqueReport:
     """Judge a plan and its simulated run (see the module docstring).
 
     Parameters
     ----------
     trajectory : JointTrajectory
-        The plan; its torque comes from ``sim.dynamics.inverse_dynamics``.
+        The plan (``q``; its torque comes from ``sim.dynamics.inverse_dynamics``)
+        and the goals sent (``goal``, when led).
     config : GimbalConfig
     record : SimRecord
         The simulated run of ``trajectory``.
     model : mujoco.MjModel, optional
         ``sim.run.simulation_model(config)`` if the caller has built it already.
+    lead : str
+        How the goals were led (for the report).
+    lead_notes : tuple of str
+        Joints that got no lead, and why (for the report).
+    goal_bounds_rad : array_like, shape (3, 2), optional
+        Lowest and highest goal allowed per joint (rad); a goal outside fails
+        the check.
 
     Returns
     -------
@@ -286,6 +319,8 @@ def build_report(
     qd_plan = np.asarray(qd, dtype=float)
     tau_rate = np.gradient(tau_smooth, t, axis=0)
     margin = config.torque_margin
+    goal = np.asarray(sent_q(trajectory), dtype=float)
+    bounds = None if goal_bounds_rad is None else np.asarray(goal_bounds_rad, dtype=float)
     joints = {}
     for j, name in enumerate(JOINT_NAMES):
         servo = config.servos[j]
@@ -309,8 +344,17 @@ def build_report(
                 f"{name}: tracking error {error[k]:.3f} rad > "
                 f"{config.max_tracking_error_rad:g} rad at t = {record.t[k]:.3f} s "
                 f"(P gain {config.joints[j].position_p_gain} lags "
-                f"{1e3 * lag_time_s(config, j):.0f} ms x speed)"
+                f"{1e3 * lag_time_s(config, j):.0f} ms x speed; lead {lead})"
             )
+        if bounds is not None:
+            outside = np.flatnonzero((goal[:, j] < bounds[j, 0]) | (goal[:, j] > bounds[j, 1]))
+            if len(outside):
+                i = int(outside[0])
+                reasons.append(
+                    f"{name}: goal {goal[i, j]:.4f} rad at t = {t[i]:.3f} s is outside "
+                    f"{bounds[j, 0]:.4f}..{bounds[j, 1]:.4f} rad (the plan's range and the "
+                    "static offset, or the position limits)"
+                )
         joints[name] = JointReport(
             name=name,
             servo=servo.name,
@@ -340,6 +384,9 @@ def build_report(
         record=record,
         config=config,
         planned_torque_smooth_nm=tau_smooth,
+        lead=lead,
+        lead_notes=tuple(lead_notes),
+        goal_bounds_rad=bounds,
     )
 
 
@@ -409,8 +456,14 @@ def check_torque(
     rate_hz: float | None = None,
     config: GimbalConfig | None = None,
     progress: Callable[[float], None] | None = None,
+    lead: str | None = None,
+    limits_rad=None,
+    servo_config: GimbalConfig | None = None,
 ) -> TorqueReport:
-    """Plan, simulate and judge a motion; never raises for a failed check.
+    """Plan, lead, simulate and judge a motion; never raises for a failed check.
+
+    The goals simulated are the ones a stream sends (``sim.lead.lead_trajectory``:
+    the same function); the tracking error is against the plan.
 
     Parameters
     ----------
@@ -422,6 +475,15 @@ def check_torque(
         See :func:`resolve_source`.
     progress : callable, optional
         Passed to :func:`sim.run.simulate`.
+    lead : {"model", "advance", "none"}, optional
+        How the goals are led (``trajgen.lead``); default the file's
+        ``[stream] lead``, else ``"model"``.
+    limits_rad : array_like, shape (3, 2), optional
+        Position limits (rad) the goals must stay inside.
+    servo_config : GimbalConfig, optional
+        The servos as simulated, when they differ from what the lead assumes
+        (``config``), e.g. another P divisor: how much the lead depends on
+        the model. Default ``config``.
 
     Returns
     -------
@@ -435,13 +497,37 @@ def check_torque(
     SimulationError
         If MuJoCo warns or a contact appears during the run.
     """
+    from trajgen.sim.lead import lead_trajectory
+
+    if isinstance(source, (str, os.PathLike)):
+        from trajgen.keyframes import load_keyframe_file
+
+        source = load_keyframe_file(source)
+    if lead is None:
+        lead = getattr(source, "lead", None) or DEFAULT_LEAD
+    lead = check_lead(lead)
     trajectory, config = resolve_source(source, rate_hz=rate_hz, config=config)
     model = simulation_model(config)
+    trajectory, goals, notes = lead_trajectory(
+        trajectory, config, lead, limits_rad=limits_rad, model=model
+    )
+    if servo_config is not None:
+        config, model = servo_config, simulation_model(servo_config)
     record = simulate(trajectory, config, progress=progress, model=model)
-    return build_report(trajectory, config, record, model=model)
+    return build_report(
+        trajectory,
+        config,
+        record,
+        model=model,
+        lead=lead,
+        lead_notes=notes,
+        goal_bounds_rad=goals.bounds,
+    )
 
 
-def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> TorqueReport:
+def assert_torque_ok(
+    source, *, rate_hz: float | None = None, config=None, lead: str | None = None
+) -> TorqueReport:
     """Pytest helper: raise unless ``source`` passes the torque check.
 
     Use it in your own tests::
@@ -451,7 +537,7 @@ def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> To
 
     Parameters
     ----------
-    source, rate_hz, config
+    source, rate_hz, config, lead
         As for :func:`check_torque`.
 
     Returns
@@ -465,7 +551,7 @@ def assert_torque_ok(source, *, rate_hz: float | None = None, config=None) -> To
         When it fails; the message lists the reasons, ``.report`` has the rest.
     """
     __tracebackhide__ = True  # pytest shows the caller's line, not this helper
-    report = check_torque(source, rate_hz=rate_hz, config=config)
+    report = check_torque(source, rate_hz=rate_hz, config=config, lead=lead)
     if not report.ok:
         raise TorqueLimitExceeded(report)
     return report

@@ -1,187 +1,66 @@
-"""Fit a motion's timing to the servos: the fastest keyframe times that pass the torque check.
+"""Fit a motion to the servos by retiming its path: the keyframes stay, the clock is free.
 
-The keyframes (orientations, order, spline options) stay; only their times
-move, one duration per segment. Two nested loops:
+The path is the file's spline at its own keyframe times ``s_i`` (the file's
+``[timing] path_times`` if it has them, else durations in proportion to the
+square root of each segment's rotation: the bang-bang time under a fixed
+acceleration). The motion plays it by a time law ``s(t) = s_0 + S sigma(t / T)``
+(:mod:`trajgen.timelaw`), ``sigma`` a clamped quintic B-spline, so the motion is
+C3, at rest at both ends, and passes every keyframe in order. Three stages:
 
-1. Plan: for every sample, the largest local speed-up ``s`` the plan allows,
-   scaling speed by ``s``, acceleration by ``s^2``, jerk by ``s^3``, and torque
-   as ``tau(s) = tau_static + s tau_viscous + s^2 tau_inertial`` against
-   ``torque_margin x tau_stall (1 - s |qd| / w0)`` (two quadratics in ``s``,
-   solved in closed form). Then:
-
-   a. all durations scaled alike until the slowest stream sample is at its
-      limit (uniform scaling keeps the path's shape, so this is exact);
-   b. all durations at once (the spline is global: one segment's duration
-      moves its neighbours' curves): least total time subject to every sample
-      within its limits, by SLSQP (scipy) on the log-durations, the samples
-      taken at fixed fractions of each segment so that the constraints are
-      smooth in the durations; then (a) again on the stream's own samples;
-   c. each segment in turn made as short as it can be *with every sample of
-      the whole plan still within its limits* (bisection), until no segment
-      can be made ``tolerance`` shorter on its own. After (b) this rarely
-      moves anything; it finds each segment's binding limit. A segment held
-      by a limit a neighbour would break reports it "in segment k".
-
-2. Simulation: :func:`trajgen.sim.check.check_torque` on the fitted plan. A
-   joint whose tracking error passes the limit in a segment gets a speed cap
-   there (tracking lag grows with speed); a segment where a joint reaches the
-   torque limit (and tracks well) is slowed by 3 %. Then loop 1 again. A
-   run that passes with tracking error well inside the limit where a cap
-   holds gets that cap raised (caps learned at a failing, faster timing can
-   be too strict); the shortest passing timing is kept.
-
-The result is checked as written (times rounded to 1 us) and again 10 %
-faster, which must fail: the fit is tight.
+1. Plan (:mod:`sim.retime`): the shortest ``T`` and its ``sigma`` under the
+   torque-speed envelope (x ``torque_margin``), the torque-rate bound
+   ``[limits] torque_rate_nm_s`` and the ``[limits]`` table, by a sequential LP
+   with analytic gradients on a grid; then stretched uniformly (at most a few
+   per cent) until the exact motion keeps every limit at 1 kHz and at the
+   stream rate.
+2. Simulation: :func:`trajgen.sim.check.check_torque` (the full check,
+   simulated servo included) on the stream. A joint whose tracking error passes
+   the limit in a path segment gets a speed cap there (lag grows with speed); a
+   stretch of path where a joint reaches the torque limit loses 5-15 % of its
+   torque budget. Then stage 1 again from the last law, until the check passes;
+   after ``_SIM_ROUNDS`` the last law is stretched uniformly (bisection under
+   the check) instead.
+3. Tightness: the same motion 5 % faster (``T / 1.05``) must fail the check;
+   if it passes, ``T`` is shortened by bisection under the full check.
 """
 
 from __future__ import annotations
 
 import os
-import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from trajgen.sim.errors import SimError
-from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig
-from trajgen.validate import check_number
-
-#: Largest change of the durations per uniform-scaling iteration or bisection start.
-_MAX_STEP = 4.0
-_TIME_DECIMALS = 6
-_FASTER = 1.1
-_PLAN_ITERATIONS = 60
-#: The joint optimiser samples each segment at these fractions of its duration.
-_PROBE_U = np.arange(32) / 32.0
-#: Speed-ups above this do not steer the joint optimiser.
-_FACTOR_CAP = 4.0
-#: Forward-difference step on the log-durations.
-_DIFF_STEP = 1e-4
-_JOINT_ITERATIONS = 60
-_SWEEPS = 8
-_BISECTIONS = 7
-_SIM_ROUNDS = 12
-#: Simulated tries per segment held by a learned limit in another segment.
-_SIM_BISECTIONS = 4
-#: Tracking speed caps aim this far under the limit.
-_TRACKING_TARGET = 0.97
-_SIM_SLOW_STEP = 0.97
-#: A passing run whose tracking error stays below this fraction of the limit in a
-#: capped segment gets that cap raised (by at most _MAX_RELAX per round).
-_RELAX_BELOW = 0.9
-_MAX_RELAX = 1.5
-
-#: Names of the limits a segment can bind on, indexed by the codes used below.
-BINDINGS = (
-    "torque envelope",
-    "speed limit",
-    "acceleration limit",
-    "jerk limit",
-    "tracking error",
-    "sim torque limit",
-    "no-load speed",
-    "shortest segment",
+from trajgen.sim.fit_result import (
+    FitError,
+    FitResult,
+    SegmentFit,
+    refuse_unholdable_keyframes,
+    retimed_document,
+    segment_fits,
 )
-_TORQUE, _SPEED, _ACCEL, _JERK, _TRACKING, _SIM_LIMIT, _NO_LOAD, _FLOOR = range(len(BINDINGS))
+from trajgen.sim.limits import JointLimits, check_limits
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.smooth import SmoothSpline
 
+__all__ = ["FitError", "FitResult", "SegmentFit", "fit_timing", "plan_reasons"]
 
-class FitError(SimError):
-    """No timing of these keyframes passes the check (the message says why)."""
-
-
-@dataclass(frozen=True)
-class SegmentFit:
-    """One segment's old and new duration and what limits it.
-
-    Attributes
-    ----------
-    index : int
-        Segment number from 1: it runs from keyframe ``index`` to ``index + 1``.
-    old_s, new_s : float
-        Durations (s) before and after the fit.
-    binding : str
-        The limit that stops it going faster, e.g. ``"torque envelope (tilt)"``.
-    """
-
-    index: int
-    old_s: float
-    new_s: float
-    binding: str
-
-
-@dataclass(frozen=True)
-class FitResult:
-    """What :func:`fit_timing` found.
-
-    Attributes
-    ----------
-    times : ndarray, shape (N,)
-        Fitted keyframe times (s), the first unchanged, rounded to 1 us.
-    old_times : ndarray, shape (N,)
-        The input's keyframe times (s).
-    segments : tuple of SegmentFit
-    report : TorqueReport
-        The torque check at the fitted times (passes, unless fitted with
-        ``simulate=False``).
-    faster_reasons : tuple of str
-        Why the same keyframes 10 % faster fail (the check's and the limits'
-        reasons); empty would mean the fit is not tight.
-    limits : JointLimits
-    document : dict
-        The input file's TOML document with the new keyframe times: write it
-        with :meth:`toml`.
-    iterations : int
-        Plan iterations over all rounds.
-    """
-
-    times: np.ndarray
-    old_times: np.ndarray
-    segments: tuple
-    report: object = field(repr=False)
-    faster_reasons: tuple
-    limits: JointLimits
-    document: dict = field(repr=False)
-    iterations: int
-
-    @property
-    def tight(self) -> bool:
-        """True when the same keyframes 10 % faster fail the check."""
-        return bool(self.faster_reasons)
-
-    @property
-    def duration_s(self) -> float:
-        return float(self.times[-1] - self.times[0])
-
-    @property
-    def old_duration_s(self) -> float:
-        return float(self.old_times[-1] - self.old_times[0])
-
-    def toml(self) -> str:
-        """The fitted keyframe file as TOML text (every other table of the input kept)."""
-        from trajgen.toml_writer import dumps
-
-        return dumps(self.document)
-
-    def format(self) -> str:
-        """A readable table: per segment old and new duration and the binding limit."""
-        lines = [
-            f"fit: {self.old_duration_s:.3f} s -> {self.duration_s:.3f} s "
-            f"({self.old_duration_s / self.duration_s:.2f}x as fast)",
-            f"{'segment':<9}{'keyframes':<11}{'old (s)':>9}{'new (s)':>9}  binding limit",
-        ]
-        for s in self.segments:
-            lines.append(
-                f"{s.index:<9}{f'{s.index} -> {s.index + 1}':<11}{s.old_s:9.3f}{s.new_s:9.3f}"
-                f"  {s.binding}"
-            )
-        if self.tight:
-            lines.append(f"tight: {_FASTER - 1:.0%} faster fails: {self.faster_reasons[0]}")
-        else:
-            lines.append(f"NOT tight: {_FASTER - 1:.0%} faster still passes")
-        return "\n".join(lines)
+#: The speed-up that must fail: the fit is tight to 5 %.
+FASTER = 1.05
+#: Rate (Hz) at which the exact motion is checked against the envelope and torque rate.
+CHECK_RATE_HZ = 1000.0
+_SIM_ROUNDS = 8
+#: Uniform stretches tried under the full check when the local slow-downs do not settle.
+_SIM_STRETCHES = (1.02, 1.05, 1.1, 1.2, 1.4, 2.0)
+_TRACKING_TARGET = 0.97
+#: Uniform stretches tried, in turn, until the exact plan keeps every limit.
+_STRETCHES = (1.0, 1.002, 1.005, 1.01, 1.02, 1.05, 1.1, 1.2, 1.5)
+_TIGHT_BISECTIONS = 4
+_STRETCH_BISECTIONS = 4
+#: Learned bounds are kept at this many points per path segment ...
+_LEARN_POINTS_PER_SEGMENT = 64
+#: ... and set over this much motion time (s) around a failure.
+_WINDOW_S = 0.05
 
 
 def fit_timing(
@@ -190,627 +69,448 @@ def fit_timing(
     config: GimbalConfig | None = None,
     limits: JointLimits | None = None,
     rate_hz: float | None = None,
-    tolerance: float = 0.005,
+    torque_rate_nm_s: float | None = None,
     simulate: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> FitResult:
-    """The fastest per-segment timing of a keyframe file that passes the torque check.
+    """The shortest smooth retiming of a keyframe file's path that passes the torque check.
 
     Parameters
     ----------
     source : str, PathLike or trajgen.KeyframeFile
-        The keyframe file.
+        The keyframe file (its spline: ``boundary = "rest"``).
     config : GimbalConfig, optional
         Default: the file's ``[gimbal]`` table.
     limits : JointLimits, optional
         Default: the file's ``[limits]`` table (none if absent).
     rate_hz : float, optional
         Stream rate (Hz). Default: the file's ``[stream] rate_hz``, else 200.
-    tolerance : float
-        Each segment ends within this fraction of its binding limit's speed, in
-        (0, 0.05]. Default 0.005.
+    torque_rate_nm_s : float, optional
+        Bound on every joint's |d torque / dt| (N m/s). Default: the file's
+        ``[limits] torque_rate_nm_s``, else 300.
     simulate : bool
         Fit to the simulation's verdict too (default). False fits the plan
-        alone (envelope and ``[limits]``, as a time-optimal planner such as
-        TOPP-RA does); ``report`` then shows what the simulated servo makes of
-        it and may fail.
+        alone (envelope, torque rate and ``[limits]``, as a time-optimal
+        planner such as TOPP-RA does); ``report`` then shows what the simulated
+        servo makes of it and may fail.
     progress : callable, optional
-        Called with one line of text per plan iteration and simulation round.
+        Called with one line of text per stage and every 10 LP iterations.
 
     Returns
     -------
     FitResult
+        ``law`` and ``path`` hold the time law and the retimed path;
+        ``toml()`` is the file with the new keyframe times and a ``[timing]``
+        table (docs/fit.md), which ``sim``, ``stream``, ``follow`` and ``plan``
+        play as fitted.
 
     Raises
     ------
     FitError
         If no timing can pass: a pose the gimbal cannot hold against gravity,
-        a path near gimbal lock or outside a joint limit, or no convergence.
+        a path near gimbal lock or outside a joint limit, a spline not at rest
+        at its ends, or a check that keeps failing.
     trajgen.keyframes.KeyframeFileError
         For a bad file or ``[gimbal]`` / ``[limits]`` table.
     TypeError, ValueError
         For bad arguments.
     """
-    from trajgen.sim.check import check_torque
-
-    fitter = _make_fitter(source, config, limits, rate_hz, tolerance, progress)
-    source, config, limits = fitter.source, fitter.config, fitter.limits
-    say = fitter.say
-    fitter.check_static()
-    old_times = np.asarray(source.times, dtype=float)
-    durations = np.diff(old_times)
-    best = None
-    for round_ in range(1, _SIM_ROUNDS + 1):
-        durations, binding = fitter.fit_plan(durations)
-        times = _round_times(old_times[0], durations)
-        durations = np.diff(times)
-        say(f"round {round_}: simulating {times[-1] - times[0]:.3f} s")
-        report = check_torque(fitter.trajectory(times), config=config)
-        if not simulate:
-            best = (times, binding, report)
-            break
-        if report.ok:
-            if best is not None and np.array_equal(times, best[0]):
-                break  # raising the caps changed nothing: other limits hold
-            if best is None or times[-1] < best[0][-1]:
-                best = (times, binding, report)
-            # Speed caps learned at a faster, failing timing may be too strict.
-            if not fitter.relax_caps(report, times):
-                break
-        elif not fitter.learn_from_sim(report, times):
-            raise FitError("the simulation fails where the plan passes: " + report.reasons[0])
-    if best is None:
-        raise FitError(
-            f"no passing timing after {_SIM_ROUNDS} simulation rounds: " + report.reasons[0]
-        )
-    times, binding, report = best
+    fitter = _Fitter.build(source, config, limits, rate_hz, torque_rate_nm_s, progress)
+    c, z = fitter.plan(None, None)
     if simulate:
-        times, report = fitter.shorten_by_simulation(times, binding, report)
-    faster = old_times[0] + (times - old_times[0]) / _FASTER
-    try:
-        faster_trajectory = fitter.trajectory(faster)
-    except FitError as e:
-        faster_reasons = (str(e),)
+        c, z, report = fitter.fit_to_simulation(c, z)
     else:
-        faster_report = check_torque(faster_trajectory, config=config)
-        faster_reasons = faster_report.reasons + check_limits(faster_trajectory, limits)
-    segments = tuple(
-        SegmentFit(i + 1, float(old), float(new), binding[i])
-        for i, (old, new) in enumerate(zip(np.diff(old_times), np.diff(times), strict=True))
-    )
-    return FitResult(
-        times=times,
-        old_times=old_times,
-        segments=segments,
-        report=report,
-        faster_reasons=tuple(faster_reasons),
-        limits=limits,
-        document=_retimed_document(source.path, times),
-        iterations=fitter.iterations,
-    )
+        report = fitter.simulate(c, z)
+    law = fitter.law(c, z)
+    law, report, faster_reasons = fitter.tighten(c, z, law, report, simulate)
+    return fitter.result(c, law, report, faster_reasons)
 
 
-def uniform_time_function(
-    source,
-    *,
-    config: GimbalConfig | None = None,
-    limits: JointLimits | None = None,
-    rate_hz: float | None = None,
-    probe: bool = False,
-) -> Callable[[np.ndarray], float]:
-    """The plan's shortest total time for a given shape of durations, for global searches.
+def plan_reasons(path, config: GimbalConfig, limits: JointLimits, torque_rate_nm_s, rate_hz):
+    """Why a motion's plan breaks a limit the fit keeps (empty when it keeps them all).
 
-    ``f(durations)`` scales all segment durations alike until the slowest
-    sample is at its limit (torque envelope and ``[limits]``, as
-    ``fit_timing(..., simulate=False)`` fits) and returns that total time (s);
-    ``inf`` where the path cannot be planned. It depends on the ratios of the
-    durations only, so minimising it over them gives the best timing this
-    spline construction allows (e.g. ``bench/fit_vs_toppra.py``'s floor).
+    The envelope (x ``torque_margin``) and the torque rate (without Coulomb
+    friction, by differences) at :data:`CHECK_RATE_HZ`, the ``[limits]`` table
+    at the stream rate.
 
     Parameters
     ----------
-    source, config, limits, rate_hz
-        As for :func:`fit_timing`.
-    probe : bool
-        Judge each segment at 32 fixed fractions of its duration (fast, smooth)
-        instead of at the stream's samples (exact, default).
+    path : spline-like
+        The motion (``t_start``, ``t_end``, ``evaluate``).
+    config, limits
+    torque_rate_nm_s : float
+        Bound on |d torque / dt| (N m/s).
+    rate_hz : float
+        Stream rate (Hz).
 
     Returns
     -------
-    callable
-        ``durations`` (S,) in s -> total time (s).
+    tuple of str
     """
-    fitter = _make_fitter(source, config, limits, rate_hz, 0.005, None)
+    from trajgen.gimbal import KinematicsError
+    from trajgen.sim.dynamics import inverse_dynamics_split
+    from trajgen.sim.run import simulation_model
+    from trajgen.stream import plan_joint_trajectory
 
-    def total_time(durations) -> float:
-        durations = np.asarray(durations, dtype=float)
-        result = fitter.factors(durations, probe=probe)
-        if result is None:
-            return np.inf
-        return float(durations.sum() / result[0].min())
-
-    return total_time
-
-
-def _make_fitter(source, config, limits, rate_hz, tolerance, progress) -> _Fitter:
-    """Check :func:`fit_timing`'s arguments and fill in the file's defaults."""
-    from trajgen.keyframes import load_keyframe_file
-    from trajgen.sim.check import DEFAULT_RATE_HZ
-    from trajgen.sim.limits import limits_from_tables
-    from trajgen.sim.model import build_model, gimbal_config_from_tables
-
-    if isinstance(source, (str, os.PathLike)):
-        source = load_keyframe_file(source)
-    if not (hasattr(source, "quats") and hasattr(source, "tables")):
-        raise TypeError(
-            f"Expected `source` to be a keyframe file path or KeyframeFile, got "
-            f"{type(source).__name__}."
-        )
-    tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
-    if config is None:
-        config = gimbal_config_from_tables(source.tables, source.path)
-    if limits is None:
-        limits = limits_from_tables(source.tables, source.path)
-    rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
-    say = progress or (lambda _: None)
-    return _Fitter(source, config, limits, rate, build_model(config), tolerance, say)
+    try:
+        fine = plan_joint_trajectory(path, CHECK_RATE_HZ)
+        stream = plan_joint_trajectory(path, rate_hz)
+    except KinematicsError as e:
+        raise FitError(f"no timing can help: the path {e}") from e
+    tau, smooth = inverse_dynamics_split(simulation_model(config), fine.q, fine.qd, fine.qdd)
+    reasons = []
+    for j, name in enumerate(JOINT_NAMES):
+        servo = config.servos[j]
+        avail = config.torque_margin * servo.tau_max(fine.qd[:, j])
+        k = int(np.argmax(np.abs(tau[:, j]) - avail))
+        if abs(tau[k, j]) > avail[k]:
+            reasons.append(
+                f"{name}: planned torque {abs(tau[k, j]):.3f} N m exceeds "
+                f"{config.torque_margin:g} x envelope ({avail[k]:.3f} N m) at t = {fine.t[k]:.3f} s"
+            )
+        rate = np.abs(np.diff(smooth[:, j])) / np.diff(fine.t)
+        k = int(np.argmax(rate))
+        if rate[k] > torque_rate_nm_s:
+            reasons.append(
+                f"{name}: torque rate {rate[k]:.0f} N m/s > limit {torque_rate_nm_s:g} N m/s "
+                f"at t = {fine.t[k]:.3f} s"
+            )
+    return tuple(reasons) + check_limits(stream, limits)
 
 
-def _segment_of(times: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Index (M,) of the segment of keyframe ``times`` (N,) holding each of ``t`` (M,), s;
-    the last segment holds the end time."""
-    return np.clip(np.searchsorted(times, t, side="right") - 1, 0, len(times) - 2)
-
-
-def _round_times(t0: float, durations: np.ndarray) -> np.ndarray:
-    return np.round(t0 + np.concatenate([[0.0], np.cumsum(durations)]), _TIME_DECIMALS)
-
-
-def _retimed_document(path, times: np.ndarray) -> dict:
-    """The file's TOML document (``tomllib``) with keyframe ``i``'s ``t`` set to ``times[i]``."""
-    document = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    for entry, t in zip(document["keyframes"], times, strict=True):
-        entry["t"] = float(t)
-    return document
+def default_path_times(source) -> np.ndarray:
+    """The path's own keyframe times (N,): the file's ``[timing] path_times`` if it has them,
+    else segment durations in proportion to the square root of each segment's rotation
+    (at least a fifth of the largest's), over the file's total time."""
+    if source.timing is not None:
+        return np.asarray(source.timing[0], dtype=float)
+    q = source.quats
+    angle = 2.0 * np.arccos(np.clip(np.abs(np.einsum("ij,ij->i", q[1:], q[:-1])), 0.0, 1.0))
+    root = np.sqrt(np.maximum(angle, 1e-12))
+    weights = np.maximum(root, 0.2 * root.max())
+    total = float(source.times[-1] - source.times[0])
+    return float(source.times[0]) + np.concatenate([[0.0], np.cumsum(weights)]) * (
+        total / weights.sum()
+    )
 
 
 class _Fitter:
-    """The plan loop's state: the keyframes, the model and the learned simulation caps."""
+    """The fit's state: the path, its dynamics tables, the limits and what simulation taught."""
 
-    def __init__(self, source, config, limits, rate_hz, model, tolerance, say):
-        self.source = source
-        self.config = config
-        self.limits = limits
-        self.rate_hz = rate_hz
-        self.model = model
-        self.tolerance = tolerance
-        self.say = say
-        n_seg = len(source.times) - 1
-        #: Learned from simulation, per segment and joint: speed caps (rad/s).
-        self.speed_cap = np.full((n_seg, 3), np.inf)
-        #: Per segment: a factor <= 1 on its speed-up, and the joint that reached
-        #: the torque limit in simulation there.
-        self.slow = np.ones(n_seg)
-        self.slow_joint = [""] * n_seg
-        self.min_duration_s = 2.0 / rate_hz
-        self.iterations = 0
-        servos = config.servos
-        self.stall = np.array([s.stall_torque_nm for s in servos])
-        self.no_load = np.array([s.no_load_speed_rad_s for s in servos])
-        self.damping = np.array(model.dof_damping)
+    @classmethod
+    def build(cls, source, config, limits, rate_hz, torque_rate, progress) -> _Fitter:
+        from trajgen.keyframes import load_keyframe_file
+        from trajgen.sim.check import DEFAULT_RATE_HZ
+        from trajgen.sim.limits import limits_from_tables, torque_rate_from_tables
+        from trajgen.sim.model import gimbal_config_from_tables
+        from trajgen.validate import check_number
 
-    def trajectory(self, times, at=None):
-        """The planned joint path at keyframe ``times``; FitError if the gimbal cannot follow it.
-
-        Parameters
-        ----------
-        times : ndarray, shape (N,)
-            Keyframe times (s).
-        at : ndarray, shape (M,), optional
-            Sample times (s), increasing, from ``times[0]`` to ``times[-1]``.
-            Default: the stream's samples at ``rate_hz`` (what the check runs).
-
-        Returns
-        -------
-        JointTrajectory
-        """
-        from trajgen.gimbal import GimbalKinematics, KinematicsError, joint_rates
-        from trajgen.stream import JointTrajectory, plan_joint_trajectory
-
-        source = self.source
-        spline = source.spline_class(source.quats, times, **source.spline_options)
-        try:
-            if at is None:
-                return plan_joint_trajectory(spline, self.rate_hz)
-            samples = spline.evaluate(at, max_order=2)
-            q = GimbalKinematics().inverse(samples.q, at)
-            qd, qdd = joint_rates(q, samples.omega, samples.alpha)
-        except KinematicsError as e:
-            raise FitError(f"no timing can help: the path {e}") from e
-        return JointTrajectory(at, q, qd, qdd, self.rate_hz)
-
-    def check_static(self) -> None:
-        """Refuse keyframes the gimbal cannot hold still against gravity."""
-        from trajgen import gimbal
-        from trajgen.sim.dynamics import inverse_dynamics
-
-        try:
-            q = gimbal.GimbalKinematics().inverse(self.source.quats, self.source.times)
-        except gimbal.KinematicsError as e:
-            raise FitError(f"no timing can help: at a keyframe, {e}") from e
-        zero = np.zeros_like(q)
-        hold = np.abs(inverse_dynamics(self.model, q, zero, zero, coulomb=False))
-        avail = self.config.torque_margin * self.stall
-        over = hold > avail
-        if over.any():
-            i, j = np.argwhere(over)[0]
-            raise FitError(
-                f"keyframe {i + 1}: the {JOINT_NAMES[j]} servo cannot hold this pose against "
-                f"gravity: it needs {hold[i, j]:.3f} N m, {self.config.torque_margin:g} x stall "
-                f"is {avail[j]:.3f} N m ({self.config.servos[j].name}, payload "
-                f"{self.config.payload_kg:g} kg)"
+        if isinstance(source, (str, os.PathLike)):
+            source = load_keyframe_file(source)
+        if not (hasattr(source, "quats") and hasattr(source, "tables")):
+            raise TypeError(
+                f"Expected `source` to be a keyframe file path or KeyframeFile, got "
+                f"{type(source).__name__}."
             )
+        if config is None:
+            config = gimbal_config_from_tables(source.tables, source.path)
+        if limits is None:
+            limits = limits_from_tables(source.tables, source.path)
+        if torque_rate is None:
+            torque_rate = torque_rate_from_tables(source.tables, source.path)
+        torque_rate = check_number("torque_rate_nm_s", torque_rate, low=0.0, low_open=True)
+        rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
+        boundary = source.spline_options.get("boundary", "rest")
+        if boundary != "rest":
+            raise FitError(
+                f"the fit retimes motions from rest to rest: [spline] boundary is {boundary!r}, "
+                "not 'rest'"
+            )
+        return cls(source, config, limits, rate, torque_rate, progress or (lambda _: None))
 
-    def sample_factors(self, trajectory, segment):
-        """Largest speed-up per sample and joint, and the code of the limit that sets it.
+    def __init__(self, source, config, limits, rate_hz, torque_rate, say):
+        from trajgen.sim.retime import LawBounds, LawProblem, knots_for
+        from trajgen.sim.retime_path import path_dynamics
+        from trajgen.sim.run import simulation_model
 
-        Returns
-        -------
-        factor : ndarray, shape (M, 3)
-        code : ndarray of int, shape (M, 3)
-        """
-        from trajgen.sim.dynamics import inverse_dynamics, inverse_dynamics_split
+        self.source, self.config, self.limits = source, config, limits
+        self.rate_hz, self.torque_rate, self.say = rate_hz, torque_rate, say
+        self.model = simulation_model(config)
+        refuse_unholdable_keyframes(source, self.model, config)
+        self.path_times = default_path_times(source)
+        # The path is always the C3 SmoothSpline (a blending spline is C2 at k = 2: its
+        # jerk steps at the keyframes, and so would the torque rate).
+        self.spline_table = {"method": "smooth"} | {
+            k: v for k, v in source.spline_options.items() if k in ("boundary", "knots")
+        }
+        try:
+            self.path = SmoothSpline(
+                source.quats,
+                self.path_times,
+                **{k: v for k, v in self.spline_table.items() if k != "method"},
+            )
+        except (ValueError, TypeError) as e:
+            raise FitError(f"the spline refuses the keyframes: {e}") from e
+        try:
+            self.dyn = path_dynamics(self.path, self.model, config)
+        except FitError:
+            raise
+        except Exception as e:  # SimError from the kinematics
+            raise FitError(str(e)) from e
+        self._check_path_static()
+        grid = np.linspace(
+            0.0, self.dyn.s_span, _LEARN_POINTS_PER_SEGMENT * (len(self.path_times) - 1) + 1
+        )
+        self.bounds = LawBounds(
+            limits, torque_rate, grid, np.ones(len(grid)), np.full((len(grid), 3), np.inf)
+        )
+        self.knots = knots_for(self.dyn.s_keys)
+        self._problem_class = LawProblem
+        self.iterations = 0
+        self.problem = None
 
-        q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
-        zero = np.zeros_like(q)
-        static = inverse_dynamics(self.model, q, zero, zero, coulomb=False)
-        full, smooth = inverse_dynamics_split(self.model, q, qd, qdd)
-        coulomb = full - smooth
-        viscous = self.damping * qd
-        inertial = smooth - static - viscous
-        speed = np.abs(qd)
-        budget = self.config.torque_margin * self.stall  # (3,)
-        over = np.abs(static) > budget
+    def _check_path_static(self) -> None:
+        """Refuse a path that passes a pose the gimbal cannot hold against gravity."""
+        s = np.linspace(0.0, self.dyn.s_span, 20 * len(self.path_times))
+        hold = np.abs(self.dyn.table(s)[:, 2, :])
+        over = hold > self.dyn.budget
         if over.any():
             k, j = np.argwhere(over)[0]
             raise FitError(
-                f"at t = {trajectory.t[k]:.3f} s the path passes a pose where the "
-                f"{JOINT_NAMES[j]} servo cannot hold against gravity: it needs "
-                f"{abs(static[k, j]):.3f} N m, the budget is {budget[j]:.3f} N m"
+                f"the path passes a pose where the {JOINT_NAMES[j]} servo cannot hold against "
+                f"gravity: it needs {hold[k, j]:.3f} N m, the budget is "
+                f"{self.dyn.budget[j]:.3f} N m"
             )
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            # Torque: |c + s v + s^2 i| <= budget (1 - s a), one quadratic per sign.
-            constant, slope = static + coulomb, budget * speed / self.no_load
-            torque = np.minimum(
-                _first_negative_root(budget - constant, -slope - viscous, -inertial),
-                _first_negative_root(budget + constant, viscous - slope, inertial),
-            )
-            no_load = np.where(speed > 0, self.no_load / speed, np.inf)
-            bounds = self.limits.as_array()
-            speed_cap = np.minimum(bounds[0], self.speed_cap[segment])
-            speed_f = np.where(speed > 0, speed_cap / speed, np.inf)
-            accel = np.sqrt(bounds[1] / np.abs(qdd))
-            jerk = np.cbrt(bounds[2] / np.abs(joint_jerk(trajectory)))
-        tracking = np.isfinite(self.speed_cap[segment]) & (self.speed_cap[segment] < bounds[0])
-        speed_code = np.where(tracking, _TRACKING, _SPEED)
-        torque_code = np.full_like(speed_code, _TORQUE)
-        stack = np.stack([torque, speed_f, accel, jerk, no_load])
-        codes = np.stack(
-            [
-                torque_code,
-                speed_code,
-                np.full_like(speed_code, _ACCEL),
-                np.full_like(speed_code, _JERK),
-                np.full_like(speed_code, _NO_LOAD),
-            ]
-        )
-        k = np.argmin(stack, axis=0)
-        factor = np.take_along_axis(stack, k[None], 0)[0]
-        code = np.take_along_axis(codes, k[None], 0)[0]
-        return np.nan_to_num(factor, nan=np.inf), code
 
-    def factors(self, durations: np.ndarray, *, probe: bool = False):
-        """Per-sample speed-ups at ``durations``, or None if the path cannot be planned.
+    def plan(self, c, z):
+        """Stage 1: the law's coefficients and ``log T``, from ``(c, z)`` (None: from scratch),
+        stretched until the exact plan keeps every limit."""
+        from trajgen.sim.retime import initial_law, optimise
 
-        Parameters
-        ----------
-        durations : ndarray, shape (S,)
-            Segment durations (s).
-        probe : bool
-            Sample each segment at ``_PROBES`` fixed fractions of its duration
-            (fast, and smooth in ``durations``: for the joint optimiser) instead
-            of at the stream's samples (exact: what the check sees).
-
-        Returns
-        -------
-        factor : ndarray, shape (M, 3)
-            Largest speed-up per sample and joint, the segment's learned
-            simulation slow-down included; >= 1 keeps every limit.
-        code : ndarray of int, shape (M, 3)
-            The limit behind each factor (index into ``BINDINGS``).
-        segment : ndarray of int, shape (M,)
-            The segment each sample lies in.
-        """
-        self.iterations += 1
-        times = float(self.source.times[0]) + np.concatenate([[0.0], np.cumsum(durations)])
-        at = None
-        if probe:
-            at = np.append((times[:-1, None] + np.outer(durations, _PROBE_U)).ravel(), times[-1])
+        if c is None:
+            self.knots, c, _ = initial_law(self.dyn, self.bounds)
+        self.problem = self._problem_class(self.dyn, self.bounds, self.knots)
         try:
-            trajectory = self.trajectory(times, at)
-        except FitError:
-            return None
-        segment = _segment_of(times, trajectory.t)
-        factor, code = self.sample_factors(trajectory, segment)
-        return factor * self.slow[segment, None], code, segment
-
-    def evaluate(self, durations: np.ndarray):
-        """Plan at ``durations``: per-segment factor and binding, or None if unplannable.
-
-        Returns
-        -------
-        seg_factor : ndarray, shape (S,)
-            Smallest speed-up over each segment's stream samples, times its
-            learned simulation slow-down; >= 1 means the plan keeps every limit there.
-        binding : list of str
-            The limit behind each segment's factor, e.g. ``"torque envelope (pan)"``.
-        """
-        result = self.factors(durations)
-        if result is None:
-            return None
-        factor, code, segment = result
-        n_seg = len(durations)
-        flat = factor.min(axis=1)
-        joint = factor.argmin(axis=1)
-        seg_factor = np.full(n_seg, np.inf)
-        binding = [BINDINGS[_FLOOR]] * n_seg
-        for i in range(n_seg):
-            rows = np.flatnonzero(segment == i)
-            if len(rows) == 0:
-                continue
-            r = rows[np.argmin(flat[rows])]
-            seg_factor[i] = flat[r]
-            binding[i] = f"{BINDINGS[code[r, joint[r]]]} ({JOINT_NAMES[joint[r]]})"
-            if self.slow[i] < 1.0 and flat[r] >= self.slow[i] * (1.0 + self.tolerance):
-                # The plan alone would allow more: the simulation's slow-down binds.
-                binding[i] = f"{BINDINGS[_SIM_LIMIT]} ({self.slow_joint[i]})"
-        return seg_factor, binding
-
-    def scale_uniform(self, durations: np.ndarray) -> np.ndarray:
-        """All durations scaled alike until the slowest stream sample is at its limit.
-
-        Uniform time scaling keeps the path's shape, so the per-sample factors
-        are exact for it and this settles in a few iterations.
-        """
-        for _ in range(_PLAN_ITERATIONS):
-            result = self.evaluate(durations)
-            if result is None:
-                raise FitError("the path cannot be planned at a uniformly scaled timing")
-            worst = float(result[0].min())
-            self.say(f"  plan {self.iterations}: {durations.sum():.3f} s, uniform x{1 / worst:.3f}")
-            if not np.isfinite(worst) or 1.0 <= worst <= 1.0 + self.tolerance / 4:
-                return durations
-            durations = (
-                durations / np.clip(worst, 1.0 / _MAX_STEP, _MAX_STEP) * (1.0 + self.tolerance / 8)
+            start = self.problem.start(c)
+        except ValueError as e:
+            raise FitError(f"the path cannot be timed within its limits: {e}") from e
+        z = start if z is None else max(z, start - 0.5)
+        self.say(f"plan: from {np.exp(z):.3f} s")
+        c, z, iterations, _ = optimise(self.problem, c, z, self.say)
+        self.iterations += iterations
+        passed, failed = None, 0.0
+        for stretch in _STRETCHES:
+            reasons = plan_reasons(
+                self.retimed(self.law(c, z + np.log(stretch))), *self._plan_args()
             )
-            if durations.sum() > 1e4 * float(np.diff(self.source.times).sum()):
-                raise FitError("the motion needs ever longer durations: the limits cannot be met")
-        raise FitError(f"uniform scaling did not settle in {_PLAN_ITERATIONS} iterations")
-
-    def optimise_jointly(self, durations: np.ndarray) -> np.ndarray:
-        """All durations at once: least total time with every probe sample within its limits.
-
-        SLSQP on the log-durations, one constraint ``log factor >= 0`` per probe
-        sample and joint (see :meth:`factors`), capped at ``log _FACTOR_CAP`` so
-        that samples far from their limits do not steer. Its Jacobian is taken by
-        forward differences (one plan per segment). The probes sit between the
-        stream's samples, so the result may leave a limit slightly between
-        probes: the caller rescales it on the stream.
-        """
-        try:
-            from scipy.optimize import minimize
-        except ImportError as e:
-            raise ImportError("fit_timing needs scipy: pip install 'trajgen[fit]'") from e
-
-        n_seg = len(durations)
-        size = 3 * (n_seg * len(_PROBE_U) + 1)
-        cache = {}
-
-        def constraints(x):
-            key = x.tobytes()
-            if key not in cache:
-                result = self.factors(np.exp(x), probe=True)
-                if result is None:
-                    cache[key] = np.full(size, -1.0)  # unplannable: far outside
-                else:
-                    cache[key] = np.log(np.clip(result[0], 1e-6, _FACTOR_CAP)).ravel()
-            return cache[key]
-
-        def jacobian(x):
-            base = constraints(x)
-            columns = []
-            for i in range(n_seg):
-                step = x.copy()
-                step[i] += _DIFF_STEP
-                columns.append((constraints(step) - base) / _DIFF_STEP)
-            return np.stack(columns, axis=1)
-
-        def report(x):
-            self.say(f"  joint {self.iterations}: {np.exp(x).sum():.3f} s")
-
-        bound = np.log(self.min_duration_s)
-        result = minimize(
-            lambda x: np.exp(x).sum(),
-            np.log(durations),
-            jac=np.exp,
-            method="SLSQP",
-            bounds=[(bound, None)] * n_seg,
-            constraints=[{"type": "ineq", "fun": constraints, "jac": jacobian}],
-            callback=report,
-            options={"maxiter": _JOINT_ITERATIONS, "ftol": 1e-4 * self.tolerance},
-        )
-        return np.exp(result.x)
-
-    def fit_plan(self, durations: np.ndarray):
-        """Loop 1: the shortest durations that keep every limit, and what binds each segment.
-
-        Uniform scaling to the limits first (:meth:`scale_uniform`), then all
-        durations at once (:meth:`optimise_jointly`, rescaled on the stream),
-        kept if shorter. Then, segment by segment, a shorter duration is kept
-        only if the whole plan still keeps every limit (the spline's curves reach
-        across segments, so a short segment can push a neighbour over): at the
-        end no segment can be made ``tolerance`` shorter on its own, and each
-        knows the limit that stops it.
-        """
-        durations = self.scale_uniform(np.asarray(durations, dtype=float))
-        if len(durations) > 1:
-            joint = self.optimise_jointly(durations)
-            try:
-                joint = self.scale_uniform(joint) if np.isfinite(joint).all() else durations
-            except FitError:  # a shape whose path the stream cannot follow: keep the uniform one
-                joint = durations
-            if joint.sum() < durations.sum():
-                durations = joint
-        seg_factor, binding = self.evaluate(durations)
-        shrink_tol = 1.0 + self.tolerance
-        for sweep in range(1, _SWEEPS + 1):
-            moved = False
-            for i in np.argsort(-seg_factor):
-                lo, hi = 1.0, float(np.clip(seg_factor[i], shrink_tol, _MAX_STEP))
-                best = None
-                # Largest feasible shrink of segment i alone, by bisection in log space.
-                for _ in range(_BISECTIONS):
-                    trial = durations.copy()
-                    trial[i] = max(durations[i] / hi, self.min_duration_s)
-                    result = self.evaluate(trial)
-                    if result is not None and (result[0] >= 1.0).all():
-                        best = (trial, result)
-                        break
-                    if result is not None:
-                        k = int(np.argmin(result[0]))
-                        binding[i] = result[1][k] + ("" if k == i else f" in segment {k + 1}")
-                    hi = float(np.sqrt(lo * hi))
-                    if hi < shrink_tol:
-                        break
-                if best is not None and durations[i] / best[0][i] >= shrink_tol:
-                    durations, (seg_factor, new_binding) = best[0], best[1]
-                    binding = [
-                        b if j == i or seg_factor[j] < shrink_tol else binding[j]
-                        for j, b in enumerate(new_binding)
-                    ]
-                    moved = True
-            self.say(f"  sweep {sweep}: {durations.sum():.3f} s")
-            if not moved:
+            if not reasons:
+                passed = np.log(stretch)
                 break
-        for i in range(len(durations)):
-            if durations[i] <= self.min_duration_s * (1 + 1e-9):
-                binding[i] = BINDINGS[_FLOOR]
-        return durations, binding
+            failed, why = np.log(stretch), reasons[0]
+        if passed is None:
+            raise FitError(f"the plan keeps breaking a limit between the optimiser's points: {why}")
+        for _ in range(_STRETCH_BISECTIONS if passed > 0 else 0):
+            mid = 0.5 * (passed + failed)
+            if plan_reasons(self.retimed(self.law(c, z + mid)), *self._plan_args()):
+                failed = mid
+            else:
+                passed = mid
+        self.say(f"plan: {np.exp(z + passed):.3f} s ({iterations} LP steps, x{np.exp(passed):.4f})")
+        return c, z + passed
 
-    def shorten_by_simulation(self, times, binding, report):
-        """Shorten, judged by the simulation itself, segments held by a learned limit elsewhere.
+    def _plan_args(self):
+        return self.config, self.limits, self.torque_rate, self.rate_hz
 
-        The limits learned from simulation (tracking speed caps, slow-downs at
-        the torque limit) stand in for the simulation in the plan loop, and they
-        are conservative: a segment whose plan is held only because a neighbour
-        would pass such a limit ("... in segment k") may in fact pass the check
-        shorter. Each such segment alone is made ``_FASTER`` shorter while that
-        passes the full check (and ``[limits]``), the step's log halved after
-        each failure, ``_SIM_BISECTIONS`` simulations per segment.
+    def law(self, c, z):
+        from trajgen.timelaw import TimeLaw
 
-        Returns
-        -------
-        times : ndarray, shape (N,)
-        report : TorqueReport
-            The check at ``times``.
+        return TimeLaw(
+            self.knots,
+            c,
+            float(self.source.times[0]),
+            float(np.exp(z)),
+            float(self.path_times[0]),
+            float(self.dyn.s_span),
+        )
+
+    def retimed(self, law):
+        from trajgen.timelaw import RetimedPath
+
+        return RetimedPath(self.path, law)
+
+    def trajectory(self, law):
+        from trajgen.stream import plan_joint_trajectory
+
+        return plan_joint_trajectory(self.retimed(law), self.rate_hz)
+
+    def learn_from_sim(self, report, law) -> bool:
+        """Turn the simulation's failures into local bounds; False if nothing to learn.
+
+        Where a joint reaches the torque limit, the torque budget loses 5, 10 or
+        15 % (fewer than 20, 100 or more physics steps at the limit) within
+        ``_WINDOW_S`` of motion time either side; where its tracking error passes
+        the limit, its speed is capped over the ``_WINDOW_S`` before (lag builds
+        up with speed).
         """
-        from trajgen.sim.check import check_torque
-
-        learned = (BINDINGS[_TRACKING], BINDINGS[_SIM_LIMIT])
-        for i, b in enumerate(binding):
-            if " in segment " not in b or not b.startswith(learned):
-                continue
-            step = _FASTER
-            for _ in range(_SIM_BISECTIONS):
-                durations = np.diff(times)
-                durations[i] /= step
-                trial = _round_times(times[0], durations)
-                self.say(f"  segment {i + 1} alone x{step:.3f} faster: simulating")
-                try:
-                    trial_report = check_torque(self.trajectory(trial), config=self.config)
-                except FitError:
-                    trial_report = None
-                if (
-                    trial_report is not None
-                    and trial_report.ok
-                    and not check_limits(trial_report.trajectory, self.limits)
-                ):
-                    times, report = trial, trial_report  # and the same step again
-                else:
-                    step = float(np.sqrt(step))
-                if step < 1.0 + self.tolerance:
-                    break
-        return times, report
-
-    def relax_caps(self, report, times) -> bool:
-        """Raise speed caps where a passing run tracks well inside the limit; False if none."""
-        record = report.record
-        seg = _segment_of(times, record.t)
-        limit = report.max_tracking_error_rad
-        error = np.abs(record.tracking_error_rad)
-        relaxed = False
-        for i, j in zip(*np.nonzero(np.isfinite(self.speed_cap)), strict=True):
-            worst = error[seg == i, j].max(initial=0.0)
-            if worst < _RELAX_BELOW * limit:
-                factor = min(_TRACKING_TARGET * limit / max(worst, 1e-9), _MAX_RELAX)
-                self.speed_cap[i, j] *= factor
-                relaxed = True
-        if relaxed:
-            self.say("  simulation passes with tracking to spare: speed caps raised")
-        return relaxed
-
-    def learn_from_sim(self, report, times) -> bool:
-        """Turn the simulation's failures into per-segment caps; False if nothing to learn."""
-        record = report.record
-        n_seg = len(times) - 1
-        seg = _segment_of(times, record.t)
+        record, plan = report.record, report.trajectory
+        bounds = self.bounds
         limit = report.max_tracking_error_rad
         error = np.abs(record.tracking_error_rad)
         at_limit = np.asarray(record.at_limit, dtype=bool)
-        plan = report.trajectory
-        plan_seg = _segment_of(times, plan.t)
+        s_plan = law(plan.t, 0)[0] - self.path_times[0]
+
+        def window(t_from, t_to):
+            lo, hi = (
+                law([max(t_from, law.t_start), min(t_to, law.t_end)], 0)[0] - self.path_times[0]
+            )
+            return (bounds.s_grid >= lo) & (bounds.s_grid <= hi), (s_plan >= lo) & (s_plan <= hi)
+
         learned = False
-        for i in range(n_seg):
-            rows, plan_rows = seg == i, plan_seg == i
-            capped = False
-            for j in range(3):
-                worst = error[rows, j].max(initial=0.0)
-                if worst > limit:
+        for j in range(3):
+            over = error[:, j] > limit
+            if over.any():
+                for t in np.unique(np.round(record.t[over], 2)):
+                    where, plan_rows = window(t - _WINDOW_S, t + 0.01)
+                    worst = error[np.abs(record.t - t) <= 0.01, j].max(initial=limit)
                     peak = np.abs(plan.qd[plan_rows, j]).max(initial=0.0)
                     cap = peak * _TRACKING_TARGET * limit / worst
-                    self.speed_cap[i, j] = min(self.speed_cap[i, j], cap)
-                    learned = capped = True
-            # A servo that falls behind also saturates: the speed cap deals with both.
-            hit = [j for j in range(3) if at_limit[rows, j].any()]
-            if hit and not capped:
-                self.slow[i] *= _SIM_SLOW_STEP
-                self.slow_joint[i] = JOINT_NAMES[hit[0]]
+                    bounds.speed_cap[where, j] = np.minimum(bounds.speed_cap[where, j], cap)
                 learned = True
-        self.say("  simulation: " + ("; ".join(report.reasons[:2]) if report.reasons else "passes"))
+            elif at_limit[:, j].any():
+                hit = np.zeros(len(bounds.s_grid), dtype=bool)
+                for t in np.unique(np.round(record.t[at_limit[:, j]], 2)):
+                    hit |= window(t - _WINDOW_S, t + _WINDOW_S)[0]
+                steps = int(at_limit[:, j].sum())
+                bounds.budget_scale[hit] *= 0.95 if steps < 20 else 0.9 if steps < 100 else 0.85
+                learned = True
+        self.say("  simulation: " + "; ".join(report.reasons[:2]))
         return learned
 
+    def simulate(self, c, z):
+        """The full check (:func:`trajgen.sim.check.check_torque`) of the law ``(c, z)``."""
+        from trajgen.sim.check import check_torque
 
-def _first_negative_root(a, b, c) -> np.ndarray:
-    """Per element, the smallest ``s > 0`` where ``a + b s + c s^2`` turns negative.
+        return check_torque(
+            self.trajectory(self.law(c, z)), config=self.config, lead=self.source.lead
+        )
 
-    ``inf`` where it never does; ``0`` where ``a < 0`` already. Roots by the
-    cancellation-free form ``q = -(b + sign(b) sqrt(b^2 - 4ac)) / 2``,
-    ``s = q / c`` and ``a / q``.
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        disc = b * b - 4.0 * a * c
-        q = -0.5 * (b + np.copysign(np.sqrt(np.maximum(disc, 0.0)), b))
-        roots = np.stack([q / c, a / q])
-        roots = np.where((roots > 0) & (disc >= 0), roots, np.inf)
-    first = np.nan_to_num(roots.min(axis=0), nan=np.inf)
-    return np.where(a < 0, 0.0, first)
+    def fit_to_simulation(self, c, z):
+        """Stage 2: local slow-downs where the check fails, re-planned, then (if that has not
+        passed after ``_SIM_ROUNDS``) a uniform stretch by bisection under the check.
+
+        Returns
+        -------
+        c, z, report
+            The passing law and its check.
+        """
+        for round_ in range(1, _SIM_ROUNDS + 1):
+            self.say(f"round {round_}: simulating {np.exp(z):.3f} s")
+            report = self.simulate(c, z)
+            if report.ok:
+                return c, z, report
+            if not self.learn_from_sim(report, self.law(c, z)):
+                break
+            c, z = self.plan(c, z)
+        # The local slow-downs did not settle: stretch the last law as a whole.
+        failed, passed, passing = 0.0, None, None
+        for stretch in _SIM_STRETCHES:
+            self.say(f"  stretched x{stretch:g}: simulating")
+            trial = self.simulate(c, z + np.log(stretch))
+            if trial.ok:
+                passed, passing = np.log(stretch), trial
+                break
+            failed, report = np.log(stretch), trial
+        if passed is None:
+            raise FitError(f"no passing timing found by simulation: {report.reasons[0]}")
+        for _ in range(_STRETCH_BISECTIONS):
+            mid = 0.5 * (failed + passed)
+            trial = self.simulate(c, z + mid)
+            if trial.ok:
+                passed, passing = mid, trial
+            else:
+                failed = mid
+        return c, z + passed, passing
+
+    def tighten(self, c, z, law, report, simulate):
+        """Stage 3: make sure ``FASTER`` times as fast fails; returns the law, its report and
+        why the faster motion fails."""
+        from trajgen.sim.check import check_torque
+
+        def verdict(trial):
+            reasons = plan_reasons(self.retimed(trial), *self._plan_args())
+            if not simulate:
+                return reasons, None
+            trial_report = check_torque(
+                self.trajectory(trial), config=self.config, lead=self.source.lead
+            )
+            return reasons + trial_report.reasons, trial_report
+
+        for _ in range(_TIGHT_BISECTIONS):
+            faster = self.law(c, z - np.log(FASTER))
+            reasons, faster_report = verdict(faster)
+            if reasons:
+                return law, report, reasons
+            self.say(f"  {FASTER - 1:.0%} faster passes too: shortening")
+            z -= np.log(FASTER)
+            law, report = faster, faster_report
+        return law, report, ()
+
+    def binding(self, c, law) -> list[str]:
+        """Per segment: the limit family nearest its bound, and how near (e.g. ``99 %``)."""
+        z = np.log(law.duration_s)
+        h, _ = self.problem.rows(c, z)
+        names = self.problem.family_names()
+        sig = self.problem.B[0] @ c
+        seg = self.dyn.segment(self.dyn.s_span * sig)
+        out = []
+        for i in range(len(self.path_times) - 1):
+            cols = seg == i
+            if not cols.any():
+                out.append("-")
+                continue
+            sub = h[:, cols]
+            f, _ = np.unravel_index(int(np.argmax(sub)), sub.shape)
+            name = names[f]
+            joint = JOINT_NAMES.index(name[name.index("(") + 1 : -1])
+            learned = self.bounds.index(self.dyn.s_span * sig[cols])
+            if name.startswith("torque envelope") and (self.bounds.budget_scale[learned] < 1).any():
+                name = f"sim torque limit ({JOINT_NAMES[joint]})"
+            if (
+                name.startswith("speed limit")
+                and np.isfinite(self.bounds.speed_cap[learned, joint]).any()
+            ):
+                name = f"tracking error ({JOINT_NAMES[joint]})"
+            out.append(f"{name}, {1 + sub.max():.0%}")
+        return out
+
+    def result(self, c, law, report, faster_reasons) -> FitResult:
+        path = self.retimed(law)
+        times = path.times
+        old = np.asarray(self.source.times, dtype=float)
+        binding = self.binding(c, law)
+        segments = segment_fits(old, times, binding)
+        return FitResult(
+            times=times,
+            old_times=old,
+            segments=segments,
+            report=report,
+            faster_reasons=tuple(faster_reasons),
+            limits=self.limits,
+            document=self.document(times, law),
+            iterations=self.iterations,
+            faster=FASTER,
+            law=law,
+            path=path,
+        )
+
+    def document(self, times, law) -> dict:
+        """The input's TOML document with the keyframes' new times and the ``[timing]`` table."""
+        document = retimed_document(self.source.path, times)
+        document["spline"] = dict(self.spline_table)
+        document["timing"] = {
+            "path_times": [float(s) for s in self.path_times],
+            "duration_s": float(law.duration_s),
+            "knots": [float(k) for k in law.knots],
+            "coefficients": [float(x) for x in law.coefficients],
+        }
+        return document

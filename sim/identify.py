@@ -167,6 +167,10 @@ class JointFit:
         RMS position residual (rad).
     poorly_excited : tuple of str
         Parameters whose interval exceeds ``POORLY_EXCITED`` x their value.
+    p_divisor, p_divisor_interval : float
+        The servo's P scale (``KP = P / p_divisor``) with the P Gain register
+        held at the value the servo has (the input config's): the fitted loop
+        gain expressed as a scale, and its 95 % half-width.
     """
 
     params: JointParams
@@ -174,6 +178,8 @@ class JointFit:
     intervals: dict
     residual_rad: float
     poorly_excited: tuple
+    p_divisor: float = math.nan
+    p_divisor_interval: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -244,8 +250,14 @@ class Fit:
                 )
         return "\n".join(lines)
 
-    def toml(self, source: str = "") -> str:
-        """``[gimbal.<joint>]`` tables with the intervals in comments."""
+    def toml(self, source: str = "", *, p_scale: bool = False) -> str:
+        """``[gimbal.<joint>]`` tables with the intervals in comments.
+
+        With ``p_scale`` the loop gain is written as the servo's P scale
+        (``p_divisor``) beside the P Gain register it has, instead of as a P
+        Gain at the gimbal's scale: the same loop, for servos whose firmware
+        scales P differently (``docs/lead.md``).
+        """
         lines = [f"# Fitted by trajgen identify{' from ' + source if source else ''}."]
         lines.append(f"# {self._extras_text()}; intervals are 95 %.")
         for name, joint in self.joints.items():
@@ -257,6 +269,14 @@ class Fit:
                 value = getattr(joint.params, p)
                 text = f"{value}" if p == "position_p_gain" else f"{value:.6g}"
                 note = "; not excited enough" if p in joint.poorly_excited else ""
+                if p == "position_p_gain" and p_scale:
+                    lines.append(
+                        f"{p} = {self.config.joints[JOINT_NAMES.index(name)].position_p_gain:<12}"
+                        "# the register, held"
+                    )
+                    p, text = "p_divisor", f"{joint.p_divisor:.6g}"
+                    lines.append(f"{p} = {text:<12}# +- {joint.p_divisor_interval:.2g}{note}")
+                    continue
                 lines.append(f"{p} = {text:<12}# +- {joint.intervals[p]:.2g} {_UNITS[p]}{note}")
         return "\n".join(lines) + "\n"
 
@@ -284,8 +304,8 @@ class _Replay:
         self.dt = config.timestep_s
         self.kp_per_unit = np.array(
             [
-                PositionLoop(p_gain=1, p_divisor=config.p_divisor).mujoco_controller(s)[0]
-                for s in config.servos
+                PositionLoop(p_gain=1, p_divisor=config.loop(j).p_divisor).mujoco_controller(s)[0]
+                for j, s in enumerate(config.servos)
             ]
         )
         self.kt = np.array([s.torque_constant_nm_a for s in config.servos])
@@ -477,6 +497,7 @@ def identify(
     fit_delay: bool = False,
     fit_current_scale: bool = False,
     max_iter: int = 30,
+    p_scale: bool = False,
 ) -> Fit:
     """Fit each joint's armature, frictionloss, damping and P gain (and a delay, a current scale).
 
@@ -504,6 +525,10 @@ def identify(
         that only the back-EMF pins, so expect wider intervals.
     max_iter : int
         Gauss-Newton iterations at most.
+    p_scale : bool
+        Give the fitted loop gain as each servo's P scale (``p_divisor``) with
+        its P Gain register held at ``config``'s value (``Fit.config``); the
+        fit itself is the same (only the product P / scale is observable).
 
     Returns
     -------
@@ -566,6 +591,8 @@ def identify(
             for p in PARAMETERS
             if not math.isfinite(ivals[p]) or ivals[p] > POORLY_EXCITED * abs(values[p])
         )
+        register, divisor = config.joints[j].position_p_gain, config.loop(j).p_divisor
+        scale = divisor * register / values["position_p_gain"]  # same KP, register held
         joints[name] = JointFit(
             params=JointParams.of(
                 config.servos[j],
@@ -578,11 +605,23 @@ def identify(
             intervals=ivals,
             residual_rad=float(np.sqrt(np.mean(errors**2))),
             poorly_excited=poorly,
+            p_divisor=float(scale),
+            p_divisor_interval=float(scale * ivals["position_p_gain"] / values["position_p_gain"]),
+        )
+    fitted = tuple(joints[n].params for n in JOINT_NAMES)
+    if p_scale:
+        fitted = tuple(
+            dataclasses.replace(
+                joints[n].params,
+                position_p_gain=config.joints[j].position_p_gain,
+                p_divisor=joints[n].p_divisor,
+            )
+            for j, n in enumerate(JOINT_NAMES)
         )
     return Fit(
         joints=joints,
         extras=extras,
-        config=dataclasses.replace(config, joints=tuple(joints[n].params for n in JOINT_NAMES)),
+        config=dataclasses.replace(config, joints=fitted),
         rows=sum(int(ok.sum()) for ok in ok_rows),
         iterations=iterations,
     )

@@ -5,6 +5,7 @@
 speed_rad_s = 3.0                                  # every joint
 acceleration_rad_s2 = {pan = 20.0, tilt = 10.0}    # per joint; roll unlimited
 jerk_rad_s3 = 500.0
+torque_rate_nm_s = 300.0                           # |d torque / dt| per joint (trajgen fit)
 ```
 
 Each key is optional; a missing key or joint means no limit beyond the torque
@@ -31,6 +32,11 @@ LIMIT_KEYS = {
 }
 
 _INF3 = (math.inf, math.inf, math.inf)
+
+#: ``[limits]`` key of the torque-rate bound the retiming fit keeps, and its default
+#: (N m/s): docs/fit.md, "The torque-rate bound".
+TORQUE_RATE_KEY = "torque_rate_nm_s"
+DEFAULT_TORQUE_RATE_NM_S = 300.0
 
 
 @dataclass(frozen=True)
@@ -89,8 +95,15 @@ def limits_from_tables(tables: dict, path) -> JointLimits:
     if not isinstance(table, dict):
         raise KeyframeFileError(f"{Path(path)}: [limits]: expected a table, got {table!r}")
     kwargs = {}
-    check_keys(table, LIMIT_KEYS, error=lambda p: KeyframeFileError(f"{Path(path)}: [limits]: {p}"))
+    check_keys(
+        table,
+        (*LIMIT_KEYS, TORQUE_RATE_KEY),
+        error=lambda p: KeyframeFileError(f"{Path(path)}: [limits]: {p}"),
+    )
     for key, value in table.items():
+        if key == TORQUE_RATE_KEY:
+            torque_rate_from_tables(tables, path)
+            continue
         if isinstance(value, dict):
             check_keys(value, JOINT_NAMES, error=lambda p, k=key: error(f"{k}: {p}"), kind="joint")
             value = tuple(value.get(j, math.inf) for j in JOINT_NAMES)
@@ -102,6 +115,29 @@ def limits_from_tables(tables: dict, path) -> JointLimits:
                 f"got {value!r}"
             ) from None
     return JointLimits(**kwargs)
+
+
+def torque_rate_from_tables(tables: dict, path) -> float:
+    """The ``[limits] torque_rate_nm_s`` bound (N m/s), default ``DEFAULT_TORQUE_RATE_NM_S``.
+
+    Raises
+    ------
+    trajgen.keyframes.KeyframeFileError
+        If it is not a number > 0.
+    """
+    from trajgen.keyframes import KeyframeFileError
+
+    table = tables.get("limits", {})
+    value = (
+        table.get(TORQUE_RATE_KEY, DEFAULT_TORQUE_RATE_NM_S) if isinstance(table, dict) else None
+    )
+    return check_number(
+        TORQUE_RATE_KEY,
+        value,
+        low=0.0,
+        low_open=True,
+        error=lambda p: KeyframeFileError(f"{Path(path)}: [limits] {TORQUE_RATE_KEY}: {p}"),
+    )
 
 
 def joint_jerk(trajectory) -> np.ndarray:

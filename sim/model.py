@@ -55,7 +55,7 @@ GIMBAL_TABLE_KEYS = (
     *JOINT_NAMES,
 )
 #: Keys of a ``[gimbal.<joint>]`` table.
-JOINT_TABLE_KEYS = ("armature", "frictionloss", "damping", "position_p_gain")
+JOINT_TABLE_KEYS = ("armature", "frictionloss", "damping", "position_p_gain", "p_divisor")
 
 _PAN_HEIGHT_M = 0.05  # pan horn above the base plate
 _TILT_HEIGHT_M = 0.07  # tilt (and roll) axis above the pan horn
@@ -77,6 +77,9 @@ class JointParams:
         Viscous friction (N m s/rad), >= 0, besides the motor's back-EMF.
     position_p_gain, position_i_gain, position_d_gain : int
         Position P / I / D Gain registers (register units, as on the servo), 0..16383.
+    p_divisor : float or None
+        This servo's P scale, ``KP = P / p_divisor`` (> 0), e.g. fitted by
+        ``trajgen identify --p-scale``; None: the gimbal's ``p_divisor``.
 
     Raises
     ------
@@ -90,9 +93,12 @@ class JointParams:
     position_p_gain: int
     position_i_gain: int = 0
     position_d_gain: int = 0
+    p_divisor: float | None = None
 
     def __post_init__(self):
         for name, bounds in _JOINT_BOUNDS.items():
+            if name == "p_divisor" and self.p_divisor is None:
+                continue
             object.__setattr__(self, name, check_number(name, getattr(self, name), **bounds))
 
     @classmethod
@@ -115,6 +121,7 @@ _JOINT_BOUNDS = {
     "frictionloss": {"low": 0.0},
     "damping": {"low": 0.0},
     **{f"position_{g}_gain": {"low": 0, "high": GAIN_MAX, "integer": True} for g in "pid"},
+    "p_divisor": {"low": 0.0, "low_open": True},
 }
 
 
@@ -203,7 +210,7 @@ class GimbalConfig:
             params.position_p_gain,
             params.position_i_gain,
             params.position_d_gain,
-            p_divisor=self.p_divisor,
+            p_divisor=self.p_divisor if params.p_divisor is None else params.p_divisor,
         )
 
 
@@ -225,8 +232,9 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
     default XM430-W350), ``payload_kg``, ``payload_offset_m`` (3 numbers),
     ``torque_margin``, ``max_tracking_error_rad``, ``p_divisor``, and per-joint
     tables ``[gimbal.pan]``, ``[gimbal.tilt]``, ``[gimbal.roll]`` with
-    ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping`` (N m s/rad) and
-    ``position_p_gain`` (register units), overriding the servo's defaults.
+    ``armature`` (kg m^2), ``frictionloss`` (N m), ``damping`` (N m s/rad),
+    ``position_p_gain`` (register units) and ``p_divisor`` (that servo's P
+    scale), overriding the servo's defaults.
 
     Parameters
     ----------

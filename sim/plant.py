@@ -277,7 +277,7 @@ class GimbalPlant:
         enabled = (model.opt.disableactuator >> np.arange(3)) & 1 == 0
         return np.where(enabled, volts / self._supply_v, 0.0)
 
-    def report(self, trajectory):
+    def report(self, trajectory, *, lead: str = "none"):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.
 
         The record is aligned so that the goal received ``len(trajectory)``
@@ -288,7 +288,10 @@ class GimbalPlant:
         Parameters
         ----------
         trajectory : JointTrajectory
-            The stream that was sent.
+            The stream that was sent: the plan (``q``), which the tracking
+            error is against, and the goals sent (``goal``, when led).
+        lead : str
+            How the goals were led (``trajgen.lead``), for the report.
 
         Returns
         -------
@@ -327,4 +330,4 @@ class GimbalPlant:
             at_limit=at_torque_limit(self.config, log[:, 4:7], log[:, 7:10], log[:, 13:16]),
             timestep_s=self.config.timestep_s,
         )
-        return build_report(trajectory, self.config_now, record)
+        return build_report(trajectory, self.config_now, record, lead=lead)

@@ -1,4 +1,5 @@
-"""Plot a torque report: joint angles, velocities, torque, and how much of the envelope is used."""
+"""Plot a torque report: joint angles, velocities, tracking error, torque, and how much
+of the envelope is used."""
 
 from __future__ import annotations
 
@@ -56,8 +57,51 @@ def period_mean_and_range(t, values, period_s):
     )
 
 
+#: The tracking-error panel's logarithmic axis starts here (rad): below a tick's rounding.
+ERROR_FLOOR_RAD = 1e-5
+#: Smallest span of an angle (rad) or velocity (rad/s) axis: a joint that does not
+#: move is drawn flat, not autoscaled to its rounding noise.
+MIN_SPAN = {"angle": 0.02, "velocity": 0.02}
+
+#: What each kind of reason in ``TorqueReport.reasons`` says failed (first match).
+_CHECKS = (
+    ("tracking error", "tracking error"),
+    ("physics steps at the torque limit", "torque limit"),
+    ("envelope", "planned torque"),
+    ("no-load speed", "planned speed"),
+    ("goal", "goal bounds"),
+)
+
+
+def failed_checks(report) -> str:
+    """Which checks failed and on which joints, e.g. ``"tracking error (pan, tilt)"``."""
+    failed: dict[str, list[str]] = {}
+    for reason in report.reasons:
+        joint, _, text = reason.partition(": ")
+        check = next((name for key, name in _CHECKS if key in text), "other")
+        failed.setdefault(check, [])
+        if joint not in failed[check]:
+            failed[check].append(joint)
+    return "; ".join(f"{check} ({', '.join(joints)})" for check, joints in failed.items())
+
+
+def _min_span(ax, span: float) -> None:
+    """Widen ``ax``'s y range to at least ``span`` about its centre."""
+    low, high = ax.get_ylim()
+    if high - low < span:
+        mid = 0.5 * (low + high)
+        ax.set_ylim(mid - 0.5 * span, mid + 0.5 * span)
+
+
 def plot_report(report, path) -> Path:
-    """Save a 4 x 3 figure (rows: angle, velocity, torque, envelope use; columns: joints).
+    """Save a 5 x 3 figure (rows: angle, velocity, tracking error, torque, envelope use;
+    columns: joints).
+
+    - angle: the plan, the goals sent (led ahead of the plan, ``trajgen.lead``)
+      and the simulated angle; angle and velocity axes span at least
+      ``MIN_SPAN``, so a joint that does not move is not autoscaled to noise.
+    - tracking error: ``|simulated - plan|`` on a logarithmic axis with the
+      check's limit; the title gives the peak and the lead used.
 
     - torque: the planned torque (``mj_inverse``) with its Coulomb-friction
       steps marked (the joint starts or reverses, so friction flips sign: a
@@ -88,6 +132,19 @@ def plot_report(report, path) -> Path:
     ValueError
         If matplotlib cannot write that format.
     """
+    import matplotlib.pyplot as plt
+
+    fig = report_figure(report)
+    path = Path(path)
+    try:
+        fig.savefig(path, dpi=100)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def report_figure(report):
+    """The figure :func:`plot_report` saves (a ``matplotlib.figure.Figure``; close it)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -96,16 +153,40 @@ def plot_report(report, path) -> Path:
     traj, rec = report.trajectory, report.record
     period = 1.0 / report.rate_hz
     margin = report.torque_margin
-    fig, axes = plt.subplots(4, 3, figsize=(14, 11), sharex=True)
+    fig, axes = plt.subplots(5, 3, figsize=(14, 13.5), sharex=True)
+    limit = report.max_tracking_error_rad
+    goal = getattr(traj, "goal", None)
     for j, name in enumerate(JOINT_NAMES):
         servo = report.config.servos[j]
-        ax_q, ax_w, ax_t, ax_u = axes[:, j]
+        ax_q, ax_w, ax_e, ax_t, ax_u = axes[:, j]
         ax_q.plot(traj.t, traj.q[:, j], label="planned")
+        if goal is not None:
+            ax_q.plot(
+                traj.t, goal[:, j], ":", color="tab:green", label=f"goal sent ({report.lead})"
+            )
         ax_q.plot(rec.t, rec.q[:, j], "--", label="simulated")
         ax_q.set_title(f"{name} ({servo.name})")
+        _min_span(ax_q, MIN_SPAN["angle"])
         ax_w.plot(traj.t, traj.qd[:, j], label="planned")
         ax_w.plot(rec.t, rec.qd[:, j], "--", label="simulated")
         ax_w.axhline(0.0, color="0.6", lw=0.5)
+        _min_span(ax_w, MIN_SPAN["velocity"])
+
+        error = np.abs(rec.tracking_error_rad[:, j])
+        top = 10 ** np.ceil(np.log10(max(2.0 * error.max(), 2.0 * limit)))
+        ax_e.plot(rec.t, np.clip(error, ERROR_FLOOR_RAD, top), color="tab:purple", lw=0.8)
+        ax_e.axhline(limit, color="r", lw=1)
+        ax_e.text(
+            traj.t[0], limit, f" {limit:g} rad: the limit", color="r", va="bottom", fontsize=8
+        )
+        ax_e.set_yscale("log")
+        ax_e.set_ylim(ERROR_FLOOR_RAD, top)
+        k = int(np.argmax(error))
+        ax_e.set_title(
+            f"tracking error: peak {1e3 * error[k]:.2f} mrad at t = {rec.t[k]:.2f} s "
+            f"(lead {report.lead})",
+            fontsize=9,
+        )
 
         tau = report.planned_torque_nm[:, j]
         tc, sim_mean, sim_lo, sim_hi = period_mean_and_range(rec.t, rec.torque_nm[:, j], period)
@@ -215,24 +296,20 @@ def plot_report(report, path) -> Path:
         ax_u.set_xlabel("t (s)")
     axes[0, 0].set_ylabel("angle (rad)")
     axes[1, 0].set_ylabel("velocity (rad/s)")
-    axes[2, 0].set_ylabel("torque (N m)")
-    axes[3, 0].set_ylabel(f"|torque| / ({margin:g} x envelope)")
+    axes[2, 0].set_ylabel("|simulated - plan| (rad)")
+    axes[3, 0].set_ylabel("torque (N m)")
+    axes[4, 0].set_ylabel(f"|torque| / ({margin:g} x envelope)")
     axes[0, 0].legend(fontsize=8)
     # One legend for the torque and use rows, below the figure, clear of the data.
     handles = {}
-    for ax in axes[2:, :].flat:
+    for ax in axes[3:, :].flat:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(label, handle)
     fig.legend(handles.values(), handles.keys(), loc="lower center", ncol=3, fontsize=8)
-    verdict = "OK" if report.ok else "FAILED"
+    verdict = "OK" if report.ok else f"FAILED: {failed_checks(report)}"
     fig.suptitle(
-        f"torque check: {verdict} ({report.duration_s:.2f} s at {report.rate_hz:g} Hz, "
-        f"margin {margin:g} of the {report.envelope_volts} envelope)"
+        f"torque check: {verdict}\n({report.duration_s:.2f} s at {report.rate_hz:g} Hz, "
+        f"margin {margin:g} of the {report.envelope_volts} envelope, lead {report.lead})"
     )
-    fig.tight_layout(rect=(0, 0.07, 1, 1))
-    path = Path(path)
-    try:
-        fig.savefig(path, dpi=100)
-    finally:
-        plt.close(fig)
-    return path
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    return fig

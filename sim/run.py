@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trajgen.lead import sent_q
 from trajgen.sim.errors import SimulationError
 from trajgen.sim.firmware import PULSES_PER_RAD
 from trajgen.sim.model import GimbalConfig, build_model
@@ -154,8 +155,9 @@ def step_frames(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
 def step_controls(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
     """What the servos are sent, one row per physics step.
 
-    Each frame's angles, rounded to whole ticks as Goal Position is, held for
-    its frame (:func:`step_frames`).
+    Each frame's goal (``trajectory.goal`` if the goals are led, see
+    ``trajgen.lead``; else its planned angles), rounded to whole ticks as Goal
+    Position is, held for its frame (:func:`step_frames`).
 
     Returns
     -------
@@ -165,7 +167,7 @@ def step_controls(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray
         Goal position per joint (rad, whole ticks).
     """
     step_t, frame = step_frames(trajectory, timestep_s)
-    return step_t, goal_ticks_rad(trajectory.q)[frame]
+    return step_t, goal_ticks_rad(sent_q(trajectory))[frame]
 
 
 def simulation_model(config: GimbalConfig):
@@ -403,7 +405,8 @@ def check_trajectory(trajectory) -> None:
     n = np.shape(trajectory.t)
     if len(n) != 1 or n[0] < 2:
         raise ValueError(f"Expected `trajectory.t` to have shape (N,), N >= 2, got {n}.")
-    for f in ("q", "qd", "qdd"):
+    fields = ("q", "qd", "qdd") + (() if getattr(trajectory, "goal", None) is None else ("goal",))
+    for f in fields:
         a = np.asarray(getattr(trajectory, f))
         if a.shape != (n[0], 3):
             raise ValueError(f"Expected `trajectory.{f}` to have shape ({n[0]}, 3), got {a.shape}.")
@@ -420,17 +423,19 @@ def simulate(
 ) -> SimRecord:
     """Stream a planned joint trajectory to the simulated servos.
 
-    The gimbal starts at rest at the first frame's angles. Each frame's angles,
-    rounded to whole ticks as Goal Position is, are the servos' goal from
-    ``t[i]`` to ``t[i + 1]`` (the last frame's for one stream period); the
-    servos' own position loop (``sim.firmware``, gains from ``config``) does
-    the rest, exactly as behind the virtual bus (``sim.plant.GimbalPlant``).
-    Physics runs at ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
+    The gimbal starts at rest at the first frame's angles. Each frame's goal
+    (``trajectory.goal`` when led, else its angles), rounded to whole ticks as
+    Goal Position is, is the servos' goal from ``t[i]`` to ``t[i + 1]`` (the
+    last frame's for one stream period); the servos' own position loop
+    (``sim.firmware``, gains from ``config``) does the rest, exactly as
+    behind the virtual bus (``sim.plant.GimbalPlant``). Physics runs at
+    ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
 
     Parameters
     ----------
     trajectory : trajgen.stream.JointTrajectory
-        The planned stream.
+        The planned stream, with the goals to send attached (``goal``) or not;
+        the record's tracking error is against the plan (``q``).
     config : GimbalConfig, optional
         Default :class:`GimbalConfig`.
     progress : callable, optional

@@ -243,30 +243,42 @@ def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, thread
 
     The variants' runs go through one :func:`trajgen.sim.run.run_batch` call on
     ``threads`` threads; each report is :func:`trajgen.sim.check.build_report`'s.
+    Each variant's goals are led for that variant (``sim.lead.lead_trajectory``,
+    the default lead), as ``check_torque`` leads them.
     """
+    from trajgen.lead import DEFAULT_LEAD
     from trajgen.sim.check import build_report
+    from trajgen.sim.lead import lead_trajectory
     from trajgen.sim.run import record_from_run, run_batch, simulation_model, step_controls
 
     configs = [v.config(base) for v in batch]
     models = [simulation_model(c) for c in configs]
-    step_t, ctrl = step_controls(trajectory, base.timestep_s)
+    led = [
+        lead_trajectory(trajectory, c, DEFAULT_LEAD, model=m)
+        for c, m in zip(configs, models, strict=True)
+    ]
+    step_t = step_controls(trajectory, base.timestep_s)[0]
+    ctrl = np.stack([step_controls(t, base.timestep_s)[1] for t, _, _ in led])
     q, qd, torque = run_batch(
         models,
         trajectory.q[0],
         step_t[0],
         step_t,
-        np.broadcast_to(ctrl, (len(configs), *ctrl.shape)),
+        ctrl,
         threads=threads,
         labels=[v.label() for v in batch],
     )
     return [
         build_report(
-            trajectory,
+            t,
             c,
-            record_from_run(trajectory, c, step_t, ctrl, q[b], qd[b], torque[b]),
+            record_from_run(t, c, step_t, ctrl[b], q[b], qd[b], torque[b]),
             model=models[b],
+            lead=DEFAULT_LEAD,
+            lead_notes=notes,
+            goal_bounds_rad=goals.bounds,
         )
-        for b, c in enumerate(configs)
+        for b, (c, (t, goals, notes)) in enumerate(zip(configs, led, strict=True))
     ]
 
 

@@ -33,3 +33,34 @@ def test_a_failing_run_plots_past_no_load_speed(tmp_path):
     report = check_torque(quintic_trajectory([1.0, 0.4, -0.3], 0.2))
     out = plot_report(report, tmp_path / "fail.png")
     assert out.stat().st_size > 10_000
+
+
+def test_the_plot_shows_the_tracking_error_and_says_what_failed():
+    pytest.importorskip("matplotlib")
+    import matplotlib.pyplot as plt
+
+    from trajgen.keyframes import BUILTIN_EXAMPLE
+    from trajgen.sim import check_torque
+    from trajgen.sim.plot import ERROR_FLOOR_RAD, MIN_SPAN, failed_checks, report_figure
+
+    # A 0.9 rad pan move in 0.8 s sent as planned: pan lags past the 2.9 deg budget.
+    report = check_torque(quintic_trajectory([0.9, 0.0, 0.0], 0.8), lead="none")
+    assert not report.ok and failed_checks(report) == "tracking error (pan)"
+    fig = report_figure(report)
+    try:
+        assert fig._suptitle.get_text().startswith("torque check: FAILED: tracking error (pan)")
+        axes = np.array(fig.axes[:15]).reshape(5, 3)
+        pan_error = axes[2, 0]
+        assert pan_error.get_yscale() == "log" and pan_error.get_ylim()[0] == ERROR_FLOOR_RAD
+        limits = [line.get_ydata()[0] for line in pan_error.get_lines()[1:]]
+        assert report.max_tracking_error_rad in limits  # the limit is drawn
+        assert "tracking error: peak" in pan_error.get_title()
+        # roll does not move: its axes are not blown up to rounding noise
+        low, high = axes[0, 2].get_ylim()
+        assert high - low >= MIN_SPAN["angle"]
+        low, high = axes[1, 2].get_ylim()
+        assert high - low >= MIN_SPAN["velocity"]
+    finally:
+        plt.close(fig)
+    led = check_torque(BUILTIN_EXAMPLE)
+    assert led.ok and failed_checks(led) == ""

@@ -418,6 +418,11 @@ def online_spline(kf) -> OnlineSpline:
         do (a boundary other than "rest", k above 3) or its second keyframe is
         closer than 0.2 s to the first.
     """
+    if getattr(kf, "timing", None) is not None:  # a file retimed by `trajgen fit`
+        raise ValueError(
+            f"{kf.path}: [timing]: follow cannot splice changes onto a fitted time law; "
+            "stream the file with `trajgen stream`, or delete [timing] (then check it again)"
+        )
     options = dict(kf.spline_options)
     options.pop("knots", None)  # the smooth spline's knot choice; follow plans the blending one
     if options.pop("boundary", "rest") != "rest":

@@ -21,6 +21,16 @@ roll = 0.0
 [[keyframes]]
 t = 1.5
 quat = [1.0, 0.0, 0.0, 0.0]   # (w, x, y, z), instead of pan / tilt / roll
+
+[timing]            # optional, written by `trajgen fit` (docs/fit.md): the path is
+                    # the spline at `path_times`, played by the time law
+                    # s(t) = path_times[0] + S sigma((t - t_1) / duration_s),
+                    # sigma the clamped quintic B-spline (knots, coefficients);
+                    # each keyframe's t must be the time the law passes it
+path_times = [0.0, 1.5]
+duration_s = 1.2
+knots = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+coefficients = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0]
 ```
 
 Other top-level tables (``[gimbal]`` and ``[limits]`` for the simulator, ``[bus]``
@@ -64,6 +74,7 @@ from .gimbal import JOINT_NAMES, GimbalKinematics, angles_of
 from .keyframe_axes import axes_from_table, axis_keyframes, is_default
 from .smooth import KNOTS, SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
+from .timelaw import RetimedPath, TimeLaw
 from .validate import check_choice, check_keys, check_number
 
 #: The built-in example: a gentle pan/tilt look-around.
@@ -89,7 +100,7 @@ METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
 DEFAULT_METHOD = "smooth"
 #: Keys only the blending spline takes; a file giving one without ``method`` gets it.
 BLENDING_ONLY = ("k", "local", "reparam")
-STREAM_KEYS = ("rate_hz",)
+STREAM_KEYS = ("rate_hz", "lead")
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 #: Keyframe angle fields (degrees), one per gimbal joint.
 ANGLE_KEYS = JOINT_NAMES
@@ -104,7 +115,11 @@ TABLES = {
     "gimbal": "sim",
     "bus": "drivers",
     "limits": "sim",
+    "timing": "trajgen",
 }
+TIMING_KEYS = ("path_times", "duration_s", "knots", "coefficients")
+#: How far (s) a keyframe's ``t`` may be from the time its ``[timing]`` law passes it.
+TIMING_TOLERANCE_S = 1e-6
 
 __all__ = [
     "BUILTIN_EXAMPLE",
@@ -132,6 +147,10 @@ class KeyframeFile:
         The ``[stream]`` rate, if given.
     tables : dict
         Every other top-level table, as parsed (``tables.get("gimbal", {})``).
+    method : str
+        ``[spline] method``.
+    lead : str or None
+        The ``[stream] lead`` (``trajgen.lead.LEADS``), if given.
     """
 
     path: Path
@@ -142,6 +161,10 @@ class KeyframeFile:
     tables: dict = field(default_factory=dict)
     #: ``[spline] method``: "smooth" or "blending".
     method: str = DEFAULT_METHOD
+    #: ``[timing]``: the path's own keyframe times (N,) and the time law that plays
+    #: it (:class:`~trajgen.timelaw.TimeLaw`), or None (the keyframe times are the clock).
+    timing: tuple | None = None
+    lead: str | None = None
     #: ``[gimbal] axes`` and ``joints`` (:mod:`trajgen.keyframe_axes`); ``quats`` are
     #: the orientations this gimbal has at the keyframes.
     axes: AxisSequence = field(default_factory=AxisSequence)
@@ -170,13 +193,16 @@ class KeyframeFile:
         """
         built = self.__dict__.get("_built_spline")
         if built is None:
+            times = self.times if self.timing is None else self.timing[0]
             try:
                 options = dict(self.spline_options)
                 if options.get("knots") == "joint-minimax":
                     options["progress"] = progress
-                built = self.spline_class(self.quats, self.times, **options)
+                built = self.spline_class(self.quats, times, **options)
             except (ValueError, TypeError) as e:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
+            if self.timing is not None:
+                built = RetimedPath(built, self.timing[1])
             object.__setattr__(self, "_built_spline", built)  # a cache, not a field
         return built
 
@@ -228,10 +254,24 @@ def load_keyframe_file(path) -> KeyframeFile:
         columns = _keyframe_columns(data.get("keyframes"), path)
     options = _spline_options(data.get("spline", {}), path, len(columns["t"]))
     method = options.pop("method", DEFAULT_METHOD)
-    rate_hz = _stream_rate(data.get("stream", {}), path)
+    stream = data.get("stream", {})
+    rate_hz = _stream_rate(stream, path)
     times, quats = _keyframes(columns, path)
+    timing = _timing(data["timing"], times, path) if "timing" in data else None
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
-    return KeyframeFile(path, times, quats, options, rate_hz, tables, method=method, axes=axes)
+    lead = _stream_lead(stream, path)
+    return KeyframeFile(
+        path,
+        times,
+        quats,
+        options,
+        rate_hz,
+        tables,
+        method=method,
+        timing=timing,
+        lead=lead,
+        axes=axes,
+    )
 
 
 def read_text(path) -> str:
@@ -406,6 +446,60 @@ def _stream_rate(table, path: Path) -> float | None:
     return check_number(
         "rate_hz", table["rate_hz"], low=0.0, low_open=True, error=_error(path, "[stream] rate_hz")
     )
+
+
+def _timing(table, times: np.ndarray, path: Path) -> tuple[np.ndarray, TimeLaw]:
+    """The ``[timing]`` table, checked against the keyframe ``times`` (N,): the path's
+    own keyframe times (N,) and the law."""
+    table = _table(table, "timing", path)
+    check_keys(table, TIMING_KEYS, error=lambda p: KeyframeFileError(f"{path}: [timing] {p}"))
+    for key in TIMING_KEYS:
+        if key not in table:
+            raise KeyframeFileError(f"{path}: [timing]: '{key}' is missing")
+    arrays = {}
+    for key in ("path_times", "knots", "coefficients"):
+        value = table[key]
+        where = _error(path, f"[timing] {key}")
+        if not isinstance(value, list):
+            raise where(f"expected a list of numbers, got {value!r}")
+        arrays[key] = np.array([check_number(key, v, error=where) for v in value])
+    duration = check_number(
+        "duration_s",
+        table["duration_s"],
+        low=0.0,
+        low_open=True,
+        error=_error(path, "[timing] duration_s"),
+    )
+    s = arrays["path_times"]
+    if len(s) != len(times) or (np.diff(s) <= 0).any():
+        raise KeyframeFileError(
+            f"{path}: [timing] path_times: expected {len(times)} increasing times (one per "
+            f"keyframe), got {len(s)}"
+        )
+    try:
+        law = TimeLaw(
+            arrays["knots"], arrays["coefficients"], times[0], duration, s[0], s[-1] - s[0]
+        )
+    except ValueError as e:
+        raise KeyframeFileError(f"{path}: [timing]: {e}") from None
+    passed = law.inverse(s)
+    off = np.abs(passed - times) > TIMING_TOLERANCE_S * max(1.0, duration)
+    if off.any():
+        i = _first(off)
+        raise KeyframeFileError(
+            f"{path}: keyframe {i + 1}: field 't': {times[i]:g} s, but the [timing] law passes "
+            f"it at {passed[i]:.6f} s (delete [timing] to time the keyframes by hand)"
+        )
+    return s, law
+
+
+def _stream_lead(table, path: Path) -> str | None:
+    """The ``[stream] lead`` (checked by :func:`_stream_rate` to be in a table), or None."""
+    if "lead" not in table:
+        return None
+    from .lead import LEADS
+
+    return check_choice("lead", table["lead"], LEADS, error=_error(path, "[stream] lead"))
 
 
 # --- keyframes -----------------------------------------------------------------------

@@ -21,6 +21,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from .errors import BadArgument
+
 #: The separator rosbag2 writes between the definitions of one schema.
 _SEPARATOR = "=" * 80
 
@@ -96,7 +98,7 @@ def time_msg(t_s: float) -> dict:
 def to_ns(t_s: float) -> int:
     """``t_s`` seconds as whole nanoseconds (an MCAP log time)."""
     if not math.isfinite(t_s):
-        raise ValueError(f"Expected a finite time, got {t_s} s.")
+        raise BadArgument(f"Expected a finite time, got {t_s} s.")
     return round(t_s * 1e9)
 
 
@@ -245,4 +247,4 @@ def read_messages(path, contents: McapContents | None = None) -> Iterator[Decode
         except (EndOfFile, struct.error):
             return  # cut short: read up to the last whole record
         except McapError as e:
-            raise ValueError(f"{path}: not a readable MCAP file ({e})") from None
+            raise BadArgument(f"{path}: not a readable MCAP file ({e})") from None

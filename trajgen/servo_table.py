@@ -26,6 +26,8 @@ import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
 
+from .errors import BadArgument
+
 RPM_TO_RAD_S = 2.0 * math.pi / 60.0
 
 # -- X-series-wide facts (every X-series e-Manual page) ------------------------
@@ -131,7 +133,7 @@ def hardware_error_mask(name: str) -> int:
         if meaning == name:
             return 1 << bit
     known = ", ".join(HARDWARE_ERROR_BITS.values())
-    raise ValueError(f"unknown hardware error {name!r} (known: {known})")
+    raise BadArgument(f"unknown hardware error {name!r} (known: {known})")
 
 
 # -- Simulation parameters nobody publishes: stated estimates -----------------
@@ -420,7 +422,7 @@ def servo_spec(name) -> ServoSpec:
         raise TypeError(f"Expected a servo model name, got {name!r}.")
     spec = SERVOS.get(name.strip().upper())
     if spec is None:
-        raise ValueError(f"unknown model {name!r} (known: {', '.join(SERVOS)})")
+        raise BadArgument(f"unknown model {name!r} (known: {', '.join(SERVOS)})")
     return spec
 
 

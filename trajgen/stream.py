@@ -33,7 +33,10 @@ class JointFrame:
         Time (s) from the start of the trajectory.
     q, qd, qdd : ndarray, shape (n,)
         Joint angle (rad), velocity (rad/s), acceleration (rad/s^2), in
-        ``JOINT_NAMES`` order (the kinematics' ``joints`` for other axes).
+        ``JOINT_NAMES`` order (the kinematics' ``joints`` for other axes): the plan.
+    goal : ndarray, shape (3,), or None
+        The goal to send (rad), led ahead of ``q`` by the servos' lag
+        (``trajgen.lead``); None: send ``q``.
     """
 
     index: int
@@ -41,6 +44,7 @@ class JointFrame:
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
+    goal: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -57,6 +61,9 @@ class JointTrajectory:
         one column per joint (3 for the default pan-tilt-roll).
     rate_hz : float
         Stream rate (Hz).
+    goal : ndarray, shape (N, 3), or None
+        The goals to send (rad), led ahead of ``q`` (``trajgen.lead``); None:
+        send ``q``.
     """
 
     t: np.ndarray
@@ -64,13 +71,22 @@ class JointTrajectory:
     qd: np.ndarray
     qdd: np.ndarray
     rate_hz: float
+    goal: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t)
 
     def __iter__(self) -> Iterator[JointFrame]:
+        goal = self.goal
         for i in range(len(self.t)):
-            yield JointFrame(i, float(self.t[i]), self.q[i], self.qd[i], self.qdd[i])
+            yield JointFrame(
+                i,
+                float(self.t[i]),
+                self.q[i],
+                self.qd[i],
+                self.qdd[i],
+                None if goal is None else goal[i],
+            )
 
     @property
     def duration_s(self) -> float:

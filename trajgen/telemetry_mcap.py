@@ -28,6 +28,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from trajgen.errors import BadArgument
 from trajgen.ros2_messages import (
     HEADER_TYPES,
     McapContents,
@@ -120,13 +121,13 @@ class RowMessages:
                 self._joint[prefix] = [index[n] for n in names]
                 known.update(names)
             elif prefix not in _OPTIONAL:
-                raise ValueError(f"Expected telemetry columns {names}, got {self.columns}.")
+                raise BadArgument(f"Expected telemetry columns {names}, got {self.columns}.")
         unknown = [c for c in self.columns if c not in known]
         if unknown:
-            raise ValueError(f"No MCAP field for telemetry column {unknown[0]!r}.")
+            raise BadArgument(f"No MCAP field for telemetry column {unknown[0]!r}.")
         missing = [c for c in _SCALARS if c not in index]
         if missing:
-            raise ValueError(f"Expected a telemetry column {missing[0]!r}.")
+            raise BadArgument(f"Expected a telemetry column {missing[0]!r}.")
         self._scalar = {c: index[c] for c in _SCALARS}
 
     def metadata(self) -> dict[str, str]:
@@ -217,7 +218,7 @@ def read_columns(path, contents: McapContents | None = None) -> dict[str, np.nda
             by_topic[m.topic][m.sequence] = m.message
     layout = contents.metadata.get(METADATA_NAME)
     if layout is None:
-        raise ValueError(f"{path}: not a trajgen run log (no {METADATA_NAME!r} metadata)")
+        raise BadArgument(f"{path}: not a trajgen run log (no {METADATA_NAME!r} metadata)")
     columns = json.loads(layout["columns"])
     joints = json.loads(layout["joint_names"])
     frames = [k for k in by_topic[FRAME] if all(k in by_topic[t] for t in by_topic)]

@@ -133,6 +133,19 @@ def add_rate_argument(parser: argparse.ArgumentParser, what: str = "stream rate"
     )
 
 
+def add_lead_argument(parser: argparse.ArgumentParser) -> None:
+    """The ``--lead`` option of everything that streams (and ``trajgen sim``)."""
+    from trajgen.lead import LEADS
+
+    parser.add_argument(
+        "--lead",
+        choices=LEADS,
+        help="send each goal ahead of the plan by the servo's lag: model (inverse dynamics "
+        "of the plan), advance (the plan tau later) or none; default the file's "
+        "[stream] lead, else model (docs/lead.md)",
+    )
+
+
 def add_json_argument(
     parser: argparse.ArgumentParser, what: str = "the report", *, atomic: bool = True
 ) -> None:

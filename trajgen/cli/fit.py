@@ -1,4 +1,4 @@
-"""The ``trajgen fit`` command: the fastest keyframe times that pass the torque check.
+"""The ``trajgen fit`` command: the fastest smooth retiming that passes the torque check.
 
 This module imports quickly: MuJoCo loads inside :func:`run_fit`.
 """
@@ -26,22 +26,27 @@ from trajgen.errors import TrajgenError
 _PROGRESS_AFTER_S = 1.0
 
 DESCRIPTION = """\
-Find the fastest timing of a keyframe file's keyframes (same orientations, order
-and spline options) that passes `trajgen sim`'s torque check (planned torque within
-torque_margin x the rated-voltage torque-speed envelope, no simulated step at the torque
-limit, tracking within the limit) and the file's optional [limits] table:
+Retime a keyframe file's motion to the servos: the path through the keyframes
+(orientations and order; the C3 smooth spline) stays, its clock is replaced by
+a smooth time law (a quintic B-spline: the motion stays C3 and at rest at both
+ends) that is as fast as `trajgen sim`'s torque check allows: planned torque
+within torque_margin x the rated-voltage torque-speed envelope, torque rate within
+[limits] torque_rate_nm_s (default 300 N m/s), no simulated step at the torque
+limit, tracking within the limit, and the file's optional [limits] table:
 
   [limits]
   speed_rad_s = 3.0                      # every joint, or {pan = ..., tilt = ...}
   acceleration_rad_s2 = 30.0
   jerk_rad_s3 = 600.0
+  torque_rate_nm_s = 300.0
 
-Each segment gets its own duration, all optimised jointly (scipy's SLSQP: pip
-install 'trajgen[fit]'): a segment far from every limit is not slowed for
-another's sake. Prints per segment the old and new duration and the limit that
-binds; checks that the same keyframes 10% faster fail. Writes the fitted file to
---out (whole or not at all, never over the input), keeping every other table of
-the input (comments are not kept)."""
+Optimised by a sequential LP (scipy's HiGHS: pip install 'trajgen[fit]'), then
+slowed locally where the simulated servo needs it. Prints per segment the old
+and new duration and the limit that binds; checks that the same motion 5%
+faster fails. Writes the fitted file to --out (whole or not at all, never over
+the input): the keyframes at their new times
+and a [timing] table with the time law (docs/fit.md), which sim, stream, follow
+and plan play exactly; every other table of the input is kept (comments are not)."""
 
 
 def register(subparsers) -> None:
@@ -87,7 +92,7 @@ def run_fit(args) -> int:
 
     try:
         check_output_path("--out", args.out, (".toml",), [args.file])
-        check_module("fit", "scipy", "scipy")  # its SLSQP optimises the durations jointly
+        check_module("fit", "scipy", "scipy")  # HiGHS solves the time law's LPs
         checked = load_checked(args.file)  # every table, [bus] included
         result = fit_timing(
             checked.keyframes,

@@ -72,6 +72,13 @@ def register(subparsers) -> None:
     )
     p.add_argument("--no-current", action="store_true", help="do not fit the logged current")
     p.add_argument(
+        "--p-scale",
+        action="store_true",
+        help="write the fitted loop gain as each servo's P scale (p_divisor; the e-Manual "
+        "says 128, BAM measured 256 on an XL330) beside the P Gain register the file "
+        "states, instead of as a P Gain; the led goals depend on it (docs/lead.md)",
+    )
+    p.add_argument(
         "--delay-ms",
         type=float,
         default=0.0,
@@ -140,6 +147,7 @@ def run_identify(args) -> int:
             fit_delay=args.fit_delay,
             fit_current_scale=args.fit_current_scale,
             max_iter=args.max_iter,
+            p_scale=args.p_scale,
         )
     except (ValueError, TypeError, OSError) as e:  # IdentifyError, KeyframeFileError
         return bad_input(e)
@@ -148,7 +156,7 @@ def run_identify(args) -> int:
         return EXIT_FAILED
     print(fit.format())
     sources = ", ".join(Path(p).name for p in args.logs)
-    text = fitted_file_text(source_text, fit.toml(sources))
+    text = fitted_file_text(source_text, fit.toml(sources, p_scale=args.p_scale))
     try:
         with output_path("--out", args.out) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")

@@ -16,6 +16,7 @@ from trajgen.cli.common import (
     Progress,
     add_file_argument,
     add_json_argument,
+    add_lead_argument,
     add_rate_argument,
     bad_input,
     check_module,
@@ -37,9 +38,11 @@ held for one stream period, followed by each servo's own firmware position
 loop) and check torque: the planned torque (inverse dynamics) must stay within
 torque_margin x the rated-voltage torque-speed envelope tau_stall (1 - |w| / w0), no
 simulated step may reach the servo's torque limit, and the tracking error must stay
-below the limit (with default gains a servo lags about speed x 45 ms). The
-file's [gimbal] table picks the servos (servo = "XM430-W350" or servo = {pan =
-..., tilt = ..., roll = ...}), payload_kg, payload_offset_m, torque_margin,
+below the limit (with default gains a servo lags its goal by about speed x
+45 ms, so each goal is sent ahead of the plan: --lead, [stream] lead, default
+model; the error is against the plan, docs/lead.md). The file's [gimbal]
+table picks the servos (servo = "XM430-W350" or servo = {pan = ..., tilt =
+..., roll = ...}), payload_kg, payload_offset_m, torque_margin,
 max_tracking_error_rad and p_divisor; [gimbal.pan], [gimbal.tilt] and
 [gimbal.roll] set armature, frictionloss, damping and position_p_gain per joint
 (trajgen identify fits them).
@@ -65,6 +68,7 @@ def register(subparsers) -> None:
     )
     add_file_argument(p)
     add_rate_argument(p)
+    add_lead_argument(p)
     add_json_argument(p, "the report (on Ctrl-C: what was done so far)")
     p.add_argument(
         "--plot",
@@ -134,7 +138,13 @@ def _run(args, progress: Progress, done: dict) -> int:
     check_timing(kf, 1.0 / checked.gimbal.timestep_s)
     done.update(stage="simulating", rate_hz=rate, duration_s=float(kf.times[-1] - kf.times[0]))
     try:
-        report = check_torque(kf, rate_hz=rate, config=checked.gimbal, progress=progress)
+        report = check_torque(
+            kf,
+            rate_hz=rate,
+            config=checked.gimbal,
+            progress=progress,
+            lead=getattr(args, "lead", None),
+        )
     except SimError as e:
         tell(f"simulation failed: {e}")
         return EXIT_FAILED

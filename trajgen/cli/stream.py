@@ -32,6 +32,7 @@ from trajgen.cli.common import (
     add_file_argument,
     add_ids_argument,
     add_json_argument,
+    add_lead_argument,
     add_rate_argument,
     add_telemetry_argument,
     bad_input,
@@ -123,6 +124,7 @@ def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
     )
     add_ids_argument(p)
     add_rate_argument(p)
+    add_lead_argument(p)
     add_telemetry_argument(p, required=telemetry_required)
     add_json_argument(p, "the statistics (and with --virtual the torque report)")
     p.add_argument(
@@ -190,6 +192,10 @@ class Plan:
     virtual : bool
     options : dict
         ``Session`` keywords from the flags.
+    lead : str
+        How goals are led ahead of the plan (--lead, [stream] lead, default model).
+    gimbal : GimbalConfig
+        The simulated gimbal of the file's [gimbal] tables, whose loops set the lead.
     """
 
     source: object
@@ -198,6 +204,8 @@ class Plan:
     trajectory: object
     virtual: bool
     options: dict = field(default_factory=dict)
+    lead: str = "model"
+    gimbal: object = None
 
 
 def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=()) -> None:
@@ -281,8 +289,18 @@ def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
         configure=config.configure or bool(getattr(args, "configure", False)),
         restore=config.restore or bool(getattr(args, "restore", False)),
     )
-    trajectory = plan_joint_trajectory(source.spline(), rate_hz)
-    return Plan(source, config, rate_hz, trajectory, bool(args.virtual), options)
+    from trajgen.lead import DEFAULT_LEAD
+    from trajgen.sim.lead import lead_trajectory
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    lead = getattr(args, "lead", None) or getattr(source, "lead", None) or DEFAULT_LEAD
+    gimbal = gimbal_config_from_tables(source.tables, source.path)
+    planned_q = plan_joint_trajectory(source.spline(), rate_hz)
+    # The goals a session will send (it leads them again from where the servos are).
+    trajectory, _, notes = lead_trajectory(planned_q, gimbal, lead)
+    for note in notes:
+        tell(f"note: {note}")
+    return Plan(source, config, rate_hz, trajectory, bool(args.virtual), options, lead, gimbal)
 
 
 def session_for(p: Plan, signals):
@@ -296,14 +314,16 @@ def session_for(p: Plan, signals):
         A bad --set-limits, or a simulated gimbal that cannot be built from the file.
     """
     from trajgen.drivers.session import Session
+    from trajgen.lead import sent_q
+    from trajgen.sim.lead import Leader
 
     plant = registers = None
     if p.virtual:
-        from trajgen.sim.model import gimbal_config_from_tables
         from trajgen.sim.plant import GimbalPlant
 
-        gimbal = gimbal_config_from_tables(p.source.tables, p.source.path)
-        plant = GimbalPlant(gimbal, initial_rad=p.trajectory.q[0])
+        # Parked at the first goal (the plan's first angles; the lead's static gravity
+        # term ramps in from there), so the stream needs no approach.
+        plant = GimbalPlant(p.gimbal, initial_rad=sent_q(p.trajectory)[0])
         # The servos power up with the gains the file states ([gimbal.<joint>]).
         registers = plant.initial_registers()
     options = dict(p.options)
@@ -315,6 +335,7 @@ def session_for(p: Plan, signals):
             plant_registers=registers,
             stop_signals=signals,
             set_limits_rad=limits,
+            leader=Leader(p.gimbal, p.lead),
             **options,
         )
     except ValueError as e:
@@ -443,7 +464,7 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
     result = {"status": status, "on_stop": on_stop, **outcome.to_json_dict(JOINTS), **(extra or {})}
     if plant is not None and status == EXIT_OK:
         status, outcome.torque_report = torque_report(
-            plant, outcome.trajectory, getattr(args, "plot", None), result
+            plant, outcome.trajectory, getattr(args, "plot", None), result, lead=p.lead
         )
         result["status"] = status
     if telemetry and stats is not None:
@@ -461,13 +482,13 @@ def add_telemetry_report(path: str, result: dict) -> None:
         warn(f"telemetry {path}: report not added: {e}")
 
 
-def torque_report(plant, trajectory, plot_path, result: dict):
+def torque_report(plant, trajectory, plot_path, result: dict, *, lead: str = "none"):
     """Print (and plot to ``plot_path``) the torque report of ``trajectory`` as streamed
     to ``plant``; add it to ``result``; return the exit status and the report (or None)."""
     from trajgen.sim.errors import SimError
 
     try:
-        report = plant.report(trajectory)
+        report = plant.report(trajectory, lead=lead)
     except SimError as e:
         tell(f"simulation failed: {e}")
         return EXIT_FAILED, None

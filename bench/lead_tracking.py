@@ -1,0 +1,149 @@
+"""Tracking error with led goals: none / advance / model on the simulated gimbal.
+
+Each motion (the files in ``examples/``, the built-in look-around and seeded
+random look-arounds whose plans pass the torque check) is planned at its
+``[stream]`` rate, its goals led three ways (``trajgen.lead``: the same
+function ``trajgen stream`` sends and ``trajgen sim`` simulates) and run
+through the simulated servos (``sim.check.check_torque``: the firmware loop,
+goals in whole ticks held one period, 1 ms physics). Per motion and lead:
+max and RMS tracking error of the worst joint against the plan (mrad), peak
+simulated torque over the three joints as a ratio to no lead (the named peer,
+same run), goals outside their bounds, and the verdict. The last lines give
+the machine load.
+
+Usage::
+
+    python bench/lead_tracking.py [--random 6] [--seed 7] [--p-divisor 128]
+
+``--p-divisor 256`` simulates servos whose firmware divides P by 256 while the
+lead still assumes the configured 128 (how much the lead depends on the P
+scale; ``docs/lead.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+LEADS = ("none", "advance", "model")
+
+
+def motions(n_random: int, seed: int):
+    """(name, source, config) for every motion: files, then random look-arounds."""
+    from trajgen.keyframes import BUILTIN_EXAMPLE, load_keyframe_file
+    from trajgen.quat import from_pan_tilt_roll
+    from trajgen.sim.check import check_planned_torque
+    from trajgen.sim.model import GimbalConfig, gimbal_config_from_tables
+    from trajgen.smooth import SmoothSpline
+    from trajgen.stream import plan_joint_trajectory
+
+    for path in [*sorted((ROOT / "examples").glob("*.toml")), BUILTIN_EXAMPLE]:
+        kf = load_keyframe_file(path)
+        yield path.stem, kf, gimbal_config_from_tables(kf.tables, kf.path)
+    rng = np.random.default_rng(seed)
+    made = tries = 0
+    while made < n_random and tries < 20 * max(n_random, 1):
+        tries += 1
+        n = int(rng.integers(4, 8))
+        times = np.concatenate([[0.0], np.cumsum(rng.uniform(1.0, 2.0, n - 1))])
+        pan = np.radians(rng.uniform(-60, 60, n))
+        tilt = np.radians(rng.uniform(-25, 25, n))
+        roll = np.radians(rng.uniform(-15, 15, n))
+        spline = SmoothSpline(from_pan_tilt_roll(pan, tilt, roll), times)
+        trajectory = plan_joint_trajectory(spline, 200.0)
+        config = GimbalConfig()
+        if check_planned_torque(trajectory, config):
+            continue  # infeasible: not what the lead is for
+        made += 1
+        yield f"random{made}", trajectory, config
+
+
+def run(name, source, config, p_divisor):
+    from trajgen.sim.check import check_torque
+
+    rows = {}
+    for lead in LEADS:
+        report = check_torque(
+            source, config=config, lead=lead, servo_config=_real(config, p_divisor)
+        )
+        rec = report.record
+        err = np.abs(rec.tracking_error_rad)
+        worst = int(np.argmax(err.max(axis=0)))
+        goal = np.asarray(report.trajectory.goal)
+        b = report.goal_bounds_rad
+        outside = int(((goal < b[:, 0] - 1e-12) | (goal > b[:, 1] + 1e-12)).sum())
+        rows[lead] = {
+            "max_mrad": 1e3 * err[:, worst].max(),
+            "rms_mrad": 1e3 * np.sqrt(np.mean(err[:, worst] ** 2)),
+            "joint": ("pan", "tilt", "roll")[worst],
+            "peak_nm": float(np.abs(rec.torque_nm).max()),
+            "outside": outside,
+            "ok": report.ok,
+            "starts_moving": bool(np.abs(report.trajectory.qd[0]).max() > 1e-9),
+        }
+    base = rows["none"]["peak_nm"]
+    for lead in LEADS:
+        r = rows[lead]
+        print(
+            f"| {name} | {lead} | {r['max_mrad']:.2f} / {r['rms_mrad']:.2f} ({r['joint']}) | "
+            f"{r['peak_nm']:.3f} | {r['peak_nm'] / base:.3f} | {r['outside']} | "
+            f"{'OK' if r['ok'] else 'FAILED'} |",
+            flush=True,
+        )
+    return rows
+
+
+def _real(config, p_divisor):
+    """The servos as simulated: ``config`` with its P divisor replaced (None: as is)."""
+    return None if p_divisor is None else dataclasses.replace(config, p_divisor=p_divisor)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--random", type=int, default=6, help="random look-arounds (default 6)")
+    parser.add_argument("--seed", type=int, default=7)
+    parser.add_argument(
+        "--p-divisor",
+        type=float,
+        help="simulate servos with this P divisor while the lead assumes the file's",
+    )
+    args = parser.parse_args(argv)
+    print(f"load before: {os.getloadavg()}", file=sys.stderr)
+    print(
+        "| motion | lead | max / RMS error, worst joint (mrad) | peak torque (N m) | "
+        "vs none | goals outside bounds | verdict |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    summary = {lead: [] for lead in LEADS}
+    ratios, moving = [], []
+    for name, source, config in motions(args.random, args.seed):
+        print(f"{name}...", file=sys.stderr, flush=True)
+        rows = run(name, source, config, args.p_divisor)
+        if name == "sim_too_fast":
+            continue  # infeasible by design: the lead is switched off where the plan fails
+        if rows["none"]["starts_moving"]:
+            moving.append(name)  # the gimbal starts at rest: a catch-up no goal avoids
+            continue
+        for lead in LEADS:
+            summary[lead].append(rows[lead]["max_mrad"])
+        ratios.append(rows["model"]["peak_nm"] / rows["none"]["peak_nm"])
+    n = len(ratios)
+    for lead in LEADS:
+        print(
+            f"{lead}: max error over {n} feasible rest-to-rest motions "
+            f"{max(summary[lead]):.2f} mrad (median {np.median(summary[lead]):.2f})"
+        )
+    print(f"model peak torque / none: {min(ratios):.3f} .. {max(ratios):.3f}")
+    print(f"left out of the summary (the plan starts moving): {', '.join(moving) or 'none'}")
+    print(f"load after (1, 5, 15 min): {os.getloadavg()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

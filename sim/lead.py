@@ -1,0 +1,163 @@
+"""The simulated gimbal's side of the led goals (``trajgen.lead``).
+
+``trajgen.lead`` holds the bounded arithmetic and knows no MuJoCo; this module
+gives it what only the model knows: each joint's loop parameters from a
+:class:`~trajgen.sim.model.GimbalConfig` (the file's ``[gimbal.<joint>]``
+tables, e.g. fitted by ``trajgen identify``) and the plan's inverse dynamics
+(``mj_inverse``: inertia, gravity, viscous and Coulomb friction). It also
+switches the lead off on a joint whose plan fails the torque check (part (a)
+of ``sim.check``): a saturated servo only pushes a led goal further out.
+Everything that streams and ``trajgen sim`` call :func:`lead_trajectory`, so
+the simulation runs exactly the goals that would be sent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from trajgen.lead import LeadParams, led_goals, led_trajectory
+from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+
+
+def lead_params(config: GimbalConfig) -> LeadParams:
+    """Each joint's ``kp``, ``K^2/R``, lag time and Coulomb friction under ``config``.
+
+    ``kp`` and ``K^2/R`` are the ``<dcmotor>`` controller's (``sim.firmware``:
+    ``P / p_divisor`` in torque space, and the back-EMF the drive leaves); the
+    lag time is ``(K^2/R + damping) / kp`` (``sim.check.lag_time_s``).
+    """
+    kp, back_emf, lag, friction = [], [], [], []
+    for j in range(len(JOINT_NAMES)):
+        k, _, kd, _ = config.loop(j).mujoco_controller(config.servos[j])
+        kp.append(k)
+        back_emf.append(kd)
+        lag.append((kd + config.joints[j].damping) / k)
+        friction.append(config.joints[j].frictionloss)
+    return LeadParams(kp, back_emf, lag, friction, enabled=True)
+
+
+def torque_function(model):
+    """``torque(q, qd, qdd)`` (arrays (N, 3) -> N m (N, 3)): ``mj_inverse`` on ``model``."""
+    from trajgen.sim.dynamics import inverse_dynamics
+
+    def torque(q, qd, qdd):
+        return inverse_dynamics(model, q, qd, qdd)
+
+    return torque
+
+
+def lead_trajectory(
+    trajectory, config: GimbalConfig, lead: str = "model", *, limits_rad=None, model=None
+):
+    """``trajectory`` with the goals to send attached (``JointTrajectory.goal``).
+
+    Parameters
+    ----------
+    trajectory : JointTrajectory
+        The plan.
+    config : GimbalConfig
+        The servos and their loops (and the torque check's margin).
+    lead : {"model", "advance", "none"}
+    limits_rad : array_like, shape (3, 2), optional
+        Position limits (rad) every goal must stay inside.
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it.
+
+    Returns
+    -------
+    trajectory : JointTrajectory
+        With ``goal`` (N, 3) rad.
+    goals : trajgen.lead.LedGoals
+        The goals and what bounded them.
+    reasons : tuple of str
+        Why a joint got no lead (its plan fails the torque check).
+    """
+    from trajgen.sim.check import check_planned_torque
+    from trajgen.sim.run import simulation_model
+
+    model = simulation_model(config) if model is None else model
+    params = lead_params(config)
+    reasons: tuple[str, ...] = ()
+    if lead != "none":
+        failed = check_planned_torque(trajectory, config, model=model)
+        off = [
+            j for j, name in enumerate(JOINT_NAMES) if any(r.startswith(f"{name}:") for r in failed)
+        ]
+        if off:
+            params = params.without(off)
+            reasons = tuple(
+                f"{JOINT_NAMES[j]}: no lead (the plan fails the torque check)" for j in off
+            )
+    goals = led_goals(
+        trajectory, lead, params, torque=torque_function(model), limits_rad=limits_rad
+    )
+    return led_trajectory(trajectory, goals), goals, reasons
+
+
+def live_frames(
+    frames, config: GimbalConfig, lead: str, rate_hz: float, bounds_rad, *, speed_rad_s=None
+):
+    """Led goals of a live stream (``trajgen follow``), one frame at a time.
+
+    Parameters
+    ----------
+    frames : iterable of JointFrame
+        The live plan's frames.
+    config : GimbalConfig
+    lead : {"model", "advance", "none"}
+    rate_hz : float
+    bounds_rad : array_like, shape (3, 2)
+        The range every goal stays inside (rad): what bring-up checked against
+        the installed limits (the joint limits the live plan may use).
+    speed_rad_s : array_like, shape (3,), optional
+        The fastest the live plan may move (rad/s), for the lead's cap
+        (``trajgen.lead.lead_cap``); default each servo's no-load speed.
+
+    Returns
+    -------
+    trajgen.lead.LedFrames
+    """
+    from trajgen.lead import LedFrames, lead_cap
+    from trajgen.sim.run import simulation_model
+
+    params = lead_params(config)
+    if speed_rad_s is None:
+        speed_rad_s = [s.no_load_speed_rad_s for s in config.servos]
+    cap = lead_cap(np.asarray(speed_rad_s, dtype=float)[None, :], params)
+    torque = torque_function(simulation_model(config)) if lead == "model" else None
+    return LedFrames(frames, rate_hz, lead, params, bounds_rad, cap, torque=torque)
+
+
+class Leader:
+    """Led goals for a ``drivers.session.Session`` (the drivers know no MuJoCo).
+
+    Parameters
+    ----------
+    config : GimbalConfig
+        The servos and their loops (the file's [gimbal] tables).
+    lead : {"model", "advance", "none"}
+
+    Attributes
+    ----------
+    notes : list of str
+        Why a joint got no lead, for every trajectory led so far.
+    """
+
+    def __init__(self, config: GimbalConfig, lead: str) -> None:
+        from trajgen.lead import check_lead
+        from trajgen.sim.run import simulation_model
+
+        self.config = config
+        self.lead = check_lead(lead)
+        self.model = simulation_model(config)
+        self.notes: list[str] = []
+
+    def trajectory(self, trajectory):
+        """``trajectory`` with its led goals attached (:func:`lead_trajectory`)."""
+        led, _, notes = lead_trajectory(trajectory, self.config, self.lead, model=self.model)
+        self.notes += [n for n in notes if n not in self.notes]
+        return led
+
+    def frames(self, frames, rate_hz: float, bounds_rad):
+        """A live stream's frames with led goals (:func:`live_frames`)."""
+        return live_frames(frames, self.config, self.lead, rate_hz, bounds_rad)
