@@ -37,6 +37,7 @@ from pathlib import Path
 
 from trajgen.errors import KeyframeFileError
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.keyframe_axes import axes_from_table, is_default
 from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, ServoModel, servo_by_name
@@ -49,6 +50,8 @@ GIMBAL_TABLE_KEYS = (
     "torque_margin",
     "max_tracking_error_rad",
     "p_divisor",
+    "axes",  # read by trajgen.keyframe_axes
+    "joints",
     *JOINT_NAMES,
 )
 #: Keys of a ``[gimbal.<joint>]`` table.
@@ -221,7 +224,7 @@ _FIELD_BOUNDS = {
 }
 
 
-def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
+def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> GimbalConfig:
     """Build a :class:`GimbalConfig` from a keyframe file's ``[gimbal]`` table.
 
     Keys (all optional): ``servo`` (a model name for every joint, or a table
@@ -240,6 +243,9 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
         (``KeyframeFile.tables``); only ``tables["gimbal"]`` is read.
     path : str or Path
         The file, named in error messages.
+    any_axes : bool
+        Accept ``axes`` / ``joints`` other than pan-tilt-roll (``trajgen plan``);
+        the simulated gimbal is pan-tilt-roll, so otherwise they are refused.
 
     Returns
     -------
@@ -266,7 +272,28 @@ def gimbal_config_from_tables(tables: dict, path) -> GimbalConfig:
         kwargs["payload_offset_m"] = check_numbers(
             "payload_offset_m", table["payload_offset_m"], 3, error=error
         )
+    if not any_axes:
+        _refuse_other_axes(table, path)
     return GimbalConfig(**kwargs)
+
+
+def _refuse_other_axes(table: dict, path) -> None:
+    """Refuse ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll in one line: the
+    simulated gimbal (and the drivers' joint map) is pan-tilt-roll."""
+    axes = axes_from_table(table, path)
+    if is_default(axes):
+        return
+    if axes.n == 2:
+        what = f"[gimbal] axes = {axes.sequence!r}: 2-axis gimbals"
+    elif axes.sequence != "zyx":
+        what = f"[gimbal] axes = {axes.sequence!r}: axes other than 'zyx'"
+    else:
+        what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
+    raise _file_error(
+        path,
+        f"{what}: the simulator and the drivers need pan-tilt-roll (axes = 'zyx'), "
+        "not yet; trajgen plan takes any axes",
+    )
 
 
 def _joint_from_table(value, joint: str, path) -> dict:

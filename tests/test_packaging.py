@@ -70,3 +70,26 @@ def test_version_flag_prints_the_package_version():
 
 def test_the_package_ships_its_typing_marker():
     assert (Path(trajgen.__file__).parent / "py.typed").is_file()
+
+
+def test_the_dynamixel_sdk_pin_claims_only_what_is_tested():
+    # The suite runs on the installed dynamixel-sdk; the pin may not claim a lower
+    # release series than the one installed (3.x had no Easy SDK and was never run
+    # here: the pin was raised from ">=3.7" to ">=4.1", the version the suite ran on).
+    import tomllib
+    from importlib.metadata import version
+
+    from packaging.requirements import Requirement
+    from packaging.version import Version
+
+    project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    pins = [Requirement(d) for d in project["project"]["dependencies"]]
+    (sdk,) = [r for r in pins if r.name == "dynamixel-sdk"]
+    installed = Version(version("dynamixel-sdk"))
+    assert installed in sdk.specifier, f"installed {installed} outside the pin {sdk}"
+    lowest = [Version(s.version) for s in sdk.specifier if s.operator == ">="]
+    assert len(lowest) == 1, f"expected one lower bound in {sdk}"
+    assert lowest[0].release[:2] == installed.release[:2], (
+        f"the pin {sdk} claims {lowest[0]}, but the suite runs on {installed}: test the "
+        "lowest version claimed, or raise the pin to the tested one"
+    )

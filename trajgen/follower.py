@@ -24,13 +24,14 @@ import numpy as np
 
 from . import fast
 from .errors import KeyframeFileError, KinematicsError
-from .gimbal import GimbalKinematics
-from .keyframe_lines import MAX_LINE_BYTES, decode_line, parse_line
+from .gimbal import GimbalKinematics, forward
+from .keyframe_lines import MAX_LINE_BYTES, TRACK, decode_line, parse_line
 from .online import ChangeTooLate, OnlineSpline
 from .path import Steps
 from .sampling import sample_times
 from .spline import BlendingSpline
 from .stream import JointTrajectory, stream_frames
+from .tracker import Tracker
 
 #: Time (s) from the frame being streamed when a line arrives to the change it
 #: makes: room to build and check the new path, in steps between frames of the stream
@@ -100,6 +101,10 @@ class Follower:
     on_skip : callable, optional
         Called (on the reading thread) with the message of each line refused;
         the line is skipped and the stream goes on.
+    limits : array_like, shape (3, 3), or JointLimits, optional
+        Per-joint speed, acceleration, jerk bounds for untimed targets (lines with
+        neither ``t`` nor ``in``), which a :class:`~trajgen.tracker.Tracker` reaches as
+        early as these allow; see there. Default: none.
 
     Attributes
     ----------
@@ -128,6 +133,7 @@ class Follower:
         margin_s: float = CHANGE_MARGIN_S,
         source: str = "stdin",
         on_skip=None,
+        limits=None,
     ):
         self.spline = spline
         self.rate_hz = float(rate_hz)
@@ -148,6 +154,8 @@ class Follower:
         self._last_q = None
         #: Why the stream ended early ("" if it did not).
         self.fault = ""
+        #: Untimed targets' planner: each such line is a retarget at the earliest arrival.
+        self.tracker = Tracker(spline, limits, kinematics=self.kinematics, rate_hz=rate_hz)
 
     # -- lines -------------------------------------------------------------
 
@@ -197,9 +205,12 @@ class Follower:
         where = f"line {number}"
         mode, q, t, relative = parse_line(text, self._where(number))
         now = self._now()
-        t = now + t if relative else t
-        self._change_time(t, now, where)  # now, so that a line too late fails fast
-        job = _Job(self._change_steps(mode, q, t, where, arrival, now, number), where)
+        if mode == TRACK:
+            job = _Job(self._target_steps(q, where, arrival, now, number), where)
+        else:
+            t = now + t if relative else t
+            self._change_time(t, now, where)  # now, so that a line too late fails fast
+            job = _Job(self._change_steps(mode, q, t, where, arrival, now, number), where)
         with self._lock:
             streaming = self._streaming
             if streaming:
@@ -253,6 +264,41 @@ class Follower:
             self.keyframes.append(
                 {"line": number, "mode": mode, "t": t, "quat": q.tolist(), "at": at, "now": now}
             )
+            return
+        raise self._error(where, "the stream ran past three attempts to change it (busy?)")
+
+    def _target_steps(self, target, where, arrival, now, number):
+        """An untimed target line's change, in steps: the tracker's search for the earliest
+        arrival (each candidate checked against the limits, the lock margin and the joint
+        limits on the stream's grid), made at ``margin_s`` or more after the stream."""
+        for _ in range(3):
+            at = max(self.spline.committed, self.spline.t_start)
+            at += max(self.margin_s, 4.0 / self.rate_hz)
+            try:
+                result = yield from self.tracker.set_target_steps(
+                    target["quat"],
+                    look_at=target["look_at"],
+                    max_speed=target["max_speed"],
+                    at=at,
+                )
+            except ChangeTooLate:
+                continue  # the stream passed `at`, or another change came: again, later
+            except ValueError as e:  # KinematicsError: no path keeps the limits
+                raise self._error(where, str(e)) from None
+            if result.changed:
+                with self._lock:
+                    self._pending.append((arrival, at))
+                self.keyframes.append(
+                    {
+                        "line": number,
+                        "mode": TRACK,
+                        "t": result.arrival,
+                        "quat": forward(result.goal).tolist(),
+                        "at": at,
+                        "now": now,
+                        "clamped": result.clamped,
+                    }
+                )
             return
         raise self._error(where, "the stream ran past three attempts to change it (busy?)")
 

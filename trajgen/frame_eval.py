@@ -209,6 +209,8 @@ class FrameKinematics:
     :class:`~trajgen.errors.KinematicsError`, with the same message (it is built
     by the numpy code from that one frame).
 
+    For axes other than ``"zyx"`` the instance is an :class:`AxesFrameKinematics`.
+
     Parameters
     ----------
     kinematics : GimbalKinematics
@@ -216,15 +218,20 @@ class FrameKinematics:
         The angles (rad) whose 2 pi branch the first frame's pan and roll take.
     """
 
+    def __new__(cls, kinematics: GimbalKinematics, start=None):
+        if cls is FrameKinematics and not kinematics.is_default:
+            return super().__new__(AxesFrameKinematics)
+        return super().__new__(cls)
+
     def __init__(self, kinematics: GimbalKinematics, start=None):
         self._kin = kinematics
+        self._last = None  # the last frame's wrapped pan and roll (rad)
+        self._pan_turns = self._roll_turns = 0  # whole turns added to pan and roll
         lock = math.pi / 2 - kinematics.lock_margin_rad
         (p_lo, p_hi), (t_lo, t_hi), (r_lo, r_hi) = kinematics.limits_rad
         # |tilt| <= lock and t_lo <= tilt <= t_hi, as one interval (NaN fails it).
         self._bounds = (p_lo, p_hi, max(t_lo, -lock), min(t_hi, lock), r_lo, r_hi)
         self._start = None if start is None else (float(start[0]), float(start[2]))
-        self._last = None  # the last frame's wrapped pan and roll (rad)
-        self._pan_turns = self._roll_turns = 0  # whole turns added to pan and roll
 
     @property
     def state(self) -> tuple:
@@ -285,3 +292,48 @@ class FrameKinematics:
         if total - total != 0.0:  # inf or NaN: a rate of the path was not finite
             joint_rates(angles, omega, alpha)  # raises, naming it
         return angles, qd, qdd
+
+
+class AxesFrameKinematics(FrameKinematics):
+    """:class:`FrameKinematics` for any axis sequence (:mod:`trajgen.axes`): the numpy
+    formulas of :class:`GimbalKinematics` on one frame, with the same integer turn
+    counts for the wrapped joints as :meth:`GimbalKinematics.inverse`.
+
+    Parameters
+    ----------
+    kinematics : GimbalKinematics
+    start : ndarray, shape (n,), or None
+        The angles (rad) whose 2 pi branch the first frame's wrapped joints take.
+    """
+
+    def __init__(self, kinematics: GimbalKinematics, start=None):
+        self._kin = kinematics
+        self._cols = list(kinematics.sequence.wrapped)
+        self._start = None if start is None else np.asarray(start, dtype=float)[self._cols]
+        self._last = None  # the last frame's wrapped joints (rad)
+        self._turns = np.zeros(len(self._cols))  # whole turns added to them
+
+    @property
+    def state(self) -> tuple:
+        """What the next frame is unwrapped against: set it back to evaluate a frame again."""
+        return self._last, self._turns
+
+    @state.setter
+    def state(self, value: tuple) -> None:
+        self._last, self._turns = value
+
+    def __call__(self, t: float, q, omega, alpha) -> tuple[tuple, tuple, tuple]:
+        """Joint angles (rad), velocities (rad/s) and accelerations (rad/s^2) of one
+        frame, each a tuple of n floats; arguments and errors as
+        :meth:`FrameKinematics.__call__`."""
+        angles = self._kin.angles([q])[0]
+        wrapped = angles[self._cols]
+        if self._last is not None:
+            self._turns = self._turns + np.round((self._last - wrapped) / TWO_PI)
+        elif self._start is not None:
+            self._turns = np.round((self._start - wrapped) / TWO_PI)
+        self._last = wrapped
+        angles[self._cols] = wrapped + TWO_PI * self._turns
+        self._kin.check(angles[None], np.array([t]))
+        qd, qdd = self._kin.joint_rates(angles[None], np.array([omega]), np.array([alpha]))
+        return tuple(angles.tolist()), tuple(qd[0].tolist()), tuple(qdd[0].tolist())

@@ -1,14 +1,21 @@
-"""Pan-tilt-roll gimbal kinematics: joint angles to orientation and back.
+"""Gimbal kinematics: joint angles to orientation and back, with lock guard and unwrap.
 
-The gimbal's orientation is ``q = Rz(pan) Ry(tilt) Rx(roll)``: pan turns about
-the base z axis, tilt about the panned y axis, roll about the tilted x axis, and
-the camera looks along its x axis. Angles are in rad, in ``JOINT_NAMES`` order
-``(pan, tilt, roll)``; quaternions are scalar first ``(w, x, y, z)``.
+The default gimbal is pan-tilt-roll, ``q = Rz(pan) Ry(tilt) Rx(roll)``: pan turns
+about the base z axis, tilt about the panned y axis, roll about the tilted x axis,
+and the camera looks along its x axis. Angles are in rad, in ``JOINT_NAMES`` order
+``(pan, tilt, roll)``; quaternions are scalar first ``(w, x, y, z)``. The
+module-level :func:`forward`, :func:`jacobian` and :func:`joint_rates` are this
+gimbal's closed forms.
+
+:class:`GimbalKinematics` also takes any other sequence of 2 or 3 axes
+(``axes="zy"``, ``"yx"``, ``"xyz"``, ``"zxz"``..., :mod:`trajgen.axes`) with
+joint names; for ``"zyx"`` its methods are the closed forms here, bit for bit.
 
 At ``tilt = +-pi/2`` pan and roll turn about the same axis (gimbal lock): the
 joint rates needed for a finite angular velocity grow as ``1 / cos(tilt)``, so
 :meth:`GimbalKinematics.inverse` refuses paths that come closer than
-``lock_margin_rad`` to it.
+``lock_margin_rad`` to it. Other sequences lock where their middle angle is
++-90 deg (Tait-Bryan, two axes) or 0 or 180 deg (proper Euler).
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen import quat
+from trajgen.axes import DEFAULT_SEQUENCE, AxisSequence
 from trajgen.errors import BadArgument, KinematicsError
 from trajgen.validate import check_number
 
@@ -30,24 +38,26 @@ JOINT_NAMES = ("pan", "tilt", "roll")
 
 #: Default joint limits (rad), rows pan, tilt, roll: one full turn of pan
 #: either way, the whole tilt range (the lock margin narrows it), half a turn of roll.
-DEFAULT_LIMITS_RAD = ((-TWO_PI, TWO_PI), (-math.pi / 2, math.pi / 2), (-math.pi, math.pi))
+DEFAULT_LIMITS_RAD = AxisSequence(DEFAULT_SEQUENCE).default_limits()
 
 
-def as_angles(angles, name: str = "angles", *, single: bool = False) -> np.ndarray:
+def as_angles(angles, name: str = "angles", *, single: bool = False, n: int = 3) -> np.ndarray:
     """Validate joint angles.
 
     Parameters
     ----------
-    angles : array_like, shape (..., 3)
-        ``(pan, tilt, roll)`` (rad).
+    angles : array_like, shape (..., n)
+        ``(pan, tilt, roll)`` (rad), or the ``n`` joints of an axis sequence.
     name : str
         Argument name used in error messages.
     single : bool
-        Require shape (3,), one set of angles.
+        Require shape (n,), one set of angles.
+    n : int
+        Number of joints (default 3).
 
     Returns
     -------
-    ndarray, shape (..., 3)
+    ndarray, shape (..., n)
         The angles as float64.
 
     Raises
@@ -61,10 +71,10 @@ def as_angles(angles, name: str = "angles", *, single: bool = False) -> np.ndarr
         a = np.asarray(angles, dtype=float)
     except (TypeError, ValueError) as e:
         raise TypeError(f"Expected `{name}` to be numeric, got {type(angles).__name__}.") from e
-    if single and a.shape != (3,):
-        raise BadArgument(f"Expected `{name}` to have shape (3,), got {a.shape}.")
-    if a.ndim == 0 or a.shape[-1] != 3:
-        raise BadArgument(f"Expected `{name}` to have shape (..., 3), got {a.shape}.")
+    if single and a.shape != (n,):
+        raise BadArgument(f"Expected `{name}` to have shape ({n},), got {a.shape}.")
+    if a.ndim == 0 or a.shape[-1] != n:
+        raise BadArgument(f"Expected `{name}` to have shape (..., {n}), got {a.shape}.")
     if not np.isfinite(a).all():
         raise BadArgument(f"Expected `{name}` to be finite, got {a[~np.isfinite(a)][0]}.")
     return a
@@ -222,49 +232,69 @@ def joint_rates(angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass(frozen=True)
 class GimbalKinematics:
-    """Joint limits of a pan-tilt-roll gimbal and its inverse kinematics.
+    """Axes, joint limits and lock margin of a gimbal, and its inverse kinematics.
 
     Parameters
     ----------
-    limits_rad : array_like, shape (3, 2)
-        ``(low, high)`` joint limits (rad) for pan, tilt, roll; default
-        :data:`DEFAULT_LIMITS_RAD`: pan +-2 pi, tilt +-pi/2, roll +-pi. Tilt
-        limits must lie within +-pi/2 (inverse kinematics keeps ``|tilt| <= pi/2``).
-        Stored as a tuple of three ``(low, high)`` float pairs.
+    limits_rad : array_like, shape (n, 2), optional
+        ``(low, high)`` joint limits (rad), one row per joint; default
+        :data:`DEFAULT_LIMITS_RAD` for ``"zyx"`` (pan +-2 pi, tilt +-pi/2, roll
+        +-pi), else :meth:`trajgen.axes.AxisSequence.default_limits`. The middle
+        joint's limits must lie within its range (``[-pi/2, pi/2]``, or ``[0, pi]``
+        for a proper Euler sequence). Stored as a tuple of ``(low, high)`` float pairs.
     lock_margin_rad : float
-        How close (rad) ``|tilt|`` may come to pi/2; default 10 deg. In (0, pi/2).
+        How close (rad) the middle angle may come to gimbal lock; default 10 deg.
+        In (0, pi/2).
+    axes : str
+        The axis sequence (:mod:`trajgen.axes`): ``"zyx"`` (default, pan-tilt-roll
+        ``Rz Ry Rx``), any 2 or 3 of x, y, z with neighbours different. Lock:
+        Tait-Bryan (three different axes) and two-axis sequences at middle angle
+        +-90 deg, proper Euler (``"zxz"``...) at 0 or 180 deg.
+    joints : sequence of str, optional
+        Joint names, one per axis (default ``pan, tilt, roll`` for ``"zyx"``,
+        ``pan, tilt`` for ``"zy"``, else ``joint1, ...``).
 
     Raises
     ------
     TypeError
-        If an argument is not numeric.
+        If an argument is not numeric (or ``axes``, ``joints`` not strings).
     ValueError
-        If ``limits_rad`` is not (3, 2), not finite, has ``low >= high``, tilt
-        limits outside +-pi/2, or ``lock_margin_rad`` is outside (0, pi/2).
+        If ``limits_rad`` is not (n, 2), not finite, has ``low >= high``, middle
+        limits outside the middle range, ``lock_margin_rad`` is outside (0, pi/2),
+        or ``axes`` / ``joints`` are not a valid sequence and names.
     """
 
-    limits_rad: tuple[tuple[float, float], ...] = DEFAULT_LIMITS_RAD
+    limits_rad: tuple[tuple[float, float], ...] | None = None
     lock_margin_rad: float = math.radians(10.0)
+    axes: str = DEFAULT_SEQUENCE
+    joints: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
+        seq = AxisSequence(self.axes, self.joints)
+        object.__setattr__(self, "axes", seq.sequence)
+        object.__setattr__(self, "joints", seq.joints)
+        object.__setattr__(self, "_seq", seq)  # derived, not a field
+        limits = seq.default_limits() if self.limits_rad is None else self.limits_rad
         try:
-            lim = np.array(self.limits_rad, dtype=float)
+            lim = np.array(limits, dtype=float)
         except (TypeError, ValueError) as e:
             raise TypeError(
-                f"Expected `limits_rad` to be numeric, got {type(self.limits_rad).__name__}."
+                f"Expected `limits_rad` to be numeric, got {type(limits).__name__}."
             ) from e
-        if lim.shape != (3, 2):
-            raise BadArgument(f"Expected `limits_rad` to have shape (3, 2), got {lim.shape}.")
+        if lim.shape != (seq.n, 2):
+            raise BadArgument(f"Expected `limits_rad` to have shape ({seq.n}, 2), got {lim.shape}.")
         if not np.isfinite(lim).all():
             raise BadArgument(f"Expected `limits_rad` to be finite, got {lim.tolist()}.")
-        for name, (low, high) in zip(JOINT_NAMES, lim, strict=True):
+        for name, (low, high) in zip(seq.joints, lim, strict=True):
             if not low < high:
                 raise BadArgument(
                     f"Expected `limits_rad` {name} low < high, got [{low:.6g}, {high:.6g}] rad."
                 )
-        if lim[1, 0] < -math.pi / 2 or lim[1, 1] > math.pi / 2:
+        m_low, m_high = seq.middle_range
+        if lim[1, 0] < m_low or lim[1, 1] > m_high:
+            span = "[0, pi]" if seq.kind == "proper-euler" else "[-pi/2, pi/2]"
             raise BadArgument(
-                "Expected `limits_rad` tilt within [-pi/2, pi/2], "
+                f"Expected `limits_rad` {seq.joints[1]} within {span}, "
                 f"got [{lim[1, 0]:.6g}, {lim[1, 1]:.6g}] rad."
             )
         margin = check_number(
@@ -278,35 +308,109 @@ class GimbalKinematics:
         object.__setattr__(self, "limits_rad", tuple((float(lo), float(hi)) for lo, hi in lim))
         object.__setattr__(self, "lock_margin_rad", float(margin))
 
-    def inverse(self, quats, times=None, *, start=None) -> np.ndarray:
-        """Continuous joint path through the given orientations.
+    @property
+    def sequence(self) -> AxisSequence:
+        """The parsed axis sequence (:class:`trajgen.axes.AxisSequence`)."""
+        return self._seq
 
-        Closed form per sample (tilt in [-pi/2, pi/2], the branch the tilt
-        limits allow), then pan and roll are unwrapped sample to sample: each
-        sample takes the 2 pi multiple nearest the one before, and the first the
-        one nearest ``start``. ``q`` and ``-q`` give the same angles.
+    @property
+    def n_joints(self) -> int:
+        """Number of joints, 2 or 3."""
+        return self._seq.n
 
-        Parameters
-        ----------
-        quats : array_like, shape (N, 4)
-            Orientations ``(w, x, y, z)``, dense enough that pan and roll move
-            less than pi between samples.
-        times : array_like, shape (N,), optional
-            Sample times (s), only for error messages (else sample numbers).
-        start : array_like, shape (3,), optional
-            Angles (rad), e.g. the servos' present position: the first sample's
-            pan and roll are the 2 pi multiples nearest these. Default: pan and
-            roll of the first sample in (-pi, pi].
+    @property
+    def is_default(self) -> bool:
+        """Whether the axes are ``"zyx"``, served by this module's closed forms."""
+        return self.axes == DEFAULT_SEQUENCE
 
-        Returns
-        -------
-        ndarray, shape (N, 3)
-            ``(pan, tilt, roll)`` (rad).
+    def forward(self, angles) -> np.ndarray:
+        """Orientations (..., 4) at joint angles (..., n) (rad); :func:`forward` for ``"zyx"``."""
+        if self.is_default:
+            return forward(angles)
+        return self._seq.forward(as_angles(angles, n=self.n_joints))
+
+    def look_direction(self, angles) -> np.ndarray:
+        """Space-frame camera look direction (..., 3) at joint angles (..., n) (rad):
+        the body x axis for three axes, :attr:`trajgen.axes.AxisSequence.look` for two."""
+        return quat.rotate(self.forward(angles), self._seq.look)
+
+    def jacobian(self, angles) -> np.ndarray:
+        """Space-frame joint axes as columns (..., 3, n), ``omega = J qd`` of the
+        gimbal's own motion; :func:`jacobian` for ``"zyx"``."""
+        if self.is_default:
+            return jacobian(angles)
+        return self._seq.joint_axes(as_angles(angles, n=self.n_joints))
+
+    def joint_rates(self, angles, omega, alpha) -> tuple[np.ndarray, np.ndarray]:
+        """Joint velocities and accelerations (..., n), exactly; :func:`joint_rates` for
+        ``"zyx"``, :meth:`trajgen.axes.AxisSequence.joint_rates` otherwise (for two
+        axes: the rates that move the look direction as ``omega``, ``alpha`` do).
 
         Raises
         ------
         KinematicsError
-            If a sample comes within ``lock_margin_rad`` of ``|tilt| = pi/2`` or
+            At gimbal lock (middle angle exactly at a lock), where the rates are undefined.
+        """
+        if self.is_default:
+            return joint_rates(angles, omega, alpha)
+        seq = self._seq
+        a = as_angles(angles, n=seq.n)
+        w = as_angles(omega, "omega")
+        dw = as_angles(alpha, "alpha")
+        if not a.shape[:-1] + (3,) == w.shape == dw.shape:
+            raise BadArgument(
+                "Expected `angles`, `omega` and `alpha` to have the same leading shape, "
+                f"got {a.shape}, {w.shape}, {dw.shape}."
+            )
+        low, high = seq.locks
+        locked = np.abs(np.sin(a[..., 1] - low)) < 1e-12
+        if locked.any():
+            i = tuple(int(k) for k in np.argwhere(locked)[0])
+            lock = "0 or 180" if seq.kind == "proper-euler" else "90"
+            raise KinematicsError(
+                f"joint rates are undefined at gimbal lock: |{seq.joints[1]}| = {lock} deg "
+                f"at index {i}"
+            )
+        return seq.joint_rates(a, w, dw)
+
+    def angles(self, quats) -> np.ndarray:
+        """Closed-form joint angles (N, n) of orientations (N, 4), before unwrapping:
+        the middle angle in its range, the others in (-pi, pi]. For two axes the
+        angles pointing the look axis along ``q look``, exactly."""
+        q = quat.as_quats(quats)
+        return _closed_form(q) if self.is_default else self._seq.angles(q)
+
+    def inverse(self, quats, times=None, *, start=None) -> np.ndarray:
+        """Continuous joint path through the given orientations.
+
+        Closed form per sample (the middle angle in ``[-pi/2, pi/2]``, or ``[0, pi]``
+        for proper Euler axes, the branch its limits allow; for two axes the
+        angles that point the look axis along each orientation's, exactly), then
+        the other joints (pan and roll for ``"zyx"``) are unwrapped sample to
+        sample: each sample takes the 2 pi multiple nearest the one before, and
+        the first the one nearest ``start``. ``q`` and ``-q`` give the same angles.
+
+        Parameters
+        ----------
+        quats : array_like, shape (N, 4)
+            Orientations ``(w, x, y, z)``, dense enough that the wrapped joints
+            move less than pi between samples.
+        times : array_like, shape (N,), optional
+            Sample times (s), only for error messages (else sample numbers).
+        start : array_like, shape (n,), optional
+            Angles (rad), e.g. the servos' present position: the first sample's
+            wrapped joints take the 2 pi multiples nearest these. Default: the
+            first sample's in (-pi, pi].
+
+        Returns
+        -------
+        ndarray, shape (N, n)
+            Joint angles (rad), ``(pan, tilt, roll)`` for ``"zyx"``.
+
+        Raises
+        ------
+        KinematicsError
+            If a sample comes within ``lock_margin_rad`` of gimbal lock or
             leaves the joint limits. The message names the first such sample's
             time, the joint, its angle and the limit, e.g. "tilt reaches 84.2 deg
             at t = 3.140 s, within 10.0 deg of gimbal lock (limit 80.0 deg)".
@@ -317,16 +421,17 @@ class GimbalKinematics:
         """
         q = quat.as_quats(quats)
         times = _as_times(times, len(q), "quats")
-        angles = _closed_form(q)
-        # Whole turns added to pan and roll: integer counts, so the online
+        angles = self.angles(q)
+        # Whole turns added to the wrapped joints: integer counts, so the online
         # stream (one sample at a time, start = previous sample) agrees exactly.
-        wrapped = angles[:, [0, 2]]
+        cols = list(self._seq.wrapped)
+        wrapped = angles[:, cols]
         turns = np.zeros_like(wrapped)
         turns[1:] = np.round((wrapped[:-1] - wrapped[1:]) / TWO_PI)
         if start is not None:
-            s = as_angles(start, "start", single=True)
-            turns[0] = np.round((s[[0, 2]] - wrapped[0]) / TWO_PI)
-        angles[:, [0, 2]] = wrapped + TWO_PI * np.cumsum(turns, axis=0)
+            s = as_angles(start, "start", single=True, n=self.n_joints)
+            turns[0] = np.round((s[cols] - wrapped[0]) / TWO_PI)
+        angles[:, cols] = wrapped + TWO_PI * np.cumsum(turns, axis=0)
         self.check(angles, times)
         return angles
 
@@ -335,8 +440,8 @@ class GimbalKinematics:
 
         Parameters
         ----------
-        angles : array_like, shape (N, 3)
-            ``(pan, tilt, roll)`` (rad).
+        angles : array_like, shape (N, n)
+            Joint angles (rad).
         times : array_like, shape (N,), optional
             Sample times (s) for the message (else sample numbers).
 
@@ -344,18 +449,22 @@ class GimbalKinematics:
         ------
         KinematicsError
             At the first offending sample; gimbal lock is reported before a
-            limit, and joints in the order pan, tilt, roll.
+            limit, and joints in their order.
         TypeError
             If ``angles`` is not numeric.
         ValueError
-            If ``angles`` is not (N, 3) or not finite.
+            If ``angles`` is not (N, n) or not finite.
         """
-        a = as_angles(angles)
+        n, names = self.n_joints, self.joints
+        a = as_angles(angles, n=n)
         if a.ndim != 2:
-            raise BadArgument(f"Expected `angles` to have shape (N, 3), got {a.shape}.")
+            raise BadArgument(f"Expected `angles` to have shape (N, {n}), got {a.shape}.")
         times = _as_times(times, len(a), "angles")
-        lock_limit = math.pi / 2 - self.lock_margin_rad
-        locked = np.abs(a[:, 1]) > lock_limit
+        margin = self.lock_margin_rad
+        if self._seq.kind == "proper-euler":
+            locked = (a[:, 1] < margin) | (a[:, 1] > math.pi - margin)
+        else:
+            locked = np.abs(a[:, 1]) > math.pi / 2 - margin
         lim = np.array(self.limits_rad)
         outside = (a < lim[:, 0]) | (a > lim[:, 1])
         bad = locked | outside.any(axis=1)
@@ -365,15 +474,18 @@ class GimbalKinematics:
         when = f"t = {times[i]:.3f} s" if times is not None else f"sample {i}"
         deg = np.degrees
         if locked[i]:
+            if self._seq.kind == "proper-euler":
+                limit = margin if a[i, 1] < math.pi / 2 else math.pi - margin
+            else:
+                limit = math.copysign(math.pi / 2 - margin, a[i, 1])
             raise KinematicsError(
-                f"tilt reaches {deg(a[i, 1]):.1f} deg at {when}, within "
-                f"{deg(self.lock_margin_rad):.1f} deg of gimbal lock "
-                f"(limit {deg(math.copysign(lock_limit, a[i, 1])):.1f} deg)"
+                f"{names[1]} reaches {deg(a[i, 1]):.1f} deg at {when}, within "
+                f"{deg(margin):.1f} deg of gimbal lock (limit {deg(limit):.1f} deg)"
             )
         j = int(np.argmax(outside[i]))
         low, high = deg(lim[j])
         raise KinematicsError(
-            f"{JOINT_NAMES[j]} reaches {deg(a[i, j]):.1f} deg at {when}, "
+            f"{names[j]} reaches {deg(a[i, j]):.1f} deg at {when}, "
             f"outside its limits [{low:.1f}, {high:.1f}] deg"
         )
 

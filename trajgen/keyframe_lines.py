@@ -5,6 +5,8 @@ One keyframe per line, as a tracker writes them to ``trajgen follow``::
     {"in": 0.8, "pan": 20, "tilt": 5}          reach this 0.8 s from now
     {"t": 12.5, "quat": [1, 0, 0, 0]}          ... at stream time 12.5 s
     {"in": 1, "pan": -10, "mode": "extend"}    after the keyframes still planned
+    {"pan": 20, "tilt": 5, "max_speed": 90}    as early as the limits allow (untimed)
+    {"look_at": [2.0, 0.5, -0.3]}              point the camera there (m), untimed
 
 :func:`capped_lines` reads lines as bytes and never holds more than
 ``MAX_LINE_BYTES`` of one (a 50 MB line or binary noise costs memory and time
@@ -15,6 +17,7 @@ and the field, anything that is not a keyframe.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Iterator
 
 from .errors import KeyframeFileError
@@ -30,7 +33,13 @@ MAX_LINE_BYTES = 64 * 1024
 MAX_MESSAGE_CHARS = 200
 
 #: The fields a line may have.
-LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat")
+LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat", "look_at", "max_speed")
+
+#: Fields only an untimed target (no ``t``, no ``in``) may have.
+TARGET_KEYS = ("look_at", "max_speed")
+
+#: ``mode`` of an untimed target, for :class:`trajgen.tracker.Tracker`.
+TRACK = "track"
 
 
 def capped_lines(file, max_bytes: int = MAX_LINE_BYTES) -> Iterator[bytes | str]:
@@ -94,11 +103,13 @@ def parse_line(text: str, where: str):
 
     Returns
     -------
-    mode : {"retarget", "extend"}
-    quat : ndarray, shape (4,)
-        Unit quaternion (w, x, y, z).
-    t : float
-        Keyframe time (s): stream time, or from now when ``relative``.
+    mode : {"retarget", "extend", "track"}
+        "track" for an untimed target (neither ``t`` nor ``in``).
+    quat : ndarray, shape (4,), or dict
+        Unit quaternion (w, x, y, z); for "track" a dict with ``quat`` (4,) or
+        ``look_at`` (3,) (m), the other None, and ``max_speed`` (rad/s) or None.
+    t : float or None
+        Keyframe time (s): stream time, or from now when ``relative``; None for "track".
     relative : bool
         Whether the line gave ``"in"`` (from now) rather than ``"t"``.
 
@@ -133,6 +144,11 @@ def _parse(text: str, where: str):
     if not isinstance(entry, dict):
         raise error(f"expected a JSON object, got {text.strip()[:80]!r}")
     check_keys(entry, LINE_KEYS, error=error, kind="field")
+    if "t" not in entry and "in" not in entry:
+        return _target(entry, where, error)
+    for key in TARGET_KEYS:
+        if key in entry:
+            raise error(f"field '{key}': only for a target without 't' or 'in'")
     mode = entry.get("mode", "retarget")
     if mode not in MODES:
         raise error(f"field 'mode': expected one of {MODES}, got {mode!r}")
@@ -144,3 +160,38 @@ def _parse(text: str, where: str):
     keyframe["t"] = t
     _, q = check_keyframes([keyframe], where, minimum=1)
     return mode, q[0], t, name == "in"
+
+
+def _target(entry: dict, where: str, error):
+    """An untimed target line: ("track", {quat, look_at, max_speed}, None, False)."""
+    if "mode" in entry:
+        raise error("field 'mode': a target without 't' or 'in' is always tracked")
+    target = {"quat": None, "look_at": None, "max_speed": None}
+    if "max_speed" in entry:
+        speed = check_number(
+            "max_speed",
+            entry["max_speed"],
+            low=0.0,
+            low_open=True,
+            error=lambda p: error(f"field 'max_speed': {p} (deg/s)"),
+        )
+        target["max_speed"] = math.radians(speed)
+    orientation = {k: v for k, v in entry.items() if k not in TARGET_KEYS}
+    if "look_at" in entry:
+        if orientation:
+            raise error(f"field 'look_at': give it or {sorted(orientation)[0]!r}, not both")
+        p = entry["look_at"]
+        if not isinstance(p, list) or len(p) != 3:
+            raise error(f"field 'look_at': expected [x, y, z] (m), got {json.dumps(p)[:80]}")
+        target["look_at"] = [
+            check_number("look_at", v, error=lambda m: error(f"field 'look_at': {m} (m)"))
+            for v in p
+        ]
+        if not any(target["look_at"]):
+            raise error("field 'look_at': the gimbal's origin has no direction")
+        return TRACK, target, None, False
+    if not orientation:
+        raise error("give 't' or 'in' (s), or a target: 'pan'/'tilt'/'roll', 'quat' or 'look_at'")
+    _, q = check_keyframes([{**orientation, "t": 0.0}], where, minimum=1)
+    target["quat"] = q[0]
+    return TRACK, target, None, False

@@ -36,6 +36,8 @@ coefficients = [0.0, 0.2, 0.4, 0.6, 0.8, 1.0]
 Other top-level tables (``[gimbal]`` and ``[limits]`` for the simulator, ``[bus]``
 for the drivers) are kept raw in :attr:`KeyframeFile.tables` for their packages to check
 (``trajgen.cli.common.load_checked`` checks them all before any command works).
+``[gimbal] axes`` and ``joints`` are read here too: keyframes then give angles by
+those joint names (:mod:`trajgen.keyframe_axes`).
 Keyframes are counted from 1 in messages, as a person reading the file would.
 
 Angles are refused where the motion would not follow them as written
@@ -66,8 +68,10 @@ from pathlib import Path
 import numpy as np
 
 from . import quat as Q
+from .axes import AxisSequence
 from .errors import KeyframeFileError
 from .gimbal import JOINT_NAMES, GimbalKinematics, angles_of
+from .keyframe_axes import axes_from_table, axis_keyframes, is_default
 from .smooth import KNOTS, SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .timelaw import RetimedPath, TimeLaw
@@ -161,6 +165,9 @@ class KeyframeFile:
     #: it (:class:`~trajgen.timelaw.TimeLaw`), or None (the keyframe times are the clock).
     timing: tuple | None = None
     lead: str | None = None
+    #: ``[gimbal] axes`` and ``joints`` (:mod:`trajgen.keyframe_axes`); ``quats`` are
+    #: the orientations this gimbal has at the keyframes.
+    axes: AxisSequence = field(default_factory=AxisSequence)
 
     @property
     def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
@@ -236,8 +243,13 @@ def load_keyframe_file(path) -> KeyframeFile:
         raised by :meth:`KeyframeFile.spline`.)
     """
     path = Path(path)
-    data, columns = _parse(read_text(path), path)
+    text = read_text(path)
+    data, columns = _parse(text, path)
     check_keys(data, TABLES, error=lambda p: KeyframeFileError(f"{path}: {p}"), kind="table")
+    axes = axes_from_table(data.get("gimbal", {}), path)
+    if not is_default(axes):  # keyframes by the gimbal's joint names (trajgen.keyframe_axes)
+        entries = (data if columns is None else _toml(text, path)).get("keyframes")
+        columns = _keyframe_columns(axis_keyframes(entries, axes, path), path)
     if columns is None:
         columns = _keyframe_columns(data.get("keyframes"), path)
     options = _spline_options(data.get("spline", {}), path, len(columns["t"]))
@@ -249,7 +261,16 @@ def load_keyframe_file(path) -> KeyframeFile:
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
     lead = _stream_lead(stream, path)
     return KeyframeFile(
-        path, times, quats, options, rate_hz, tables, method=method, timing=timing, lead=lead
+        path,
+        times,
+        quats,
+        options,
+        rate_hz,
+        tables,
+        method=method,
+        timing=timing,
+        lead=lead,
+        axes=axes,
     )
 
 

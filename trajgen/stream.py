@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from trajgen.frame_eval import FrameKinematics, SmoothFrames
-from trajgen.gimbal import JOINT_NAMES, GimbalKinematics, as_angles, joint_rates  # noqa: F401 (JOINT_NAMES re-exported)
+from trajgen.gimbal import JOINT_NAMES, GimbalKinematics, as_angles  # noqa: F401 (JOINT_NAMES re-exported)
 from trajgen.path import Steps
 from trajgen.sampling import sample_times
 from trajgen.smooth import SmoothSpline
@@ -31,9 +31,9 @@ class JointFrame:
         Frame number from 0.
     t : float
         Time (s) from the start of the trajectory.
-    q, qd, qdd : ndarray, shape (3,)
+    q, qd, qdd : ndarray, shape (n,)
         Joint angle (rad), velocity (rad/s), acceleration (rad/s^2), in
-        ``JOINT_NAMES`` order: the plan.
+        ``JOINT_NAMES`` order (the kinematics' ``joints`` for other axes): the plan.
     goal : ndarray, shape (3,), or None
         The goal to send (rad), led ahead of ``q`` by the servos' lag
         (``trajgen.lead``); None: send ``q``.
@@ -56,8 +56,9 @@ class JointTrajectory:
     t : ndarray, shape (N,)
         Sample times (s), ``t[i] = t[0] + i / rate_hz`` except that the last
         sample is at the trajectory's end time.
-    q, qd, qdd : ndarray, shape (N, 3)
-        Joint angles (rad, unwrapped), velocities (rad/s), accelerations (rad/s^2).
+    q, qd, qdd : ndarray, shape (N, n)
+        Joint angles (rad, unwrapped), velocities (rad/s), accelerations (rad/s^2),
+        one column per joint (3 for the default pan-tilt-roll).
     rate_hz : float
         Stream rate (Hz).
     goal : ndarray, shape (N, 3), or None
@@ -101,7 +102,7 @@ def plan_joint_trajectory(
     Samples the path at ``rate_hz`` from ``t_start`` to ``t_end`` inclusive
     (:func:`trajgen.sampling.sample_times`), solves the inverse kinematics
     (pan and roll unwrapped) and converts the space-frame angular velocity and
-    acceleration into joint rates exactly (:func:`trajgen.gimbal.joint_rates`).
+    acceleration into joint rates exactly (:meth:`GimbalKinematics.joint_rates`).
 
     Parameters
     ----------
@@ -113,8 +114,9 @@ def plan_joint_trajectory(
     rate_hz : float
         Stream rate (Hz), > 0.
     kinematics : GimbalKinematics, optional
-        Joint limits and gimbal-lock margin; default ``GimbalKinematics()``.
-    start : array_like, shape (3,), optional
+        Axes, joint limits and gimbal-lock margin; default ``GimbalKinematics()``.
+        For a two-axis gimbal the joints point its look axis along the path's.
+    start : array_like, shape (n,), optional
         Joint angles (rad) whose 2 pi branch the first frame's pan and roll
         take, e.g. the servos' present position.
 
@@ -131,12 +133,12 @@ def plan_joint_trajectory(
     TypeError
         If ``spline`` lacks the spline protocol or ``rate_hz`` is not a number.
     ValueError
-        If ``rate_hz`` is not > 0 or ``start`` is not (3,).
+        If ``rate_hz`` is not > 0 or ``start`` is not (n,).
     """
     kin, t, start = _prepare(spline, rate_hz, kinematics, start)
     samples = spline.evaluate(t, max_order=2)
     q = kin.inverse(samples.q, t, start=start)
-    qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+    qd, qdd = kin.joint_rates(q, samples.omega, samples.alpha)
     return JointTrajectory(t, q, qd, qdd, float(rate_hz))
 
 
@@ -193,7 +195,7 @@ def stream_frames(
     TypeError
         If ``spline`` lacks the spline protocol or ``rate_hz`` is not a number.
     ValueError
-        If ``rate_hz`` is not > 0 or ``start`` is not (3,).
+        If ``rate_hz`` is not > 0 or ``start`` is not (n,).
     """
     if all(hasattr(spline, name) for name in ("snapshot", "commit", "closed")):
         kin, _, start = _prepare(spline, rate_hz, kinematics, start, online=True)
@@ -287,7 +289,7 @@ def _prepare(spline, rate_hz, kinematics, start, *, online=False):
             f"Expected `kinematics` to be a GimbalKinematics, got {type(kinematics).__name__}."
         )
     if start is not None:
-        start = as_angles(start, "start", single=True)
+        start = as_angles(start, "start", single=True, n=kinematics.n_joints)
     if online:
         return kinematics, sample_times(0.0, 1.0, rate_hz), start  # checks the rate
     return kinematics, sample_times(spline.t_start, spline.t_end, rate_hz), start

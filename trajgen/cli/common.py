@@ -453,7 +453,7 @@ class CheckedFile:
         return kf.spline(progress=Progress(f"{prefix()}: joint-minimax knots") if slow else None)
 
 
-def load_checked(path, *, spline: bool = True) -> CheckedFile:
+def load_checked(path, *, spline: bool = True, any_axes: bool = False) -> CheckedFile:
     """Load a keyframe file and check every table of it, whatever the command.
 
     ``plan`` does not use ``[gimbal]`` or ``[bus]``, but a mistake in them is
@@ -461,6 +461,16 @@ def load_checked(path, *, spline: bool = True) -> CheckedFile:
     streams. A spline that is slow to build (``knots = "joint-minimax"``) is built
     here, its cost said first and its progress shown, unless ``spline`` is False
     (a command that does not plan the file's motion).
+
+    Parameters
+    ----------
+    path : str or Path
+    spline : bool
+        Build a slow spline here (see above); default True.
+    any_axes : bool
+        Accept a ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll (only
+        ``trajgen plan`` does so far); otherwise such a file is refused in one line
+        (``trajgen.sim.model.gimbal_config_from_tables``).
 
     Raises
     ------
@@ -472,7 +482,7 @@ def load_checked(path, *, spline: bool = True) -> CheckedFile:
     from trajgen.sim.model import gimbal_config_from_tables
 
     kf = load_keyframe_file(path)
-    gimbal = gimbal_config_from_tables(kf.tables, kf.path)
+    gimbal = gimbal_config_from_tables(kf.tables, kf.path, any_axes=any_axes)
     bus = bus_config_from_tables(kf.tables, kf.path)
     limits = limits_from_tables(kf.tables, kf.path)
     checked = CheckedFile(kf, gimbal, bus, limits)

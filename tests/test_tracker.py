@@ -1,0 +1,189 @@
+"""Tracker: untimed targets reached at the earliest arrival the joint limits allow."""
+
+import math
+
+import numpy as np
+import pytest
+
+from trajgen.errors import KinematicsError
+from trajgen.gimbal import angles_of, forward
+from trajgen.online import OnlineSpline
+from trajgen.servo_table import RAD_PER_TICK
+from trajgen.tracker import CLAMP_INSET_RAD, Tracker, look_at_angles
+
+D = math.radians
+LIMITS = np.array([[3.0] * 3, [20.0] * 3, [200.0] * 3])  # rad/s, rad/s^2, rad/s^3
+
+
+def tracker(start=(0.0, 0.0, 0.0), **kw):
+    return Tracker(OnlineSpline(forward(start), 0.0, k=2), LIMITS, **kw)
+
+
+def one_sided(plan_before, plan_after, at):
+    """Value and rates (orders 0..2) at ``at`` of the old path and of the new piece."""
+    old = plan_before.evaluate(np.array([at]), max_order=2)
+    q, (w, a) = plan_after.pieces[-1].space_rates(np.array([at]), 2)
+    return (old.q[0], old.omega[0], old.alpha[0]), (q[0], w[0], a[0])
+
+
+@pytest.mark.parametrize(
+    ("point", "pan", "tilt"),
+    [
+        ([1, 0, 0], 0, 0),
+        ([0, 1, 0], 90, 0),
+        ([1, 0, -1], 0, 45),  # below: positive tilt looks down (Ry turns x towards -z)
+        ([0, -2, 2], -90, -45),
+        ([-1, 0, 0], 180, 0),
+        ([1, 1, -math.sqrt(2)], 45, 45),
+    ],
+)
+def test_look_at_hand_worked_angles(point, pan, tilt):
+    a = look_at_angles(point)
+    np.testing.assert_allclose(np.degrees(a), [pan, tilt, 0], atol=1e-12)
+    # and the camera's x axis of forward() points at it
+    q = forward(a)
+    w, x, y, z = q
+    axis = np.array([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)])
+    np.testing.assert_allclose(axis, np.asarray(point) / np.linalg.norm(point), atol=1e-12)
+
+
+def test_look_at_refuses_the_origin():
+    with pytest.raises(ValueError, match="other than the gimbal's origin"):
+        look_at_angles([0, 0, 0])
+
+
+def test_look_at_target_is_reached():
+    tr = tracker()
+    r = tr.set_target(look_at=[1.0, 1.0, 0.0], at=0.0)
+    q_end = tr.spline(np.array([r.arrival + 0.1]))[0]
+    np.testing.assert_allclose(abs(q_end @ forward([D(45), 0, 0])), 1.0, atol=1e-12)
+
+
+def test_earliest_arrival_keeps_the_limits_and_is_tight():
+    tr = tracker()
+    r = tr.set_target(angles=[D(30), D(-10), 0], at=0.0)
+    assert r.changed and (r.peaks <= LIMITS).all()
+    # 5 % earlier breaks a limit
+    h = 0.95 * (r.arrival - r.at)
+    sp = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
+    early = sp.prepare("retarget", forward([[D(30), D(-10), 0]]), [h], at=0.0)
+    _, qd, qdd, jerk = tr.joint_motion(early.path, 0.0, h, np.zeros(3))
+    peaks = np.array([np.abs(x).max(axis=0) for x in (qd, qdd, jerk)])
+    assert (peaks > LIMITS).any()
+
+
+def test_max_speed_caps_the_motion():
+    free = tracker().set_target(angles=[D(60), 0, 0], at=0.0)
+    slow = tracker().set_target(angles=[D(60), 0, 0], at=0.0, max_speed=1.0)
+    assert slow.peaks[0, 0] <= 1.0 < free.peaks[0, 0]
+    assert slow.arrival > free.arrival
+
+
+def test_replacements_mid_motion_are_continuous():
+    rng = np.random.default_rng(3)
+    tr = tracker()
+    at = 0.0
+    for _ in range(8):
+        target = [D(rng.uniform(-40, 40)), D(rng.uniform(-30, 30)), 0.0]
+        before = tr.spline.snapshot()[1]
+        r = tr.set_target(angles=target, at=at)
+        after = tr.spline.snapshot()[1]
+        (q0, w0, a0), (q1, w1, a1) = one_sided(before, after, at)
+        np.testing.assert_allclose(q1, q0, atol=1e-12)
+        np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+        np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+        assert r.changed and (r.peaks <= LIMITS).all()
+        at += rng.uniform(0.05, 0.2)  # before arrival: a replacement in mid-motion
+
+
+def test_dead_band_changes_nothing():
+    tr = tracker()
+    r = tr.set_target(angles=[D(20), 0, 0], at=0.0)
+    version = tr.spline.version
+    same = tr.set_target(angles=[D(20) + 0.9 * RAD_PER_TICK, -0.5 * RAD_PER_TICK, 0], at=0.1)
+    assert not same.changed and tr.spline.version == version
+    assert same.arrival == r.arrival
+    moved = tr.set_target(angles=[D(20) + 1.5 * RAD_PER_TICK, 0, 0], at=0.1)
+    assert moved.changed and tr.spline.version == version + 1
+
+
+def test_dead_band_is_configurable():
+    tr = tracker(dead_band_rad=D(1.0))
+    tr.set_target(angles=[D(20), 0, 0], at=0.0)
+    assert not tr.set_target(angles=[D(20.9), 0, 0], at=0.1).changed
+
+
+def test_target_past_a_limit_is_clamped_and_reported():
+    tr = tracker()
+    r = tr.set_target(angles=[D(10), D(85), 0], at=0.0)  # lock margin 10 deg: tilt <= 80
+    assert "tilt 85.0 -> 79.5 deg" in r.clamped
+    np.testing.assert_allclose(r.goal[1], D(80) - CLAMP_INSET_RAD)
+    q, *_ = tr.joint_motion(tr.spline, 0.0, r.arrival + 0.1, np.zeros(3))
+    assert q[:, 1].max() <= D(80)
+
+
+def test_pan_limit_clamps():
+    from trajgen.gimbal import GimbalKinematics
+
+    lim = ((-D(90), D(90)), (-D(90), D(90)), (-D(180), D(180)))
+    tr = tracker(kinematics=GimbalKinematics(lim))
+    r = tr.set_target(look_at=[-1.0, 0.1, 0.0], at=0.0)  # behind: pan ~174 deg
+    assert r.clamped.startswith("clamped to the joint limits: pan 174.3 -> 90.0 deg")
+    assert r.goal[0] == pytest.approx(D(90))
+
+
+def test_path_through_the_lock_goes_around_it():
+    # (0, 70, 0) to (180, 70, 180): the direct rotation is about y, over the nadir.
+    start, goal = [0, D(70), 0], [D(180), D(70), D(180)]
+    sp = OnlineSpline(forward(start), 0.0, k=2)
+    direct = sp.prepare("retarget", forward([goal]), [2.0], at=0.0)
+    tr = Tracker(sp, LIMITS)
+    w, x, y, z = direct.path.evaluate(np.linspace(0, 2, 201), max_order=0).q.T
+    tilt = angles_of(w, x, y, z, np.arctan2, np.hypot)[1]
+    assert np.abs(tilt).max() > D(89)  # the direct path passes the lock
+    r = tr.set_target(angles=goal, at=0.0)
+    assert r.vias >= 1
+    q, *_ = tr.joint_motion(tr.spline, 0.0, r.arrival + 0.1, np.array(start))
+    assert np.abs(q[:, 1]).max() < D(80)
+    np.testing.assert_allclose(np.abs(q[-1]), [D(180), D(70), D(180)], atol=1e-9)
+
+
+def test_envelope_callback_slows_the_motion():
+    def envelope(q, qd, qdd):
+        return np.abs(qdd[:, 0]) <= 5.0  # a tighter torque-like bound on pan
+
+    free = tracker().set_target(angles=[D(30), 0, 0], at=0.0)
+    held = tracker(envelope=envelope).set_target(angles=[D(30), 0, 0], at=0.0)
+    assert held.peaks[1, 0] <= 5.0 and held.arrival > free.arrival
+
+
+def test_unreachable_is_refused():
+    tr = Tracker(OnlineSpline(forward([0, 0, 0]), 0.0), [[0.02] * 3, [1.0] * 3, [10.0] * 3])
+    with pytest.raises(KinematicsError, match="within 60 s"):
+        tr.set_target(angles=[D(90), 0, 0], at=0.0)
+
+
+def test_exactly_one_target():
+    with pytest.raises(ValueError, match="exactly one of"):
+        tracker().set_target([1, 0, 0, 0], look_at=[1, 0, 0], at=0.0)
+    with pytest.raises(ValueError, match="Expected `limits`"):
+        Tracker(OnlineSpline([1, 0, 0, 0]), [[1, 2], [3, 4]])
+
+
+def test_follow_lines_without_a_time_go_to_the_tracker():
+    from trajgen.follower import Follower
+
+    sp = OnlineSpline(forward([0, 0, 0]), 0.0)
+    f = Follower(sp, 200.0, limits=LIMITS)
+    f.feed('{"pan": 20, "tilt": -5}', 1)
+    f.feed('{"look_at": [1, 1, 0], "max_speed": 60}', 2)
+    assert [k["mode"] for k in f.keyframes] == ["track", "track"]
+    assert f.tracker.goal == pytest.approx([D(45), 0, 0])
+    assert f.keyframes[1]["t"] > f.keyframes[1]["at"] + 0.2
+    f.feed('{"look_at": [1, 1, 0]}', 3)  # the same target: within the dead band
+    assert len(f.keyframes) == 2
+    f.feed('{"in": 1, "pan": -10}', 4)  # a timed line, then a target near its goal
+    f.feed('{"pan": -10}', 5)
+    assert len(f.keyframes) == 3
+    with pytest.raises(ValueError, match=r"stdin: line 6: field 'max_speed': expected"):
+        f.feed('{"pan": 3, "max_speed": 0}', 6)

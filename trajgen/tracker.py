@@ -1,0 +1,431 @@
+"""Untimed targets: go to an orientation or a point to look at, as early as the limits allow.
+
+A vision loop reports where to look many times a second, without saying when to be
+there. :class:`Tracker` turns each such target into a retarget of an
+:class:`~trajgen.online.OnlineSpline` at the time ``at`` it is given, arriving at the
+earliest time that keeps per-joint speed, acceleration and jerk limits (and, if given,
+a torque-speed envelope): it bisects on the arrival time, checking each candidate path's
+joint-space peaks on the stream's frame grid. Joint speed and acceleration there are
+exact (:func:`trajgen.gimbal.joint_rates` of the path's closed-form angular rates);
+joint jerk is the central difference of those exact accelerations over +-``JERK_STEP_S``
+(error of order ``JERK_STEP_S^2``, not the stream period). Every change is a retarget,
+so the path stays C^k (the spline's k) across it and a new target replaces the old one in
+mid-motion without a jump.
+
+Noise: a target whose joint angles differ from the current goal's by less than the dead
+band (default one encoder tick, :data:`trajgen.servo_table.RAD_PER_TICK`) changes
+nothing. No filter is applied: a target that passes the dead band is planned to exactly.
+
+Geometry (:mod:`trajgen.gimbal`): orientation ``Rz(pan) Ry(tilt) Rx(roll)``; the camera
+looks along its body x axis, so a point ``p`` in the base frame (m) is looked at with
+``pan = atan2(p_y, p_x)``, ``tilt = atan2(-p_z, hypot(p_x, p_y))`` (positive tilt looks
+down, towards -z) and roll 0 (horizon level).
+
+Limits: a target outside the joint limits or within the gimbal-lock margin is clamped,
+joint by joint, to the nearest angle inside them (and reported in
+:attr:`TargetResult.clamped`). A direct path that would pass through the lock region
+(its tilt beyond the margin between two reachable ends, e.g. over the zenith) is
+replaced by one through via points on the straight joint-space line between the two
+ends, which stays as far from the lock as its ends.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import quat as Q
+from .errors import BadArgument, KinematicsError
+from .gimbal import GimbalKinematics, angles_of, forward, joint_rates
+from .path import run_steps
+from .servo_table import RAD_PER_TICK
+from .validate import check_number
+
+__all__ = ["JERK_STEP_S", "TargetResult", "Tracker", "look_at_angles"]
+
+#: Half step (s) of the central difference of exact joint accelerations giving jerk.
+JERK_STEP_S = 1e-6
+
+#: Relative width of the bracket at which the bisection on the arrival time stops:
+#: the arrival chosen keeps the limits and one ``1 + ARRIVAL_TOLERANCE`` times earlier
+#: breaks one (or is below the spline's minimum lead).
+ARRIVAL_TOLERANCE = 0.01
+
+#: Longest arrival (s) tried before a target is refused as unreachable under the limits.
+MAX_ARRIVAL_S = 60.0
+
+TWO_PI = 2.0 * math.pi
+
+#: Via-point counts tried, in order, when the direct path crosses the lock margin.
+VIA_COUNTS = (1, 2, 4, 8)
+
+#: How far (rad) inside the lock margin a clamped tilt is put: room for the path between
+#: via points, which cuts a little towards the lock.
+CLAMP_INSET_RAD = math.radians(0.5)
+
+
+def look_at_angles(point) -> np.ndarray:
+    """Joint angles ``(pan, tilt, roll)`` (rad) that point the camera's x axis at ``point``.
+
+    Parameters
+    ----------
+    point : array_like, shape (3,)
+        A point (m) in the gimbal's base frame, not the origin.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        ``pan = atan2(y, x)`` in (-pi, pi], ``tilt = atan2(-z, hypot(x, y))`` in
+        [-pi/2, pi/2] (positive looks down), roll 0.
+
+    Raises
+    ------
+    ValueError, TypeError
+        If ``point`` is not 3 finite numbers, or is the origin.
+    """
+    try:
+        p = np.asarray(point, dtype=float)
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"Expected `look_at` to be 3 numbers, got {point!r}.") from e
+    if p.shape != (3,) or not np.isfinite(p).all():
+        raise BadArgument(f"Expected `look_at` to be 3 finite numbers (m), got {point!r}.")
+    if not np.any(p):
+        raise BadArgument("Expected `look_at` to be a point other than the gimbal's origin.")
+    x, y, z = p
+    return np.array([math.atan2(y, x), math.atan2(-z, math.hypot(x, y)), 0.0])
+
+
+@dataclass(frozen=True)
+class TargetResult:
+    """What :meth:`Tracker.set_target` did.
+
+    Attributes
+    ----------
+    changed : bool
+        False when the target was within the dead band of the current goal.
+    at : float
+        Time (s) of the change.
+    arrival : float
+        Time (s) the path reaches the goal (the current goal's, when unchanged).
+    goal : ndarray, shape (3,)
+        Goal joint angles (rad), after clamping.
+    clamped : str
+        Why the target was clamped ("" if it was not).
+    vias : int
+        Via points the path goes through around the lock region (0: direct).
+    peaks : ndarray, shape (3, 3) or None
+        Peak |speed|, |acceleration|, |jerk| (rows) per joint (columns) of the new path
+        from ``at``; None when unchanged.
+    """
+
+    changed: bool
+    at: float
+    arrival: float
+    goal: np.ndarray
+    clamped: str = ""
+    vias: int = 0
+    peaks: np.ndarray | None = None
+
+
+def _as_limits(limits) -> np.ndarray:
+    """Limits as (3, 3): rows speed, acceleration, jerk; columns pan, tilt, roll."""
+    if limits is None:
+        return np.full((3, 3), np.inf)
+    if hasattr(limits, "as_array"):  # trajgen.sim.limits.JointLimits
+        limits = limits.as_array()
+    a = np.asarray(limits, dtype=float)
+    if a.shape == (3,):
+        a = np.repeat(a[:, None], 3, axis=1)
+    if a.shape != (3, 3) or np.isnan(a).any() or (a <= 0).any():
+        raise BadArgument(
+            "Expected `limits` to be (3, 3) numbers > 0 (rows speed, acceleration, jerk; "
+            f"columns pan, tilt, roll; inf for none), got {limits!r}."
+        )
+    return a
+
+
+class Tracker:
+    """Untimed targets on an :class:`~trajgen.online.OnlineSpline`, each reached as early
+    as the joint limits allow.
+
+    Parameters
+    ----------
+    spline : OnlineSpline
+        The plan, changed in place (every change a retarget).
+    limits : array_like, shape (3, 3), or JointLimits, optional
+        Bounds on |speed| (rad/s), |acceleration| (rad/s^2), |jerk| (rad/s^3): rows,
+        per joint pan, tilt, roll: columns; inf for none; a shape (3,) gives one
+        bound per quantity for every joint. A ``trajgen.sim.limits.JointLimits`` (the
+        file's ``[limits]``) is taken as is. Default: none (the spline's minimum lead).
+    kinematics : GimbalKinematics, optional
+        Joint limits and lock margin.
+    dead_band_rad : float, optional
+        A target whose joint angles all lie within this (rad) of the current goal's
+        changes nothing. Default one encoder tick, 2 pi / 4096.
+    envelope : callable, optional
+        ``envelope(q, qd, qdd) -> bool array (N,)`` with joint angles, speeds and
+        accelerations (N, 3) (rad, rad/s, rad/s^2): True where the servos can do it
+        (e.g. a torque-speed envelope check). Every sample must pass.
+    rate_hz : float, optional
+        Stream rate (Hz): candidate paths are checked at its frame times
+        ``spline.t_start + n / rate_hz``. Default 1000.
+    start : array_like, shape (3,), optional
+        Joint angles whose 2 pi branch pan and roll take (default: the spline's start
+        in (-pi, pi]).
+
+    Notes
+    -----
+    Cost: each candidate arrival is one ``OnlineSpline.prepare`` and an evaluation of
+    the candidate on the frame grid (three, for the jerk); a target takes about
+    10-15 candidates. :meth:`set_target_steps` yields between them, for a caller that
+    runs the work in steps between frames.
+    """
+
+    def __init__(
+        self,
+        spline,
+        limits=None,
+        *,
+        kinematics: GimbalKinematics | None = None,
+        dead_band_rad: float = RAD_PER_TICK,
+        envelope=None,
+        rate_hz: float = 1000.0,
+        start=None,
+    ):
+        self.spline = spline
+        self.limits = _as_limits(limits)
+        self.kinematics = GimbalKinematics() if kinematics is None else kinematics
+        self.dead_band_rad = check_number("dead_band_rad", dead_band_rad, low=0.0)
+        self.envelope = envelope
+        self.rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
+        self.goal = None if start is None else np.asarray(start, dtype=float)
+        self._sync()
+
+    def _sync(self) -> None:
+        """Take the goal from the plan's end, where others changed it since (timed lines)."""
+        q_end = self.spline(np.array([self.spline.t_end]))[0]
+        self.goal = self._unwrapped(q_end, self.goal)
+        self.arrival = float(self.spline.t_end)
+        self._version = self.spline.version
+
+    # -- targets ---------------------------------------------------------------
+
+    def set_target(self, orientation=None, *, at, angles=None, look_at=None, max_speed=None):
+        """Go to a target from time ``at``, arriving as early as the limits allow.
+
+        Parameters
+        ----------
+        orientation : array_like, shape (4,), optional
+            Target orientation (w, x, y, z), any norm and sign.
+        at : float
+            Time (s) of the change (the path up to it is kept), e.g. a little after
+            the frame being streamed.
+        angles : array_like, shape (3,), optional
+            Target joint angles (pan, tilt, roll) (rad), instead of ``orientation``.
+        look_at : array_like, shape (3,), optional
+            A point (m) in the base frame to point the camera's x axis at, instead.
+        max_speed : float, optional
+            A cap (rad/s) on every joint's speed for this motion, below ``limits``.
+
+        Returns
+        -------
+        TargetResult
+
+        Raises
+        ------
+        ValueError, TypeError
+            Bad arguments (naming them), not exactly one target, or ``at`` refused
+            by the spline (before its previous change, or streamed already).
+        KinematicsError
+            If no arrival up to ``MAX_ARRIVAL_S`` keeps the limits and the lock margin.
+        """
+        return run_steps(
+            self.set_target_steps(
+                orientation, at=at, angles=angles, look_at=look_at, max_speed=max_speed
+            )
+        )
+
+    def set_target_steps(self, orientation=None, *, at, angles=None, look_at=None, max_speed=None):
+        """:meth:`set_target` as a generator of steps (one per candidate arrival, and
+        steps inside each); its return value is the :class:`TargetResult`."""
+        given = [x is not None for x in (orientation, angles, look_at)]
+        if sum(given) != 1:
+            raise BadArgument("Give exactly one of `orientation`, `angles` or `look_at`.")
+        at = check_number("at", at)
+        speed = self.limits[0]
+        if max_speed is not None:
+            speed = np.minimum(speed, check_number("max_speed", max_speed, low=0.0, low_open=True))
+        limits = np.vstack([speed, self.limits[1:]])
+        if look_at is not None:
+            raw = look_at_angles(look_at)
+        elif angles is not None:
+            raw = np.array(np.broadcast_to(np.asarray(angles, dtype=float), (3,)))
+            if not np.isfinite(raw).all():
+                raise BadArgument(
+                    f"Expected `angles` to be 3 finite numbers (rad), got {angles!r}."
+                )
+        else:
+            q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")[0]
+            raw = np.array(angles_of(*q, math.atan2, math.hypot))
+        if self.spline.version != self._version:
+            self._sync()
+        goal, clamped = self._clamp(raw)
+        if np.max(np.abs(goal - self.goal)) < self.dead_band_rad:
+            return TargetResult(False, at, self.arrival, self.goal.copy(), clamped)
+        now_q = self.spline(np.array([at]))[0]
+        now = self._unwrapped(now_q, self.goal)
+        for vias in (0, *VIA_COUNTS):
+            keys = [now + (goal - now) * (i + 1) / (vias + 1) for i in range(vias + 1)]
+            quats = forward(np.array(keys))
+            found = yield from self._earliest(quats, keys, now, at, limits)
+            if found is not None:
+                change, h, peaks = found
+                self.spline.apply(change)
+                self.goal, self.arrival, self._version = goal, at + h, self.spline.version
+                return TargetResult(True, at, at + h, goal.copy(), clamped, vias, peaks)
+        raise KinematicsError(
+            f"no path from {np.degrees(now).round(1).tolist()} deg to "
+            f"{np.degrees(goal).round(1).tolist()} deg keeps the joint limits and the "
+            f"gimbal-lock margin within {MAX_ARRIVAL_S:g} s"
+        )
+
+    # -- the search ------------------------------------------------------------
+
+    def _earliest(self, quats, keys, now, at, limits):
+        """Bisect on the arrival lead ``h`` (s) for keyframes ``quats`` at equal steps of
+        ``h``; ``(change, h, peaks)`` of the earliest that passes, or None if the path
+        leaves the lock margin or the joint limits (whatever the lead)."""
+        lo = self.spline.min_lead_s * len(keys)
+        d = np.abs(np.asarray(keys[-1]) - now)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            guess = np.nanmax(
+                [d / limits[0], 2 * np.sqrt(d / limits[1]), 2 * np.cbrt(d / limits[2])]
+            )
+        h = max(lo, float(guess) if np.isfinite(guess) else lo)
+        if h > MAX_ARRIVAL_S:  # a lower bound on any arrival (a rest-to-rest move)
+            return None
+        result = yield from self._attempt(quats, now, at, h, limits)
+        if result == "path":
+            return None
+        best = (result, h) if not isinstance(result, str) else None
+        if best is None:  # grow until a lead passes
+            bad = h
+            while best is None:
+                h *= 2.0
+                if h > MAX_ARRIVAL_S:
+                    return None
+                result = yield from self._attempt(quats, now, at, h, limits)
+                if result == "path":
+                    return None
+                if isinstance(result, str):
+                    bad = h
+                else:
+                    best = (result, h)
+        else:  # shrink until a lead fails (or the minimum lead passes)
+            bad = None
+            while bad is None and best[1] > lo * (1 + 1e-12):
+                h = max(lo, best[1] / 2.0)
+                result = yield from self._attempt(quats, now, at, h, limits)
+                if isinstance(result, str):
+                    bad = h
+                else:
+                    best = (result, h)
+        while bad is not None and best[1] > bad * (1 + ARRIVAL_TOLERANCE):
+            h = math.sqrt(bad * best[1])
+            result = yield from self._attempt(quats, now, at, h, limits)
+            if isinstance(result, str):
+                bad = h
+            else:
+                best = (result, h)
+        (change, peaks), h = best
+        return change, h, peaks
+
+    def _attempt(self, quats, now, at, h, limits):
+        """Build and check the path through ``quats`` at equal steps to ``at + h``:
+        ``(change, peaks)`` if it keeps ``limits`` (and the envelope), ``"limits"`` if
+        it does not, ``"path"`` if it leaves the lock margin or the joint limits."""
+        n = len(quats)
+        times = at + h * np.arange(1, n + 1) / n
+        change = yield from self.spline.prepare_steps("retarget", quats, times, at=at)
+        yield
+        try:  # joint_motion raises at the lock itself, check() near it
+            q, qd, qdd, jerk = self.joint_motion(change.path, at, times[-1], now)
+            self.kinematics.check(q)
+        except KinematicsError:
+            return "path"
+        peaks = np.array([np.abs(x).max(axis=0) for x in (qd, qdd, jerk)])
+        if (peaks > limits).any():
+            return "limits"
+        if self.envelope is not None and not np.all(self.envelope(q, qd, qdd)):
+            return "limits"
+        return change, peaks
+
+    def joint_motion(self, path, t0: float, t1: float, near):
+        """Joint angles, speeds, accelerations and jerks (each (N, 3); rad, rad/s,
+        rad/s^2, rad/s^3) of ``path`` at the stream's frame times in ``(t0, t1]``
+        (and the first frame after ``t1``); pan and roll on the branch nearest ``near`` (3,)
+        (rad) at the first frame."""
+        base = self.spline.t_start
+        n0 = math.floor((t0 - base) * self.rate_hz) + 1
+        n1 = math.ceil((t1 - base) * self.rate_hz) + 1
+        t = base + np.arange(n0, n1 + 1) / self.rate_hz
+        ts = np.concatenate([t, t - JERK_STEP_S, t + JERK_STEP_S])
+        s = path.evaluate(ts, max_order=2)
+        q = self._unwrap_path(s.q, near)
+        qd, qdd = joint_rates(q, s.omega, s.alpha)
+        m = len(t)
+        jerk = (qdd[2 * m :] - qdd[m : 2 * m]) / (2 * JERK_STEP_S)
+        return q[:m], qd[:m], qdd[:m], jerk
+
+    # -- angles ----------------------------------------------------------------
+
+    def _unwrap_path(self, quats, near) -> np.ndarray:
+        """Angles (3m, 3) of three grids of m samples each (frames, frames - step,
+        frames + step): the frames unwrapped sample to sample from the branch nearest
+        ``near`` (3,), the others onto the branch of the frame they are next to."""
+        w, x, y, z = quats.T
+        a = np.stack(angles_of(w, x, y, z, np.arctan2, np.hypot), axis=-1)
+        m = len(a) // 3
+        main = a[:m]
+        main[:, [0, 2]] = np.unwrap(main[:, [0, 2]], axis=0)
+        main[:, [0, 2]] += TWO_PI * np.round((near[[0, 2]] - main[0, [0, 2]]) / TWO_PI)
+        for k in (1, 2):
+            side = a[k * m : (k + 1) * m]
+            side[:, [0, 2]] = main[:, [0, 2]] + _wrap(side[:, [0, 2]] - main[:, [0, 2]])
+        return a
+
+    def _unwrapped(self, q, near) -> np.ndarray:
+        a = np.array(angles_of(*q, math.atan2, math.hypot))
+        if near is not None:
+            a[[0, 2]] += 2 * math.pi * np.round((near[[0, 2]] - a[[0, 2]]) / (2 * math.pi))
+        return a
+
+    def _clamp(self, raw):
+        """The goal nearest ``raw`` (3,) inside the limits (pan, roll on the 2 pi branch
+        nearest the current goal that fits), and a message if it had to be clamped."""
+        lim = np.array(self.kinematics.limits_rad)
+        lock = math.pi / 2 - self.kinematics.lock_margin_rad
+        lim[1] = np.clip(lim[1], -lock + CLAMP_INSET_RAD, lock - CLAMP_INSET_RAD)
+        goal = raw.copy()
+        for j in (0, 2):
+            k = np.arange(-3, 4)
+            cands = raw[j] + 2 * math.pi * (np.round((self.goal[j] - raw[j]) / (2 * math.pi)) + k)
+            inside = cands[(cands >= lim[j, 0]) & (cands <= lim[j, 1])]
+            pool = inside if len(inside) else cands
+            # nearest the current goal; of two as near, the one nearer 0
+            goal[j] = pool[np.lexsort((np.abs(pool), np.round(np.abs(pool - self.goal[j]), 9)))[0]]
+        clipped = np.clip(goal, lim[:, 0], lim[:, 1])
+        names = ("pan", "tilt", "roll")
+        moved = [
+            f"{names[j]} {math.degrees(goal[j]):.1f} -> {math.degrees(clipped[j]):.1f} deg"
+            for j in range(3)
+            if clipped[j] != goal[j]
+        ]
+        return clipped, ("clamped to the joint limits: " + ", ".join(moved)) if moved else ""
+
+
+def _wrap(a):
+    """Angles (rad) wrapped into [-pi, pi)."""
+    return (a + math.pi) % TWO_PI - math.pi
