@@ -217,6 +217,28 @@ def test_streamer_checks_present_position_against_the_first_frame(rig):
     assert virtual.frames_received == 0
 
 
+def test_a_chain_at_another_baud_rate_is_refused_naming_the_rate(rig):
+    """Servos at 57,600 bit/s hear a 1 Mbps host as noise: nothing answers, nothing moves,
+    and the message names the rate the port ran at and the baud rate as a cause."""
+    virtual, bus = rig(baud=57_600)
+    assert bus.baud == 1_000_000
+    before = _memory(virtual)
+    with pytest.raises(
+        BringUpError,
+        match=r"servo 1: no reply to ping at 1000000 baud on .*check id, baud rate, power",
+    ):
+        bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.0, 0.0)))
+    assert _memory(virtual) == before
+    assert virtual.frames_received == 0 and not any(_torque(virtual))
+
+
+def test_a_chain_at_the_ports_baud_rate_is_brought_up(rig):
+    """The control for the test above: the same chain at the port's rate answers."""
+    virtual, bus = rig(baud=1_000_000)
+    bring_up(bus, JointMap(), MODELS, _ramp((0.2, 0.0, 0.0)))
+    assert all(s.get("Baud Rate") == 3 for s in virtual.servos.values())
+
+
 # -- 2. installed position limits and Drive Mode -----------------------------
 
 

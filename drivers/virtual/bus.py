@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import os
 import sys
+import termios
 import threading
 import time
 import tty
@@ -75,7 +76,16 @@ from trajgen.drivers.virtual.plant import Plant
 from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
-from trajgen.servo_table import CONTROL_REGISTERS
+from trajgen.servo_table import BAUD_RATES, CONTROL_REGISTERS
+
+#: bit/s -> Baud Rate (8) register value.
+_BAUD_VALUE = {rate: value for value, rate in BAUD_RATES.items()}
+#: The pty's termios speed constant -> bit/s, for the rates termios names.
+_TERMIOS_BAUD = {
+    getattr(termios, f"B{rate}"): rate
+    for rate in BAUD_RATES.values()
+    if hasattr(termios, f"B{rate}")
+}
 
 if TYPE_CHECKING:
     from trajgen.drivers.bus import ServoBus
@@ -123,6 +133,11 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         undone and answered with Result Fail instead of stopping the bus.
     on_refusal : callable (servo id, reason) -> None, optional
         Told about each write refused that way (from the serving thread).
+    baud : int, optional
+        The chain's baud rate (bit/s, one of the X-series rates): every servo's
+        Baud Rate register is set to it, and the servos hear only a host whose
+        port runs at that rate (read from the pty's settings; a rate the pty
+        cannot tell, such as 4.5 Mbps, is heard). Default: any rate.
 
     Raises
     ------
@@ -175,6 +190,7 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         sim_step_s: float = 1e-3,
         unsupported: tuple[type[Exception], ...] = (),
         on_refusal: Callable[[int, str], None] | None = None,
+        baud: int | None = None,
     ) -> None:
         if not isinstance(plant, Plant):
             raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
@@ -191,7 +207,13 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             raise ValueError(f"Expected `lockstep_dt_s` > 0 or None, got {lockstep_dt_s}.")
         if not sim_step_s > 0:
             raise ValueError(f"Expected `sim_step_s` > 0, got {sim_step_s}.")
-        registers = registers or {}
+        registers = {i: dict(r) for i, r in (registers or {}).items()}
+        if baud is not None:
+            if baud not in _BAUD_VALUE:
+                raise ValueError(f"Expected `baud` one of {sorted(_BAUD_VALUE)}, got {baud}.")
+            for i in ids:
+                registers.setdefault(i, {})["Baud Rate"] = _BAUD_VALUE[baud]
+        self.baud = baud
         self.plant = plant
         self.ids = ids
         self.servos = {
@@ -363,8 +385,20 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
                 self._goal_rad[j] = goal
                 self.plant.set_goal(self._goal_rad.copy())
 
+    def _host_at_baud(self) -> bool:
+        """Whether the host's port runs at the chain's ``baud`` (or either is unknown)."""
+        if self.baud is None or self._master < 0:
+            return True
+        try:
+            host = _TERMIOS_BAUD.get(termios.tcgetattr(self._master)[5])
+        except termios.error:
+            return True
+        return host is None or host == self.baud
+
     def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
+        if not self._host_at_baud():
+            return []  # at another rate the servos read noise: they neither act nor answer
         try:
             packet = decode(raw)
         except PacketError:
