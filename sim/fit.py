@@ -26,7 +26,6 @@ C3, at rest at both ends, and passes every keyframe in order. Three stages:
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 
 import numpy as np
@@ -35,6 +34,7 @@ from trajgen.sim.fit_result import (
     FitError,
     FitResult,
     SegmentFit,
+    keyframe_source,
     refuse_unholdable_keyframes,
     retimed_document,
     segment_fits,
@@ -199,19 +199,12 @@ class _Fitter:
 
     @classmethod
     def build(cls, source, config, limits, rate_hz, torque_rate, progress) -> _Fitter:
-        from trajgen.keyframes import load_keyframe_file
         from trajgen.sim.check import DEFAULT_RATE_HZ
         from trajgen.sim.limits import limits_from_tables, torque_rate_from_tables
         from trajgen.sim.model import gimbal_config_from_tables
         from trajgen.validate import check_number
 
-        if isinstance(source, (str, os.PathLike)):
-            source = load_keyframe_file(source)
-        if not (hasattr(source, "quats") and hasattr(source, "tables")):
-            raise TypeError(
-                f"Expected `source` to be a keyframe file path or KeyframeFile, got "
-                f"{type(source).__name__}."
-            )
+        source = keyframe_source(source)
         if config is None:
             config = gimbal_config_from_tables(source.tables, source.path)
         if limits is None:

@@ -39,7 +39,6 @@ faster, which must fail: the fit is tight.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 
 import numpy as np
@@ -47,6 +46,7 @@ import numpy as np
 from trajgen.sim.fit_result import (
     FitError,
     FitResult,
+    keyframe_source,
     refuse_unholdable_keyframes,
     retimed_document,
     segment_fits,
@@ -242,18 +242,11 @@ def uniform_time_function(
 
 def _make_fitter(source, config, limits, rate_hz, tolerance, progress) -> _Fitter:
     """Check :func:`fit_timing`'s arguments and fill in the file's defaults."""
-    from trajgen.keyframes import load_keyframe_file
     from trajgen.sim.check import DEFAULT_RATE_HZ
     from trajgen.sim.limits import limits_from_tables
     from trajgen.sim.model import build_model, gimbal_config_from_tables
 
-    if isinstance(source, (str, os.PathLike)):
-        source = load_keyframe_file(source)
-    if not (hasattr(source, "quats") and hasattr(source, "tables")):
-        raise TypeError(
-            f"Expected `source` to be a keyframe file path or KeyframeFile, got "
-            f"{type(source).__name__}."
-        )
+    source = keyframe_source(source)
     tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
     if config is None:
         config = gimbal_config_from_tables(source.tables, source.path)

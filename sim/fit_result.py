@@ -3,6 +3,7 @@ and the refusal both fits share."""
 
 from __future__ import annotations
 
+import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,6 +13,26 @@ import numpy as np
 from trajgen.sim.errors import SimError
 from trajgen.sim.limits import JointLimits
 from trajgen.sim.model import JOINT_NAMES
+
+
+def keyframe_source(source):
+    """``source`` as a :class:`~trajgen.keyframes.KeyframeFile` (a path is loaded).
+
+    Raises
+    ------
+    TypeError
+        If ``source`` is neither a path nor a keyframe file.
+    """
+    from trajgen.keyframes import load_keyframe_file
+
+    if isinstance(source, (str, os.PathLike)):
+        source = load_keyframe_file(source)
+    if not (hasattr(source, "quats") and hasattr(source, "tables")):
+        raise TypeError(
+            f"Expected `source` to be a keyframe file path or KeyframeFile, got "
+            f"{type(source).__name__}."
+        )
+    return source
 
 
 class FitError(SimError):
