@@ -75,6 +75,8 @@ from trajgen.drivers.units import RAD_PER_TICK, TICKS_PER_REV, JointMap
 from trajgen.gimbal import JOINT_NAMES
 from trajgen.lead import sent_q
 
+from .errors import BadArgument
+
 #: Drive Mode bits (e-Manual, "Drive Mode (10)").
 DRIVE_MODE_REVERSE = 0x01
 DRIVE_MODE_TIME_BASED = 0x04
@@ -116,7 +118,7 @@ def watchdog_units(watchdog_s: float) -> int:
     """
     units = math.ceil(watchdog_s / WATCHDOG_UNIT_S - 1e-9)
     if not 1 <= units <= 127:
-        raise ValueError(f"Expected `watchdog_s` in 0.02..2.54 s, got {watchdog_s}.")
+        raise BadArgument(f"Expected `watchdog_s` in 0.02..2.54 s, got {watchdog_s}.")
     return units
 
 
@@ -141,7 +143,7 @@ def joint_names_for(joints: JointMap, joint_names: Sequence[str] | None = None) 
     """Names for messages: ``joint_names``, else pan, tilt, roll for 3 joints, else joint k."""
     if joint_names is not None:
         if len(joint_names) != len(joints):
-            raise ValueError(f"Expected {len(joints)} `joint_names`, got {len(joint_names)}.")
+            raise BadArgument(f"Expected {len(joints)} `joint_names`, got {len(joint_names)}.")
         return tuple(joint_names)
     if len(joints) == len(JOINT_NAMES):
         return JOINT_NAMES
@@ -332,7 +334,7 @@ def check_servos(bus: ServoBus, joints: JointMap, models: Sequence[Model | str])
         If a servo does not answer or is another model.
     """
     if len(models) != len(joints):
-        raise ValueError(f"Expected {len(joints)} `models`, got {len(models)}.")
+        raise BadArgument(f"Expected {len(joints)} `models`, got {len(models)}.")
     for servo_id, model in zip(joints.ids, models, strict=True):
         model = model_named(model) if isinstance(model, str) else model
         try:
@@ -806,7 +808,7 @@ def configure(
         If a servo stops answering.
     """
     if any(m not in STREAMABLE_MODES for m in operating_modes):
-        raise ValueError(f"Expected `operating_modes` of 3, 4 or 5, got {tuple(operating_modes)}.")
+        raise BadArgument(f"Expected `operating_modes` of 3, 4 or 5, got {tuple(operating_modes)}.")
     if watchdog_s is not None:
         watchdog_units(watchdog_s)
     if changes is None:
@@ -977,7 +979,7 @@ def bring_up(
     """
     for servo_id, (low, high) in (set_limits or {}).items():
         if servo_id not in joints.ids or not 0 <= low < high <= TICKS_PER_REV - 1:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected `set_limits` of servos {joints.ids} with 0 <= min < max <= 4095, "
                 f"got {servo_id}: ({low}, {high})."
             )

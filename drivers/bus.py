@@ -42,6 +42,8 @@ from trajgen.drivers.protocol import ALERT_BIT, BROADCAST_ID, StatusError
 from trajgen.drivers.units import to_signed, to_unsigned
 from trajgen.validate import check_number
 
+from .errors import BadArgument
+
 # The SDK's fixed assumption, used where the port has no latency timer to read.
 DEFAULT_LATENCY_MS = 16.0
 _SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{tty}/latency_timer"
@@ -416,7 +418,7 @@ class ServoBus:
         try:
             model = self.models[servo_id]
         except KeyError:
-            raise ValueError(
+            raise BadArgument(
                 f"Servo {servo_id} has no model; call add_servo({servo_id}, model) first."
             ) from None
         return layout(model)[register]

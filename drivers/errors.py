@@ -1,15 +1,22 @@
 """Exceptions of the drivers package.
 
-``DriverError`` is the base of every domain failure. Messages name the servo
-ids, the register and the number of tries; the underlying exception is chained
-with ``from``.
+``DriverError`` is the base of every domain failure; a bad argument value is a
+:class:`BadArgument`, which is also the core's ``trajgen.errors.BadArgument``.
+Messages name the servo ids, the register and the number of tries; the
+underlying exception is chained with ``from``.
 """
 
 from __future__ import annotations
 
+from trajgen.errors import BadArgument as _CoreBadArgument
+
 
 class DriverError(Exception):
     """Base class of every failure raised by ``drivers``."""
+
+
+class BadArgument(DriverError, _CoreBadArgument):
+    """A driver call's argument with a wrong value or shape; also a ``trajgen.BadArgument``."""
 
 
 class PacketError(DriverError, ValueError):

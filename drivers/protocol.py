@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
-from .errors import PacketError
+from .errors import BadArgument, PacketError
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
@@ -135,7 +135,7 @@ def encode(servo_id: int, instruction: int, params: bytes = b"") -> bytes:
         If ``servo_id`` is out of range.
     """
     if not 0 <= servo_id <= BROADCAST_ID:
-        raise ValueError(f"Expected `servo_id` in 0..254, got {servo_id}.")
+        raise BadArgument(f"Expected `servo_id` in 0..254, got {servo_id}.")
     body = stuff(bytes([instruction]) + bytes(params))
     length = len(body) + 2
     packet = HEADER + bytes([servo_id, length & 0xFF, length >> 8]) + body

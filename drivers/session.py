@@ -40,7 +40,7 @@ from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
 from .clock import WALL_CLOCK
 from .config import BusConfig
 from .defaults import MAX_DELAY_S
-from .errors import BringUpError, DriverError, Interrupted
+from .errors import BadArgument, BringUpError, DriverError, Interrupted
 from .signals import StopSignals
 from .streamer import Streamer, safe_stop
 
@@ -226,7 +226,7 @@ class Session:
                 self.set_limits[joints.ids[j]] = joints.limit_ticks(j, low, high)
             except ValueError as e:
                 name = JOINT_NAMES[j] if len(joints) == len(JOINT_NAMES) else f"joint {j}"
-                raise ValueError(f"{name} limits: {e}") from None
+                raise BadArgument(f"{name} limits: {e}") from None
 
     # -- the two kinds of stream -------------------------------------------
 

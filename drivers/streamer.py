@@ -79,6 +79,8 @@ from trajgen.drivers.units import RAD_PER_TICK, JointMap
 from trajgen.lead import sent_q
 from trajgen.validate import check_choice, check_number
 
+from .errors import BadArgument
+
 _STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 _STATUS = (Register.TORQUE_ENABLE, Register.HARDWARE_ERROR_STATUS, Register.BUS_WATCHDOG)
 _POWER = (Register.PRESENT_INPUT_VOLTAGE, Register.PRESENT_TEMPERATURE)
@@ -415,7 +417,7 @@ class Streamer:
         if start_ticks is not None:
             start_ticks = np.asarray(start_ticks, dtype=np.int64)
             if start_ticks.shape != (len(joints),):
-                raise ValueError(
+                raise BadArgument(
                     f"Expected `start_ticks` of shape ({len(joints)},), got {start_ticks.shape}."
                 )
         approach_speed_rad_s = check_number(
@@ -429,7 +431,7 @@ class Streamer:
         if goal_bounds_ticks is not None:
             goal_bounds_ticks = np.asarray(goal_bounds_ticks)
             if goal_bounds_ticks.shape != (len(joints), 2):
-                raise ValueError(
+                raise BadArgument(
                     f"Expected `goal_bounds_ticks` of shape ({len(joints)}, 2), "
                     f"got {goal_bounds_ticks.shape}."
                 )
@@ -491,12 +493,12 @@ class Streamer:
         """
         rate_hz = getattr(stream, "rate_hz", None) if rate_hz is None else rate_hz
         if rate_hz is None or not rate_hz > 0:
-            raise ValueError(f"Expected a positive `rate_hz` (or stream.rate_hz), got {rate_hz}.")
+            raise BadArgument(f"Expected a positive `rate_hz` (or stream.rate_hz), got {rate_hz}.")
         frames: Iterator = iter(stream)
         try:
             first = next(frames)
         except StopIteration:
-            raise ValueError("Expected a non-empty stream, got no frames.") from None
+            raise BadArgument("Expected a non-empty stream, got no frames.") from None
         planned = len(stream) if hasattr(stream, "__len__") else 0
         self.stats = stats = StreamStats(rate_hz=float(rate_hz), frames_planned=planned)
         self.stop_errors = []

@@ -30,6 +30,8 @@ import numpy as np
 from trajgen.drivers import mcap_telemetry
 from trajgen.servo_table import LOAD_UNIT
 
+from .errors import BadArgument
+
 
 def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
     """Column names: frame bookkeeping, then per joint plan / goal / present values.
@@ -82,7 +84,7 @@ class TelemetryWriter:
     def __init__(self, path: str | Path, joint_names: Sequence[str], models=None) -> None:
         self.path = Path(path)
         if self.path.suffix not in SUFFIXES:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected a telemetry path ending {', '.join(SUFFIXES)}, got {str(path)!r}."
             )
         self.columns = telemetry_columns(joint_names)

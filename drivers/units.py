@@ -17,6 +17,8 @@ import numpy as np
 from trajgen.servo_table import RAD_PER_TICK, TICKS_PER_REV, VELOCITY_UNIT_RAD_S, ZERO_TICK
 from trajgen.validate import check_number
 
+from .errors import BadArgument
+
 __all__ = [
     "RAD_PER_TICK",
     "TICKS_PER_REV",
@@ -39,10 +41,10 @@ def to_signed(value: int, size: int) -> int:
         If ``size`` is not 1, 2 or 4, or ``value`` does not fit in it.
     """
     if size not in (1, 2, 4):
-        raise ValueError(f"Expected `size` 1, 2 or 4 bytes, got {size}.")
+        raise BadArgument(f"Expected `size` 1, 2 or 4 bytes, got {size}.")
     bits = 8 * size
     if not 0 <= value < 1 << bits:
-        raise ValueError(f"Expected `value` in 0..{(1 << bits) - 1}, got {value}.")
+        raise BadArgument(f"Expected `value` in 0..{(1 << bits) - 1}, got {value}.")
     return value - (1 << bits) if value >= 1 << (bits - 1) else value
 
 
@@ -56,7 +58,7 @@ def to_unsigned(value: int, size: int) -> int:
     """
     bits = 8 * size
     if not -(1 << (bits - 1)) <= value < 1 << bits:
-        raise ValueError(f"Expected `value` to fit in {size} bytes, got {value}.")
+        raise BadArgument(f"Expected `value` to fit in {size} bytes, got {value}.")
     return value & ((1 << bits) - 1)
 
 
@@ -103,14 +105,14 @@ class JointMap:
             object.__setattr__(self, name, ints)
         n = len(self.ids)
         if n == 0 or len(self.directions) != n or len(self.zeros) != n:
-            raise ValueError(
+            raise BadArgument(
                 "Expected `ids`, `directions`, `zeros` of one non-zero length, got "
                 f"{len(self.ids)}, {len(self.directions)}, {len(self.zeros)}."
             )
         if len(set(self.ids)) != n or not all(0 <= i <= 252 for i in self.ids):
-            raise ValueError(f"Expected distinct `ids` in 0..252, got {self.ids}.")
+            raise BadArgument(f"Expected distinct `ids` in 0..252, got {self.ids}.")
         if not all(d in (1, -1) for d in self.directions):
-            raise ValueError(f"Expected `directions` of +1 or -1, got {self.directions}.")
+            raise BadArgument(f"Expected `directions` of +1 or -1, got {self.directions}.")
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -134,9 +136,9 @@ class JointMap:
         """
         q = np.asarray(q_rad, dtype=float)
         if q.ndim == 0 or q.shape[-1] != len(self):
-            raise ValueError(f"Expected `q_rad` of shape (..., {len(self)}), got {q.shape}.")
+            raise BadArgument(f"Expected `q_rad` of shape (..., {len(self)}), got {q.shape}.")
         if not np.all(np.isfinite(q)):
-            raise ValueError("Expected finite `q_rad`, got NaN or inf.")
+            raise BadArgument("Expected finite `q_rad`, got NaN or inf.")
         d = np.asarray(self.directions)
         return np.asarray(self.zeros) + np.rint(d * q / RAD_PER_TICK).astype(np.int64)
 
@@ -169,7 +171,7 @@ class JointMap:
         angles[:, joint] = (low_rad, high_rad)
         low, high = sorted(int(v) for v in self.to_ticks(angles)[:, joint])
         if not 0 <= low < high <= TICKS_PER_REV - 1:
-            raise ValueError(
+            raise BadArgument(
                 f"ticks {low}..{high} fall outside the registers' range 0..{TICKS_PER_REV - 1}"
             )
         return low, high

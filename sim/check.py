@@ -37,6 +37,8 @@ from trajgen.sim.model import JOINT_NAMES, GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
 from trajgen.sim.servos import servo_by_name
 
+from .errors import BadArgument
+
 
 @dataclass(frozen=True)
 class JointReport:
@@ -440,7 +442,7 @@ def resolve_source(source, *, rate_hz=None, config=None):
     if hasattr(source, "qdd") and hasattr(source, "rate_hz"):
         check_trajectory(source)
         if rate_hz is not None and rate_hz != source.rate_hz:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected `rate_hz` to match the trajectory's {source.rate_hz} Hz, got {rate_hz}."
             )
         return source, config

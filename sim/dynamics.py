@@ -8,6 +8,8 @@ import numpy as np
 
 from trajgen.sim.errors import SimulationError
 
+from .errors import BadArgument
+
 
 def inverse_dynamics(model, q, qd, qdd, *, coulomb: bool = True) -> np.ndarray:
     """Joint torques (N m) that produce ``qdd`` at ``(q, qd)``: MuJoCo's ``mj_inverse``.
@@ -70,13 +72,13 @@ def _inverse(model, q, qd, qdd, coulomb: tuple[bool, ...]) -> list[np.ndarray]:
     for name, value in (("q", q), ("qd", qd), ("qdd", qdd)):
         a = np.asarray(value, dtype=float)
         if a.ndim != 2 or a.shape[1] != model.nv:
-            raise ValueError(f"Expected `{name}` to have shape (N, {model.nv}), got {a.shape}.")
+            raise BadArgument(f"Expected `{name}` to have shape (N, {model.nv}), got {a.shape}.")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"Expected `{name}` to be finite, got a NaN or inf.")
+            raise BadArgument(f"Expected `{name}` to be finite, got a NaN or inf.")
         arrays.append(a)
     q, qd, qdd = arrays
     if not q.shape == qd.shape == qdd.shape:
-        raise ValueError(
+        raise BadArgument(
             f"Expected `q`, `qd`, `qdd` of one shape, got {q.shape}, {qd.shape}, {qdd.shape}."
         )
     models = [model if with_coulomb else _without_coulomb(model) for with_coulomb in coulomb]

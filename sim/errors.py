@@ -7,9 +7,15 @@ Those that are bad input (a telemetry log that cannot be used) are also
 
 from __future__ import annotations
 
+from trajgen.errors import BadArgument as _CoreBadArgument
+
 
 class SimError(RuntimeError):
     """Base class of the simulator's domain failures."""
+
+
+class BadArgument(SimError, _CoreBadArgument):
+    """A simulator call's argument with a wrong value or shape; also a ``trajgen.BadArgument``."""
 
 
 class IdentifyError(SimError, ValueError):

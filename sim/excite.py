@@ -28,6 +28,8 @@ from trajgen import quat
 from trajgen.gimbal import jacobian
 from trajgen.path import Samples
 
+from .errors import BadArgument
+
 #: Frequency band (Hz) of the excitation.
 BAND_HZ = (0.3, 2.0)
 #: Sines per joint.
@@ -67,14 +69,14 @@ class Multisine:
         for name in ("center_rad", "amplitude_rad"):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise ValueError(f"Expected `{name}` to be 3 finite numbers, got {value!r}.")
+                raise BadArgument(f"Expected `{name}` to be 3 finite numbers, got {value!r}.")
             object.__setattr__(self, name, tuple(float(v) for v in value))
         if min(self.amplitude_rad) < 0:
-            raise ValueError(f"Expected `amplitude_rad` >= 0, got {self.amplitude_rad}.")
+            raise BadArgument(f"Expected `amplitude_rad` >= 0, got {self.amplitude_rad}.")
         if not self.ramp_s > 0:
-            raise ValueError(f"Expected `ramp_s` > 0, got {self.ramp_s!r}.")
+            raise BadArgument(f"Expected `ramp_s` > 0, got {self.ramp_s!r}.")
         if not self.seconds >= 2 * self.ramp_s + 1.0:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected `seconds` >= {2 * self.ramp_s + 1.0:g} (two ramps and 1 s), "
                 f"got {self.seconds!r}."
             )
@@ -142,7 +144,7 @@ class Multisine:
         """
         t = np.atleast_1d(np.asarray(t, dtype=float))
         if np.any((t < 0) | (t > self.seconds)) or not np.all(np.isfinite(t)):
-            raise ValueError(f"Expected times in [0, {self.seconds:g}] s.")
+            raise BadArgument(f"Expected times in [0, {self.seconds:g}] s.")
         scale = np.asarray(self.amplitude_rad) / self._norm
         q, qd, qdd = self._unit(t)
         return np.asarray(self.center_rad) + scale * q, scale * qd, scale * qdd

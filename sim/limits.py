@@ -24,6 +24,8 @@ import numpy as np
 from trajgen.sim.model import JOINT_NAMES
 from trajgen.validate import check_keys, check_number
 
+from .errors import BadArgument
+
 #: ``[limits]`` keys and the quantity each bounds.
 LIMIT_KEYS = {
     "speed_rad_s": "speed",
@@ -65,7 +67,7 @@ class JointLimits:
             if not isinstance(value, (tuple, list)):
                 value = (value,) * 3
             if len(value) != 3:
-                raise ValueError(f"Expected `{name}` to have 3 entries, got {value!r}.")
+                raise BadArgument(f"Expected `{name}` to have 3 entries, got {value!r}.")
             # inf is "no limit"; anything else a finite number > 0.
             bounds = tuple(
                 math.inf if v == math.inf else check_number(name, v, low=0.0, low_open=True)

@@ -43,6 +43,8 @@ from trajgen.sim.firmware import P_DIVISOR, PositionLoop
 from trajgen.sim.servos import DEFAULT_SERVO, ServoModel, servo_by_name
 from trajgen.validate import check_keys, check_number, check_numbers
 
+from .errors import BadArgument
+
 GIMBAL_TABLE_KEYS = (
     "servo",
     "payload_kg",
@@ -178,7 +180,7 @@ class GimbalConfig:
         if isinstance(servos, (str, ServoModel)):
             servos = (servos,) * 3
         if not isinstance(servos, (tuple, list)) or len(servos) != 3:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected `servos` to hold 3 servos (pan, tilt, roll), got {servos!r}."
             )
         resolved = tuple(s if isinstance(s, ServoModel) else servo_by_name(s) for s in servos)
@@ -189,7 +191,7 @@ class GimbalConfig:
         object.__setattr__(self, "payload_offset_m", offset)
         joints = ({},) * 3 if self.joints is None else self.joints
         if not isinstance(joints, (tuple, list)) or len(joints) != 3:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected `joints` to hold 3 entries (pan, tilt, roll), got {joints!r}."
             )
         resolved = []

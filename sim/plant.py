@@ -29,6 +29,8 @@ from trajgen.sim.run import (
 )
 from trajgen.validate import check_number
 
+from .errors import BadArgument
+
 # Log columns: time, q (3), qd (3), torque (3), goal (3), drive cap in volts (3).
 _LOG_COLUMNS = 16
 
@@ -85,7 +87,7 @@ class GimbalPlant:
         if initial_rad is not None:
             start = np.asarray(initial_rad, dtype=float)
             if start.shape != (3,) or not np.all(np.isfinite(start)):
-                raise ValueError(f"Expected `initial_rad` to be 3 finite numbers, got {start!r}.")
+                raise BadArgument(f"Expected `initial_rad` to be 3 finite numbers, got {start!r}.")
             self._data.qpos[:] = start
         self._data.ctrl[:] = self._data.qpos
         mujoco.mj_forward(self._model, self._data)
@@ -144,7 +146,7 @@ class GimbalPlant:
         """
         goal = np.asarray(positions_rad, dtype=float)
         if goal.shape != (3,) or not np.all(np.isfinite(goal)):
-            raise ValueError(f"Expected `positions_rad` to be 3 finite numbers, got {goal!r}.")
+            raise BadArgument(f"Expected `positions_rad` to be 3 finite numbers, got {goal!r}.")
         self._goal_times.append(self.time_s)
         self._goal = goal
         self._data.ctrl[:] = goal
@@ -231,7 +233,7 @@ class GimbalPlant:
             If a MuJoCo warning counter rises or a contact appears.
         """
         if not np.isfinite(dt_s) or dt_s < 0:
-            raise ValueError(f"Expected `dt_s` >= 0, got {dt_s!r}.")
+            raise BadArgument(f"Expected `dt_s` >= 0, got {dt_s!r}.")
         # Whole steps only; the remainder carries over to the next call.
         self._pending_s += dt_s
         n = int(self._pending_s / self.config.timestep_s + 1e-9)

@@ -33,6 +33,7 @@ import numpy as np
 
 from trajgen.timelaw import DEGREE
 
+from .errors import SimError
 from .limits import JointLimits
 from .model import JOINT_NAMES
 from .retime_path import PathDynamics
@@ -269,7 +270,7 @@ class LawProblem:
         while self.rows(c, hi)[0].max() > 0:
             hi += 1.0
             if hi > np.log(self.dyn.s_span) + 12:
-                raise ValueError("no duration keeps the limits")
+                raise SimError("no duration keeps the limits")
         lo = hi - 1.0
         while self.rows(c, lo)[0].max() <= 0 and lo > np.log(self.dyn.s_span) - 12:
             lo -= 1.0

@@ -12,6 +12,8 @@ from trajgen.sim.errors import SimulationError
 from trajgen.sim.firmware import PULSES_PER_RAD
 from trajgen.sim.model import GimbalConfig, build_model
 
+from .errors import BadArgument
+
 _LIMIT_RTOL = 1e-6
 _PROGRESS_STEP = 0.05
 
@@ -404,14 +406,16 @@ def check_trajectory(trajectory) -> None:
         )
     n = np.shape(trajectory.t)
     if len(n) != 1 or n[0] < 2:
-        raise ValueError(f"Expected `trajectory.t` to have shape (N,), N >= 2, got {n}.")
+        raise BadArgument(f"Expected `trajectory.t` to have shape (N,), N >= 2, got {n}.")
     fields = ("q", "qd", "qdd") + (() if getattr(trajectory, "goal", None) is None else ("goal",))
     for f in fields:
         a = np.asarray(getattr(trajectory, f))
         if a.shape != (n[0], 3):
-            raise ValueError(f"Expected `trajectory.{f}` to have shape ({n[0]}, 3), got {a.shape}.")
+            raise BadArgument(
+                f"Expected `trajectory.{f}` to have shape ({n[0]}, 3), got {a.shape}."
+            )
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"Expected `trajectory.{f}` to be finite, got a NaN or inf.")
+            raise BadArgument(f"Expected `trajectory.{f}` to be finite, got a NaN or inf.")
 
 
 def simulate(

@@ -23,6 +23,8 @@ import numpy as np
 from trajgen.sim.model import GimbalConfig
 from trajgen.validate import check_number
 
+from .errors import BadArgument
+
 _FAILED_PARTS = {"x envelope": "envelope", "torque limit": "limit", "tracking error": "tracking"}
 
 
@@ -127,10 +129,10 @@ def variants(
     }
     for name, values in axes.items():
         if len(values) == 0:
-            raise ValueError(f"Expected at least one value of `{name}`.")
+            raise BadArgument(f"Expected at least one value of `{name}`.")
     for s in time_scale:
         if not (isinstance(s, (int, float)) and math.isfinite(s) and s > 0):
-            raise ValueError(f"Expected every `time_scale` > 0, got {s!r}.")
+            raise BadArgument(f"Expected every `time_scale` > 0, got {s!r}.")
     return [
         Variant(float(m), tuple(float(v) for v in o), tuple(str(s) for s in sv), float(k))
         for m, o, sv, k in itertools.product(payload_kg, payload_offset_m, servos, time_scale)

@@ -8,6 +8,8 @@ import numpy as np
 
 from trajgen.sim.model import GimbalConfig, build_model
 
+from .errors import BadArgument
+
 
 def render_video(
     record,
@@ -54,9 +56,9 @@ def render_video(
     import mujoco
 
     if not (isinstance(fps, int) and fps > 0):
-        raise ValueError(f"Expected `fps` to be a positive int, got {fps!r}.")
+        raise BadArgument(f"Expected `fps` to be a positive int, got {fps!r}.")
     if not (0 < width <= 640 and 0 < height <= 480):
-        raise ValueError(f"Expected `width` x `height` within 640 x 480, got {width} x {height}.")
+        raise BadArgument(f"Expected `width` x `height` within 640 x 480, got {width} x {height}.")
     model = build_model(config)
     data = mujoco.MjData(model)
     times = np.arange(record.t[0], record.t[-1], 1.0 / fps)

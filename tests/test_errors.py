@@ -47,3 +47,34 @@ def test_a_reversal_raises_no_circle_as_a_trajgen_error():
     assert same is NoCircleError
     with pytest.raises(TrajgenError, match=r"\(a reversal\): no circle passes through them"):
         BlendingSpline(QUATS, [0.0, 1.0, 2.0], local="circle")
+
+
+def test_driver_and_sim_bad_arguments_are_under_both_bases():
+    from trajgen.drivers import errors as drivers_errors
+    from trajgen.drivers.units import JointMap
+    from trajgen.sim import errors as sim_errors
+    from trajgen.sim.limits import JointLimits
+
+    with pytest.raises(drivers_errors.BadArgument, match=r"Expected distinct `ids`") as caught:
+        JointMap([1, 1, 2])
+    assert isinstance(caught.value, DriverError) and isinstance(caught.value, BadArgument)
+    assert issubclass(sim_errors.BadArgument, SimError)
+    assert issubclass(sim_errors.BadArgument, BadArgument)
+    with pytest.raises(sim_errors.BadArgument, match="to have 3 entries"):
+        JointLimits(speed_rad_s=(1.0, 1.0))
+
+
+def test_no_library_module_raises_a_bare_value_error():
+    """Bad input in the library is a package error (also a ValueError), never a bare one."""
+    import pathlib
+    import re
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    offenders = [
+        f"{path.relative_to(root)}:{n}"
+        for package in ("trajgen", "drivers", "sim")
+        for path in sorted((root / package).rglob("*.py"))
+        for n, line in enumerate(path.read_text().splitlines(), 1)
+        if re.search(r"\braise ValueError\(", line)
+    ]
+    assert offenders == []

@@ -465,7 +465,7 @@ def online_spline(kf) -> OnlineSpline:
         closer than 0.2 s to the first.
     """
     if getattr(kf, "timing", None) is not None:  # a file retimed by `trajgen fit`
-        raise ValueError(
+        raise KeyframeFileError(
             f"{kf.path}: [timing]: follow cannot splice changes onto a fitted time law; "
             "stream the file with `trajgen stream`, or delete [timing] (then check it again)"
         )

@@ -41,6 +41,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from trajgen.errors import BadArgument
 from trajgen.validate import check_choice
 
 #: The lead variants, default first.
@@ -88,9 +89,9 @@ class LeadParams:
                 or np.any(a < 0)
                 or (name == "kp_nm_rad" and a.min() <= 0)
             ):
-                raise ValueError(f"Expected `{name}` finite and >= 0 (kp > 0), got {a}.")
+                raise BadArgument(f"Expected `{name}` finite and >= 0 (kp > 0), got {a}.")
             if n is not None and len(a) != n:
-                raise ValueError(f"Expected `{name}` to have {n} entries, got {len(a)}.")
+                raise BadArgument(f"Expected `{name}` to have {n} entries, got {len(a)}.")
             n = len(a)
             object.__setattr__(self, name, a)
         enabled = np.broadcast_to(np.asarray(self.enabled, dtype=bool), (n,)).copy()
@@ -126,7 +127,7 @@ class LedGoals:
 
 
 def check_lead(lead) -> str:
-    """``lead`` if it is one of :data:`LEADS`; raise ValueError naming them otherwise."""
+    """``lead`` if it is one of :data:`LEADS`; raise BadArgument naming them otherwise."""
     return check_choice("lead", lead, LEADS)
 
 
@@ -264,7 +265,7 @@ def led_goals(
     """
     lead = check_lead(lead)
     if lead == "model" and torque is None:
-        raise ValueError('Expected `torque` (the inverse dynamics) for lead = "model".')
+        raise BadArgument('Expected `torque` (the inverse dynamics) for lead = "model".')
     t = np.asarray(trajectory.t, dtype=float)
     q, qd, qdd = (np.asarray(a, dtype=float) for a in (trajectory.q, trajectory.qd, trajectory.qdd))
     period = 1.0 / float(trajectory.rate_hz)
@@ -320,7 +321,7 @@ class LedFrames:
     def __init__(self, frames: Iterable, rate_hz, lead, params, bounds_rad, cap_rad, torque=None):
         self.lead = check_lead(lead)
         if self.lead == "model" and torque is None:
-            raise ValueError('Expected `torque` (the inverse dynamics) for lead = "model".')
+            raise BadArgument('Expected `torque` (the inverse dynamics) for lead = "model".')
         self._frames = frames
         self.period_s = 1.0 / float(rate_hz)
         self.params = params

@@ -78,6 +78,8 @@ from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
 from trajgen.servo_table import BAUD_RATES, CONTROL_REGISTERS
 
+from ..errors import BadArgument
+
 #: bit/s -> Baud Rate (8) register value.
 _BAUD_VALUE = {rate: value for value, rate in BAUD_RATES.items()}
 #: The pty's termios speed constant -> bit/s, for the rates termios names.
@@ -196,21 +198,21 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
         ids = tuple(ids)
         if len(ids) != plant.n_joints:
-            raise ValueError(
+            raise BadArgument(
                 f"Expected one id per plant joint ({plant.n_joints}), got `ids` {ids}."
             )
         names = [models] * len(ids) if isinstance(models, str) else list(models)
         if len(names) != len(ids):
-            raise ValueError(f"Expected {len(ids)} `models`, got {len(names)}.")
+            raise BadArgument(f"Expected {len(ids)} `models`, got {len(names)}.")
         resolved: list[Model] = [model_named(n) for n in names]
         if lockstep_dt_s is not None and not lockstep_dt_s > 0:
-            raise ValueError(f"Expected `lockstep_dt_s` > 0 or None, got {lockstep_dt_s}.")
+            raise BadArgument(f"Expected `lockstep_dt_s` > 0 or None, got {lockstep_dt_s}.")
         if not sim_step_s > 0:
-            raise ValueError(f"Expected `sim_step_s` > 0, got {sim_step_s}.")
+            raise BadArgument(f"Expected `sim_step_s` > 0, got {sim_step_s}.")
         registers = {i: dict(r) for i, r in (registers or {}).items()}
         if baud is not None:
             if baud not in _BAUD_VALUE:
-                raise ValueError(f"Expected `baud` one of {sorted(_BAUD_VALUE)}, got {baud}.")
+                raise BadArgument(f"Expected `baud` one of {sorted(_BAUD_VALUE)}, got {baud}.")
             for i in ids:
                 registers.setdefault(i, {})["Baud Rate"] = _BAUD_VALUE[baud]
         self.baud = baud

@@ -21,6 +21,8 @@ from trajgen.drivers.protocol import (
 )
 from trajgen.servo_table import hardware_error_mask
 
+from ..errors import BadArgument
+
 _OVERLOAD_BIT = hardware_error_mask("overload")
 # Faults that change replies, and faults that happen to a servo after a frame.
 _REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id", "glitch")
@@ -103,9 +105,9 @@ class Fault:
     def __post_init__(self) -> None:
         kinds = _REPLY_FAULTS + _FRAME_FAULTS
         if self.kind not in kinds:
-            raise ValueError(f"Expected `kind` in {kinds}, got {self.kind!r}.")
+            raise BadArgument(f"Expected `kind` in {kinds}, got {self.kind!r}.")
         if self.kind not in ("drop", "corrupt", "delay", "close") and self.servo_id is None:
-            raise ValueError(f"Expected a `servo_id` for a {self.kind} fault, got None.")
+            raise BadArgument(f"Expected a `servo_id` for a {self.kind} fault, got None.")
 
 
 class FaultInjection:

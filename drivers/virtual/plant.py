@@ -21,6 +21,8 @@ from trajgen.servo_table import (
     servo_spec,
 )
 
+from ..errors import BadArgument
+
 
 @runtime_checkable
 class Plant(Protocol):
@@ -120,15 +122,15 @@ class FirstOrderPlant:
         current_per_rad_a: float = 1.0,
     ) -> None:
         if n_joints < 1:
-            raise ValueError(f"Expected `n_joints` >= 1, got {n_joints}.")
+            raise BadArgument(f"Expected `n_joints` >= 1, got {n_joints}.")
         if not time_constant_s >= 0:
-            raise ValueError(f"Expected `time_constant_s` >= 0, got {time_constant_s}.")
+            raise BadArgument(f"Expected `time_constant_s` >= 0, got {time_constant_s}.")
         self.n_joints = n_joints
         self.time_constant_s = float(time_constant_s)
         self.current_per_rad_a = float(current_per_rad_a)
         q0 = np.zeros(n_joints) if initial_rad is None else np.asarray(initial_rad, float)
         if q0.shape != (n_joints,):
-            raise ValueError(f"Expected `initial_rad` of shape ({n_joints},), got {q0.shape}.")
+            raise BadArgument(f"Expected `initial_rad` of shape ({n_joints},), got {q0.shape}.")
         self._q = q0.copy()
         self._qd = np.zeros(n_joints)
         self._goal = q0.copy()
@@ -157,7 +159,7 @@ class FirstOrderPlant:
         """
         unknown = set(registers) - set(CONTROL_REGISTERS)
         if unknown:
-            raise ValueError(f"Expected keys among CONTROL_REGISTERS, got {sorted(unknown)}.")
+            raise BadArgument(f"Expected keys among CONTROL_REGISTERS, got {sorted(unknown)}.")
         self.control[joint].update({k: int(v) for k, v in registers.items()})
 
     def advance(self, dt_s: float) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 from trajgen.cli import stream
 from trajgen.cli.common import (
     EXIT_OK,
+    BadInput,
     exit_status_text,
     load_checked,
     positive_float,
@@ -124,15 +125,15 @@ def excitation_file(args) -> ExcitationFile:
     try:
         motion = Multisine(center_rad=center, seconds=args.seconds, amplitude_rad=amplitude)
     except ValueError as e:
-        raise ValueError(f"--seconds: {e}") from e
+        raise BadInput(f"--seconds: {e}") from e
     rate = kf.stream_rate(args.rate)
     try:
         trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
     except KinematicsError as e:
-        raise ValueError(f"the excitation: {e}; lower --amplitude") from None
+        raise BadInput(f"the excitation: {e}; lower --amplitude") from None
     reasons = check_planned_torque(trajectory, config)
     if reasons:
-        raise ValueError(
+        raise BadInput(
             f"the excitation leaves the torque envelope: {reasons[0]}; lower --amplitude"
         )
     tables = dict(kf.tables)

@@ -132,9 +132,9 @@ def run_identify(args) -> int:
     try:
         check_output_path("--out", args.out, (".toml",), [args.file, *args.logs])
         if not 0 <= args.delay_ms < 1000:
-            raise ValueError(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
+            raise BadInput(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
         if args.fit_current_scale and args.no_current:
-            raise ValueError("--fit-current-scale needs the current: drop --no-current")
+            raise BadInput("--fit-current-scale needs the current: drop --no-current")
         checked = load_checked(args.file, spline=False)  # every table, as every command checks them
         config = checked.gimbal
         logs = [_load_log(path) for path in args.logs]

@@ -27,6 +27,7 @@ from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     TELEMETRY_SUFFIXES,
+    BadInput,
     Progress,
     add_bus_arguments,
     add_file_argument,
@@ -230,9 +231,9 @@ def plan(args) -> Plan:
     rate = kf.stream_rate(args.rate)
     check_timing(kf, rate)
     if args.virtual and args.port:
-        raise ValueError("--port and --virtual exclude each other")
+        raise BadInput("--port and --virtual exclude each other")
     if args.plot and not args.virtual:
-        raise ValueError("--plot needs --virtual (it plots the simulated torque report)")
+        raise BadInput("--plot needs --virtual (it plots the simulated torque report)")
     return planned(kf, checked.bus, rate, args, stream_options(args))
 
 
@@ -278,7 +279,7 @@ def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
     if args.virtual:
         joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
     elif not (args.port or config.port):
-        raise ValueError("no serial port: give --port, set [bus] port, or use --virtual")
+        raise BadInput("no serial port: give --port, set [bus] port, or use --virtual")
     if getattr(args, "ids", None):
         joints = JointMap(args.ids, joints.directions, joints.zeros)
     config = replace(
@@ -341,7 +342,7 @@ def session_for(p: Plan, signals):
     except ValueError as e:
         if not limits:
             raise
-        raise ValueError(f"--set-limits {_set_limits_text(limits, e)}") from None
+        raise BadInput(f"--set-limits {_set_limits_text(limits, e)}") from None
     return session, plant
 
 
