@@ -98,7 +98,7 @@ def follow(args, lines) -> int:
         p = stream_command.plan(args)
         made["follower"] = Follower(online_spline(p.source), p.rate_hz, on_skip=_skipped())
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
-        if p.source.method != "blending":
+        if p.source.method != "blending" and p.source.timing is None:  # fitted: played as is
             print(
                 f"trajgen follow: note: {p.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "
