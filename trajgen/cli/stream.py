@@ -276,12 +276,18 @@ def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
     from trajgen.stream import plan_joint_trajectory
 
     joints = config.joints
+    ids = getattr(args, "ids", None)
+    if ids and len(ids) != len(joints):
+        raise BadInput(
+            f"--ids {','.join(map(str, ids))}: expected {len(joints)} ids, one per joint "
+            f"({', '.join(config.joint_names)})"
+        )
     if args.virtual:
         joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
     elif not (args.port or config.port):
         raise BadInput("no serial port: give --port, set [bus] port, or use --virtual")
-    if getattr(args, "ids", None):
-        joints = JointMap(args.ids, joints.directions, joints.zeros)
+    if ids:
+        joints = JointMap(ids, joints.directions, joints.zeros)
     config = replace(
         config,
         port=args.port or config.port,
@@ -296,7 +302,7 @@ def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
 
     lead = getattr(args, "lead", None) or getattr(source, "lead", None) or DEFAULT_LEAD
     gimbal = gimbal_config_from_tables(source.tables, source.path)
-    planned_q = plan_joint_trajectory(source.spline(), rate_hz)
+    planned_q = plan_joint_trajectory(source.spline(), rate_hz, kinematics_of(source))
     # The goals a session will send (it leads them again from where the servos are).
     trajectory, _, notes = lead_trajectory(planned_q, gimbal, lead)
     for note in notes:
@@ -379,7 +385,19 @@ def run_stream(args) -> int:
 
 def stream_source(session, p: Plan):
     """Stream the plan's path with the session (planned again from where the servos are)."""
-    return session.stream_path(p.source.spline(), p.rate_hz)
+    return session.stream_path(p.source.spline(), p.rate_hz, kinematics=kinematics_of(p.source))
+
+
+def kinematics_of(source):
+    """The kinematics of a file's ``[gimbal] axes`` and ``joints``; None for pan-tilt-roll
+    (the default kinematics)."""
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.keyframe_axes import is_default
+
+    axes = getattr(source, "axes", None)
+    if axes is None or is_default(axes):
+        return None
+    return GimbalKinematics(axes=axes.sequence, joints=axes.joints)
 
 
 def run_plan(args, make_plan, go, extra=None) -> int:
@@ -462,7 +480,7 @@ def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
     telemetry = p.options.get("telemetry")
     if telemetry and stats is not None:
         print(f"telemetry: {telemetry}")
-    result = {"status": status, "on_stop": on_stop, **outcome.to_json_dict(JOINTS), **(extra or {})}
+    result = {"status": status, "on_stop": on_stop, **outcome.to_json_dict(), **(extra or {})}
     if plant is not None and status == EXIT_OK:
         status, outcome.torque_report = torque_report(
             plant, outcome.trajectory, getattr(args, "plot", None), result, lead=p.lead
