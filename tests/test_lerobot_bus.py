@@ -34,9 +34,7 @@ def omx(monkeypatch):
     virtual = VirtualBus(
         plant, ids=tuple(ARM.values()), plant_ids=(14, 15), models="XL330-M288", lockstep_dt_s=0.01
     ).start()
-    motors = {
-        name: Motor(i, "xl330-m288", MotorNormMode.RANGE_M100_100) for name, i in ARM.items()
-    }
+    motors = {name: Motor(i, "xl330-m288", MotorNormMode.RANGE_M100_100) for name, i in ARM.items()}
     motors["gripper"] = Motor(16, "xl330-m288", MotorNormMode.RANGE_0_100)
     bus = DynamixelMotorsBus(port=virtual.port, motors=motors)
     bus.connect()  # the handshake: every id pinged, model numbers compared
@@ -79,7 +77,9 @@ def test_sync_write_and_sync_read_move_the_wrist_and_the_gripper(omx):
         present = bus.sync_read("Present_Position", normalize=False)
     assert all(abs(present[name] - goals[name]) <= 1 for name in ARM), present
     assert plant.read()[0].tolist() == pytest.approx(
-        [(goals["wrist_flex"] - 2048) * 3.141592653589793 / 2048,
-         (goals["wrist_roll"] - 2048) * 3.141592653589793 / 2048]
+        [
+            (goals["wrist_flex"] - 2048) * 3.141592653589793 / 2048,
+            (goals["wrist_roll"] - 2048) * 3.141592653589793 / 2048,
+        ]
     )
     assert virtual.error is None
