@@ -1449,7 +1449,7 @@ CASES = [
         ["virtual-bus", "--models", "XM430-W350,XM430-W350"],
         None,
         2,
-        r"argument --models: expected a model or 3 separated by commas",
+        r"--models: expected 1 model or 3 \(one per id\), got 2",
         "ok",
     ),
     (
