@@ -149,3 +149,36 @@ def test_chain_plant_refuses_bad_indices():
         ChainPlant(FirstOrderPlant(2), 4, (0, 0))
     with pytest.raises(TypeError, match="Expected `plant` to be a Plant, got int"):
         ChainPlant(3, 4, (0,))
+
+
+def test_the_command_serves_a_chain_of_six_the_gimbal_on_the_first_three():
+    import signal
+
+    from dynamixel_sdk import PacketHandler, PortHandler
+    from test_virtual_bus_sdk import _trajgen
+
+    proc = _trajgen("virtual-bus", "--ids", ",".join(map(str, OMX)), "--models", "XL330-M288")
+    try:
+        port = PortHandler(proc.stdout.readline().strip())
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        ph = PacketHandler(2.0)
+        for i in OMX:
+            assert ph.ping(port, i)[:2] == (1200, COMM_SUCCESS)
+        # The gripper (16, idle) takes mode 5; a gimbal servo (11, simulated) refuses it.
+        assert ph.write1ByteTxRx(port, 16, OPERATING_MODE, CURRENT_BASED_POSITION) == (
+            COMM_SUCCESS,
+            0,
+        )
+        assert ph.write1ByteTxRx(port, 11, OPERATING_MODE, CURRENT_BASED_POSITION) == (
+            COMM_SUCCESS,
+            1,  # Result Fail: the simulated gimbal has no current-based position loop
+        )
+        assert ph.read1ByteTxRx(port, 16, OPERATING_MODE) == (5, COMM_SUCCESS, 0)
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 143, err
+    assert "serving servos 11, 12, 13, 14, 15, 16 (XL330-M288, " in err
+    assert "idle (not the gimbal's): 14, 15, 16" in err
+    assert "servo 11 refused a write (Result Fail)" in err
