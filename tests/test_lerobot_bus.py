@@ -83,3 +83,27 @@ def test_sync_write_and_sync_read_move_the_wrist_and_the_gripper(omx):
         ]
     )
     assert virtual.error is None
+
+
+def test_three_xm430_on_ids_1_to_3_as_before(monkeypatch):
+    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 160)
+    plant = FirstOrderPlant(3, time_constant_s=0.0)
+    with VirtualBus(plant, lockstep_dt_s=0.01) as virtual:  # ids 1, 2, 3, XM430-W350
+        names = ("pan", "tilt", "roll")
+        motors = {
+            n: Motor(i, "xm430-w350", MotorNormMode.RANGE_M100_100)
+            for i, n in enumerate(names, start=1)
+        }
+        bus = DynamixelMotorsBus(port=virtual.port, motors=motors)
+        bus.connect()
+        try:
+            assert bus.broadcast_ping() == {1: 1020, 2: 1020, 3: 1020}
+            bus.enable_torque()
+            bus.sync_write(
+                "Goal_Position", {"pan": 2100, "tilt": 2000, "roll": 2048}, normalize=False
+            )
+            for _ in range(5):
+                present = bus.sync_read("Present_Position", normalize=False)
+            assert present == {"pan": 2100, "tilt": 2000, "roll": 2048}
+        finally:
+            bus.disconnect(disable_torque=False)
