@@ -139,7 +139,8 @@ def dense_optimum(path) -> float:
     from trajgen.sim import fit_timing
 
     saved = retime.COEFFICIENTS_PER_SEGMENT, retime.POINTS_PER_INTERVAL
-    retime.COEFFICIENTS_PER_SEGMENT, retime.POINTS_PER_INTERVAL = 24, 6
+    retime.COEFFICIENTS_PER_SEGMENT = 3 * saved[0]
+    retime.POINTS_PER_INTERVAL = 6
     try:
         return fit_timing(path, simulate=False).duration_s
     finally:

@@ -39,7 +39,7 @@ from .limits import JointLimits
 from .retime_path import PathDynamics
 
 #: B-spline coefficients of sigma per path segment.
-COEFFICIENTS_PER_SEGMENT = 8
+COEFFICIENTS_PER_SEGMENT = 16
 #: Constraint points per knot interval of sigma.
 POINTS_PER_INTERVAL = 4
 #: ... and in the first and last ``_END_INTERVALS``, where the path is near rest and the
