@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .retime import trust_step
 from .retime_path import PathDynamics
 
 #: Penalty on the largest relative violation, against log T.
@@ -237,13 +238,10 @@ def rate_bounded_optimum(
             break
         trial = merit(x + dx)
         ratio = (phi - trial[0]) / predicted
-        if ratio > 0.1:
+        kept, radius = trust_step(ratio, radius, 1.0)
+        if kept:
             x = x + dx
             phi, t, g, h, jac = trial
-            if ratio > 0.75:
-                radius = min(radius * 2.0, 1.0)
-        else:
-            radius *= 0.3
-            if radius < 1e-6:
-                break
+        elif radius < 1e-6:
+            break
     return Optimum(t, grid.s, np.sqrt(x), float(h.max()), iterations)
