@@ -43,14 +43,16 @@ def check_output_path(
     Raises
     ------
     BadInput
-        The folder is missing or not writable, the path is a directory, a
+        The name is empty, the folder is missing or not writable, the path is a directory, a
         kernel interface (``/proc``, ``/sys``), an input, an existing file that
         cannot be written, or the extension is not one of ``suffixes``.
     """
     if path is None:
         return
     p = Path(path)
-    if not path or p.is_dir():
+    if not path:
+        raise BadInput(f"{option} '': an empty name; give a file name")
+    if p.is_dir():
         raise BadInput(f"{option} {path!r}: is a directory; give a file name")
     # /dev/stdout leads into /proc/self/fd: devices are written in place, not refused.
     names = {os.path.abspath(p)} if _in_place(p) else {os.path.abspath(p), os.path.realpath(p)}

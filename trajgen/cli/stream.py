@@ -20,6 +20,7 @@ import argparse
 import math
 import warnings
 from contextlib import contextmanager
+from pathlib import Path
 
 from trajgen.cli.common import (
     TELEMETRY_SUFFIXES,
@@ -175,6 +176,10 @@ def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=())
     """Refuse ``--telemetry PATH`` up front: writable, a known suffix, not one of
     ``inputs``, and for ``.mcap`` the ``mcap`` extra installed."""
     check_output_path("--telemetry", path, suffixes, inputs)
+    suffix = Path(path or "").suffix
+    if suffix not in suffixes and suffix.lower() in suffixes:
+        # The writers and `trajgen identify` tell the formats apart by the suffix as written.
+        raise BadInput(f"--telemetry {path!r}: write the suffix in lower case ({suffix.lower()})")
     if path and path.lower().endswith(".mcap"):
         check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
 
@@ -216,10 +221,12 @@ def progress(label: str) -> Progress:
 
 def job_options(args) -> dict:
     """``StreamJob.plan`` keywords from the options of :func:`add_stream_arguments`."""
-    set_limits = {
-        JOINTS.index(joint): (math.radians(low), math.radians(high))
-        for joint, low, high in args.set_limits or ()
-    }
+    set_limits = {}
+    for joint, low, high in args.set_limits or ():
+        j = JOINTS.index(joint)
+        if j in set_limits:
+            raise BadInput(f"--set-limits {joint}: given twice; give each joint once")
+        set_limits[j] = (math.radians(low), math.radians(high))
     return {
         "virtual": bool(args.virtual),
         "port": args.port,
