@@ -32,6 +32,7 @@ from trajgen.cli.messages import (
     bad_input,
     exit_status_text,
     prefix,
+    progress_line,
     set_command,
     tell,
     warn,
@@ -81,6 +82,7 @@ __all__ = [
     "positive_float",
     "positive_int",
     "prefix",
+    "progress_line",
     "servo_ids",
     "set_command",
     "speed_warning",
@@ -95,10 +97,7 @@ def load_checked(path, *, spline: bool = True, any_axes: bool = False):
     spline build's cost and progress said on stderr."""
     from trajgen.jobs import load_checked as load
 
-    def progress(label: str) -> Progress:
-        return Progress(f"{prefix()}: {label}")
-
-    return load(path, spline=spline, any_axes=any_axes, say=tell, progress=progress)
+    return load(path, spline=spline, any_axes=any_axes, say=tell, progress=progress_line)
 
 
 def fastest_servo_rad_s() -> tuple[str, float]:

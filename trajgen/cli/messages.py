@@ -89,3 +89,8 @@ class Progress:
         end = "\n" if fraction >= 1.0 else ""
         self.stream.write(f"\r{self.label} {100 * fraction:3.0f}%{end}")
         self.stream.flush()
+
+
+def progress_line(label: str) -> Progress:
+    """The running command's progress line: ``trajgen <command>: {label} 42%``."""
+    return Progress(f"{prefix()}: {label}")

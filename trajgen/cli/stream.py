@@ -25,7 +25,6 @@ from pathlib import Path
 from trajgen.cli.common import (
     TELEMETRY_SUFFIXES,
     BadInput,
-    Progress,
     add_bus_arguments,
     add_file_argument,
     add_ids_argument,
@@ -40,7 +39,7 @@ from trajgen.cli.common import (
     exit_status_text,
     output_path,
     positive_float,
-    prefix,
+    progress_line,
     tell,
     warn,
     write_json,
@@ -208,15 +207,10 @@ def plan(args) -> StreamJob:
         raise BadInput("--plot needs --virtual (it plots the simulated torque report)")
     return planned(
         lambda **options: StreamJob.from_file(
-            args.file, rate_hz=args.rate, say=tell, progress=progress, **options
+            args.file, rate_hz=args.rate, say=tell, progress=progress_line, **options
         ),
         args,
     )
-
-
-def progress(label: str) -> Progress:
-    """The stderr progress line of slow work, ``trajgen <command>: {label} 42%``."""
-    return Progress(f"{prefix()}: {label}")
 
 
 def job_options(args) -> dict:
@@ -352,7 +346,7 @@ def report(args, result) -> int:
                 result.exit_status = bad_input(e)
     if result.telemetry:
         try:
-            result.add_to_telemetry(progress(f"adding the report to {result.telemetry}"))
+            result.add_to_telemetry(progress_line(f"adding the report to {result.telemetry}"))
         except OSError as e:
             warn(f"telemetry {result.telemetry}: report not added: {e}")
     return write_report(args.json, result.to_json_dict(), result.exit_status)
