@@ -93,7 +93,7 @@ def run_fit(args) -> int:
     try:
         check_output_path("--out", args.out, (".toml",), [args.file])
         check_module("fit", "scipy", "scipy")  # HiGHS solves the time law's LPs
-        checked = load_checked(args.file)  # every table, [bus] included
+        checked = load_checked(args.file, any_axes=True)  # every table, [bus] included
         result = fit_timing(
             checked.keyframes,
             config=checked.gimbal,

@@ -107,7 +107,7 @@ def register(subparsers) -> None:
         type=_servo,
         action="append",
         metavar="JOINT=MODEL[,MODEL...]",
-        help="servo models to try on a joint; repeat per joint",
+        help="servo models to try on a joint (by the file's joint names); repeat per joint",
     )
     p.add_argument(
         "--time-scale",
