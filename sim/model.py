@@ -341,6 +341,13 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
         )
     if "model" in table:
         kwargs["model"] = _model_path(table["model"], path)
+        for key in ("payload_kg", "payload_offset_m"):
+            if key in table:
+                raise _file_error(
+                    path,
+                    f"[gimbal] {key}: your own model's payload is in its file "
+                    f"(model = {table['model']!r}); leave {key} out",
+                )
     if not any_axes:
         _refuse_other_axes(axes, path)
     config = GimbalConfig(**kwargs)

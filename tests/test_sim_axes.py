@@ -339,3 +339,15 @@ def test_identify_recovers_a_simulated_two_axis_gimbal(tmp_path):
         assert joint.values["armature"] == pytest.approx(want["armature"], rel=0.1)
         assert joint.values["position_p_gain"] == pytest.approx(want["position_p_gain"], rel=0.1)
     assert fit.config.n_joints == 2 and "[gimbal.pitch]" in fit.toml()
+
+
+def test_trajgen_sweep_takes_a_two_axis_file_by_joint_name(tmp_path, capsys):
+    from trajgen.cli import main
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    args = ["sweep", str(f), "--servo", "pitch=XL330-M288,XM430-W350", "--time-scale", "1"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "servos (yaw/pitch)" in out
+    assert "XL330-M288/XM430-W350" in out and "2 of 2 variants pass" in out
