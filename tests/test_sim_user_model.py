@@ -319,3 +319,17 @@ def test_a_payload_beside_an_own_model_is_refused(tmp_path, capsys):
     f = _file(tmp_path, _head(tmp_path).name)
     assert main(["sweep", str(f), "--offset-m", "0,0,0.1"]) == 2
     assert "--offset-m: the payload of your own model" in capsys.readouterr().err
+
+
+def test_fit_refuses_to_write_beside_another_folder_than_the_model_it_names(tmp_path, capsys):
+    from trajgen.cli import main
+
+    f = _file(tmp_path, _head(tmp_path).name)
+    elsewhere = tmp_path / "out"
+    elsewhere.mkdir()
+    assert main(["fit", str(f), "--out", str(elsewhere / "fit.toml")]) == 2
+    assert capsys.readouterr().err == (
+        f"trajgen fit: error: --out {elsewhere / 'fit.toml'}: the file's [gimbal] model = "
+        "'head.xml' is relative to its folder; write the fitted file there\n"
+    )
+    assert not (elsewhere / "fit.toml").exists()
