@@ -699,7 +699,7 @@ def test_the_drivers_refuse_other_axes_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err == (
         f"trajgen stream: error: {f}: [gimbal] axes = 'zy': 2-axis gimbals: stream, "
-        "virtual-bus, excite and fit need pan-tilt-roll (axes = 'zyx'), not yet; plan, sim, "
+        "virtual-bus and excite need pan-tilt-roll (axes = 'zyx'), not yet; plan, sim, fit, "
         "sweep and identify take any axes\n"
     )
 
