@@ -459,6 +459,27 @@ class Progress:
         self.stream.flush()
 
 
+def refuse_other_axes(kf, command: str, why: str) -> None:
+    """Refuse a keyframe file whose gimbal is not pan-tilt-roll, in one line: the
+    ``command`` (``"follow"``, ``"excite"``) does not take it yet, because ``why``.
+
+    Raises
+    ------
+    BadInput
+        ``"{path}: [gimbal] axes = 'zy', joints = [...]: {command} takes pan-tilt-roll
+        gimbals only so far ({why}); plan, sim, sweep, identify and stream take any axes"``.
+    """
+    from trajgen.keyframe_axes import is_default
+
+    if is_default(kf.axes):
+        return
+    raise BadInput(
+        f"{kf.path}: [gimbal] axes = {kf.axes.sequence!r}, joints = {list(kf.axes.joints)}: "
+        f"{command} takes pan-tilt-roll gimbals only so far "
+        f"({why}); plan, sim, sweep, identify and stream take any axes"
+    )
+
+
 def servo_ids(text: str) -> tuple[int, ...]:
     """argparse type: comma-separated distinct servo ids in 0..252 (how many is the
     command's to check against the file's joints)."""

@@ -142,7 +142,7 @@ def run_virtual_bus(args) -> int:
     from trajgen.sim.plant import GimbalPlant
 
     try:
-        checked = load_checked(args.file, spline=False)
+        checked = load_checked(args.file, spline=False, any_axes=True)
     except TrajgenError as e:
         return bad_input(e)
     kf, config = checked.keyframes, checked.bus
