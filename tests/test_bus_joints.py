@@ -253,3 +253,23 @@ def test_follow_refuses_a_gimbal_that_is_not_pan_tilt_roll(capsys):
     err = capsys.readouterr().err
     assert "follow takes pan-tilt-roll gimbals only so far" in err
     assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "gimbal",
+    [
+        {},
+        {"servo": "XL330-M288"},
+        {"servo": {"tilt": "XC330-M288"}},
+        {"servo": "XM430-W350", "tilt": {"servo": "XL330-M077"}},
+        {"axes": "yx", "joints": ["flex", "roll"], "roll": {"servo": "XL330-M077"}},
+    ],
+)
+def test_the_bus_expects_the_servos_the_simulator_simulates(gimbal):
+    """The [bus] models default and the simulated gimbal's servos are read from the same
+    keys by the drivers and the simulator (which the drivers may not import)."""
+    sim_model = pytest.importorskip("trajgen.sim.model")
+    tables = {"gimbal": gimbal}
+    simulated = sim_model.gimbal_config_from_tables(tables, "f.toml", any_axes=True)
+    expected = bus_config_from_tables(tables, "f.toml").models
+    assert expected == tuple(s.name for s in simulated.servos)
