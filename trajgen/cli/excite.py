@@ -23,6 +23,7 @@ from trajgen.cli.common import (
     exit_status_text,
     load_checked,
     positive_float,
+    refuse_other_axes,
 )
 
 DESCRIPTION = """\
@@ -121,8 +122,9 @@ def excitation_file(args) -> ExcitationFile:
     from trajgen.stream import plan_joint_trajectory
 
     stream.check_stream_outputs(args)
-    checked = load_checked(args.file)  # every table of the file
+    checked = load_checked(args.file, any_axes=True)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal
+    refuse_other_axes(kf, "excite", "its multisine excites pan, tilt and roll")
     center = GimbalKinematics().inverse(kf.quats[:1])[0]
     amplitude = (
         DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3
