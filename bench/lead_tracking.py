@@ -36,6 +36,7 @@ LEADS = ("none", "advance", "model")
 
 def motions(n_random: int, seed: int):
     """(name, source, config) for every motion: files, then random look-arounds."""
+    from trajgen.errors import KeyframeFileError
     from trajgen.keyframes import BUILTIN_EXAMPLE, load_keyframe_file
     from trajgen.quat import from_pan_tilt_roll
     from trajgen.sim.check import check_planned_torque
@@ -45,7 +46,12 @@ def motions(n_random: int, seed: int):
 
     for path in [*sorted((ROOT / "examples").glob("*.toml")), BUILTIN_EXAMPLE]:
         kf = load_keyframe_file(path)
-        yield path.stem, kf, gimbal_config_from_tables(kf.tables, kf.path)
+        try:
+            config = gimbal_config_from_tables(kf.tables, kf.path)
+        except KeyframeFileError as exc:  # e.g. a 2-axis gimbal: the simulator needs zyx
+            print(f"skipped: {exc}", file=sys.stderr)
+            continue
+        yield path.stem, kf, config
     rng = np.random.default_rng(seed)
     made = tries = 0
     while made < n_random and tries < 20 * max(n_random, 1):
