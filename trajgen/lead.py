@@ -130,12 +130,16 @@ class LedGoals:
         Frames per joint whose goal the cap, the plan's range or the limits changed.
     bounds : ndarray, shape (n, 2)
         Lowest and highest goal allowed per joint (rad).
+    wanted : ndarray, shape (N, n), optional
+        The goals the lead asked for before the cap, the range and the limits
+        (the ramps applied; rad), for diagnostics such as ``bench/lead_tracking.py``.
     """
 
     goal: np.ndarray
     lead: str
     clipped: np.ndarray
     bounds: np.ndarray
+    wanted: np.ndarray | None = None
 
 
 def check_lead(lead) -> str:
@@ -299,13 +303,14 @@ def led_goals(
     gravity = None if lead != "model" else torque(q, zero, zero)
     bounds = plan_bounds(q, gravity, params, limits_rad)
     if lead == "none":  # the plan as it is: a plan outside the limits is refused, not clipped
-        return LedGoals(q.copy(), lead, np.zeros(q.shape[1], dtype=int), bounds)
+        return LedGoals(q.copy(), lead, np.zeros(q.shape[1], dtype=int), bounds, q.copy())
     w_in, w_out = _weights(t, t[0], t[-1], params.lag_s)
     cap = lead_cap(qd, params)
     if lead == "model" and params.inertia_kg_m2 is not None:
         return _previewed(plan_at_s, raw, static, w_in, w_out, cap, bounds, params, q, period)
     goal, clipped = _bound(plan_at_s, raw, static, w_in, w_out, cap, bounds, params.enabled, q)
-    return LedGoals(goal, lead, clipped, bounds)
+    wanted = np.where(params.enabled[None, :], plan_at_s + w_in * (w_out * raw + static), q)
+    return LedGoals(goal, lead, clipped, bounds, wanted)
 
 
 def _previewed(plan_at_s, lead, static, w_in, w_out, cap, bounds, params, q, period):
@@ -320,7 +325,8 @@ def _previewed(plan_at_s, lead, static, w_in, w_out, cap, bounds, params, q, per
     )
     enabled = params.enabled
     goal = np.where(enabled[None, :], goal, q)
-    return LedGoals(goal, "model", np.where(enabled, changed, 0), bounds)
+    wanted = np.where(enabled[None, :], unbounded, q)
+    return LedGoals(goal, "model", np.where(enabled, changed, 0), bounds, wanted)
 
 
 def led_trajectory(trajectory, goals: LedGoals):
