@@ -25,6 +25,9 @@ Bounded, because a goal is what moves a servo:
   out, so the last goal is ``q_end`` plus the static gravity term;
 - every goal is clipped to the plan's own range of that joint widened by at
   most the static gravity/friction offset, and to the position limits given;
+  with the joints' inertia (``LeadParams.inertia_kg_m2``) the model lead's goals
+  around a clip are chosen again by the bounded preview
+  (:mod:`trajgen.lead_preview`), inside the same bounds;
 - a joint whose lead is switched off (its plan fails the torque check, where a
   saturated servo only pushes the goal further out) gets the plan.
 
