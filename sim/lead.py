@@ -40,7 +40,7 @@ def lead_params(config: GimbalConfig, model=None) -> LeadParams:
 
 
 def joint_inertia(model) -> np.ndarray:
-    """Each joint's inertia at the home pose (kg m^2, shape (3,)): the diagonal of
+    """Each joint's inertia at the home pose (kg m^2, shape (n,)): the diagonal of
     MuJoCo's mass matrix (links and reflected rotor inertia, ``armature``)."""
     import mujoco
 
