@@ -365,7 +365,7 @@ CASES = [
         ["plan", "{file}"],
         "[stream]\nrate = 100\n" + KEYS,
         2,
-        r"\[stream\]: unknown key 'rate' \(known: rate_hz, lead\)",
+        r"\[stream\]: unknown key 'rate' \(known: rate_hz, lead, run_in_s\)",
         "ok",
     ),
     (
