@@ -99,7 +99,7 @@ def follow(args, lines) -> int:
         refuse_other_axes(job.source, "follow", "its keyframe lines give pan, tilt, roll")
         made["follower"] = Follower(online_spline(job.source), job.rate_hz, on_skip=_skipped())
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
-        if job.source.method != "blending":
+        if job.source.method != "blending" and job.source.timing is None:  # fitted: as is
             print(
                 f"trajgen follow: note: {job.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "
