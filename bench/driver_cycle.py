@@ -76,13 +76,14 @@ def driver_frames(port: str, frames: int) -> tuple[list[float], list[float]]:
         for i in IDS:
             bus.add_servo(i, model)
         goal = dict.fromkeys(IDS, ZERO_TICK)
+        models = [bus.models[i] for i in IDS]
         for k in range(frames + 100):  # the first 100 warm up
             w0, c0 = time.perf_counter(), time.process_time()
             bus.sync_write(Register.GOAL_POSITION, goal)
             block = bus.read_block(IDS, STATE, fast=True)
             bus.check_block(block, "streaming")
-            raw = np.array([[block.values[i][r] for r in STATE] for i in IDS], dtype=float)
-            current = np.array([bus.models[i].current_a(block.values[i][STATE[0]]) for i in IDS])
+            raw = np.array(block.table, dtype=float)
+            current = np.array([m.current_a(row[0]) for m, row in zip(models, block.table)])
             joints.to_rad(raw[:, 2]), joints.velocity_to_rad_s(raw[:, 1])
             joints.signed_joint(current)
             w1, c1 = time.perf_counter(), time.process_time()

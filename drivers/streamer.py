@@ -612,9 +612,10 @@ class Streamer:
         block = self.bus.read_block(self.joints.ids, _STATE, fast=self._use_fast)
         self.bus.check_block(block, "streaming")
         self.stats.reads += 1
-        ids = self.joints.ids
-        raw = np.array([[block.values[i][r] for r in _STATE] for i in ids], dtype=float)
-        current = np.array([self.bus.models[i].current_a(block.values[i][_STATE[0]]) for i in ids])
+        raw = np.array(block.table, dtype=float)
+        models = [self.bus.models[i] for i in self.joints.ids]
+        rows = zip(models, block.table, strict=True)
+        current = np.array([m.current_a(row[0]) for m, row in rows])
         return (
             self._plausible(raw[:, 2]),
             self.joints.velocity_to_rad_s(raw[:, 1]),
