@@ -26,6 +26,7 @@ What it adds to them (see docs/dynamixel.md for why):
 
 from __future__ import annotations
 
+import functools
 import os
 import select
 import time
@@ -292,18 +293,25 @@ class BlockRead:
 
     Attributes
     ----------
-    values : dict of int to dict of Register to int
-        Per servo id, each register of the block, decoded (signed where signed).
+    registers : tuple of Register
+        The registers read, in the order asked.
     errors : dict of int to int
-        Per servo id, its status ERR byte (bit 7 = Alert).
+        Per servo id (in the order read), its status ERR byte (bit 7 = Alert).
     table : list of list of int
-        The same values per servo in the order read, per register in the
-        order asked (for array use without a lookup per value).
+        Per servo in the order read, each register's value in the order
+        asked, decoded (signed where signed): for arrays, without a lookup
+        per value.
     """
 
-    values: dict[int, dict[Register, int]]
+    registers: tuple[Register, ...]
     errors: dict[int, int]
     table: list[list[int]]
+
+    @functools.cached_property
+    def values(self) -> dict[int, dict[Register, int]]:
+        """Per servo id, each register of the block (the ``table`` by id and register)."""
+        rows = zip(self.errors, self.table, strict=True)
+        return {i: dict(zip(self.registers, row, strict=True)) for i, row in rows}
 
 
 class ServoBus:
@@ -747,9 +755,7 @@ class ServoBus:
         spec, what = laid_out
         read = self._fast_group_read if fast else self._group_read
         errors, table = self._retry(f"servos {list(ids)}", what, lambda: read(spec, what))
-        rows = zip(ids, table, strict=True)
-        values = {i: dict(zip(registers, row, strict=True)) for i, row in rows}
-        return BlockRead(values, dict(zip(ids, errors, strict=True)), table)
+        return BlockRead(registers, dict(zip(ids, errors, strict=True)), table)
 
     def _read_spec(self, ids, registers, fast):
         """A fast sync read's packets (``FastSyncReadPacket``), or a sync read's block."""

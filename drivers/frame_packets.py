@@ -30,7 +30,7 @@ import struct
 from collections.abc import Sequence
 
 from .errors import BadArgument
-from .protocol import BROADCAST_ID, HEADER, Instruction, crc16, stuff
+from .protocol import BROADCAST_ID, HEADER, STUFF_MARK, Instruction, crc16, stuff
 
 # Status packet layout (e-Manual, Protocol 2.0): ID at byte 4, LEN at 5..6, INST at 7.
 _ID, _LEN, _INST = 4, 5, 7
@@ -38,7 +38,6 @@ _STATUS_HEAD = 8  # header 4, ID, LEN 2, INST: where a fast sync read's first pa
 _PART_EXTRA = 4  # ERR, ID, CRC 2 around each servo's data in a fast sync read reply
 _UNSIGNED = {1: "B", 2: "H", 4: "I"}
 _SIGNED = {1: "b", 2: "h", 4: "i"}
-_STUFFED = b"\xff\xff\xfd"
 
 
 class SyncWritePacket:
@@ -99,7 +98,7 @@ class SyncWritePacket:
             flat.append(servo_id)
             flat.append(value + wrap if value < 0 else value)
         params = self._params.pack(*flat)
-        if _STUFFED in params:
+        if STUFF_MARK in params:
             return self._stuffed(params)
         crc = crc16(params, self._crc_head)
         return self._prefix + params + bytes((crc & 0xFF, crc >> 8))
@@ -230,7 +229,7 @@ def frame_status(buffer: bytearray, max_length: int) -> tuple[str, int]:
         Bytes of the packet (header to CRC); at least 11 while unknown.
     """
     while True:
-        start = buffer.find(_STUFFED)
+        start = buffer.find(STUFF_MARK)
         if start < 0:
             del buffer[: max(0, len(buffer) - 2)]  # keep a possible partial header
             return "more", 11
