@@ -8,7 +8,10 @@ about the middle tick) and one Fast Sync Read of present current, velocity and
 position (126..135). A cycle's reply is *missed* when the SDK's result is not
 success (no status packet within its timeout, 34 ms, or a corrupt one), and
 *late* when the cycle took longer than its period (1 ms). Cycles are paced on
-deadlines; a cycle that starts after its deadline is a *slip* of the client.
+deadlines; a cycle that starts after its deadline is a *slip* of the client,
+and the slots already gone are skipped (cycles done against 1 kHz slots says
+how many the server let through). The client runs at SCHED_FIFO where
+permitted (``drivers.priority``), as a real-time controller would.
 
 Peer, in the same run: the same client against a minimal responder process
 on a pty that answers each cycle with one precomputed reply (the client's own
@@ -37,6 +40,7 @@ import tty
 import numpy as np
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
+from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.protocol import encode_fast_sync_status
 
 IDS = (1, 2, 3)
@@ -47,7 +51,11 @@ MIDDLE_TICK, AMPLITUDE_TICKS = 2048, 200
 
 
 def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict:
-    """Run the 1 kHz client for ``seconds``; per-cycle results."""
+    """Run the 1 kHz client for ``seconds``; per-cycle results.
+
+    The client runs as a real-time controller would (``drivers.priority``:
+    SCHED_FIFO where permitted), so that the figures are the server's.
+    """
     port = PortHandler(port_name)
     port.openPort()
     port.setBaudRate(4_000_000)
@@ -62,40 +70,43 @@ def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict
         reader.addParam(i)
     period = 1.0 / rate_hz
     took, missed, slips = [], 0, 0
-    start = time.perf_counter() + 0.05
-    k = 0
-    while True:
-        deadline = start + k * period
-        now = time.perf_counter()
-        if deadline - start >= seconds:
-            break
-        if now < deadline:
-            time.sleep(max(0.0, deadline - now - 2e-4))
-            while time.perf_counter() < deadline:
-                pass
-        elif now - deadline > period:
-            slips += 1
-        t0 = time.perf_counter()
-        goal = round(MIDDLE_TICK + AMPLITUDE_TICKS * math.sin(2 * math.pi * 0.5 * k * period))
-        for i in IDS:
-            writer.changeParam(i, list(goal.to_bytes(4, "little")))
-        ok = writer.txPacket() == COMM_SUCCESS
-        ok = reader.fastSyncRead() == COMM_SUCCESS and ok
-        ok = ok and all(reader.isAvailable(i, BLOCK_START, BLOCK_LENGTH) for i in IDS)
-        took.append(time.perf_counter() - t0)
-        missed += not ok
-        k += 1
-        if time.perf_counter() > start + k * period:  # behind: skip the slots already gone
-            k = max(k, math.ceil((time.perf_counter() - start) / period))
+    with stream_priority() as scheduling:
+        start = time.perf_counter() + 0.05
+        k = 0
+        while True:
+            deadline = start + k * period
+            now = time.perf_counter()
+            if deadline - start >= seconds:
+                break
+            if now < deadline:
+                time.sleep(max(0.0, deadline - now - 2e-4))
+                while time.perf_counter() < deadline:
+                    pass
+            elif now - deadline > period:
+                slips += 1
+            t0 = time.perf_counter()
+            goal = round(MIDDLE_TICK + AMPLITUDE_TICKS * math.sin(2 * math.pi * 0.5 * k * period))
+            for i in IDS:
+                writer.changeParam(i, list(goal.to_bytes(4, "little")))
+            ok = writer.txPacket() == COMM_SUCCESS
+            ok = reader.fastSyncRead() == COMM_SUCCESS and ok
+            ok = ok and all(reader.isAvailable(i, BLOCK_START, BLOCK_LENGTH) for i in IDS)
+            took.append(time.perf_counter() - t0)
+            missed += not ok
+            k += 1
+            if time.perf_counter() > start + k * period:  # behind: skip the slots already gone
+                k = max(k, math.ceil((time.perf_counter() - start) / period))
     port.closePort()
     took = np.array(took)
     return {
         "cycles": len(took),
+        "slots": round(seconds * rate_hz),
         "missed": missed,
         "late": int(np.sum(took > period)),
         "slips": slips,
         "took": took,
         "period": period,
+        "scheduling": scheduling,
     }
 
 
@@ -151,7 +162,7 @@ def row(name: str, r: dict, load: float) -> str:
     took_ms = 1e3 * r["took"]
     p50, p99 = np.percentile(took_ms, [50, 99])
     return (
-        f"| {name} | {load:.1f} | {r['cycles']} "
+        f"| {name} | {load:.1f} | {r['cycles']} / {r['slots']} "
         f"| {r['missed']} ({100 * r['missed'] / r['cycles']:.3f} %) "
         f"| {r['late']} ({100 * r['late'] / r['cycles']:.2f} %) | {r['slips']} | {p50:.3f} "
         f"| {p99:.3f} | {took_ms.max():.1f} |"
@@ -169,7 +180,7 @@ def main() -> None:
     print(f"{os.cpu_count()} cores; load before {os.getloadavg()}")
     print()
     print(
-        "| served by | load | cycles | missed | late (> period) | client slips "
+        "| served by | load | cycles / 1 kHz slots | missed | late (> period) | client slips "
         "| p50 ms | p99 ms | max ms |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
@@ -179,8 +190,12 @@ def main() -> None:
     print(row("trajgen virtual-bus", result, os.getloadavg()[0]))
     print()
     print(f"bus: {summary}")
+    print(f"client: {result['scheduling']}")
     share = 100 * result["missed"] / result["cycles"]
-    print(f"missed replies: {share:.3f} % (goal < 0.1 %); load after {os.getloadavg()}")
+    print(
+        f"missed replies: {share:.3f} % (goal < 0.1 %); 1 kHz slots served: "
+        f"{result['cycles']} of {result['slots']}; load after {os.getloadavg()}"
+    )
 
 
 if __name__ == "__main__":
