@@ -13,7 +13,9 @@ Peers, in the same run: the same bytes through the same pty with bare
 trip on this host), and the same cycle through the SDK's packet path (what the
 driver did before ``drivers.frame_packets``). Reference: the wire time of the
 96 bytes at 4 Mbps (10 bits a byte: 240 us; docs/dynamixel.md). Each pass
-runs with 0, then 1 CPU-bound process beside it (``--hogs``). Prints per-frame
+runs with 0, then 1 CPU-bound process beside it (``--hogs``), the driver and
+the responder at the priority the streamer takes on the wall clock
+(``drivers.priority``; ``--normal``: without). Prints per-frame
 wall and CPU time (p50, p90, p99), their ratio to the wire time, and the
 machine load.
 
@@ -23,6 +25,7 @@ machine load.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing
 import os
 import time
@@ -32,6 +35,7 @@ import numpy as np
 
 from trajgen.drivers.bus import ServoBus, reply_problem
 from trajgen.drivers.control_table import Register, model_named
+from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.protocol import BROADCAST_ID, encode_fast_sync_status
 from trajgen.drivers.units import JointMap, to_signed
 from trajgen.servo_table import ZERO_TICK
@@ -164,14 +168,22 @@ def hog() -> None:
         x = (x * 1103515245 + 12345) & 0xFFFFFFFF
 
 
-def on_a_pty(ctx, reply: bytes, run):
+def raised_responder(master: int, request_b: int, reply: bytes) -> None:
+    """``responder`` at the stream thread's priority: it stands for servos, not for the host."""
+    with stream_priority():
+        responder(master, request_b, reply)
+
+
+def on_a_pty(ctx, reply: bytes, run, raised: bool):
     """``run(slave_fd, slave_name)`` against the responder process on a fresh pty."""
     master, slave = os.openpty()
     tty.setraw(slave)
-    proc = ctx.Process(target=responder, args=(master, SYNC_WRITE_B + READ_REQUEST_B, reply))
+    target = raised_responder if raised else responder
+    proc = ctx.Process(target=target, args=(master, SYNC_WRITE_B + READ_REQUEST_B, reply))
     proc.start()
     try:
-        return run(slave, os.ttyname(slave))
+        with stream_priority() if raised else contextlib.nullcontext():
+            return run(slave, os.ttyname(slave))
     finally:
         proc.terminate()
         proc.join()
@@ -184,6 +196,12 @@ def main(argv=None) -> None:
     parser.add_argument("--frames", type=int, default=3000)
     parser.add_argument(
         "--hogs", type=int, nargs="+", default=[0, 1], help="CPU-bound processes beside each pass"
+    )
+    parser.add_argument(
+        "--normal",
+        action="store_true",
+        help="run at the normal priority (default: as the streamer runs on the wall clock, "
+        "SCHED_FIFO where permitted, the responder too)",
     )
     args = parser.parse_args(argv)
     reply = reply_bytes()
@@ -203,6 +221,11 @@ def main(argv=None) -> None:
         ),
     )
     print(f"# driver cycle, 3 servos, {args.frames} frames; load before {os.getloadavg()}")
+    if args.normal:
+        print("scheduling: normal")
+    else:
+        with stream_priority() as how:
+            print(f"scheduling (driver and responder): {how}")
     print(f"wire time of the frame's {wire_b} bytes at {BAUD / 1e6:g} Mbps: {1e6 * wire_s:.0f} us")
     print()
     print(
@@ -216,7 +239,7 @@ def main(argv=None) -> None:
             h.start()
         try:
             for name, run in paths:
-                walls, cpus = on_a_pty(ctx, reply, run)
+                walls, cpus = on_a_pty(ctx, reply, run, raised=not args.normal)
                 load = os.getloadavg()[0]
                 w = percentiles(walls)
                 walls_text = " / ".join(f"{1e6 * v:.0f}" for v in w)
