@@ -32,19 +32,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+from driver_cycle import hog  # bench/: the same CPU-bound process
 
 from trajgen.cli import build_parser
 from trajgen.cli.follow import follow
 from trajgen.drivers.streamer import Streamer
 
 RATE_HZ = 200.0
-
-
-def hog() -> None:
-    """A CPU-bound process (the load beside the stream)."""
-    x = 0
-    while True:
-        x = (x * 1103515245 + 12345) & 0xFFFFFFFF
 
 
 def keyframe_lines(seconds: float, every_s: float):

@@ -38,16 +38,18 @@ import time
 import tty
 
 import numpy as np
+from driver_cycle import responder  # bench/: the same minimal responder
 from dynamixel_sdk import COMM_SUCCESS, GroupSyncRead, GroupSyncWrite, PacketHandler, PortHandler
 
 from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.protocol import encode_fast_sync_status
+from trajgen.servo_table import ZERO_TICK
 
 IDS = (1, 2, 3)
 TORQUE_ENABLE, GOAL_POSITION, BLOCK_START, BLOCK_LENGTH = 64, 116, 126, 10
 SYNC_WRITE_B = 14 + 5 * len(IDS)  # header..CRC of a 4-byte sync write to 3 servos
 READ_REQUEST_B = 14 + len(IDS)
-MIDDLE_TICK, AMPLITUDE_TICKS = 2048, 200
+MIDDLE_TICK, AMPLITUDE_TICKS = ZERO_TICK, 200
 
 
 def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict:
@@ -108,22 +110,6 @@ def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict
         "period": period,
         "scheduling": scheduling,
     }
-
-
-def responder(master: int, request_b: int, reply: bytes) -> None:
-    """Answer every ``request_b`` bytes read with ``reply``, until the pty closes."""
-    pending = 0
-    while True:
-        try:
-            data = os.read(master, 1 << 12)
-        except OSError:
-            return
-        if not data:
-            return
-        pending += len(data)
-        while pending >= request_b:
-            pending -= request_b
-            os.write(master, reply)
 
 
 def against_virtual_bus(seconds: float, rate_hz: float) -> tuple[dict, str]:
