@@ -11,9 +11,13 @@ permitted and a 0.5 ms GIL switch interval, ``drivers.priority``) and the peer
 without (``realtime=False``, as before), each with 0 and with ``--hogs``
 CPU-bound processes beside it.
 
-Printed per arm: frames streamed, frames later than 1 ms / half a period / a
-period past their deadline (``lateness_s`` of the telemetry), lateness p99
-and max, the stream's stalls, how the thread was scheduled, and the load.
+Printed per arm: the exit status (1: the stream fell more than 1 s behind its
+plan and stopped, ``StreamLagging``), frames streamed, frames later than 1 ms
+/ half a period / a period past their deadline (``lateness_s`` of the
+telemetry, after the stream's stall shifts), lateness p99 and max, the
+stream's stalls (frames more than half a period late: the rest of the stream
+shifted) and how far behind its plan it ended, how the thread was scheduled,
+and the load.
 
     .venv/bin/python bench/follow_isolation.py [--seconds 6] [--hogs 2] [--rounds 1]
 """
@@ -97,10 +101,10 @@ def main() -> None:
     print(f"{os.cpu_count()} cores; load before {os.getloadavg()}")
     print()
     print(
-        "| hogs | stream thread | load | frames | late > 1 ms | > half period | > period "
-        "| p99 ms | max ms | stalls | scheduling |"
+        "| hogs | stream thread | load | exit | frames | late > 1 ms | > half period | > period "
+        "| p99 ms | max ms | stalls | behind at the end s | scheduling |"
     )
-    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
+    print("|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
     ctx = multiprocessing.get_context("fork")
     for _ in range(args.rounds):
         for n_hogs in (0, args.hogs):
@@ -113,13 +117,14 @@ def main() -> None:
                     late, stream = r["late"], r["stream"]
                     name = "raised (realtime=True)" if realtime else "peer: as before"
                     if stream is None or not len(late):
-                        print(f"| {n_hogs} | {name} | | failed: exit {r['status']} |")
+                        print(f"| {n_hogs} | {name} | | {r['status']} | 0 (no frame streamed) |")
                         continue
                     print(
-                        f"| {n_hogs} | {name} | {os.getloadavg()[0]:.1f} | {len(late)} "
+                        f"| {n_hogs} | {name} | {os.getloadavg()[0]:.1f} | {r['status']} "
+                        f"| {len(late)} "
                         f"| {int(np.sum(late > 1e-3))} | {int(np.sum(late > period / 2))} "
                         f"| {int(np.sum(late > period))} | {1e3 * np.percentile(late, 99):.2f} "
-                        f"| {1e3 * late.max():.2f} | {stream['stalls']} "
+                        f"| {1e3 * late.max():.2f} | {stream['stalls']} | {stream['delay_s']:.2f} "
                         f"| {stream.get('scheduling') or '-'} |",
                         flush=True,
                     )
