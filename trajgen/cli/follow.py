@@ -94,20 +94,20 @@ def follow(args, lines) -> int:
     returns the exit status."""
     made = {}
 
-    def make_plan(args):
-        p = stream_command.plan(args)
-        made["follower"] = Follower(online_spline(p.source), p.rate_hz, on_skip=_skipped())
+    def make_job(args):
+        job = stream_command.plan(args)
+        made["follower"] = Follower(online_spline(job.source), job.rate_hz, on_skip=_skipped())
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
-        if p.source.method != "blending":
+        if job.source.method != "blending":
             print(
-                f"trajgen follow: note: {p.source.path}: follow plans with the blending spline "
+                f"trajgen follow: note: {job.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "
-                f"{p.source.method!r}",
+                f"{job.source.method!r}",
                 file=sys.stderr,
             )
-        return p
+        return job
 
-    def go(session, p):
+    def go(session, job):
         try:
             return session.follow(made["follower"], lines)
         finally:
@@ -116,4 +116,4 @@ def follow(args, lines) -> int:
     def extra():
         return {"follow": made["follower"].summary()} if "follower" in made else {}
 
-    return stream_command.run_plan(args, make_plan, go, extra)
+    return stream_command.run_plan(args, make_job, go, extra)
