@@ -406,3 +406,47 @@ def test_capped_lines_reads_a_text_file_alike():
 
     lines = list(capped_lines(io.StringIO("a\n" + "b" * 50 + "\nc"), max_bytes=10))
     assert lines == ["a\n", "b" * 11, "c"]
+
+
+def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monkeypatch):
+    """[limits] and the servos' envelope reach the tracker through the CLI: a 30 deg step
+    (that the spline's minimum lead alone would take at about 4 rad/s) and a second
+    target replacing it in mid-motion keep them on every frame streamed."""
+    import io
+
+    from trajgen.sim.check import envelope_check
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    seen = {}
+    real_follow = Session.follow
+
+    def spy_follow(self, follower, lines, **kwargs):
+        seen["follower"] = follower
+        return real_follow(self, follower, lines, **kwargs)
+
+    monkeypatch.setattr(Session, "follow", spy_follow)
+    limits = (1.0, 8.0, 100.0)  # rad/s, rad/s^2, rad/s^3
+    keys = tmp_path / "limited.toml"
+    keys.write_text(
+        "[limits]\nspeed_rad_s = {}\nacceleration_rad_s2 = {}\njerk_rad_s3 = {}\n\n"
+        "[bus]\nwatchdog_s = 0.5\n\n"
+        "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.3\npan = 0.0\n".format(*limits)
+    )
+    monkeypatch.setattr(sys, "stdin", io.StringIO('{"pan": 30}\n{"pan": -10, "tilt": 12}\n'))
+    out = tmp_path / "follow.json"
+    argv = ["follow", str(keys), "--virtual", "--configure", "--max-delay", "60"]
+    assert main([*argv, "--lead", "none", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["follow"]["accepted"] == 2
+    f = seen["follower"]
+    traj = f.trajectory()
+    speed, accel = np.abs(traj.qd).max(axis=0), np.abs(traj.qdd).max(axis=0)
+    jerk = np.abs(np.diff(traj.qdd, axis=0)).max(axis=0) * RATE_HZ  # mean jerk per frame
+    assert (speed <= limits[0]).all() and (accel <= limits[1]).all()
+    assert (jerk <= limits[2] * (1 + 1e-6)).all()
+    assert speed[0] > 0.5 * limits[0] or accel[0] > 0.5 * limits[1]  # the limits bind
+    kf = load_keyframe_file(keys)
+    within = envelope_check(gimbal_config_from_tables(kf.tables, kf.path))
+    assert within(traj.q, traj.qd, traj.qdd).all()
+    # both targets reached: the second in mid-motion of the first, ending at rest on it
+    np.testing.assert_allclose(np.degrees(traj.q[-1]), [-10, 12, 0], atol=1e-6)
+    np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)

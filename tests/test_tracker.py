@@ -187,3 +187,67 @@ def test_follow_lines_without_a_time_go_to_the_tracker():
     assert len(f.keyframes) == 3
     with pytest.raises(ValueError, match=r"stdin: line 6: field 'max_speed': expected"):
         f.feed('{"pan": 3, "max_speed": 0}', 6)
+
+
+def frame_peaks(tr, path, t0, t1, near):
+    """Peak |speed|, |acceleration|, |jerk| (3, 3) of ``path`` at the frames in (t0, t1]."""
+    _, qd, qdd, jerk = tr.joint_motion(path, t0, t1, near)
+    return np.array([np.abs(x).max(axis=0) for x in (qd, qdd, jerk)])
+
+
+@pytest.mark.parametrize("at", [0.1, 5.0])  # in motion, and at rest after the first target
+def test_the_splice_family_is_the_retarget_at_every_lead(at):
+    tr = tracker()
+    tr.set_target(angles=[D(30), D(-10), 0], at=0.0)
+    goal = forward([[D(-20), D(15), 0]])
+    probe = tr.spline.prepare("retarget", goal, [at + 0.4], at=at)
+    coefs, q_a = tr._family(probe.path.pieces[-1].splice, at >= tr.spline.t_end)
+    for h in (0.25, 0.7, 2.0):
+        other = tr.spline.prepare("retarget", goal, [at + h], at=at).path.pieces[-1].splice
+        np.testing.assert_allclose(coefs(np.array([h]))[0], other.coef, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(other.q_a, q_a)
+
+
+def test_a_30_hz_stream_keeps_the_limits_at_every_frame_and_each_change_is_c2():
+    rng = np.random.default_rng(7)
+    tr = tracker()
+    at, changed = 0.0, 0
+    for _ in range(45):
+        target = [rng.uniform(-0.6, 0.6), rng.uniform(-0.4, 0.4), 0.0]
+        before = tr.spline.snapshot()[1]
+        r = tr.set_target(angles=target, at=at)
+        if r.changed:
+            changed += 1
+            after = tr.spline.snapshot()[1]
+            (q0, w0, a0), (q1, w1, a1) = one_sided(before, after, r.at)
+            np.testing.assert_allclose(q1, q0, atol=1e-12)
+            np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+            np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+            near = tr._unwrapped(after(np.array([r.at]))[0], r.goal)
+            peaks = frame_peaks(tr, after, r.at, r.arrival, near)
+            assert (peaks <= LIMITS).all(), peaks
+            np.testing.assert_allclose(peaks, r.peaks, rtol=1e-6, atol=1e-9)
+        at += 1 / 30
+    assert changed == 45
+
+
+def test_a_reversal_that_no_lead_can_take_now_is_deferred():
+    tr = tracker()
+    tr.set_target(angles=[1.0, 0, 0], at=0.0)  # starts with a jerk at its limit
+    goal = forward([[-1.0, 0, 0]])
+    near = tr._unwrapped(tr.spline(np.array([0.01]))[0], tr.goal)
+    for h in np.geomspace(0.2, 4.0, 25):  # from 0.01, every lead breaks a limit
+        change = tr.spline.prepare("retarget", goal, [0.01 + h], at=0.01)
+        try:
+            tr.kinematics.check(tr.joint_motion(change.path, 0.01, 0.01 + h, near)[0])
+        except KinematicsError:
+            continue
+        assert (frame_peaks(tr, change.path, 0.01, 0.01 + h, near) > LIMITS).any()
+    before = tr.spline.snapshot()[1]
+    r = tr.set_target(angles=[-1.0, 0, 0], at=0.01)
+    assert r.changed and r.at > 0.01 and (r.peaks <= LIMITS).all()
+    (q0, w0, a0), (q1, w1, a1) = one_sided(before, tr.spline.snapshot()[1], r.at)
+    np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+    np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+    # a target asked for before the deferred change starts from it
+    assert tr.set_target(angles=[0.3, 0, 0], at=0.02).at >= r.at
