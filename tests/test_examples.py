@@ -33,6 +33,7 @@ def _arguments(name: str, tmp_path: Path) -> list[str]:
         "03_simulate_torque.py": ["--file", str(EXAMPLES / "sim_too_fast.toml"), "--expect-fail"],
         "04_stream_virtual.py": ["--file", str(short)],
         "05_follow_target.py": ["--seconds", "1", "--no-plot"],
+        "06_stream_file.py": ["--file", str(short), "--json", str(tmp_path / "out.json")],
     }[name]
 
 
@@ -40,12 +41,13 @@ NUMBERED = sorted(p.name for p in EXAMPLES.glob("[0-9][0-9]_*.py"))
 
 
 def test_the_examples_are_numbered_from_01():
-    assert NUMBERED[:5] == [
+    assert NUMBERED[:6] == [
         "01_plan_offline.py",
         "02_joint_stream.py",
         "03_simulate_torque.py",
         "04_stream_virtual.py",
         "05_follow_target.py",
+        "06_stream_file.py",
     ]
 
 

@@ -16,20 +16,16 @@ import textwrap
 import time
 import warnings
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from trajgen.errors import TrajgenError
+from trajgen.jobs.checked_file import check_timing as check_timing  # the commands' import
 from trajgen.keyframes import (
     BUILTIN_EXAMPLE,
     DEFAULT_RATE_HZ,
-    JOINT_MINIMAX_S_PER_KEYFRAME,
-    KeyframeFile,
-    load_keyframe_file,
 )
-from trajgen.sampling import MAX_SAMPLES, check_sample_count
 from trajgen.servo_table import SERVOS
 
 #: Exit statuses shared by every subcommand.
@@ -39,11 +35,6 @@ EXIT_OK, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
 #: Telemetry formats (``trajgen stream --telemetry``, ``excite``, read by ``identify``).
 TELEMETRY_SUFFIXES = (".csv", ".npz", ".mcap")
-
-#: Keyframe files above this many keyframes print a line before the spline is built.
-_LARGE_FILE_KEYFRAMES = 100_000
-#: With ``knots = "joint-minimax"``, files from this many keyframes say the cost first.
-_SLOW_BUILD_KEYFRAMES = 20
 
 #: Folders of kernel interfaces, never an output (``--out /proc/...``).
 _KERNEL_FOLDERS = ("/proc", "/sys")
@@ -412,111 +403,15 @@ def check_plot_path(path: str | None, inputs=()) -> None:
         check_module("--plot", "matplotlib", "matplotlib")
 
 
-@dataclass(frozen=True)
-class CheckedFile:
-    """A keyframe file with every table checked; its spline is built on first use.
+def load_checked(path, *, spline: bool = True, any_axes: bool = False):
+    """``trajgen.jobs.load_checked`` (every table of a keyframe file checked) with a slow
+    spline build's cost and progress said on stderr."""
+    from trajgen.jobs import load_checked as load
 
-    Attributes
-    ----------
-    keyframes : KeyframeFile
-    gimbal : trajgen.sim.GimbalConfig
-        From ``[gimbal]``.
-    bus : trajgen.drivers.config.BusConfig
-        From ``[bus]``.
-    limits : trajgen.sim.limits.JointLimits
-        From ``[limits]``.
-    """
+    def progress(label: str) -> Progress:
+        return Progress(f"{prefix()}: {label}")
 
-    keyframes: KeyframeFile
-    gimbal: object
-    bus: object
-    limits: object
-
-    @property
-    def spline(self):
-        """The file's spline (built on first use; raises KeyframeFileError if refused).
-
-        A slow build says its cost first and shows its progress on stderr."""
-        kf = self.keyframes
-        n = len(kf.times)
-        slow = kf.spline_options.get("knots") == "joint-minimax"
-        if "_built_spline" in kf.__dict__:
-            pass  # built already
-        elif slow and n >= _SLOW_BUILD_KEYFRAMES:
-            tell(
-                f"knots = 'joint-minimax' through {n:,} keyframes: about "
-                f"{n * JOINT_MINIMAX_S_PER_KEYFRAME:,.0f} s on an unloaded core "
-                "('end-minimax' takes milliseconds)"
-            )
-        elif n > _LARGE_FILE_KEYFRAMES:
-            tell(f"building the spline through {n:,} keyframes...")
-        return kf.spline(progress=Progress(f"{prefix()}: joint-minimax knots") if slow else None)
-
-
-def load_checked(path, *, spline: bool = True, any_axes: bool = False) -> CheckedFile:
-    """Load a keyframe file and check every table of it, whatever the command.
-
-    ``plan`` does not use ``[gimbal]`` or ``[bus]``, but a mistake in them is
-    refused by every command alike, so a file that plans also simulates and
-    streams. A spline that is slow to build (``knots = "joint-minimax"``) is built
-    here, its cost said first and its progress shown, unless ``spline`` is False
-    (a command that does not plan the file's motion).
-
-    Parameters
-    ----------
-    path : str or Path
-    spline : bool
-        Build a slow spline here (see above); default True.
-    any_axes : bool
-        Accept a ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll (only
-        ``trajgen plan`` does so far); otherwise such a file is refused in one line
-        (``trajgen.sim.model.gimbal_config_from_tables``).
-
-    Raises
-    ------
-    KeyframeFileError
-        For any table, keyframe or field; one line naming file and field.
-    """
-    from trajgen.drivers.config import bus_config_from_tables
-    from trajgen.sim.limits import limits_from_tables
-    from trajgen.sim.model import gimbal_config_from_tables
-
-    kf = load_keyframe_file(path)
-    gimbal = gimbal_config_from_tables(kf.tables, kf.path, any_axes=any_axes)
-    bus = bus_config_from_tables(kf.tables, kf.path)
-    limits = limits_from_tables(kf.tables, kf.path)
-    checked = CheckedFile(kf, gimbal, bus, limits)
-    if spline and kf.spline_options.get("knots") == "joint-minimax":
-        checked.spline  # noqa: B018 (built now, with its cost and progress on stderr)
-    return checked
-
-
-def check_timing(kf: KeyframeFile, rate_hz: float, max_samples: int = MAX_SAMPLES) -> int:
-    """Refuse a plan that cannot be sampled sensibly at ``rate_hz``; returns the sample count.
-
-    Two keyframes closer than one sample period cannot both be followed by the
-    stream (the motion between them falls between two samples), and a sample
-    count above ``max_samples`` would not fit in memory.
-
-    Raises
-    ------
-    KeyframeFileError
-        Two keyframes closer than one period, naming them.
-    PlanTooLarge
-        Too many samples, with the count and the limit.
-    """
-    gaps = np.diff(kf.times)
-    i = int(np.argmin(gaps))
-    if gaps[i] < 1.0 / rate_hz:
-        raise kf.error(
-            f"keyframes {i + 1} and {i + 2}",
-            f"{gaps[i]:.3g} s apart, less than one sample period ({1 / rate_hz:.3g} s at "
-            f"{rate_hz:g} Hz): no stream can follow that; space them out or raise the rate",
-        )
-    try:
-        return check_sample_count(kf.times[0], kf.times[-1], rate_hz, max_samples)
-    except TrajgenError as e:
-        raise type(e)(f"{kf.path}: {e}") from None
+    return load(path, spline=spline, any_axes=any_axes, say=tell, progress=progress)
 
 
 def fastest_servo_rad_s() -> tuple[str, float]:

@@ -148,15 +148,18 @@ def excitation_file(args) -> ExcitationFile:
 def run_excite(args) -> int:
     """Run ``trajgen excite``; returns the exit status."""
 
-    def make_plan(args):
+    def make_job(args):
         from trajgen.drivers.config import bus_config_from_tables
+        from trajgen.jobs import StreamJob
 
         source = excitation_file(args)
         config = bus_config_from_tables(source.tables, source.path)
         # Every stream option applies: --torque-off, --max-delay, --set-limits, ...
-        return stream.planned(source, config, source.rate_hz, args, stream.stream_options(args))
+        return stream.planned(
+            lambda **options: StreamJob.plan(source, config, source.rate_hz, **options), args
+        )
 
-    status = stream.run_plan(args, make_plan, stream.stream_source)
+    status = stream.run_plan(args, make_job)
     if status == EXIT_OK:
         print(f"next: trajgen identify {args.file} {args.telemetry} --out FITTED.toml")
     return status

@@ -103,29 +103,29 @@ def follow(args, lines) -> int:
     returns the exit status."""
     made = {}
 
-    def make_plan(args):
+    def make_job(args):
         from trajgen.sim.check import envelope_check
         from trajgen.sim.limits import limits_from_tables
 
-        p = stream_command.plan(args)
+        job = stream_command.plan(args)
         made["follower"] = Follower(
-            online_spline(p.source),
-            p.rate_hz,
+            online_spline(job.source),
+            job.rate_hz,
             on_skip=_skipped(),
-            limits=limits_from_tables(p.source.tables, p.source.path),
-            envelope=envelope_check(p.gimbal),
+            limits=limits_from_tables(job.source.tables, job.source.path),
+            envelope=envelope_check(job.gimbal),
         )
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
-        if p.source.method != "blending":
+        if job.source.method != "blending":
             print(
-                f"trajgen follow: note: {p.source.path}: follow plans with the blending spline "
+                f"trajgen follow: note: {job.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "
-                f"{p.source.method!r}",
+                f"{job.source.method!r}",
                 file=sys.stderr,
             )
-        return p
+        return job
 
-    def go(session, p):
+    def go(session, job):
         try:
             return session.follow(made["follower"], lines)
         finally:
@@ -134,4 +134,4 @@ def follow(args, lines) -> int:
     def extra():
         return {"follow": made["follower"].summary()} if "follower" in made else {}
 
-    return stream_command.run_plan(args, make_plan, go, extra)
+    return stream_command.run_plan(args, make_job, go, extra)

@@ -1,18 +1,17 @@
-"""The ``trajgen stream`` command: arguments and printing around a library session.
+"""The ``trajgen stream`` command: arguments and printing around ``trajgen.jobs.StreamJob``.
 
-``plan`` (everything that can fail on bad input, before any hardware: the file,
-the options, the joint stream) and :func:`run_plan` (a
-``trajgen.drivers.session.Session`` with the options, on the port or a virtual
-bus around the simulated gimbal; then the terminal lines, the torque report with
---virtual and --json, written on every stop). ``trajgen follow`` and ``trajgen
-excite`` run the same two with their own plan and session call.
+:func:`plan` turns the options into a ``StreamJob`` (everything that can fail on
+bad input, before any hardware); :func:`run_plan` runs it under the stop signals
+and prints its ``StreamResult`` (the statistics, each servo's state, the torque
+report with --virtual; --plot and --json, written on every stop). ``trajgen
+follow`` and ``trajgen excite`` run the same two with their own job and stream.
 
 SIGINT, SIGTERM and SIGHUP are handled alike: the servos are stopped safely
 (hold, or released with ``--torque-off``), the telemetry and the JSON report
 are written, and the exit status is 128 + the signal number (130, 143, 129).
 
-This module imports quickly: dynamixel-sdk, pyserial and MuJoCo load inside
-``run_stream``.
+This module imports quickly: dynamixel-sdk, pyserial and MuJoCo load when the
+job is planned and run.
 """
 
 from __future__ import annotations
@@ -21,11 +20,8 @@ import argparse
 import math
 import warnings
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 
 from trajgen.cli.common import (
-    EXIT_FAILED,
-    EXIT_OK,
     TELEMETRY_SUFFIXES,
     BadInput,
     Progress,
@@ -40,9 +36,7 @@ from trajgen.cli.common import (
     check_module,
     check_output_path,
     check_plot_path,
-    check_timing,
     exit_status_text,
-    load_checked,
     output_path,
     positive_float,
     prefix,
@@ -52,6 +46,7 @@ from trajgen.cli.common import (
 )
 from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
+from trajgen.jobs import LimitsRefused, NoPort, StreamJob
 
 STREAM_DESCRIPTION = """\
 Plan the joint stream of a keyframe file and stream it to Dynamixel X-series
@@ -176,65 +171,12 @@ def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
 # -- plan --------------------------------------------------------------------
 
 
-@dataclass
-class Plan:
-    """Everything decided before any hardware is touched.
-
-    Attributes
-    ----------
-    source : KeyframeFile or ExcitationFile
-        What is streamed (``path``, ``tables``, ``spline()``).
-    config : BusConfig
-        The file's [bus] table with the flags applied (an ideal joint map with --virtual).
-    rate_hz : float
-    trajectory : JointTrajectory
-        The joint stream planned from the path's own start (the virtual gimbal powers
-        up at its first frame; a session plans again from where the servos are).
-    virtual : bool
-    options : dict
-        ``Session`` keywords from the flags.
-    lead : str
-        How goals are led ahead of the plan (--lead, [stream] lead, default model).
-    gimbal : GimbalConfig
-        The simulated gimbal of the file's [gimbal] tables, whose loops set the lead.
-    """
-
-    source: object
-    config: object
-    rate_hz: float
-    trajectory: object
-    virtual: bool
-    options: dict = field(default_factory=dict)
-    lead: str = "model"
-    gimbal: object = None
-
-
 def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=()) -> None:
     """Refuse ``--telemetry PATH`` up front: writable, a known suffix, not one of
     ``inputs``, and for ``.mcap`` the ``mcap`` extra installed."""
     check_output_path("--telemetry", path, suffixes, inputs)
     if path and path.lower().endswith(".mcap"):
         check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
-
-
-def plan(args) -> Plan:
-    """The stream command's plan; no hardware.
-
-    Raises
-    ------
-    ValueError, TypeError, OSError
-        Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
-    """
-    check_stream_outputs(args)
-    checked = load_checked(args.file)
-    kf = checked.keyframes
-    rate = kf.stream_rate(args.rate)
-    check_timing(kf, rate)
-    if args.virtual and args.port:
-        raise BadInput("--port and --virtual exclude each other")
-    if args.plot and not args.virtual:
-        raise BadInput("--plot needs --virtual (it plots the simulated torque report)")
-    return planned(kf, checked.bus, rate, args, stream_options(args))
 
 
 def check_stream_outputs(args) -> None:
@@ -246,13 +188,46 @@ def check_stream_outputs(args) -> None:
     check_plot_path(args.plot, inputs)
 
 
-def stream_options(args) -> dict:
-    """``Session`` keywords from the options of :func:`add_stream_arguments`."""
+def plan(args) -> StreamJob:
+    """The stream command's job; no hardware.
+
+    Raises
+    ------
+    ValueError, TypeError, OSError
+        Bad input (BadInput, KeyframeFileError and KinematicsError are ValueErrors).
+    """
+    check_stream_outputs(args)
+    if args.virtual and args.port:
+        raise BadInput("--port and --virtual exclude each other")
+    if args.plot and not args.virtual:
+        raise BadInput("--plot needs --virtual (it plots the simulated torque report)")
+    return planned(
+        lambda **options: StreamJob.from_file(
+            args.file, rate_hz=args.rate, say=tell, progress=progress, **options
+        ),
+        args,
+    )
+
+
+def progress(label: str) -> Progress:
+    """The stderr progress line of slow work, ``trajgen <command>: {label} 42%``."""
+    return Progress(f"{prefix()}: {label}")
+
+
+def job_options(args) -> dict:
+    """``StreamJob.plan`` keywords from the options of :func:`add_stream_arguments`."""
     set_limits = {
         JOINTS.index(joint): (math.radians(low), math.radians(high))
         for joint, low, high in args.set_limits or ()
     }
     return {
+        "virtual": bool(args.virtual),
+        "port": args.port,
+        "baud": args.baud,
+        "ids": getattr(args, "ids", None),
+        "lead": getattr(args, "lead", None),
+        "configure": bool(getattr(args, "configure", False)),
+        "restore": bool(getattr(args, "restore", False)),
         "on_stop": "torque_off" if args.torque_off else "hold",
         "telemetry": args.telemetry,
         "max_delay_s": args.max_delay,
@@ -261,98 +236,16 @@ def stream_options(args) -> dict:
     }
 
 
-def planned(source, config, rate_hz: float, args, options: dict) -> Plan:
-    """A :class:`Plan` of ``source`` with --port, --baud, --ids and --virtual applied to
-    the file's [bus] ``config``; plans the joint stream.
-
-    Raises
-    ------
-    ValueError
-        No port, or a plan the gimbal cannot follow (KinematicsError).
-    """
-    from dataclasses import replace
-
-    from trajgen.drivers.units import JointMap
-    from trajgen.stream import plan_joint_trajectory
-
-    joints = config.joints
-    if args.virtual:
-        joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
-    elif not (args.port or config.port):
-        raise BadInput("no serial port: give --port, set [bus] port, or use --virtual")
-    if getattr(args, "ids", None):
-        joints = JointMap(args.ids, joints.directions, joints.zeros)
-    config = replace(
-        config,
-        port=args.port or config.port,
-        baud=args.baud or config.baud,
-        joints=joints,
-        configure=config.configure or bool(getattr(args, "configure", False)),
-        restore=config.restore or bool(getattr(args, "restore", False)),
-    )
-    from trajgen.lead import DEFAULT_LEAD
-    from trajgen.sim.lead import lead_trajectory
-    from trajgen.sim.model import gimbal_config_from_tables
-
-    lead = getattr(args, "lead", None) or getattr(source, "lead", None) or DEFAULT_LEAD
-    gimbal = gimbal_config_from_tables(source.tables, source.path)
-    planned_q = plan_joint_trajectory(source.spline(), rate_hz)
-    # The goals a session will send (it leads them again from where the servos are).
-    trajectory, _, notes = lead_trajectory(planned_q, gimbal, lead)
-    for note in notes:
-        tell(f"note: {note}")
-    return Plan(source, config, rate_hz, trajectory, bool(args.virtual), options, lead, gimbal)
-
-
-def session_for(p: Plan, signals):
-    """The library session of a plan (around the simulated gimbal of the file's
-    [gimbal] table, powered up at the first frame, with --virtual); returns
-    ``(session, plant or None)``.
-
-    Raises
-    ------
-    ValueError, TypeError
-        A bad --set-limits, or a simulated gimbal that cannot be built from the file.
-    """
-    from trajgen.drivers.session import Session
-    from trajgen.lead import sent_q
-    from trajgen.sim.lead import Leader
-
-    plant = registers = None
-    if p.virtual:
-        from trajgen.sim.plant import GimbalPlant
-
-        # Parked at the first goal (the plan's first angles; the lead's static gravity
-        # term ramps in from there), so the stream needs no approach.
-        plant = GimbalPlant(p.gimbal, initial_rad=sent_q(p.trajectory)[0])
-        # The servos power up with the gains the file states ([gimbal.<joint>]).
-        registers = plant.initial_registers()
-    options = dict(p.options)
-    limits = options.pop("set_limits_rad", {})
+def planned(make, args) -> StreamJob:
+    """``make(**job_options(args))``, its lead notes printed; the job's errors said
+    with the options' names."""
     try:
-        session = Session(
-            p.config,
-            plant=plant,
-            plant_registers=registers,
-            stop_signals=signals,
-            set_limits_rad=limits,
-            leader=Leader(p.gimbal, p.lead),
-            **options,
-        )
-    except ValueError as e:
-        if not limits:
-            raise
-        raise BadInput(f"--set-limits {_set_limits_text(limits, e)}") from None
-    return session, plant
-
-
-def _set_limits_text(limits: dict, error: Exception) -> str:
-    """``JOINT=MIN:MAX: problem`` for the joint a Session refused (its message names it)."""
-    joint, _, problem = str(error).partition(" limits: ")
-    if joint not in JOINTS or JOINTS.index(joint) not in limits:
-        return str(error)
-    low, high = (math.degrees(v) for v in limits[JOINTS.index(joint)])
-    return f"{joint}={low:g}:{high:g}: {problem}"
+        job = make(**job_options(args))
+    except NoPort:
+        raise BadInput("no serial port: give --port, set [bus] port, or use --virtual") from None
+    for note in job.notes:
+        tell(f"note: {note}")
+    return job
 
 
 # -- run and report ----------------------------------------------------------
@@ -374,25 +267,21 @@ def _warnings_to_stderr():
 
 def run_stream(args) -> int:
     """Run ``trajgen stream``; returns the exit status."""
-    return run_plan(args, plan, stream_source)
+    return run_plan(args, plan)
 
 
-def stream_source(session, p: Plan):
-    """Stream the plan's path with the session (planned again from where the servos are)."""
-    return session.stream_path(p.source.spline(), p.rate_hz)
-
-
-def run_plan(args, make_plan, go, extra=None) -> int:
-    """Plan, then run the session under the stop signals and report; returns the exit status.
+def run_plan(args, make_job, stream=None, extra=None) -> int:
+    """Plan, then run the job under the stop signals and report; returns the exit status.
 
     Parameters
     ----------
     args : argparse.Namespace
-        With ``json`` and (optionally) ``plot``, ``torque_off``.
-    make_plan : callable
-        ``make_plan(args)`` returns a :class:`Plan` (or raises on bad input).
-    go : callable
-        ``go(session, plan)`` runs the session and returns its ``Outcome``.
+        With ``json`` and (optionally) ``plot``.
+    make_job : callable
+        ``make_job(args)`` returns a ``StreamJob`` (or raises on bad input).
+    stream : callable, optional
+        ``stream(session, job)`` runs the session and returns its ``Outcome``; default
+        ``job.stream(session)``.
     extra : callable, optional
         ``extra()`` gives entries for the JSON report.
     """
@@ -401,111 +290,68 @@ def run_plan(args, make_plan, go, extra=None) -> int:
     signals = StopSignals()
     with signals.installed(), _warnings_to_stderr():
         try:
-            p = make_plan(args)
-            session, plant = session_for(p, signals)
-            outcome = go(session, p)
+            job = make_job(args)
+            go = None if stream is None else (lambda session: stream(session, job))
+            result = job.run(stream=go, stop_signals=signals, report_to_telemetry=False)
+        except LimitsRefused as e:
+            low, high = (math.degrees(v) for v in e.limits_rad)
+            return bad_input(f"--set-limits {JOINTS[e.joint]}={low:g}:{high:g}: {e.problem}")
         except (ValueError, TypeError, OSError) as e:  # TrajgenError: re-planning at start
             return bad_input(e)
-        if outcome.virtual_error is not None:
-            tell(f"virtual bus stopped: {outcome.virtual_error}")
-        if outcome.stage == "open" and outcome.signal is None:
-            return bad_input(outcome.stopped_by)  # the port did not open
-        status = report(args, p, plant, outcome, extra=None if extra is None else extra())
-    if signals.received is not None and outcome.signal is None:
+        if result.outcome.virtual_error is not None:
+            tell(f"virtual bus stopped: {result.outcome.virtual_error}")
+        if result.port_failed:
+            return bad_input(result.outcome.stopped_by)
+        if extra is not None:
+            result.extra.update(extra())
+        status = report(args, result)
+    if signals.received is not None and result.outcome.signal is None:
         # A signal after the stream ended: everything was done and reported.
         status = 128 + signals.received
     return status
 
 
-def _state(outcome, on_stop: str) -> str:
-    """What the servos were left doing, as a clause for the terminal."""
-    from trajgen.drivers.session import HOLDING, RELEASED, UNTOUCHED
-
-    states = outcome.servo_states
-    asked = RELEASED if on_stop == "torque_off" else HOLDING
-    if states and all(s == UNTOUCHED for s in states.values()):
-        return "no servo was touched"
-    if outcome.refused:
-        return "bring-up refused before torque on: no servo was moved"
-    if on_stop == "torque_off":
-        state = "the servos were released (torque off)"
-    else:
-        state = "the servos hold their last goal"
-    others = [f"servo {i} {s}" for i, s in states.items() if s != asked]
-    if others:
-        state += f" (except {', '.join(others)}: see the warnings above)"
-    return state
-
-
-def report(args, p: Plan, plant, outcome, extra: dict | None = None) -> int:
-    """Print the statistics and what the servos were left doing; write ``--json`` (with
-    ``extra`` entries added); returns the exit status."""
-    status = (
-        EXIT_OK
-        if outcome.ok
-        else (128 + outcome.signal if outcome.signal is not None else EXIT_FAILED)
-    )
-    stats = outcome.stats
-    if stats is not None:
-        print(stats.format())
+def report(args, result) -> int:
+    """Print a ``StreamResult`` (statistics, what the servos were left doing, the torque
+    report), plot it (--plot) and write --json; returns the exit status."""
+    outcome = result.outcome
+    if outcome.stats is not None:
+        print(outcome.stats.format())
     for message in outcome.stop_errors:
         warn(f"safe stop: {message}")
-    on_stop = p.options.get("on_stop", "hold")
-    state = _state(outcome, on_stop)
     if outcome.stopped_by:
-        kind = "interrupted" if outcome.signal is not None else "stream failed"
-        tell(f"{kind}: {outcome.stopped_by}; {state}")
+        tell(result.ending())
     else:
-        print(f"servos: {state.removeprefix('the servos ')}")
+        print(result.ending())
     for servo in outcome.servos:  # each as read back after the stop
         print(f"  {servo.format()}")
-    telemetry = p.options.get("telemetry")
-    if telemetry and stats is not None:
-        print(f"telemetry: {telemetry}")
-    result = {"status": status, "on_stop": on_stop, **outcome.to_json_dict(JOINTS), **(extra or {})}
-    if plant is not None and status == EXIT_OK:
-        status, outcome.torque_report = torque_report(
-            plant, outcome.trajectory, getattr(args, "plot", None), result, lead=p.lead
-        )
-        result["status"] = status
-    if telemetry and stats is not None:
-        add_telemetry_report(telemetry, result)
-    return write_report(args.json, result, status)
-
-
-def add_telemetry_report(path: str, result: dict) -> None:
-    """Add the report to the telemetry file where it holds one (MCAP); warn if it cannot."""
-    from trajgen.drivers.telemetry import add_report
-
-    try:
-        add_report(path, result, Progress(f"{prefix()}: adding the report to {path}"))
-    except OSError as e:
-        warn(f"telemetry {path}: report not added: {e}")
-
-
-def torque_report(plant, trajectory, plot_path, result: dict, *, lead: str = "none"):
-    """Print (and plot to ``plot_path``) the torque report of ``trajectory`` as streamed
-    to ``plant``; add it to ``result``; return the exit status and the report (or None)."""
-    from trajgen.sim.errors import SimError
-
-    try:
-        report = plant.report(trajectory, lead=lead)
-    except SimError as e:
-        tell(f"simulation failed: {e}")
-        return EXIT_FAILED, None
-    print(report.format())
-    result["torque"] = report.to_json_dict()
-    status = EXIT_OK if report.ok else EXIT_FAILED
-    if plot_path:
-        from trajgen.sim.plot import plot_report
-
+    if result.telemetry:
+        print(f"telemetry: {result.telemetry}")
+    if result.simulation_error is not None:
+        tell(f"simulation failed: {result.simulation_error}")
+    if result.torque is not None:
+        print(result.torque.format())
+        plot = getattr(args, "plot", None)
+        if plot:
+            try:
+                plot_torque(result.torque, plot)
+            except (OSError, ValueError) as e:
+                result.exit_status = bad_input(e)
+    if result.telemetry:
         try:
-            with output_path("--plot", plot_path) as tmp:
-                plot_report(report, tmp)
-            print(f"plot: {plot_path}")
-        except (OSError, ValueError) as e:
-            return bad_input(e), report
-    return status, report
+            result.add_to_telemetry(progress(f"adding the report to {result.telemetry}"))
+        except OSError as e:
+            warn(f"telemetry {result.telemetry}: report not added: {e}")
+    return write_report(args.json, result.to_json_dict(), result.exit_status)
+
+
+def plot_torque(torque, path: str) -> None:
+    """Plot a torque report to ``path`` (written whole or not at all)."""
+    from trajgen.sim.plot import plot_report
+
+    with output_path("--plot", path) as tmp:
+        plot_report(torque, tmp)
+    print(f"plot: {path}")
 
 
 def write_report(path, result: dict, status: int) -> int:
