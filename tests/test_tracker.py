@@ -251,3 +251,45 @@ def test_a_reversal_that_no_lead_can_take_now_is_deferred():
     np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
     # a target asked for before the deferred change starts from it
     assert tr.set_target(angles=[0.3, 0, 0], at=0.02).at >= r.at
+
+
+def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_limits():
+    """A short version of bench/tracker_stream.py: a face that moves then stands still,
+    reported at 30 Hz with noise, fed to a Follower while its 1 kHz stream runs (each
+    change built in steps between frames): no frame beyond the limits (a change that
+    were not C2 would give an unbounded jerk), and it settles on the last report."""
+    import json
+    import threading
+
+    from trajgen.follower import Follower
+
+    rng = np.random.default_rng(11)
+    t_lines = np.arange(0.1, 1.6, 1 / 30)
+    walk = np.clip((t_lines - 0.1) / 0.8, 0.0, 1.0)  # walks 0.8 s, then stands
+    face = np.array([2.0, 0.0, 0.0]) + np.outer(walk, [0.0, 1.2, -0.4])
+    reports = face + rng.normal(0.0, 0.01, face.shape)
+    spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
+    f = Follower(spline, 1000.0, limits=LIMITS)
+    last, i, errors = None, 0, []
+    for frame in f.frames():
+        if i < len(t_lines) and frame.t >= t_lines[i]:
+            line = json.dumps({"look_at": reports[i].tolist()})
+
+            def feed(line=line, n=i + 1):
+                try:
+                    f.feed(line, n)
+                except ValueError as e:  # pragma: no cover - reported below
+                    errors.append(str(e))
+
+            last = threading.Thread(target=feed)
+            last.start()
+            i += 1
+        if not spline.closed and i == len(t_lines) and not last.is_alive():
+            spline.close()
+    assert errors == [] and len(f.keyframes) >= len(t_lines) - 5
+    traj = f.trajectory()
+    assert (np.abs(traj.qd) <= LIMITS[0]).all() and (np.abs(traj.qdd) <= LIMITS[1]).all()
+    assert (np.abs(np.diff(traj.qdd, axis=0)) * 1000.0 <= LIMITS[2] * (1 + 1e-6)).all()
+    assert np.abs(traj.qd).max() > 0.3  # it moved
+    np.testing.assert_allclose(traj.q[-1], look_at_angles(reports[-1]), atol=RAD_PER_TICK)
+    np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)
