@@ -411,11 +411,17 @@ def test_capped_lines_reads_a_text_file_alike():
 def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monkeypatch):
     """[limits] and the servos' envelope reach the tracker through the CLI: a 30 deg step
     (that the spline's minimum lead alone would take at about 4 rad/s) and a second
-    target replacing it in mid-motion keep them on every frame streamed."""
+    target replacing it in mid-motion keep them on every frame streamed; the goals sent
+    are the tracker's frames led as every follow frame is (the model lead)."""
+    import csv
     import io
 
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.lead import LedFrames, lead_cap
     from trajgen.sim.check import envelope_check
+    from trajgen.sim.lead import lead_params, torque_function
     from trajgen.sim.model import gimbal_config_from_tables
+    from trajgen.sim.run import simulation_model
 
     seen = {}
     real_follow = Session.follow
@@ -433,9 +439,9 @@ def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monke
         "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.3\npan = 0.0\n".format(*limits)
     )
     monkeypatch.setattr(sys, "stdin", io.StringIO('{"pan": 30}\n{"pan": -10, "tilt": 12}\n'))
-    out = tmp_path / "follow.json"
+    out, log = tmp_path / "follow.json", tmp_path / "follow.csv"
     argv = ["follow", str(keys), "--virtual", "--configure", "--max-delay", "60"]
-    assert main([*argv, "--lead", "none", "--json", str(out)]) == 0
+    assert main([*argv, "--json", str(out), "--telemetry", str(log)]) == 0
     assert json.loads(out.read_text())["follow"]["accepted"] == 2
     f = seen["follower"]
     traj = f.trajectory()
@@ -450,3 +456,24 @@ def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monke
     # both targets reached: the second in mid-motion of the first, ending at rest on it
     np.testing.assert_allclose(np.degrees(traj.q[-1]), [-10, 12, 0], atol=1e-6)
     np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)
+    # the goals on the bus: the tracker's frames through the same lead as any follow frame
+    with open(log, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["phase"] == "stream"]
+    joints = ("pan", "tilt", "roll")
+    plan = np.array([[float(r[f"plan_rad_{j}"]) for j in joints] for r in rows])
+    goal = np.array([[float(r[f"goal_rad_{j}"]) for j in joints] for r in rows])
+    np.testing.assert_array_equal(plan, traj.q)
+    config = gimbal_config_from_tables(kf.tables, kf.path)
+    params = lead_params(config)
+    cap = lead_cap(np.array([[s.no_load_speed_rad_s for s in config.servos]]), params)
+    led = LedFrames(
+        iter(traj),
+        RATE_HZ,
+        "model",
+        params,
+        np.array(GimbalKinematics().limits_rad),
+        cap,
+        torque_function(simulation_model(config)),
+    )
+    np.testing.assert_allclose(goal, [f.goal for f in led], atol=1e-12)
+    assert np.abs(goal - plan).max() > 0.005  # led: ahead of the plan while it moves

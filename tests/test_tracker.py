@@ -293,3 +293,39 @@ def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_l
     assert np.abs(traj.qd).max() > 0.3  # it moved
     np.testing.assert_allclose(traj.q[-1], look_at_angles(reports[-1]), atol=RAD_PER_TICK)
     np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)
+
+
+def test_a_two_axis_head_points_at_a_point_within_its_limits():
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.quat import rotate
+
+    kin = GimbalKinematics(axes="zy")  # pan-tilt head: look axis x
+    limits = LIMITS[:, :2]
+    tr = Tracker(OnlineSpline(kin.forward([0.0, 0.0]), 0.0, k=2), limits, kinematics=kin)
+    point = np.array([1.0, 1.0, -math.sqrt(2.0)])
+    r = tr.set_target(look_at=point, at=0.0)
+    # hand-worked: pan atan2(1, 1) = 45 deg, tilt atan2(sqrt 2, sqrt 2) = 45 deg (down)
+    np.testing.assert_allclose(np.degrees(r.goal), [45.0, 45.0], atol=1e-12)
+    assert r.peaks.shape == (3, 2) and (r.peaks <= limits).all()
+    q_end = tr.spline(np.array([r.arrival + 0.1]))[0]
+    np.testing.assert_allclose(rotate(q_end, [1.0, 0.0, 0.0]), point / 2.0, atol=1e-12)
+    # a replacement in mid-motion: C2 across it, the limits on its frames
+    before = tr.spline.snapshot()[1]
+    r2 = tr.set_target(look_at=[1.0, -0.5, 0.2], at=0.15)
+    after = tr.spline.snapshot()[1]
+    (q0, w0, a0), (q1, w1, a1) = one_sided(before, after, r2.at)
+    np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+    np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+    near = tr._unwrapped(after(np.array([r2.at]))[0], r2.goal)
+    assert (frame_peaks(tr, after, r2.at, r2.arrival, near) <= limits).all()
+    q_end = tr.spline(np.array([r2.arrival + 0.1]))[0]
+    d = np.array([1.0, -0.5, 0.2])
+    np.testing.assert_allclose(rotate(q_end, [1.0, 0.0, 0.0]), d / np.linalg.norm(d), atol=1e-12)
+
+
+def test_look_at_on_a_three_axis_gimbal_other_than_pan_tilt_roll_is_refused():
+    from trajgen.gimbal import GimbalKinematics
+
+    tr = Tracker(OnlineSpline([1.0, 0, 0, 0]), LIMITS, kinematics=GimbalKinematics(axes="zxy"))
+    with pytest.raises(ValueError, match="`look_at` needs a pan-tilt-roll"):
+        tr.set_target(look_at=[1.0, 0, 0], at=0.0)

@@ -24,7 +24,7 @@ import numpy as np
 
 from . import fast
 from .errors import KeyframeFileError, KinematicsError
-from .gimbal import GimbalKinematics, forward
+from .gimbal import GimbalKinematics
 from .keyframe_lines import MAX_LINE_BYTES, TRACK, decode_line, parse_line
 from .online import ChangeTooLate, OnlineSpline
 from .path import Steps
@@ -300,7 +300,7 @@ class Follower:
                         "line": number,
                         "mode": TRACK,
                         "t": result.arrival,
-                        "quat": forward(result.goal).tolist(),
+                        "quat": self.kinematics.forward(result.goal).tolist(),
                         "at": at,
                         "now": now,
                         "clamped": result.clamped,

@@ -30,7 +30,10 @@ nothing. No filter is applied: a target that passes the dead band is planned to 
 Geometry (:mod:`trajgen.gimbal`): orientation ``Rz(pan) Ry(tilt) Rx(roll)``; the camera
 looks along its body x axis, so a point ``p`` in the base frame (m) is looked at with
 ``pan = atan2(p_y, p_x)``, ``tilt = atan2(-p_z, hypot(p_x, p_y))`` (positive tilt looks
-down, towards -z) and roll 0 (horizon level).
+down, towards -z) and roll 0 (horizon level). Any ``GimbalKinematics`` plans (its
+forward and inverse kinematics, exact joint rates, lock and wrapped joints); a two-axis
+head (e.g. ``axes="zy"``) looks at ``p`` with its look axis along it, exactly
+(:func:`trajgen.axes.direction_angles`); the limits are then (3, 2).
 
 Limits: a target outside the joint limits or within the gimbal-lock margin is clamped,
 joint by joint, to the nearest angle inside them (and reported in
@@ -48,8 +51,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import quat as Q
+from .axes import direction_angles
 from .errors import BadArgument, KinematicsError
-from .gimbal import GimbalKinematics, angles_of, forward, joint_rates
+from .gimbal import GimbalKinematics, angles_of
 from .online_splice import exp_rates, hermite_matrix
 from .path import run_steps
 from .servo_table import RAD_PER_TICK
@@ -157,19 +161,19 @@ class TargetResult:
     peaks: np.ndarray | None = None
 
 
-def _as_limits(limits) -> np.ndarray:
-    """Limits as (3, 3): rows speed, acceleration, jerk; columns pan, tilt, roll."""
+def _as_limits(limits, n: int = 3) -> np.ndarray:
+    """Limits as (3, n): rows speed, acceleration, jerk; columns the n joints."""
     if limits is None:
-        return np.full((3, 3), np.inf)
-    if hasattr(limits, "as_array"):  # trajgen.sim.limits.JointLimits
-        limits = limits.as_array()
+        return np.full((3, n), np.inf)
+    if hasattr(limits, "as_array"):  # trajgen.sim.limits.JointLimits: pan, tilt, roll
+        limits = limits.as_array()[:, :n]
     a = np.asarray(limits, dtype=float)
     if a.shape == (3,):
-        a = np.repeat(a[:, None], 3, axis=1)
-    if a.shape != (3, 3) or np.isnan(a).any() or (a <= 0).any():
+        a = np.repeat(a[:, None], n, axis=1)
+    if a.shape != (3, n) or np.isnan(a).any() or (a <= 0).any():
         raise BadArgument(
-            "Expected `limits` to be (3, 3) numbers > 0 (rows speed, acceleration, jerk; "
-            f"columns pan, tilt, roll; inf for none), got {limits!r}."
+            f"Expected `limits` to be (3, {n}) numbers > 0 (rows speed, acceleration, jerk; "
+            f"columns the joints; inf for none), got {limits!r}."
         )
     return a
 
@@ -188,7 +192,8 @@ class Tracker:
         bound per quantity for every joint. A ``trajgen.sim.limits.JointLimits`` (the
         file's ``[limits]``) is taken as is. Default: none (the spline's minimum lead).
     kinematics : GimbalKinematics, optional
-        Joint limits and lock margin.
+        Axes, joint limits and lock margin (default pan-tilt-roll, ``"zyx"``); n joints
+        (2 or 3): ``limits`` is (3, n), angles and goals (n,).
     dead_band_rad : float, optional
         A target whose joint angles all lie within this (rad) of the current goal's
         changes nothing. Default one encoder tick, 2 pi / 4096.
@@ -225,8 +230,10 @@ class Tracker:
         start=None,
     ):
         self.spline = spline
-        self.limits = _as_limits(limits)
         self.kinematics = GimbalKinematics() if kinematics is None else kinematics
+        self.limits = _as_limits(limits, self.kinematics.n_joints)
+        #: Joints free modulo 2 pi (pan and roll for pan-tilt-roll).
+        self._wrapped = list(self.kinematics.sequence.wrapped)
         self.dead_band_rad = check_number("dead_band_rad", dead_band_rad, low=0.0)
         self.envelope = envelope
         self.rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
@@ -291,17 +298,26 @@ class Tracker:
         if max_speed is not None:
             speed = np.minimum(speed, check_number("max_speed", max_speed, low=0.0, low_open=True))
         limits = np.vstack([speed, self.limits[1:]])
+        n = self.kinematics.n_joints
         if look_at is not None:
-            raw = look_at_angles(look_at)
+            raw = look_at_angles(look_at)  # checks the point
+            if n == 2:  # the look axis along the point, exactly (trajgen.axes)
+                p = np.asarray(look_at, dtype=float)
+                raw = direction_angles(self.kinematics.sequence.indices, p / np.linalg.norm(p))
+            elif not self.kinematics.is_default:
+                raise BadArgument(
+                    '`look_at` needs a pan-tilt-roll ("zyx") or two-axis gimbal, got axes '
+                    f"{self.kinematics.axes!r}."
+                )
         elif angles is not None:
-            raw = np.array(np.broadcast_to(np.asarray(angles, dtype=float), (3,)))
+            raw = np.array(np.broadcast_to(np.asarray(angles, dtype=float), (n,)))
             if not np.isfinite(raw).all():
                 raise BadArgument(
-                    f"Expected `angles` to be 3 finite numbers (rad), got {angles!r}."
+                    f"Expected `angles` to be {n} finite numbers (rad), got {angles!r}."
                 )
         else:
-            q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")[0]
-            raw = np.array(angles_of(*q, math.atan2, math.hypot))
+            q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")
+            raw = self.kinematics.angles(q)[0]
         if self.spline.version != self._version:
             self._sync()
         goal, clamped = self._clamp(raw)
@@ -338,7 +354,8 @@ class Tracker:
             if blocked and a >= t_end:  # from rest, straight through the lock: go round
                 for vias in VIA_COUNTS:
                     keys = [now + (goal - now) * (i + 1) / (vias + 1) for i in range(vias + 1)]
-                    found = yield from self._earliest(forward(np.array(keys)), keys, now, a, limits)
+                    quats = self.kinematics.forward(np.array(keys))
+                    found = yield from self._earliest(quats, keys, now, a, limits)
                     if found is not None:
                         return (found[0], a, found[1], vias, found[2])
         return None
@@ -351,7 +368,7 @@ class Tracker:
         the coarse samples breaks a limit). Returns ``((change, h, peaks) or None,
         blocked)``, ``blocked`` True if a candidate kept the limits but not the lock
         margin or the joint limits."""
-        quats = forward(goal[None])
+        quats = self.kinematics.forward(goal[None])
         lo = self.spline.min_lead_s
         rest = at >= self.spline.t_end
         if rest:  # a rest-to-rest move: a lower bound on its lead
@@ -466,14 +483,16 @@ class Tracker:
             c = c[:, 1:] * (np.arange(1.0, c.shape[1])[None, :, None] / hs[:, None, None])
         q, (omega, alpha) = exp_rates(r, q_a)
         a = self._unwrap_path(q.reshape(m, 3 * n, 4), now)
-        locked = (np.abs(np.cos(a[..., 1])) < 1e-9).any(axis=1)  # rates undefined there
-        a[locked] = 0.0
-        qd, qdd = joint_rates(a.reshape(-1, 3), omega, alpha)
-        qd, qdd = qd.reshape(m, 3 * n, 3), qdd.reshape(m, 3 * n, 3)
+        nj = a.shape[-1]
+        seq = self.kinematics.sequence
+        locked = (seq.lock_distance(a) < 1e-9).any(axis=1)  # rates undefined there
+        a[locked] = np.mean(seq.middle_range) * (np.arange(nj) == 1)
+        qd, qdd = self.kinematics.joint_rates(a.reshape(-1, nj), omega, alpha)
+        qd, qdd = qd.reshape(m, 3 * n, nj), qdd.reshape(m, 3 * n, nj)
         jerk = (qdd[:, 2 * n :] - qdd[:, n : 2 * n]) / (2 * JERK_STEP_S)
         peaks = np.stack(
             [np.abs(x).max(axis=1) for x in (qd[:, :n], qdd[:, :n], jerk)], axis=1
-        )  # (H, 3, 3)
+        )  # (H, 3, joints)
         ok, path_bad = np.zeros(m, bool), np.zeros(m, bool)
         for i in np.flatnonzero((peaks <= limits).all(axis=(1, 2))):
             if locked[i]:
@@ -570,7 +589,7 @@ class Tracker:
         ts = np.concatenate([t, t - JERK_STEP_S, t + JERK_STEP_S])
         s = path.evaluate(ts, max_order=2)
         q = self._unwrap_path(s.q, near)
-        qd, qdd = joint_rates(q, s.omega, s.alpha)
+        qd, qdd = self.kinematics.joint_rates(q, s.omega, s.alpha)
         m = len(t)
         jerk = (qdd[2 * m :] - qdd[m : 2 * m]) / (2 * JERK_STEP_S)
         return q[:m], qd[:m], qdd[:m], jerk
@@ -578,47 +597,53 @@ class Tracker:
     # -- angles ----------------------------------------------------------------
 
     def _unwrap_path(self, quats, near) -> np.ndarray:
-        """Angles (..., 3m, 3) of three grids of m samples each (frames, frames - step,
+        """Angles (..., 3m, n) of three grids of m samples each (frames, frames - step,
         frames + step) of quaternions (..., 3m, 4) (a leading axis: several paths): the
-        frames unwrapped sample to sample from the branch nearest ``near`` (3,), the
+        frames unwrapped sample to sample from the branch nearest ``near`` (n,), the
         others onto the branch of the frame they are next to."""
-        w, x, y, z = np.moveaxis(quats, -1, 0)
-        a = np.stack(angles_of(w, x, y, z, np.arctan2, np.hypot), axis=-1)
-        m = a.shape[-2] // 3
+        if self.kinematics.is_default:
+            w, x, y, z = np.moveaxis(quats, -1, 0)
+            a = np.stack(angles_of(w, x, y, z, np.arctan2, np.hypot), axis=-1)
+        else:
+            a = self.kinematics.angles(quats.reshape(-1, 4)).reshape(*quats.shape[:-1], -1)
+        m, cols = a.shape[-2] // 3, self._wrapped
         main = a[..., :m, :]
-        main[..., [0, 2]] = np.unwrap(main[..., [0, 2]], axis=-2)
-        turns = np.round((near[[0, 2]] - main[..., :1, [0, 2]]) / TWO_PI)
-        main[..., [0, 2]] += TWO_PI * turns
+        main[..., cols] = np.unwrap(main[..., cols], axis=-2)
+        main[..., cols] += TWO_PI * np.round((near[cols] - main[..., :1, cols]) / TWO_PI)
         for k in (1, 2):
             side = a[..., k * m : (k + 1) * m, :]
-            side[..., [0, 2]] = main[..., [0, 2]] + _wrap(side[..., [0, 2]] - main[..., [0, 2]])
+            side[..., cols] = main[..., cols] + _wrap(side[..., cols] - main[..., cols])
         return a
 
     def _unwrapped(self, q, near) -> np.ndarray:
-        a = np.array(angles_of(*q, math.atan2, math.hypot))
+        """Joint angles (n,) of orientation ``q`` (4,), the wrapped joints on the 2 pi
+        branch nearest ``near`` (n,) (if given)."""
+        a = self.kinematics.angles(np.reshape(q, (1, 4)))[0]
         if near is not None:
-            a[[0, 2]] += 2 * math.pi * np.round((near[[0, 2]] - a[[0, 2]]) / (2 * math.pi))
+            cols = self._wrapped
+            a[cols] += TWO_PI * np.round((near[cols] - a[cols]) / TWO_PI)
         return a
 
     def _clamp(self, raw):
-        """The goal nearest ``raw`` (3,) inside the limits (pan, roll on the 2 pi branch
-        nearest the current goal that fits), and a message if it had to be clamped."""
-        lim = np.array(self.kinematics.limits_rad)
-        lock = math.pi / 2 - self.kinematics.lock_margin_rad
-        lim[1] = np.clip(lim[1], -lock + CLAMP_INSET_RAD, lock - CLAMP_INSET_RAD)
+        """The goal nearest ``raw`` (n,) inside the limits (the wrapped joints on the 2 pi
+        branch nearest the current goal that fits), and a message if it had to be clamped."""
+        kin = self.kinematics
+        lim = np.array(kin.limits_rad)
+        low, high = kin.sequence.locks
+        inset = kin.lock_margin_rad + CLAMP_INSET_RAD
+        lim[1] = np.clip(lim[1], low + inset, high - inset)
         goal = raw.copy()
-        for j in (0, 2):
+        for j in self._wrapped:
             k = np.arange(-3, 4)
-            cands = raw[j] + 2 * math.pi * (np.round((self.goal[j] - raw[j]) / (2 * math.pi)) + k)
+            cands = raw[j] + TWO_PI * (np.round((self.goal[j] - raw[j]) / TWO_PI) + k)
             inside = cands[(cands >= lim[j, 0]) & (cands <= lim[j, 1])]
             pool = inside if len(inside) else cands
             # nearest the current goal; of two as near, the one nearer 0
             goal[j] = pool[np.lexsort((np.abs(pool), np.round(np.abs(pool - self.goal[j]), 9)))[0]]
         clipped = np.clip(goal, lim[:, 0], lim[:, 1])
-        names = ("pan", "tilt", "roll")
         moved = [
-            f"{names[j]} {math.degrees(goal[j]):.1f} -> {math.degrees(clipped[j]):.1f} deg"
-            for j in range(3)
+            f"{name} {math.degrees(goal[j]):.1f} -> {math.degrees(clipped[j]):.1f} deg"
+            for j, name in enumerate(kin.joints)
             if clipped[j] != goal[j]
         ]
         return clipped, ("clamped to the joint limits: " + ", ".join(moved)) if moved else ""
