@@ -5,13 +5,18 @@ Keys (all optional)::
     [bus]
     port = "/dev/ttyUSB0"
     baud = 1000000
-    ids = [1, 2, 3]            # pan, tilt, roll
+    ids = [1, 2, 3]            # one per joint of [gimbal] joints (pan, tilt, roll)
     directions = [1, 1, -1]    # +1 or -1 per joint
     zeros = [2048, 2048, 2048] # tick at joint angle 0
-    models = "XM430-W350"      # or one per joint; default: [gimbal] servo
+    models = "XM430-W350"      # or one per joint; default: [gimbal.<joint>] servo,
+                               # else [gimbal] servo, else XM430-W350
     watchdog_s = 0.1           # Bus Watchdog period, 0.02 .. 2.54 s
     configure = false          # let bring-up change EEPROM settings (docs/safety.md)
     restore = false            # write back, on exit, what bring-up changed
+
+The joints are the file's ``[gimbal] joints`` (``trajgen.keyframe_axes``): 2 or 3
+of them, in the order of ``[gimbal] axes``; every per-joint list has one entry
+per joint, and ``ids`` default to 1, 2(, 3).
 
 Errors are ``trajgen.keyframes.KeyframeFileError`` with a one-line message
 ``"{path}: [bus] ids: expected ..., got ..."``.
@@ -26,8 +31,11 @@ from trajgen.drivers.control_table import BAUD_RATES, WATCHDOG_UNIT_S
 from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.units import ZERO_TICK, JointMap
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.keyframe_axes import axes_from_table
 from trajgen.servo_table import DEFAULT_SERVO, servo_spec
 from trajgen.validate import check_keys, check_number, check_numbers
+
+from .errors import BadArgument
 
 BUS_KEYS = (
     "port",
@@ -54,8 +62,8 @@ class BusConfig:
         Baud rate (bit/s).
     joints : JointMap
         Ids, directions, zeros per joint.
-    models : tuple of str, shape (3,)
-        Expected servo model per joint.
+    models : tuple of str, shape (n,)
+        Expected servo model per joint (bring-up checks each servo's Model Number).
     watchdog_s : float
         Bus Watchdog period (s).
     configure : bool
@@ -64,6 +72,13 @@ class BusConfig:
         refuses where streaming needs the change.
     restore : bool
         Whether the settings bring-up changed are written back on exit.
+    joint_names : tuple of str, shape (n,)
+        The joints' names, in the order of ``joints`` (messages, telemetry columns).
+
+    Raises
+    ------
+    ValueError
+        If ``models`` or ``joint_names`` do not have one entry per joint.
     """
 
     port: str | None = None
@@ -73,6 +88,15 @@ class BusConfig:
     watchdog_s: float = 0.1
     configure: bool = False
     restore: bool = False
+    joint_names: tuple[str, ...] = JOINT_NAMES
+
+    def __post_init__(self) -> None:
+        n = len(self.joints)
+        for name in ("models", "joint_names"):
+            if len(getattr(self, name)) != n:
+                raise BadArgument(
+                    f"Expected one of `{name}` per joint ({n}), got {list(getattr(self, name))}."
+                )
 
 
 def _error(path, key: str):
@@ -83,11 +107,28 @@ def _error(path, key: str):
     return lambda problem: KeyframeFileError(f"{path}: {where}: {problem}")
 
 
-def _default_models(tables: dict) -> tuple[str, ...]:
-    servo = tables.get("gimbal", {}).get("servo", DEFAULT_SERVO)
-    if isinstance(servo, dict):
-        return tuple(servo.get(j, DEFAULT_SERVO) for j in JOINT_NAMES)
-    return (servo,) * 3
+def _per_joint_error(path, key: str, names: tuple[str, ...]):
+    """As :func:`_error`, naming the joints the list is for."""
+    error = _error(path, key)
+    return lambda problem: error(f"{problem} (one per joint: {', '.join(names)})")
+
+
+def _default_models(tables: dict, joints: tuple[str, ...]) -> tuple:
+    """Per joint: ``[gimbal.<joint>] servo``, else ``[gimbal] servo`` (one name, or a
+    table by joint), else the default servo (checked by the caller)."""
+    gimbal = tables.get("gimbal", {})
+    gimbal = gimbal if isinstance(gimbal, dict) else {}
+    servo = gimbal.get("servo", DEFAULT_SERVO)
+    models = []
+    for j in joints:
+        table = gimbal.get(j)
+        if isinstance(table, dict) and "servo" in table:
+            models.append(table["servo"])
+        elif isinstance(servo, dict):
+            models.append(servo.get(j, DEFAULT_SERVO))
+        else:
+            models.append(servo)
+    return tuple(models)
 
 
 def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
@@ -111,6 +152,8 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
         If a key is unknown or a value has the wrong type or range; the baud
         rate must be one an X-series servo supports (``BAUD_RATES``).
     """
+    names = axes_from_table(tables.get("gimbal", {}), Path(path)).joints
+    n = len(names)
     table = tables.get("bus", {})
     if not isinstance(table, dict):
         raise _error(path, "")(f"expected a table, got {table!r}")
@@ -125,38 +168,38 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
         raise _error(path, "baud")(f"expected one of {baud_rates_text()}, got {baud}")
     ids = check_numbers(
         "ids",
-        table.get("ids", [1, 2, 3]),
-        3,
+        table.get("ids", list(range(1, n + 1))),
+        n,
         integer=True,
         low=0,
         high=252,
-        error=_error(path, "ids"),
+        error=_per_joint_error(path, "ids", names),
     )
-    if len(set(ids)) != 3:
-        raise _error(path, "ids")(f"expected 3 distinct ids, got {list(ids)}")
+    if len(set(ids)) != n:
+        raise _error(path, "ids")(f"expected {n} distinct ids, got {list(ids)}")
     directions = check_numbers(
         "directions",
-        table.get("directions", [1, 1, 1]),
-        3,
+        table.get("directions", [1] * n),
+        n,
         integer=True,
-        error=_error(path, "directions"),
+        error=_per_joint_error(path, "directions", names),
     )
     if not all(d in (1, -1) for d in directions):
         raise _error(path, "directions")(f"expected +1 or -1 each, got {list(directions)}")
     zeros = check_numbers(
         "zeros",
-        table.get("zeros", [ZERO_TICK] * 3),
-        3,
+        table.get("zeros", [ZERO_TICK] * n),
+        n,
         integer=True,
         low=0,
         high=4095,
-        error=_error(path, "zeros"),
+        error=_per_joint_error(path, "zeros", names),
     )
     joints = JointMap(ids, directions, zeros)
-    models = table.get("models", _default_models(tables))
-    models = (models,) * 3 if isinstance(models, str) else models
-    if not isinstance(models, (list, tuple)) or len(models) != 3:
-        raise _error(path, "models")(f"expected a model name or a list of 3, got {models!r}")
+    models = table.get("models", _default_models(tables, names))
+    models = (models,) * n if isinstance(models, str) else models
+    if not isinstance(models, (list, tuple)) or len(models) != n:
+        raise _error(path, "models")(f"expected a model name or a list of {n}, got {models!r}")
     try:
         models = tuple(servo_spec(name).name for name in models)
     except (TypeError, ValueError) as e:
@@ -174,7 +217,7 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
         if not isinstance(value, bool):
             raise _error(path, key)(f"expected true or false, got {value!r}")
         flags[key] = value
-    return BusConfig(port, baud, joints, models, watchdog_s, **flags)
+    return BusConfig(port, baud, joints, models, watchdog_s, **flags, joint_names=names)
 
 
 def baud_rates_text() -> str:

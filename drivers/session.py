@@ -83,6 +83,8 @@ class Outcome:
         The plan bring-up checked (for a stream, what was streamed).
     virtual_error : Exception or None
         What stopped the virtual bus, if it failed.
+    joint_names : tuple of str
+        The joints' names, in the order of the session's ids (``BusConfig.joint_names``).
     """
 
     stopped_by: str = ""
@@ -95,6 +97,7 @@ class Outcome:
     servos: tuple = ()
     trajectory: object = None
     virtual_error: Exception | None = None
+    joint_names: tuple[str, ...] = JOINT_NAMES
 
     @property
     def ok(self) -> bool:
@@ -110,7 +113,7 @@ class Outcome:
             and all(s in (NOT_MOVED, UNTOUCHED) for s in self.servo_states.values())
         )
 
-    def to_json_dict(self, joint_names=JOINT_NAMES) -> dict:
+    def to_json_dict(self, joint_names=None) -> dict:
         """What happened, as plain JSON types: ``stopped_by``, ``signal``, ``stage``,
         ``stop_errors``, ``servos`` (state per servo id), ``servo_outcomes`` (per joint, as
         read back), ``changes`` (what bring-up wrote), ``bring_up`` and ``stream``."""
@@ -124,12 +127,13 @@ class Outcome:
             "changes": []
             if self.bring_up is None
             else [c.describe() for c in self.bring_up.changes],
-            "bring_up": self.bring_up_summary(joint_names),
+            "bring_up": self.bring_up_summary(joint_names or self.joint_names),
             "stream": None if self.stats is None else self.stats.to_json_dict(),
         }
 
-    def bring_up_summary(self, joint_names=JOINT_NAMES) -> dict | None:
-        """Per joint: servo id, Drive Mode, Operating Mode, position limits and start tick."""
+    def bring_up_summary(self, joint_names=None) -> dict | None:
+        """Per joint (default :attr:`joint_names`): servo id, Drive Mode, Operating Mode,
+        position limits and start tick."""
         setup = self.bring_up
         if setup is None:
             return None
@@ -142,7 +146,7 @@ class Outcome:
                 "start_tick": int(tick),
             }
             for joint, s, mode, (low, high), tick in zip(
-                joint_names,
+                joint_names or self.joint_names,
                 setup.installed,
                 setup.operating_modes,
                 setup.limits_ticks,
@@ -225,7 +229,7 @@ class Session:
             try:
                 self.set_limits[joints.ids[j]] = joints.limit_ticks(j, low, high)
             except ValueError as e:
-                name = JOINT_NAMES[j] if len(joints) == len(JOINT_NAMES) else f"joint {j}"
+                name = self.config.joint_names[j]
                 raise BadArgument(f"{name} limits: {e}") from None
 
     # -- the two kinds of stream -------------------------------------------
@@ -301,7 +305,7 @@ class Session:
         ValueError, TypeError
             If the virtual bus cannot be built around ``plant``.
         """
-        outcome = Outcome()
+        outcome = Outcome(joint_names=self.config.joint_names)
         signals = self.stop_signals
         if signals is None:
             signals = StopSignals()
@@ -394,7 +398,7 @@ class Session:
                     self.config.models,
                     plan,
                     watchdog_s=self.config.watchdog_s,
-                    joint_names=JOINT_NAMES,
+                    joint_names=self.config.joint_names,
                     set_limits=self.set_limits,
                     max_approach_rad=self.max_approach_rad,
                     configure=self.config.configure,
@@ -439,7 +443,7 @@ class Session:
             bus,
             self.config.joints,
             telemetry=self.telemetry,
-            joint_names=JOINT_NAMES,
+            joint_names=self.config.joint_names,
             on_stop=self.on_stop,
             max_approach_rad=self.max_approach_rad,
             goal_bounds_ticks=setup.goal_bounds_ticks,
@@ -462,7 +466,7 @@ class Session:
         not answer soundly is unknown, its likely cause in ``stop_errors``."""
         from .outcome import servo_outcomes
 
-        outcome.servos = servo_outcomes(bus, self.config.joints, JOINT_NAMES)
+        outcome.servos = servo_outcomes(bus, self.config.joints, self.config.joint_names)
         named = {"never torqued": NOT_MOVED}
         outcome.servo_states = {o.servo_id: named.get(o.state, o.state) for o in outcome.servos}
         for o in outcome.servos:

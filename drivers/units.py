@@ -3,8 +3,8 @@
 A joint maps to a servo by id, direction (+1 or -1) and zero (the tick that
 is joint angle 0): ``tick = zero + direction * round(angle / RAD_PER_TICK)``,
 4096 ticks a turn. The defaults are ids 1, 2, 3 = pan, tilt, roll, direction
-+1, zero 2048. The encoder and velocity units are the servo table's
-(``trajgen.servo_table``).
++1, zero 2048 (for other ids, direction +1 and zero 2048 for each). The encoder
+and velocity units are the servo table's (``trajgen.servo_table``).
 """
 
 from __future__ import annotations
@@ -79,11 +79,12 @@ class JointMap:
     Attributes
     ----------
     ids : tuple of int, shape (n,)
-        Servo ids in joint order (pan, tilt, roll), distinct, 0..252.
+        Servo ids in joint order (pan, tilt, roll; any 2 or 3 joints, or more),
+        distinct, 0..252.
     directions : tuple of int, shape (n,)
-        +1 or -1 per joint.
+        +1 or -1 per joint; default +1 for every id.
     zeros : tuple of int, shape (n,)
-        Tick at joint angle 0, per joint.
+        Tick at joint angle 0, per joint; default 2048 for every id.
 
     Raises
     ------
@@ -93,10 +94,15 @@ class JointMap:
     """
 
     ids: tuple[int, ...] = (1, 2, 3)
-    directions: tuple[int, ...] = (1, 1, 1)
-    zeros: tuple[int, ...] = (ZERO_TICK, ZERO_TICK, ZERO_TICK)
+    directions: tuple[int, ...] | None = None
+    zeros: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.ids, Sequence):
+            if self.directions is None:
+                object.__setattr__(self, "directions", (1,) * len(self.ids))
+            if self.zeros is None:
+                object.__setattr__(self, "zeros", (ZERO_TICK,) * len(self.ids))
         for name in ("ids", "directions", "zeros"):
             value = getattr(self, name)
             if not isinstance(value, Sequence):

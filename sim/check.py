@@ -33,7 +33,7 @@ import numpy as np
 from trajgen.keyframes import DEFAULT_RATE_HZ
 from trajgen.lead import DEFAULT_LEAD, check_lead, sent_q
 from trajgen.sim.errors import TorqueLimitExceeded
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.sim.model import GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
 from trajgen.sim.servos import servo_by_name
 
@@ -101,26 +101,26 @@ class TorqueReport:
     reasons : tuple of str
         Every joint's reasons for failing (empty when ok).
     joints : dict of str to JointReport
-        Keyed ``"pan"``, ``"tilt"``, ``"roll"``.
+        Keyed by joint name (``config.names``), base out.
     torque_margin, max_tracking_error_rad : float
         The thresholds used.
     rate_hz, duration_s : float
         Stream rate (Hz) and duration (s).
     trajectory : JointTrajectory
         The plan checked.
-    planned_torque_nm : ndarray, shape (N, 3)
+    planned_torque_nm : ndarray, shape (N, n)
         Torque the plan needs at each stream sample (N m).
     record : SimRecord
         The simulated run.
     config : GimbalConfig
-    planned_torque_smooth_nm : ndarray, shape (N, 3), or None
+    planned_torque_smooth_nm : ndarray, shape (N, n), or None
         The planned torque without Coulomb friction (N m), which steps by twice
         the friction at every start and reversal whatever the plan.
     lead : str
         How the goals sent were led ahead of the plan (``trajgen.lead``).
     lead_notes : tuple of str
         Joints that got no lead, and why.
-    goal_bounds_rad : ndarray, shape (3, 2), or None
+    goal_bounds_rad : ndarray, shape (n, 2), or None
         The range the goals had to stay inside (rad).
     """
 
@@ -169,19 +169,20 @@ class TorqueReport:
     def format(self) -> str:
         """A readable table of the per-joint figures and the verdict."""
         verdict = "OK" if self.ok else "FAILED"
+        w = max(6, 1 + max(len(name) for name in self.joints))  # the joint column
         lines = [
             f"torque check: {verdict} ({self.duration_s:.2f} s at {self.rate_hz:g} Hz, "
             f"margin {self.torque_margin:g} of the {self.envelope_volts} envelope, "
             f"tracking limit {math.degrees(self.max_tracking_error_rad):.1f} deg; "
             f"lead {self.lead})",
-            f"{'joint':<6}{'servo':<12}{'plan':>8}{'sim':>8}{'rate':>9}{'rms':>8}"
+            f"{'joint':<{w}}{'servo':<12}{'plan':>8}{'sim':>8}{'rate':>9}{'rms':>8}"
             f"{'margin':>9}{'speed':>8}{'error':>8}{'limit':>8}",
-            f"{'':<6}{'':<12}{'N m':>8}{'N m':>8}{'N m/s':>9}{'N m':>8}"
+            f"{'':<{w}}{'':<12}{'N m':>8}{'N m':>8}{'N m/s':>9}{'N m':>8}"
             f"{'N m':>9}{'rad/s':>8}{'deg':>8}{'steps':>8}",
         ]
         for j in self.joints.values():
             lines.append(
-                f"{j.name:<6}{j.servo:<12}"
+                f"{j.name:<{w}}{j.servo:<12}"
                 + _cell(j.peak_planned_torque_nm, 8, 3)
                 + _cell(j.peak_torque_nm, 8, 3)
                 + _cell(j.peak_torque_rate_nm_s, 9, 2)
@@ -247,13 +248,13 @@ def check_planned_torque(trajectory, config: GimbalConfig, *, model=None) -> tup
     """
     from trajgen.sim.dynamics import inverse_dynamics
 
-    check_trajectory(trajectory)
+    check_trajectory(trajectory, config.n_joints)
     model = simulation_model(config) if model is None else model
     tau = inverse_dynamics(model, trajectory.q, trajectory.qd, trajectory.qdd)
     t = np.asarray(trajectory.t, dtype=float)
     qd = np.asarray(trajectory.qd, dtype=float)
     reasons = []
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(config.names):
         servo = config.servos[j]
         plan_margin = config.torque_margin * servo.tau_max(qd[:, j]) - np.abs(tau[:, j])
         worst = int(np.argmin(plan_margin))
@@ -329,7 +330,7 @@ def build_report(
         How the goals were led (for the report).
     lead_notes : tuple of str
         Joints that got no lead, and why (for the report).
-    goal_bounds_rad : array_like, shape (3, 2), optional
+    goal_bounds_rad : array_like, shape (n, 2), optional
         Lowest and highest goal allowed per joint (rad); a goal outside fails
         the check.
 
@@ -351,7 +352,7 @@ def build_report(
     goal = np.asarray(sent_q(trajectory), dtype=float)
     bounds = None if goal_bounds_rad is None else np.asarray(goal_bounds_rad, dtype=float)
     joints = {}
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(config.names):
         servo = config.servos[j]
         plan_margin = margin * servo.tau_max(qd_plan[:, j]) - np.abs(tau_plan[:, j])
         sim_margin = margin * servo.tau_max(record.qd[:, j]) - np.abs(record.torque_nm[:, j])
@@ -456,7 +457,7 @@ def resolve_source(source, *, rate_hz=None, config=None):
         if config is None:
             from trajgen.sim.model import gimbal_config_from_tables
 
-            config = gimbal_config_from_tables(source.tables, source.path)
+            config = gimbal_config_from_tables(source.tables, source.path, any_axes=True)
         if rate_hz is None:
             rate_hz = getattr(source, "rate_hz", None)
         source = source.spline()
@@ -465,9 +466,9 @@ def resolve_source(source, *, rate_hz=None, config=None):
         from trajgen.stream import plan_joint_trajectory
 
         rate = DEFAULT_RATE_HZ if rate_hz is None else rate_hz
-        return plan_joint_trajectory(source, rate), config
+        return plan_joint_trajectory(source, rate, config.kinematics()), config
     if hasattr(source, "qdd") and hasattr(source, "rate_hz"):
-        check_trajectory(source)
+        check_trajectory(source, config.n_joints)
         if rate_hz is not None and rate_hz != source.rate_hz:
             raise BadArgument(
                 f"Expected `rate_hz` to match the trajectory's {source.rate_hz} Hz, got {rate_hz}."
@@ -507,7 +508,7 @@ def check_torque(
     lead : {"model", "advance", "none"}, optional
         How the goals are led (``trajgen.lead``); default the file's
         ``[stream] lead``, else ``"model"``.
-    limits_rad : array_like, shape (3, 2), optional
+    limits_rad : array_like, shape (n, 2), optional
         Position limits (rad) the goals must stay inside.
     servo_config : GimbalConfig, optional
         The servos as simulated, when they differ from what the lead assumes

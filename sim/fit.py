@@ -30,6 +30,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.fit_result import (
     FitError,
     FitResult,
@@ -40,7 +41,7 @@ from trajgen.sim.fit_result import (
     segment_fits,
 )
 from trajgen.sim.limits import JointLimits, check_limits
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.sim.model import GimbalConfig
 from trajgen.smooth import SmoothSpline
 
 __all__ = ["FitError", "FitResult", "SegmentFit", "fit_timing", "plan_reasons"]

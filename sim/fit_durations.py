@@ -43,6 +43,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.fit_result import (
     FitError,
     FitResult,
@@ -52,7 +53,7 @@ from trajgen.sim.fit_result import (
     segment_fits,
 )
 from trajgen.sim.limits import JointLimits, check_limits, joint_jerk
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.sim.model import GimbalConfig
 from trajgen.validate import check_number
 
 #: Largest change of the durations per uniform-scaling iteration or bisection start.

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.errors import SimError
 from trajgen.sim.limits import JointLimits
-from trajgen.sim.model import JOINT_NAMES
 
 
 def keyframe_source(source):

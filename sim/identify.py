@@ -37,10 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from trajgen.gimbal import JOINT_NAMES
 from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.errors import IdentifyError, SimError
 from trajgen.sim.firmware import PositionLoop
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig, JointParams, build_model
+from trajgen.sim.model import GimbalConfig, JointParams, build_model
 
 #: Weight (s) of a velocity residual (rad/s) against a position residual (rad).
 VELOCITY_WEIGHT_S = 0.05
@@ -74,7 +75,7 @@ class TelemetryLog:
     path : Path
     t : ndarray, shape (N,)
         Each frame's goal time (s) from the first frame: frame number / rate.
-    goal, position, velocity, current : ndarray, shape (N, 3)
+    goal, position, velocity, current : ndarray, shape (N, n)
         Goal angle (rad), present position (rad), velocity (rad/s) and
         current (A); NaN where the read failed.
     rate_hz : float
@@ -90,8 +91,9 @@ class TelemetryLog:
     rate_hz: float
 
 
-def load_telemetry(path) -> TelemetryLog:
-    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv, .npz or .mcap).
+def load_telemetry(path, joints=JOINT_NAMES) -> TelemetryLog:
+    """Read a ``trajgen stream`` / ``trajgen excite`` telemetry file (.csv, .npz or .mcap)
+    of the gimbal whose joints are ``joints`` (columns ``goal_rad_<joint>`` etc.).
 
     Raises
     ------
@@ -117,7 +119,7 @@ def load_telemetry(path) -> TelemetryLog:
             rows = list(csv.DictReader(f))
         columns = {k: np.array([r[k] for r in rows]) for k in (rows[0] if rows else {})}
     names = ["frame", "t_s"] + [
-        f"{p}_{j}" for p in ("goal_rad", "position_rad", "velocity_rad_s") for j in JOINT_NAMES
+        f"{p}_{j}" for p in ("goal_rad", "position_rad", "velocity_rad_s") for j in joints
     ]
     missing = [n for n in names if n not in columns]
     if missing:
@@ -137,18 +139,18 @@ def load_telemetry(path) -> TelemetryLog:
     if not np.all(np.diff(frame) > 0):
         raise IdentifyError(f"{path}: frame numbers do not increase")
 
-    def joints(prefix):
-        return np.column_stack([numbers(f"{prefix}_{j}") for j in JOINT_NAMES])
+    def per_joint(prefix):
+        return np.column_stack([numbers(f"{prefix}_{j}") for j in joints])
 
     return TelemetryLog(
         path=path,
         t=(frame - frame[0]) / rate,
-        goal=joints("goal_rad"),
-        position=joints("position_rad"),
-        velocity=joints("velocity_rad_s"),
-        current=joints("current_a")
-        if "current_a_pan" in columns
-        else np.full((len(frame), 3), np.nan),
+        goal=per_joint("goal_rad"),
+        position=per_joint("position_rad"),
+        velocity=per_joint("velocity_rad_s"),
+        current=per_joint("current_a")
+        if f"current_a_{joints[0]}" in columns
+        else np.full((len(frame), len(joints)), np.nan),
         rate_hz=rate,
     )
 
@@ -270,10 +272,8 @@ class Fit:
                 text = f"{value}" if p == "position_p_gain" else f"{value:.6g}"
                 note = "; not excited enough" if p in joint.poorly_excited else ""
                 if p == "position_p_gain" and p_scale:
-                    lines.append(
-                        f"{p} = {self.config.joints[JOINT_NAMES.index(name)].position_p_gain:<12}"
-                        "# the register, held"
-                    )
+                    held = self.config.joints[self.config.names.index(name)].position_p_gain
+                    lines.append(f"{p} = {held:<12}# the register, held")
                     p, text = "p_divisor", f"{joint.p_divisor:.6g}"
                     lines.append(f"{p} = {text:<12}# +- {joint.p_divisor_interval:.2g}{note}")
                     continue
@@ -290,7 +290,7 @@ def _relative(interval, value):
 class _Replay:
     """Batched rollouts of the gimbal replaying logged goals.
 
-    Parameter vector: per joint armature, frictionloss, damping, P gain (12);
+    Parameter vector: per joint armature, frictionloss, damping, P gain (4 n);
     then the names in ``extras`` (``"delay_s"``, ``"current_scale"``), in that
     order; those not in ``extras`` take the values of ``held``.
     """
@@ -300,6 +300,7 @@ class _Replay:
 
         self.extras: tuple[str, ...] = ()
         self.held = {"delay_s": 0.0, "current_scale": 1.0}
+        self.n, self.names = config.n_joints, config.names
         self.model = build_model(config)
         self.dt = config.timestep_s
         self.kp_per_unit = np.array(
@@ -334,7 +335,7 @@ class _Replay:
         while len(self.models) <= k:
             self.models.append(copy.copy(self.model))
         m = self.models[k]
-        p = x[:12].reshape(3, 4)
+        p = x[: 4 * self.n].reshape(self.n, 4)
         m.dof_armature[:] = p[:, 0]
         m.dof_frictionloss[:] = p[:, 1]
         m.dof_damping[:] = p[:, 2]
@@ -346,7 +347,7 @@ class _Replay:
         k = x.shape[1]
         values = {name: np.full(k, value) for name, value in self.held.items()}
         for n, name in enumerate(self.extras):
-            values[name] = x[12 + n]
+            values[name] = x[4 * self.n + n]
         return values
 
     def predict(self, x):
@@ -354,31 +355,31 @@ class _Replay:
 
         Parameters
         ----------
-        x : ndarray, shape (12 + len(extras), k)
+        x : ndarray, shape (4 n + len(extras), k)
 
         Returns
         -------
-        list over logs of (pos, vel, cur), each shape (k, N, 3)
+        list over logs of (pos, vel, cur), each shape (k, N, n)
         """
         from mujoco import rollout
 
-        k = x.shape[1]
+        k, nj = x.shape[1], self.n
         models = [self._model_for(i, x[:, i]) for i in range(k)]
         out = []
         for log, ctrl, state, _, _ in self.cases:
             states, torque = rollout.rollout(models, self.datas, state[None], ctrl[None])
-            start = np.broadcast_to(state[1:7], (k, 1, 6))
-            qv = np.concatenate([start, states[:, :, 1:7]], axis=1)  # at t = i dt
+            start = np.broadcast_to(state[1 : 1 + 2 * nj], (k, 1, 2 * nj))
+            qv = np.concatenate([start, states[:, :, 1 : 1 + 2 * nj]], axis=1)  # at t = i dt
             grid = np.arange(qv.shape[1]) * self.dt
             torque_grid = grid[1:]  # a step's torque, as read at its end
-            pos = np.empty((k, len(log.t), 3))
+            pos = np.empty((k, len(log.t), nj))
             vel, cur = np.empty_like(pos), np.empty_like(pos)
             extra = self._extra_values(x)
             for i in range(k):
                 when = log.t + extra["delay_s"][i]
-                for j in range(3):
+                for j in range(nj):
                     pos[i, :, j] = np.interp(when, grid, qv[i, :, j])
-                    vel[i, :, j] = np.interp(when, grid, qv[i, :, 3 + j])
+                    vel[i, :, j] = np.interp(when, grid, qv[i, :, nj + j])
                     cur[i, :, j] = np.interp(when, torque_grid, torque[i, :, j]) / self.kt[j]
                 cur[i] *= extra["current_scale"][i]
             out.append((pos, vel, cur))
@@ -388,33 +389,33 @@ class _Replay:
         """Finite-difference Jacobian (M, n) at ``x`` (n, 1) with residual ``r`` (M, 1).
 
         The joints hardly couple (the reflected rotor inertia dwarfs the links),
-        so one rollout perturbs the same parameter of all three joints and each
-        joint's residual rows (every third row) are credited to its own
-        parameter: 4 rollouts for the 12 joint parameters, plus one per extra.
+        so one rollout perturbs the same parameter of all joints and each
+        joint's residual rows (every n-th row) are credited to its own
+        parameter: 4 rollouts for the 4 n joint parameters, plus one per extra.
         The optimum is unchanged (the residual is exact); only the step
         directions are approximate.
         """
         x = x[:, 0]
-        n = len(x)
+        n, own = len(x), 4 * self.n  # all parameters, the joints' own
         steps = 1e-5 * np.maximum(np.abs(x), 1e-3)
-        columns = np.repeat(x[:, None], n - 8, axis=1)
+        columns = np.repeat(x[:, None], n - own + 4, axis=1)
         for kind in range(4):
-            columns[kind:12:4, kind] += steps[kind:12:4]
-        for e in range(12, n):
-            columns[e, e - 8] += steps[e]
+            columns[kind:own:4, kind] += steps[kind:own:4]
+        for e in range(own, n):
+            columns[e, e - own + 4] += steps[e]
         dr = self.residuals(columns) - r
         jac = np.zeros((len(r), n))
-        joint = np.arange(len(r)) % 3
+        joint = np.arange(len(r)) % self.n
         for kind in range(4):
-            for j in range(3):
+            for j in range(self.n):
                 rows = joint == j
                 jac[rows, 4 * j + kind] = dr[rows, kind] / steps[4 * j + kind]
-        for e in range(12, n):
-            jac[:, e] = dr[:, e - 8] / steps[e]
+        for e in range(own, n):
+            jac[:, e] = dr[:, e - own + 4] / steps[e]
         return jac
 
     def residuals(self, x):
-        """Weighted residuals, shape (M, k), for ``x`` of shape (12 + len(extras), k)."""
+        """Weighted residuals, shape (M, k), for ``x`` of shape (4 n + len(extras), k)."""
         parts = []
         for (pos, vel, cur), (log, _, _, ok, current) in zip(
             self.predict(x), self.cases, strict=True
@@ -443,13 +444,14 @@ def _sysid():
 
 
 def _fit(sysid, replay, start, max_iter, bounds):
-    """One ``mujoco.sysid`` fit from ``start`` (12 joint values, then ``replay.extras``).
+    """One ``mujoco.sysid`` fit from ``start`` (4 values per joint, then ``replay.extras``).
 
     ``bounds`` maps each extra to its (low, high). Returns the fitted vector,
     its 95 % half-widths and the iteration count.
     """
     params = sysid.ParameterDict()
-    for j, name in enumerate(JOINT_NAMES):
+    own = 4 * replay.n
+    for j, name in enumerate(replay.names):
         for i, p in enumerate(PARAMETERS):
             low, high = _BOUNDS[p]
             # Start off the bounds (a zero friction or damping would sit on one).
@@ -457,7 +459,9 @@ def _fit(sysid, replay, start, max_iter, bounds):
             params.add(sysid.Parameter(f"{name}.{p}", value, low, high))
     for n, name in enumerate(replay.extras):
         low, high = bounds[name]
-        value = float(np.clip(start[12 + n], low + 0.02 * (high - low), high - 0.02 * (high - low)))
+        value = float(
+            np.clip(start[own + n], low + 0.02 * (high - low), high - 0.02 * (high - low))
+        )
         params.add(sysid.Parameter(name, value, low, high))
 
     def residual_fn(x, _params):
@@ -555,7 +559,7 @@ def identify(
     x, intervals, iterations = _fit(
         sysid,
         replay,
-        [getattr(config.joints[j], p) for j in range(3) for p in PARAMETERS],
+        [getattr(config.joints[j], p) for j in range(config.n_joints) for p in PARAMETERS],
         max_iter,
         {},
     )
@@ -572,12 +576,13 @@ def identify(
         iterations += more
     extras = {name: (value, None) for name, value in replay.held.items()}
     for n, name in enumerate(replay.extras):
-        extras[name] = (float(x[12 + n]), float(intervals[12 + n]))
+        own = 4 * config.n_joints
+        extras[name] = (float(x[own + n]), float(intervals[own + n]))
 
     ok_rows = [case[3] for case in replay.cases]
     predicted = replay.predict(x[:, None])
     joints = {}
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(config.names):
         values = {p: float(x[4 * j + i]) for i, p in enumerate(PARAMETERS)}
         ivals = {p: float(intervals[4 * j + i]) for i, p in enumerate(PARAMETERS)}
         errors = np.concatenate(
@@ -608,7 +613,7 @@ def identify(
             p_divisor=float(scale),
             p_divisor_interval=float(scale * ivals["position_p_gain"] / values["position_p_gain"]),
         )
-    fitted = tuple(joints[n].params for n in JOINT_NAMES)
+    fitted = tuple(joints[n].params for n in config.names)
     if p_scale:
         fitted = tuple(
             dataclasses.replace(
@@ -616,7 +621,7 @@ def identify(
                 position_p_gain=config.joints[j].position_p_gain,
                 p_divisor=joints[n].p_divisor,
             )
-            for j, n in enumerate(JOINT_NAMES)
+            for j, n in enumerate(config.names)
         )
     return Fit(
         joints=joints,

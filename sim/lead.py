@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from trajgen.lead import LeadParams, led_goals, led_trajectory
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig
+from trajgen.sim.model import GimbalConfig
 
 
 def lead_params(config: GimbalConfig) -> LeadParams:
@@ -27,7 +27,7 @@ def lead_params(config: GimbalConfig) -> LeadParams:
     lag time is ``(K^2/R + damping) / kp`` (``sim.check.lag_time_s``).
     """
     kp, back_emf, lag, friction = [], [], [], []
-    for j in range(len(JOINT_NAMES)):
+    for j in range(config.n_joints):
         k, _, kd, _ = config.loop(j).mujoco_controller(config.servos[j])
         kp.append(k)
         back_emf.append(kd)
@@ -37,7 +37,7 @@ def lead_params(config: GimbalConfig) -> LeadParams:
 
 
 def torque_function(model):
-    """``torque(q, qd, qdd)`` (arrays (N, 3) -> N m (N, 3)): ``mj_inverse`` on ``model``."""
+    """``torque(q, qd, qdd)`` (arrays (N, n) -> N m (N, n)): ``mj_inverse`` on ``model``."""
     from trajgen.sim.dynamics import inverse_dynamics
 
     def torque(q, qd, qdd):
@@ -58,7 +58,7 @@ def lead_trajectory(
     config : GimbalConfig
         The servos and their loops (and the torque check's margin).
     lead : {"model", "advance", "none"}
-    limits_rad : array_like, shape (3, 2), optional
+    limits_rad : array_like, shape (n, 2), optional
         Position limits (rad) every goal must stay inside.
     model : mujoco.MjModel, optional
         ``sim.run.simulation_model(config)`` if the caller has built it.
@@ -66,7 +66,7 @@ def lead_trajectory(
     Returns
     -------
     trajectory : JointTrajectory
-        With ``goal`` (N, 3) rad.
+        With ``goal`` (N, n) rad, one column per joint.
     goals : trajgen.lead.LedGoals
         The goals and what bounded them.
     reasons : tuple of str
@@ -81,12 +81,14 @@ def lead_trajectory(
     if lead != "none":
         failed = check_planned_torque(trajectory, config, model=model)
         off = [
-            j for j, name in enumerate(JOINT_NAMES) if any(r.startswith(f"{name}:") for r in failed)
+            j
+            for j, name in enumerate(config.names)
+            if any(r.startswith(f"{name}:") for r in failed)
         ]
         if off:
             params = params.without(off)
             reasons = tuple(
-                f"{JOINT_NAMES[j]}: no lead (the plan fails the torque check)" for j in off
+                f"{config.names[j]}: no lead (the plan fails the torque check)" for j in off
             )
     goals = led_goals(
         trajectory, lead, params, torque=torque_function(model), limits_rad=limits_rad
@@ -106,10 +108,10 @@ def live_frames(
     config : GimbalConfig
     lead : {"model", "advance", "none"}
     rate_hz : float
-    bounds_rad : array_like, shape (3, 2)
+    bounds_rad : array_like, shape (n, 2)
         The range every goal stays inside (rad): what bring-up checked against
         the installed limits (the joint limits the live plan may use).
-    speed_rad_s : array_like, shape (3,), optional
+    speed_rad_s : array_like, shape (n,), optional
         The fastest the live plan may move (rad/s), for the lead's cap
         (``trajgen.lead.lead_cap``); default each servo's no-load speed.
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trajgen.sim.model import JOINT_NAMES
+from trajgen.axes import AxisSequence
 from trajgen.validate import check_keys, check_number
 
 from .errors import BadArgument
@@ -32,8 +32,6 @@ LIMIT_KEYS = {
     "acceleration_rad_s2": "acceleration",
     "jerk_rad_s3": "jerk",
 }
-
-_INF3 = (math.inf, math.inf, math.inf)
 
 #: ``[limits]`` key of the torque-rate bound the retiming fit keeps, and its default
 #: (N m/s): docs/fit.md, "The torque-rate bound".
@@ -47,27 +45,31 @@ class JointLimits:
 
     Parameters
     ----------
-    speed_rad_s, acceleration_rad_s2, jerk_rad_s3 : float or tuple of 3 float
-        Bounds in rad/s, rad/s^2, rad/s^3 (pan, tilt, roll); one number for every
-        joint. Each > 0. Default: no limit.
+    speed_rad_s, acceleration_rad_s2, jerk_rad_s3 : float or tuple of float
+        Bounds in rad/s, rad/s^2, rad/s^3, one per joint (``joints``); one number
+        for every joint. Each > 0. Default: no limit.
+    joints : tuple of str
+        The joints' names, base out; default pan, tilt, roll.
 
     Raises
     ------
     TypeError, ValueError
-        If a bound is not a number > 0 or a tuple of 3 of them.
+        If a bound is not a number > 0 or a tuple of one per joint.
     """
 
-    speed_rad_s: tuple = _INF3
-    acceleration_rad_s2: tuple = _INF3
-    jerk_rad_s3: tuple = _INF3
+    speed_rad_s: tuple | float = math.inf
+    acceleration_rad_s2: tuple | float = math.inf
+    jerk_rad_s3: tuple | float = math.inf
+    joints: tuple = AxisSequence().joints
 
     def __post_init__(self):
+        n = len(self.joints)
         for name in LIMIT_KEYS:
             value = getattr(self, name)
             if not isinstance(value, (tuple, list)):
-                value = (value,) * 3
-            if len(value) != 3:
-                raise BadArgument(f"Expected `{name}` to have 3 entries, got {value!r}.")
+                value = (value,) * n
+            if len(value) != n:
+                raise BadArgument(f"Expected `{name}` to have {n} entries, got {value!r}.")
             # inf is "no limit"; anything else a finite number > 0.
             bounds = tuple(
                 math.inf if v == math.inf else check_number(name, v, low=0.0, low_open=True)
@@ -76,19 +78,23 @@ class JointLimits:
             object.__setattr__(self, name, bounds)
 
     def as_array(self) -> np.ndarray:
-        """Bounds as shape (3, 3): rows speed, acceleration, jerk; columns pan, tilt, roll."""
+        """Bounds as shape (3, n): rows speed, acceleration, jerk; a column per joint."""
         return np.array([getattr(self, name) for name in LIMIT_KEYS])
 
 
 def limits_from_tables(tables: dict, path) -> JointLimits:
-    """Build :class:`JointLimits` from a keyframe file's ``[limits]`` table (absent: none).
+    """Build :class:`JointLimits` from a keyframe file's ``[limits]`` table (absent: none),
+    for the joints of its ``[gimbal]`` (``axes``, ``joints``).
 
     Raises
     ------
     trajgen.keyframes.KeyframeFileError
         One line naming the file, the table and the key.
     """
+    from trajgen.keyframe_axes import axes_from_table
     from trajgen.keyframes import KeyframeFileError
+
+    names = axes_from_table(tables.get("gimbal", {}), Path(path)).joints
 
     def error(message):
         return KeyframeFileError(f"{Path(path)}: [limits] {message}")
@@ -96,7 +102,7 @@ def limits_from_tables(tables: dict, path) -> JointLimits:
     table = tables.get("limits", {})
     if not isinstance(table, dict):
         raise KeyframeFileError(f"{Path(path)}: [limits]: expected a table, got {table!r}")
-    kwargs = {}
+    kwargs = {"joints": names}
     check_keys(
         table,
         (*LIMIT_KEYS, TORQUE_RATE_KEY),
@@ -107,14 +113,14 @@ def limits_from_tables(tables: dict, path) -> JointLimits:
             torque_rate_from_tables(tables, path)
             continue
         if isinstance(value, dict):
-            check_keys(value, JOINT_NAMES, error=lambda p, k=key: error(f"{k}: {p}"), kind="joint")
-            value = tuple(value.get(j, math.inf) for j in JOINT_NAMES)
+            check_keys(value, names, error=lambda p, k=key: error(f"{k}: {p}"), kind="joint")
+            value = tuple(value.get(j, math.inf) for j in names)
         try:
-            kwargs[key] = getattr(JointLimits(**{key: value}), key)
+            kwargs[key] = getattr(JointLimits(**{key: value, "joints": names}), key)
         except (TypeError, ValueError):
+            table_text = ", ".join(f"{j} = ..." for j in names)
             raise error(
-                f"{key}: expected a number > 0 or a table {{pan = ..., tilt = ..., roll = ...}}, "
-                f"got {value!r}"
+                f"{key}: expected a number > 0 or a table {{{table_text}}}, got {value!r}"
             ) from None
     return JointLimits(**kwargs)
 
@@ -143,7 +149,7 @@ def torque_rate_from_tables(tables: dict, path) -> float:
 
 
 def joint_jerk(trajectory) -> np.ndarray:
-    """Joint jerk (rad/s^3), shape (N, 3): central differences of ``trajectory.qdd``."""
+    """Joint jerk (rad/s^3), shape (N, n): central differences of ``trajectory.qdd``."""
     return np.gradient(np.asarray(trajectory.qdd, dtype=float), trajectory.t, axis=0)
 
 
@@ -167,7 +173,7 @@ def check_limits(trajectory, limits: JointLimits) -> tuple[str, ...]:
     for (quantity, value, unit), bound in zip(
         zip(LIMIT_KEYS.values(), values, units, strict=True), bounds, strict=True
     ):
-        for j, name in enumerate(JOINT_NAMES):
+        for j, name in enumerate(limits.joints):
             k = int(np.argmax(value[:, j]))
             if value[k, j] > bound[j]:
                 reasons.append(

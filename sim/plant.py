@@ -17,7 +17,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from trajgen.sim.firmware import apply_loop, loop_from_registers
-from trajgen.sim.model import JOINT_NAMES, GimbalConfig, build_model
+from trajgen.sim.model import GimbalConfig, build_model
 from trajgen.sim.run import (
     SimRecord,
     at_torque_limit,
@@ -31,12 +31,13 @@ from trajgen.validate import check_number
 
 from .errors import BadArgument
 
-# Log columns: time, q (3), qd (3), torque (3), goal (3), drive cap in volts (3).
-_LOG_COLUMNS = 16
+#: Per-joint blocks of a log row after its time: q, qd, torque, goal, drive cap in volts.
+_LOG_BLOCKS = 5
 
 
 class GimbalPlant:
-    """Three simulated servos (pan, tilt, roll) driven by goal positions.
+    """The simulated servos of a gimbal (2 or 3 joints, ``config.names``) driven by goal
+    positions.
 
     Like a Dynamixel after power-up, every joint starts at rest with torque
     off, at 0 rad or at ``initial_rad``. Enabling torque on a joint that has no
@@ -50,22 +51,20 @@ class GimbalPlant:
         Default :class:`GimbalConfig`.
     timestep_s : float
         Physics time step (s), in (0, 0.001]; it replaces ``config.timestep_s``.
-    initial_rad : array_like, shape (3,), optional
+    initial_rad : array_like, shape (n,), optional
         Joint angles (rad) at power-up, e.g. a trajectory's first frame, so a
         stream needs no move to its start. Default 0.
     record : bool
-        Keep every physics step for :meth:`report` (16 numbers a step, about
-        0.5 GB an hour of simulated time). False for a long-running bus that
+        Keep every physics step for :meth:`report` (16 numbers a step for three
+        joints, about 0.5 GB an hour of simulated time). False for a long-running bus that
         is never reported on.
 
     Raises
     ------
     TypeError, ValueError
         If ``timestep_s`` is not a number in (0, 0.001] or ``initial_rad`` is not
-        3 finite numbers.
+        one finite number per joint.
     """
-
-    n_joints = 3
 
     def __init__(
         self,
@@ -79,15 +78,18 @@ class GimbalPlant:
 
         config = GimbalConfig() if config is None else config
         self.config = dataclasses.replace(config, timestep_s=timestep_s)
+        self.n_joints = n = self.config.n_joints
         self._model = build_model(self.config)
         self._data = mujoco.MjData(self._model)
-        self._model.opt.disableactuator = 0b111
-        self._loops = [self.config.loop(j) for j in range(3)]
+        self._model.opt.disableactuator = (1 << n) - 1
+        self._loops = [self.config.loop(j) for j in range(n)]
         self._registers = self.initial_registers()
         if initial_rad is not None:
             start = np.asarray(initial_rad, dtype=float)
-            if start.shape != (3,) or not np.all(np.isfinite(start)):
-                raise BadArgument(f"Expected `initial_rad` to be 3 finite numbers, got {start!r}.")
+            if start.shape != (n,) or not np.all(np.isfinite(start)):
+                raise BadArgument(
+                    f"Expected `initial_rad` to be {n} finite numbers, got {start!r}."
+                )
             self._data.qpos[:] = start
         self._data.ctrl[:] = self._data.qpos
         mujoco.mj_forward(self._model, self._data)
@@ -99,6 +101,16 @@ class GimbalPlant:
         self._log: list[np.ndarray] = []
         self._record = bool(record)
         self._pending_s = 0.0
+
+    @property
+    def _log_columns(self) -> int:
+        """Numbers in a log row: the time, then ``_LOG_BLOCKS`` blocks of one per joint."""
+        return 1 + _LOG_BLOCKS * self.n_joints
+
+    def _blocks(self, rows: np.ndarray) -> list[np.ndarray]:
+        """Views of a log's per-joint blocks (q, qd, torque, goal, cap), each (K, n)."""
+        n = self.n_joints
+        return [rows[:, 1 + b * n : 1 + (b + 1) * n] for b in range(_LOG_BLOCKS)]
 
     @property
     def time_s(self) -> float:
@@ -137,16 +149,18 @@ class GimbalPlant:
         return dataclasses.replace(self.config, joints=joints)
 
     def set_goal(self, positions_rad) -> None:
-        """Receive goal positions (rad), shape (3,), as a sync write of Goal Position.
+        """Receive goal positions (rad), shape (n,), as a sync write of Goal Position.
 
         Raises
         ------
         ValueError
-            If ``positions_rad`` is not 3 finite numbers.
+            If ``positions_rad`` is not one finite number per joint.
         """
         goal = np.asarray(positions_rad, dtype=float)
-        if goal.shape != (3,) or not np.all(np.isfinite(goal)):
-            raise BadArgument(f"Expected `positions_rad` to be 3 finite numbers, got {goal!r}.")
+        if goal.shape != (self.n_joints,) or not np.all(np.isfinite(goal)):
+            raise BadArgument(
+                f"Expected `positions_rad` to be {self.n_joints} finite numbers, got {goal!r}."
+            )
         self._goal_times.append(self.time_s)
         self._goal = goal
         self._data.ctrl[:] = goal
@@ -157,7 +171,7 @@ class GimbalPlant:
         Parameters
         ----------
         joint : int
-            0, 1 or 2.
+            0 to ``n_joints - 1``, base out.
         registers : mapping of str to int
             Register values in register units keyed by the SDK's control-table
             names (``trajgen.servo_table.CONTROL_REGISTERS``); missing ones keep their
@@ -167,7 +181,7 @@ class GimbalPlant:
         Raises
         ------
         TypeError, ValueError
-            If ``joint`` is not 0, 1 or 2, or a gain is out of range.
+            If ``joint`` is not a joint index, or a gain is out of range.
         sim.firmware.UnsupportedServoSetting
             For a non-zero Profile Velocity / Acceleration or an Operating Mode
             other than 3 or 4 (not simulated).
@@ -175,7 +189,7 @@ class GimbalPlant:
         joint = self._check_joint(joint)
         merged = {**self._registers[joint], **registers}
         loop = loop_from_registers(
-            merged, p_divisor=self.config.p_divisor, joint=JOINT_NAMES[joint]
+            merged, p_divisor=self.config.p_divisor, joint=self.config.names[joint]
         )
         self._registers[joint] = merged
         integrator_changed = (loop.i_gain > 0) != (self._loops[joint].i_gain > 0)
@@ -213,7 +227,7 @@ class GimbalPlant:
         TypeError
             If ``joint`` is not an int.
         ValueError
-            If ``joint`` is not 0, 1 or 2.
+            If ``joint`` is not a joint index.
         """
         joint = self._check_joint(joint)
         if enabled and self._goal is None:
@@ -241,17 +255,18 @@ class GimbalPlant:
         if n == 0:
             return
         t_from = self.time_s
-        rows = np.empty((n, _LOG_COLUMNS))
+        rows = np.empty((n, self._log_columns))
+        q, qd, torque, goal, cap = self._blocks(rows)
         rows[:, 0] = t_from + np.arange(n) * self.config.timestep_s
-        rows[:, 10:13] = self._data.ctrl
-        rows[:, 13:16] = self._model.actuator_gainprm[:, 7]
-        step_and_record(self._model, self._data, rows[:, 1:4], rows[:, 4:7], rows[:, 7:10])
+        goal[:] = self._data.ctrl
+        cap[:] = self._model.actuator_gainprm[:, 7]
+        step_and_record(self._model, self._data, q, qd, torque)
         if self._record:
             self._log.append(rows)
         raise_on_new_warnings(self._warnings, self._data, t_from, self.time_s)
 
     def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Present position (rad), velocity (rad/s) and current (A), each shape (3,).
+        """Present position (rad), velocity (rad/s) and current (A), each shape (n,).
 
         Current is the actuator torque over the servo's torque constant
         (stall torque / stall current, an approximation); 0 with torque off.
@@ -260,7 +275,7 @@ class GimbalPlant:
         return self._data.qpos.copy(), self._data.qvel.copy(), current
 
     def present_pwm(self) -> np.ndarray:
-        """Drive output as a fraction of the supply, shape (3,), in [-1, 1].
+        """Drive output as a fraction of the supply, shape (n,), in [-1, 1].
 
         The voltage the firmware loop applies to each motor now (0 with torque
         off) over the supply (the servo's rated voltage), as Present PWM / PWM Limit
@@ -269,14 +284,15 @@ class GimbalPlant:
         model, data = self._model, self._data
         prm = model.actuator_gainprm
         r, k, kp, ki, kd, vmax = prm[:, 0], prm[:, 1], prm[:, 4], prm[:, 5], prm[:, 6], prm[:, 7]
-        integral = np.zeros(3)
-        for j in range(3):
+        n = self.n_joints
+        integral = np.zeros(n)
+        for j in range(n):
             if model.actuator_actadr[j] >= 0:
                 integral[j] = data.act[model.actuator_actadr[j] + model.actuator_actnum[j] - 1]
         w = data.qvel
         tau = kp * (data.ctrl - data.qpos) - kd * w + ki * integral
         volts = np.clip(r / k * tau + k * w, -vmax, vmax)
-        enabled = (model.opt.disableactuator >> np.arange(3)) & 1 == 0
+        enabled = (model.opt.disableactuator >> np.arange(n)) & 1 == 0
         return np.where(enabled, volts / self._supply_v, 0.0)
 
     def report(self, trajectory, *, lead: str = "none"):
@@ -309,7 +325,7 @@ class GimbalPlant:
         from trajgen.sim.check import build_report
         from trajgen.sim.errors import SimError
 
-        check_trajectory(trajectory)
+        check_trajectory(trajectory, self.n_joints)
         if not self._record:
             raise SimError("the plant was made with record=False: nothing to report")
         if not self._goal_times:
@@ -317,19 +333,20 @@ class GimbalPlant:
         # The stream's frames are the last goals received (bring-up and the
         # approach come before them).
         first = self._goal_times[-min(len(trajectory), len(self._goal_times))]
-        log = np.concatenate(self._log) if self._log else np.empty((0, _LOG_COLUMNS))
+        log = np.concatenate(self._log) if self._log else np.empty((0, self._log_columns))
         log = log[log[:, 0] >= first - 1e-12]
         if len(log) == 0:
             raise SimError("no physics step ran after the first goal: nothing to report")
         t = log[:, 0] - first + trajectory.t[0]
+        q, qd, torque, goal, cap = self._blocks(log)
         record = SimRecord(
             t=t,
-            q=log[:, 1:4],
-            qd=log[:, 4:7],
-            torque_nm=log[:, 7:10],
-            setpoint=log[:, 10:13],
+            q=q,
+            qd=qd,
+            torque_nm=torque,
+            setpoint=goal,
             planned=planned_path(trajectory, t),
-            at_limit=at_torque_limit(self.config, log[:, 4:7], log[:, 7:10], log[:, 13:16]),
+            at_limit=at_torque_limit(self.config, qd, torque, cap),
             timestep_s=self.config.timestep_s,
         )
         return build_report(trajectory, self.config_now, record, lead=lead)

@@ -7,8 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from trajgen.gimbal import JOINT_NAMES
-
 #: The use panel's logarithmic axis starts here (%): a joint at rest uses ~0 %.
 USE_FLOOR_PCT = 0.1
 
@@ -94,8 +92,8 @@ def _min_span(ax, span: float) -> None:
 
 
 def plot_report(report, path) -> Path:
-    """Save a 5 x 3 figure (rows: angle, velocity, tracking error, torque, envelope use;
-    columns: joints).
+    """Save a 5 x n figure (rows: angle, velocity, tracking error, torque, envelope use;
+    a column per joint).
 
     - angle: the plan, the goals sent (led ahead of the plan, ``trajgen.lead``)
       and the simulated angle; angle and velocity axes span at least
@@ -153,10 +151,11 @@ def report_figure(report):
     traj, rec = report.trajectory, report.record
     period = 1.0 / report.rate_hz
     margin = report.torque_margin
-    fig, axes = plt.subplots(5, 3, figsize=(14, 13.5), sharex=True)
+    names = report.config.names
+    fig, axes = plt.subplots(5, len(names), figsize=(14 * len(names) / 3, 13.5), sharex=True)
     limit = report.max_tracking_error_rad
     goal = getattr(traj, "goal", None)
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(names):
         servo = report.config.servos[j]
         ax_q, ax_w, ax_e, ax_t, ax_u = axes[:, j]
         ax_q.plot(traj.t, traj.q[:, j], label="planned")

@@ -31,11 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from trajgen.gimbal import JOINT_NAMES
 from trajgen.timelaw import DEGREE
 
 from .errors import SimError
 from .limits import JointLimits
-from .model import JOINT_NAMES
 from .retime_path import PathDynamics
 
 #: B-spline coefficients of sigma per path segment.

@@ -26,16 +26,16 @@ class SimRecord:
     ----------
     t : ndarray, shape (K,)
         Step start times (s), on the trajectory's clock.
-    q, qd : ndarray, shape (K, 3)
+    q, qd : ndarray, shape (K, n)
         Joint angles (rad) and velocities (rad/s) at the start of each step.
-    torque_nm : ndarray, shape (K, 3)
+    torque_nm : ndarray, shape (K, n)
         Actuator torque (N m) applied during each step.
-    setpoint : ndarray, shape (K, 3)
+    setpoint : ndarray, shape (K, n)
         Held (zero-order-hold) position setpoint (rad).
-    planned : ndarray, shape (K, 3)
+    planned : ndarray, shape (K, n)
         The planned path at ``t`` (rad): cubic Hermite through the stream's
         ``(q, qd)`` samples.
-    at_limit : ndarray of bool, shape (K, 3)
+    at_limit : ndarray of bool, shape (K, n)
         The servo gave all the torque it had: drive at the rated voltage or torque
         at the stall-torque clamp.
     timestep_s : float
@@ -53,17 +53,17 @@ class SimRecord:
 
     @property
     def tracking_error_rad(self) -> np.ndarray:
-        """``q - planned`` (rad), shape (K, 3)."""
+        """``q - planned`` (rad), shape (K, n)."""
         return self.q - self.planned
 
     @property
     def hold_error_rad(self) -> np.ndarray:
-        """``q - setpoint`` (rad), shape (K, 3): the error the servo sees."""
+        """``q - setpoint`` (rad), shape (K, n): the error the servo sees."""
         return self.q - self.setpoint
 
     @property
     def steps_at_limit(self) -> np.ndarray:
-        """Number of steps at the voltage limit per joint, shape (3,), int."""
+        """Number of steps at the voltage limit per joint, shape (n,), int."""
         return self.at_limit.sum(axis=0)
 
 
@@ -78,14 +78,14 @@ def at_torque_limit(config: GimbalConfig, qd, torque_nm, vmax=None) -> np.ndarra
     Parameters
     ----------
     config : GimbalConfig
-    qd, torque_nm : ndarray, shape (K, 3)
+    qd, torque_nm : ndarray, shape (K, n)
         Joint speed (rad/s) and actuator torque (N m).
-    vmax : float or array_like, broadcastable to (K, 3), optional
+    vmax : float or array_like, broadcastable to (K, n), optional
         The drive's voltage cap (V); default each servo's rated voltage.
 
     Returns
     -------
-    ndarray of bool, shape (K, 3)
+    ndarray of bool, shape (K, n)
     """
     w0 = np.array([s.no_load_speed_rad_s for s in config.servos])
     stall = np.array([s.stall_torque_nm for s in config.servos])
@@ -109,7 +109,7 @@ def planned_path(trajectory, t) -> np.ndarray:
 
     Returns
     -------
-    ndarray, shape (K, 3)
+    ndarray, shape (K, n)
     """
     ts = trajectory.t
     t = np.clip(np.asarray(t, dtype=float), ts[0], ts[-1])
@@ -165,7 +165,7 @@ def step_controls(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray
     -------
     step_t : ndarray, shape (K,)
         Step start times (s).
-    ctrl : ndarray, shape (K, 3)
+    ctrl : ndarray, shape (K, n)
         Goal position per joint (rad, whole ticks).
     """
     step_t, frame = step_frames(trajectory, timestep_s)
@@ -389,8 +389,9 @@ def raise_on_new_warnings(before: np.ndarray, data, t_from: float, t_to: float) 
         raise SimulationError(f"MuJoCo warning between t = {t_from:.4f} and {t_to:.4f} s: {names}")
 
 
-def check_trajectory(trajectory) -> None:
-    """Raise if ``trajectory`` is not a usable ``JointTrajectory``.
+def check_trajectory(trajectory, n_joints: int = 3) -> None:
+    """Raise if ``trajectory`` is not a usable ``JointTrajectory`` of ``n_joints`` joints
+    (the gimbal's, ``GimbalConfig.n_joints``; one column per joint in every array).
 
     Raises
     ------
@@ -410,9 +411,9 @@ def check_trajectory(trajectory) -> None:
     fields = ("q", "qd", "qdd") + (() if getattr(trajectory, "goal", None) is None else ("goal",))
     for f in fields:
         a = np.asarray(getattr(trajectory, f))
-        if a.shape != (n[0], 3):
+        if a.shape != (n[0], n_joints):
             raise BadArgument(
-                f"Expected `trajectory.{f}` to have shape ({n[0]}, 3), got {a.shape}."
+                f"Expected `trajectory.{f}` to have shape ({n[0]}, {n_joints}), got {a.shape}."
             )
         if not np.all(np.isfinite(a)):
             raise BadArgument(f"Expected `trajectory.{f}` to be finite, got a NaN or inf.")
@@ -458,8 +459,8 @@ def simulate(
     SimulationError
         If a MuJoCo warning counter rises during the run.
     """
-    check_trajectory(trajectory)
     config = GimbalConfig() if config is None else config
+    check_trajectory(trajectory, config.n_joints)
     step_t, ctrl = step_controls(trajectory, config.timestep_s)
     q, qd, torque = run_batch(
         [simulation_model(config) if model is None else model],

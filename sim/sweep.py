@@ -38,7 +38,7 @@ class Variant:
         Camera mass (kg).
     payload_offset_m : tuple of 3 float
         Camera centre of mass in the roll link frame (m).
-    servos : tuple of 3 str
+    servos : tuple of str
         Servo model per joint (pan, tilt, roll).
     time_scale : float
         Keyframe times are multiplied by this (0.5 = twice as fast).
@@ -111,7 +111,7 @@ def variants(
     ----------
     payload_kg : sequence of float
     payload_offset_m : sequence of 3-sequences of float
-    servos : sequence of 3-sequences of str
+    servos : sequence of sequences of str (one name per joint)
         Servo sets (pan, tilt, roll).
     time_scale : sequence of float
         Each > 0.
@@ -207,7 +207,7 @@ def run_sweep(
     if config is None:
         from trajgen.sim.model import gimbal_config_from_tables
 
-        config = gimbal_config_from_tables(source.tables, source.path)
+        config = gimbal_config_from_tables(source.tables, source.path, any_axes=True)
     threads = check_number("threads", threads, integer=True, low=1)
     rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
     results: list[VariantResult | None] = [None] * len(sweep)
@@ -216,7 +216,7 @@ def run_sweep(
         by_scale.setdefault(v.time_scale, []).append(i)
     done = 0
     for scale, indices in by_scale.items():
-        trajectory = scaled_trajectory(source, scale, rate)
+        trajectory = scaled_trajectory(source, scale, rate, config.kinematics())
         for start in range(0, len(indices), batch):
             chunk = indices[start : start + batch]
             for i, report in zip(
@@ -231,13 +231,14 @@ def run_sweep(
     return results
 
 
-def scaled_trajectory(source, scale: float, rate_hz: float):
-    """The file's planned stream with keyframe times (from the first) multiplied by ``scale``."""
+def scaled_trajectory(source, scale: float, rate_hz: float, kinematics=None):
+    """The file's planned stream with keyframe times (from the first) multiplied by ``scale``
+    (``kinematics``: the gimbal's ``GimbalKinematics``, default pan-tilt-roll)."""
     from trajgen.stream import plan_joint_trajectory
 
     times = source.times[0] + (source.times - source.times[0]) * scale
     spline = source.spline_class(source.quats, times, **source.spline_options)
-    return plan_joint_trajectory(spline, rate_hz)
+    return plan_joint_trajectory(spline, rate_hz, kinematics)
 
 
 def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, threads: int):

@@ -9,7 +9,7 @@ import numpy as np
 from trajgen.gimbal import JOINT_NAMES
 
 
-def plot_sweep(results, path) -> Path:
+def plot_sweep(results, path, joint_names=JOINT_NAMES) -> Path:
     """One panel per (payload offset, servo set); payload across, time scale down.
 
     Each cell is coloured by the worst planned margin (N m; red below zero) and
@@ -21,6 +21,8 @@ def plot_sweep(results, path) -> Path:
     results : sequence of VariantResult
     path : str or Path
         PNG to write.
+    joint_names : tuple of str
+        The gimbal's joints, base out (a panel names their servos).
 
     Returns
     -------
@@ -85,7 +87,7 @@ def plot_sweep(results, path) -> Path:
         if len(set(servos)) == 1:
             names = f"all {servos[0]}"
         else:
-            names = ", ".join(f"{j} {s}" for j, s in zip(JOINT_NAMES, servos, strict=True))
+            names = ", ".join(f"{j} {s}" for j, s in zip(joint_names, servos, strict=True))
         ax.set_title(f"{names}\noffset ({', '.join(f'{o:g}' for o in offset)}) m", fontsize=8)
     axes[0, 0].set_ylabel("time scale (x keyframe times)")
     fig.colorbar(image, ax=axes[0].tolist(), label="worst planned margin (N m)")

@@ -67,7 +67,11 @@ def test_bus_table_defaults_and_values():
         ({"speed": 1}, r"f.toml: \[bus\]: unknown key 'speed' \(known: port, baud"),
         ({"baud": "fast"}, r"f.toml: \[bus\] baud: expected an integer, got 'fast'"),
         ({"ids": [1, 1, 2]}, r"\[bus\] ids: expected 3 distinct ids, got \[1, 1, 2\]"),
-        ({"ids": [1, 2]}, r"\[bus\] ids: expected a list of 3 integers, got \[1, 2\]"),
+        (
+            {"ids": [1, 2]},
+            r"\[bus\] ids: expected a list of 3 integers, got \[1, 2\] "
+            r"\(one per joint: pan, tilt, roll\)",
+        ),
         ({"directions": [1, 0, 1]}, r"\[bus\] directions: expected \+1 or -1 each, got"),
         ({"models": "XM999"}, r"\[bus\] models: unknown model 'XM999' \(known: XM430-W350"),
         ({"watchdog_s": 5}, r"\[bus\] watchdog_s: expected a finite number in 0.02..2.54, got 5"),
@@ -179,7 +183,7 @@ def test_port_and_virtual_exclude_each_other_in_the_parser(capsys):
 def test_ids_flag_is_checked(capsys):
     with pytest.raises(SystemExit):
         _run(["stream", "--virtual", "--ids", "1,1,2"])
-    assert "expected 3 distinct ids in 0..252, got '1,1,2'" in capsys.readouterr().err
+    assert "expected distinct ids in 0..252, got '1,1,2'" in capsys.readouterr().err
 
 
 def test_scan_lists_servos(capsys):

@@ -199,3 +199,80 @@ def test_blending_stream_equals_the_plan_with_wrapping(rng):
     spline = BlendingSpline(forward(keys), [0.0, 1.0, 2.0, 3.0])
     traj = assert_same_stream(spline, 500.0)
     assert np.abs(traj.q[:, [0, 2]]).max() > 2 * math.pi  # unwrapped past a whole turn
+
+
+# ---------------------------------------------------------------- other axis sequences
+
+#: Every axis sequence but the default (served by FrameKinematics itself).
+OTHER_AXES = [
+    a + b + c
+    for a in "xyz"
+    for b in "xyz"
+    for c in ("", "x", "y", "z")
+    if a != b and b != c and a + b + c != "zyx"
+]
+
+
+def _wide(kin_axes: str) -> GimbalKinematics:
+    seq = GimbalKinematics(axes=kin_axes).sequence
+    limits = [(-1e3, 1e3)] * seq.n
+    limits[1] = seq.middle_range
+    return GimbalKinematics(tuple(limits), axes=kin_axes)
+
+
+@pytest.mark.parametrize("axes", OTHER_AXES)
+def test_axes_frame_kinematics_equal_inverse_and_joint_rates(rng, axes):
+    """Floats of one frame against the numpy arrays, wrapping included."""
+    kin = _wide(axes)
+    seq = kin.sequence
+    n = 300
+    angles = np.cumsum(rng.normal(scale=0.6, size=(n, seq.n)), axis=0)
+    low, high = seq.middle_range
+    middle, half = (low + high) / 2, (high - low) / 2
+    angles[:, 1] = middle + 0.75 * half * np.sin(angles[:, 1])
+    q = kin.forward(angles) * rng.choice([-1.0, 1.0], size=(n, 1)) * rng.uniform(0.5, 2, (n, 1))
+    omega, alpha = rng.normal(size=(n, 3)), rng.normal(scale=10.0, size=(n, 3))
+    t = np.arange(n) * 0.01
+    for start in (None, np.full(seq.n, 13.0)):
+        if start is not None:
+            start[1] = middle
+        want = kin.inverse(q, t, start=start)
+        want_qd, want_qdd = kin.joint_rates(want, omega, alpha)
+        frame = FrameKinematics(kin, start)
+        assert type(frame).__name__ == "AxesFrameKinematics"
+        got = [frame(t[i], q[i].tolist(), omega[i].tolist(), alpha[i].tolist()) for i in range(n)]
+        assert all(len(g[0]) == seq.n and isinstance(g[0][0], float) for g in got)
+        np.testing.assert_allclose([g[0] for g in got], want, rtol=0, atol=1e-12)
+        np.testing.assert_allclose([g[1] for g in got], want_qd, rtol=1e-11, atol=1e-11)
+        np.testing.assert_allclose([g[2] for g in got], want_qdd, rtol=1e-11, atol=1e-10)
+
+
+@pytest.mark.parametrize(
+    "axes, angles, message",
+    [
+        ("zy", (0.3, 1.45), "tilt reaches 83.1 deg at t = 0.500 s, within 10.0 deg of gimbal lock"),
+        ("zxz", (0.3, 0.1, 0.2), "joint2 reaches 5.7 deg at t = 0.500 s, within 10.0 deg"),
+        ("yx", (2.0, 0.1), "joint1 reaches 114.6 deg at t = 0.500 s, outside its limits"),
+    ],
+)
+def test_axes_frame_kinematics_refuse_lock_and_limits_as_check(axes, angles, message):
+    limits = None if axes != "yx" else ((-1.0, 1.0), (-1.5, 1.5))
+    kin = GimbalKinematics(limits, axes=axes)
+    q = kin.forward(np.array([angles]))[0].tolist()
+    with pytest.raises(KinematicsError, match=re.escape(message)):
+        kin.check(np.array([angles]), np.array([0.5]))
+    with pytest.raises(KinematicsError, match=re.escape(message)):
+        FrameKinematics(kin)(0.5, q, [0.0] * 3, [0.0] * 3)
+
+
+@pytest.mark.parametrize(
+    "q, omega, alpha, message",
+    [
+        ([math.nan, 0, 0, 1], [0, 0, 0], [0, 0, 0], "`quats` row 0 is not finite"),
+        ([1.0, 0, 0, 0], [0, math.inf, 0], [0, 0, 0], "Expected `omega` to be finite"),
+        ([1.0, 0, 0, 0], [0, 0, 0], [math.nan, 0, 0], "Expected `alpha` to be finite"),
+    ],
+)
+def test_axes_frame_kinematics_refuse_values_that_are_not_finite(q, omega, alpha, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        FrameKinematics(GimbalKinematics(axes="yx"))(0.0, q, omega, alpha)

@@ -886,7 +886,7 @@ CASES = [
         ["stream", "--ids", "1,1,2"],
         None,
         2,
-        r"argument --ids: expected 3 distinct ids in 0\.\.252, got '1,1,2'",
+        r"argument --ids: expected distinct ids in 0\.\.252, got '1,1,2'",
         "unclear",
     ),
     (
@@ -894,7 +894,7 @@ CASES = [
         ["stream", "--ids", "1,2"],
         None,
         2,
-        r"argument --ids: expected 3 distinct ids",
+        r"--ids 1,2: expected 3 ids, one per joint \(pan, tilt, roll\)",
         "unclear",
     ),
     (
@@ -902,7 +902,7 @@ CASES = [
         ["stream", "--ids", "1,2,300"],
         None,
         2,
-        r"argument --ids: expected 3 distinct ids in 0\.\.252",
+        r"argument --ids: expected distinct ids in 0\.\.252",
         "unclear",
     ),
     (
@@ -1449,7 +1449,7 @@ CASES = [
         ["virtual-bus", "--models", "XM430-W350,XM430-W350"],
         None,
         2,
-        r"argument --models: expected a model or 3 separated by commas",
+        r"--models: expected 1 model or 3 \(one per id\), got 2",
         "ok",
     ),
     (

@@ -183,5 +183,10 @@ def test_cli_bad_input(keys, capsys):
 
     assert main(["sweep", str(keys.path), "--servo", "tilt=XM999"]) == 2
     assert "unknown model 'XM999'" in capsys.readouterr().err
+    assert main(["sweep", str(keys.path), "--servo", "yaw=XM430-W350"]) == 2
+    assert capsys.readouterr().err == (
+        "trajgen sweep: error: --servo yaw=...: no joint 'yaw' (the file's gimbal has pan, "
+        "tilt, roll)\n"
+    )
     with pytest.raises(SystemExit):
-        _sweep_cli([keys.path, "--servo", "yaw=XM430-W350"])
+        _sweep_cli([keys.path, "--servo", "yaw"])

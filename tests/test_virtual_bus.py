@@ -291,7 +291,9 @@ def test_a_second_program_on_the_port_is_refused(pair):
 
 
 def test_bad_arguments():
-    with pytest.raises(ValueError, match=r"Expected one id per plant joint \(3\), got `ids`"):
+    with pytest.raises(
+        ValueError, match=r"Expected at least one id per plant joint \(3\), got `ids`"
+    ):
         VirtualBus(FirstOrderPlant(), ids=(1, 2))
     with pytest.raises(ValueError, match="Expected a `servo_id` for a overload fault, got None"):
         Fault("overload")

@@ -539,8 +539,10 @@ def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--models", "XM999"], "--models: expected a model or 3 separated by commas"),
-        (["--ids", "1,1,2"], "--ids: expected 3 distinct ids in 0..252"),
+        (["--models", "XM999"], "--models: expected model names separated by commas"),
+        (["--ids", "1,1,2"], "--ids: expected distinct ids in 0..252"),
+        (["--ids", "1,2"], "--ids 1,2: expected at least 3 ids, one per joint of the gimbal"),
+        (["--models", "XL330-M288,XM430-W350"], "--models: expected 1 model or 3 (one per id)"),
         (["nonexistent.toml"], "nonexistent.toml"),
     ],
 )

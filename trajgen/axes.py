@@ -211,31 +211,9 @@ class AxisSequence:
 
         For two axes: the angles that point :attr:`look` along ``q look`` (exact).
         """
-        r = matrix(q)
-        if self.n == 2:
-            return direction_angles(self.indices, r @ self.look)
-        i, j, _ = self.indices
-        if self.kind == "tait-bryan":
-            k = self.indices[2]
-            e = _parity(i, j, k)
-            return np.stack(
-                [
-                    np.arctan2(-e * r[:, j, k], r[:, k, k]),
-                    np.arctan2(e * r[:, i, k], np.hypot(r[:, i, i], r[:, i, j])),
-                    np.arctan2(-e * r[:, i, j], r[:, i, i]),
-                ],
-                axis=-1,
-            )
-        (k,) = set(range(3)) - {i, j}
-        e = _parity(i, j, k)
-        return np.stack(
-            [
-                np.arctan2(r[:, j, i], -e * r[:, k, i]),
-                np.arctan2(np.hypot(r[:, j, i], r[:, k, i]), r[:, i, i]),
-                np.arctan2(r[:, i, j], e * r[:, i, k]),
-            ],
-            axis=-1,
-        )
+        w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+        r = matrix_entries(w, x, y, z)
+        return np.stack(angles_of_matrix(self, r, np.arctan2, np.hypot), axis=-1)
 
     def lock_distance(self, angles: np.ndarray) -> np.ndarray:
         """How far (rad) the middle angle of each row of ``angles`` (N, n) is from lock."""
@@ -261,34 +239,113 @@ class AxisSequence:
             Space-frame angular velocity (rad/s) and acceleration (rad/s^2).
         """
         a = self._check(angles)
-        e = np.moveaxis(self.joint_axes(a), -1, 0)  # (n, ..., 3)
-        cross = _cross
-        if self.n == 2:
-            d = self.look_direction(a)
-            g1, g2 = cross(e[0], d), cross(e[1], d)  # orthogonal; |g2| = 1
-            n1 = np.sum(g1 * g1, axis=-1)
-            dd = cross(omega, d)
-            qd = np.stack([np.sum(g1 * dd, axis=-1) / n1, np.sum(g2 * dd, axis=-1)], axis=-1)
-            v1, v2 = qd[..., 0, None], qd[..., 1, None]
-            ddd = cross(alpha, d) + cross(omega, dd)
-            de2 = v1 * cross(e[0], e[1])
-            rest = ddd - v1 * cross(e[0], dd) - v2 * (cross(de2, d) + cross(e[1], dd))
-            qdd = np.stack([np.sum(g1 * rest, axis=-1) / n1, np.sum(g2 * rest, axis=-1)], axis=-1)
-            return qd, qdd
-        rows = np.stack([cross(e[1], e[2]), cross(e[2], e[0]), cross(e[0], e[1])], axis=-2)
-        det = np.sum(e[0] * rows[..., 0, :], axis=-1)[..., None]
-        qd = np.einsum("...ij,...j->...i", rows, omega) / det
-        v = np.moveaxis(qd, -1, 0)[..., None]
-        jdot = v[0] * v[1] * cross(e[0], e[1]) + v[2] * cross(v[0] * e[0] + v[1] * e[1], e[2])
-        qdd = np.einsum("...ij,...j->...i", rows, alpha - jdot) / det
-        return qd, qdd
+        e = [_components(col) for col in np.moveaxis(self.joint_axes(a), -1, 0)]
+        d = _components(self.look_direction(a)) if self.n == 2 else None
+        w = np.asarray(omega, dtype=float)
+        al = np.asarray(alpha, dtype=float)
+        qd, qdd = rates_of_axes(e, d, _components(w), _components(al))
+        return np.stack(np.broadcast_arrays(*qd), axis=-1), np.stack(
+            np.broadcast_arrays(*qdd), axis=-1
+        )
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``u x v`` over the last axis (..., 3): ``np.cross`` costs ~10x more on one frame."""
-    u0, u1, u2 = u[..., 0], u[..., 1], u[..., 2]
-    v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
-    return np.stack([u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0], axis=-1)
+def _components(v: np.ndarray) -> tuple:
+    """The three components of vectors (..., 3), each (...)."""
+    return v[..., 0], v[..., 1], v[..., 2]
+
+
+def _cross(u, v) -> tuple:
+    """``u x v`` of vectors given as three components (floats or arrays alike)."""
+    u0, u1, u2 = u
+    v0, v1, v2 = v
+    return u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+
+
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def _combine(*terms) -> tuple:
+    """``sum(c * v)`` of ``(c, v)`` pairs, vectors as three components."""
+    return tuple(sum(c * v[k] for c, v in terms) for k in range(3))
+
+
+def rates_of_axes(e, d, omega, alpha) -> tuple[tuple, tuple]:
+    """Joint velocities and accelerations from the space-frame joint axes, exactly.
+
+    The formulas of :meth:`AxisSequence.joint_rates`, on vectors given as three
+    components: floats for one frame (:mod:`trajgen.frame_eval`) or arrays.
+
+    Parameters
+    ----------
+    e : sequence of n vectors
+        The joint axes ``e_1 .. e_n`` (space frame, unit), n = 2 or 3.
+    d : vector or None
+        Two axes: the look direction (unit); three axes: unused.
+    omega, alpha : vector
+        Angular velocity (rad/s) and acceleration (rad/s^2), space frame.
+
+    Returns
+    -------
+    (tuple, tuple)
+        ``qd`` (rad/s) and ``qdd`` (rad/s^2), n components each.
+    """
+    if len(e) == 2:
+        e0, e1 = e
+        g1, g2 = _cross(e0, d), _cross(e1, d)  # orthogonal; |g2| = 1
+        n1 = _dot(g1, g1)
+        dd = _cross(omega, d)
+        v1, v2 = _dot(g1, dd) / n1, _dot(g2, dd)
+        ddd = _combine((1.0, _cross(alpha, d)), (1.0, _cross(omega, dd)))
+        de2 = _combine((v1, _cross(e0, e1)))
+        turn = _combine((1.0, _cross(de2, d)), (1.0, _cross(e1, dd)))
+        rest = _combine((1.0, ddd), (-v1, _cross(e0, dd)), (-v2, turn))
+        return (v1, v2), (_dot(g1, rest) / n1, _dot(g2, rest))
+    e0, e1, e2 = e
+    rows = (_cross(e1, e2), _cross(e2, e0), _cross(e0, e1))
+    det = _dot(e0, rows[0])
+    v0, v1, v2 = (_dot(r, omega) / det for r in rows)
+    carried = _combine((v0, e0), (v1, e1))
+    jdot = _combine((v0 * v1, _cross(e0, e1)), (v2, _cross(carried, e2)))
+    rest = _combine((1.0, alpha), (-1.0, jdot))
+    return (v0, v1, v2), tuple(_dot(r, rest) / det for r in rows)
+
+
+def angles_of_matrix(seq: AxisSequence, r, atan2, hypot) -> tuple:
+    """Closed-form joint angles of a rotation matrix, as :meth:`AxisSequence.angles`.
+
+    Parameters
+    ----------
+    seq : AxisSequence
+    r : nested sequence, 3 x 3
+        ``r[i][j]``, floats for one frame or arrays alike (:func:`matrix_entries`).
+    atan2, hypot : callable
+        ``math.atan2``, ``math.hypot`` for floats; ``np.arctan2``, ``np.hypot`` for arrays.
+
+    Returns
+    -------
+    tuple
+        The n angles (rad).
+    """
+    if seq.n == 2:
+        a, b = seq.indices
+        (c,) = set(range(3)) - {a, b}
+        return _direction_angles(a, b, c, (r[0][c], r[1][c], r[2][c]), atan2, hypot)
+    i, j, k = seq.indices
+    if seq.kind == "tait-bryan":
+        e = _parity(i, j, k)
+        return (
+            atan2(-e * r[j][k], r[k][k]),
+            atan2(e * r[i][k], hypot(r[i][i], r[i][j])),
+            atan2(-e * r[i][j], r[i][i]),
+        )
+    (k,) = set(range(3)) - {i, j}
+    e = _parity(i, j, k)
+    return (
+        atan2(r[j][i], -e * r[k][i]),
+        atan2(hypot(r[j][i], r[k][i]), r[i][i]),
+        atan2(r[i][j], e * r[i][k]),
+    )
 
 
 def _parity(i: int, j: int, k: int) -> float:
@@ -296,16 +353,13 @@ def _parity(i: int, j: int, k: int) -> float:
     return 1.0 if (j - i) % 3 == 1 and (k - j) % 3 == 1 else -1.0
 
 
-def matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (N, 3, 3) of unit quaternions (N, 4) (quadratic in q)."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=-2,
+def matrix_entries(w, x, y, z) -> tuple:
+    """Rotation matrix ``r[i][j]`` (nested tuples) of a unit quaternion's components,
+    floats or arrays alike (quadratic in ``q``, so ``q`` and ``-q`` agree)."""
+    return (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
     )
 
 
@@ -319,6 +373,12 @@ def direction_angles(indices: tuple[int, int], d: np.ndarray) -> np.ndarray:
     """
     a, b = indices
     (c,) = set(range(3)) - {a, b}
+    d = np.asarray(d, dtype=float)
+    return np.stack(_direction_angles(a, b, c, _components(d), np.arctan2, np.hypot), axis=-1)
+
+
+def _direction_angles(a: int, b: int, c: int, d, atan2, hypot) -> tuple:
+    """:func:`direction_angles` on a direction given as three components."""
     s = _parity(a, b, c)
-    da, db, dc = d[..., a], d[..., b], d[..., c]
-    return np.stack([np.arctan2(-s * db, dc), np.arctan2(s * da, np.hypot(db, dc))], axis=-1)
+    da, db, dc = d[a], d[b], d[c]
+    return atan2(-s * db, dc), atan2(s * da, hypot(db, dc))

@@ -11,7 +11,10 @@ every frame:
   lock and limit guard and the joint rates of one frame; the scalar counterpart
   of :meth:`trajgen.gimbal.GimbalKinematics.inverse` and
   :func:`trajgen.gimbal.joint_rates`, sharing their formulas
-  (:func:`~trajgen.gimbal.angles_of`, :func:`~trajgen.gimbal.rates_of`).
+  (:func:`~trajgen.gimbal.angles_of`, :func:`~trajgen.gimbal.rates_of`); for any
+  other axis sequence :class:`AxesFrameKinematics`, sharing those of
+  :mod:`trajgen.axes` (:func:`~trajgen.axes.angles_of_matrix`,
+  :func:`~trajgen.axes.rates_of_axes`).
 - :class:`SmoothFrames`: a :class:`~trajgen.smooth.SmoothSpline`'s orientation,
   angular velocity and acceleration at one time, from its coefficient table
   (:attr:`~trajgen.smooth.SmoothSpline.tangent_coefficients`); the scalar
@@ -30,6 +33,7 @@ import math
 import numpy as np
 
 from . import quat as Q
+from .axes import angles_of_matrix, matrix_entries, rates_of_axes
 from .errors import BadArgument
 from .gimbal import TWO_PI, GimbalKinematics, angles_of, joint_rates, rates_of
 from .jet import _COS, _SINC, SERIES_BELOW
@@ -295,9 +299,13 @@ class FrameKinematics:
 
 
 class AxesFrameKinematics(FrameKinematics):
-    """:class:`FrameKinematics` for any axis sequence (:mod:`trajgen.axes`): the numpy
-    formulas of :class:`GimbalKinematics` on one frame, with the same integer turn
-    counts for the wrapped joints as :meth:`GimbalKinematics.inverse`.
+    """:class:`FrameKinematics` for any axis sequence (:mod:`trajgen.axes`), in floats.
+
+    The formulas of :class:`GimbalKinematics` (:func:`~trajgen.axes.angles_of_matrix`,
+    :func:`~trajgen.axes.rates_of_axes`) on the floats of one frame, with the same
+    integer turn counts for the wrapped joints as :meth:`GimbalKinematics.inverse`
+    and the same guard: a frame near gimbal lock or outside a limit raises the
+    message of :meth:`GimbalKinematics.check`.
 
     Parameters
     ----------
@@ -308,10 +316,23 @@ class AxesFrameKinematics(FrameKinematics):
 
     def __init__(self, kinematics: GimbalKinematics, start=None):
         self._kin = kinematics
-        self._cols = list(kinematics.sequence.wrapped)
-        self._start = None if start is None else np.asarray(start, dtype=float)[self._cols]
+        seq = kinematics.sequence
+        self._seq = seq
+        self._cols = seq.wrapped
+        self._start = None if start is None else tuple(float(start[c]) for c in self._cols)
         self._last = None  # the last frame's wrapped joints (rad)
-        self._turns = np.zeros(len(self._cols))  # whole turns added to them
+        self._turns = (0,) * len(self._cols)  # whole turns added to them
+        margin = kinematics.lock_margin_rad
+        bounds = [list(b) for b in kinematics.limits_rad]
+        if seq.kind == "proper-euler":
+            low, high = margin, math.pi - margin
+        else:
+            low, high = -math.pi / 2 + margin, math.pi / 2 - margin
+        # Lock and limits of the middle joint as one interval (NaN fails it).
+        bounds[1] = [max(bounds[1][0], low), min(bounds[1][1], high)]
+        self._bounds = tuple(tuple(b) for b in bounds)
+        self._units = tuple(_UNITS[i] for i in seq.indices)
+        self._look = tuple(float(v) for v in seq.look)
 
     @property
     def state(self) -> tuple:
@@ -326,14 +347,60 @@ class AxesFrameKinematics(FrameKinematics):
         """Joint angles (rad), velocities (rad/s) and accelerations (rad/s^2) of one
         frame, each a tuple of n floats; arguments and errors as
         :meth:`FrameKinematics.__call__`."""
-        angles = self._kin.angles([q])[0]
-        wrapped = angles[self._cols]
+        w, x, y, z = q
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if not 1e-12 <= norm < math.inf:
+            Q.as_quats([q])  # raises, naming what is wrong
+        r = matrix_entries(w / norm, x / norm, y / norm, z / norm)
+        angles = list(angles_of_matrix(self._seq, r, math.atan2, math.hypot))
+        wrapped = tuple(angles[c] for c in self._cols)
+        # Integer turn counts, as GimbalKinematics.inverse (np.round and round both
+        # round half to even).
         if self._last is not None:
-            self._turns = self._turns + np.round((self._last - wrapped) / TWO_PI)
+            self._turns = tuple(
+                n + round((last - a) / TWO_PI)
+                for n, last, a in zip(self._turns, self._last, wrapped, strict=True)
+            )
         elif self._start is not None:
-            self._turns = np.round((self._start - wrapped) / TWO_PI)
+            self._turns = tuple(
+                round((s - a) / TWO_PI) for s, a in zip(self._start, wrapped, strict=True)
+            )
         self._last = wrapped
-        angles[self._cols] = wrapped + TWO_PI * self._turns
-        self._kin.check(angles[None], np.array([t]))
-        qd, qdd = self._kin.joint_rates(angles[None], np.array([omega]), np.array([alpha]))
-        return tuple(angles.tolist()), tuple(qd[0].tolist()), tuple(qdd[0].tolist())
+        for c, n in zip(self._cols, self._turns, strict=True):
+            angles[c] += TWO_PI * n
+        angles = tuple(angles)
+        if not all(lo <= a <= hi for a, (lo, hi) in zip(angles, self._bounds, strict=True)):
+            self._kin.check(np.array([angles]), np.array([t]))  # raises with the message
+        qd, qdd = rates_of_axes(*self._axes(angles), tuple(omega), tuple(alpha))
+        total = sum(qd) + sum(qdd)
+        if total - total != 0.0:  # inf or NaN: the numpy formulas raise, naming it
+            qd, qdd = self._kin.joint_rates(np.array([angles]), [omega], [alpha])
+            return angles, tuple(qd[0].tolist()), tuple(qdd[0].tolist())
+        return angles, qd, qdd
+
+    def _axes(self, angles: tuple) -> tuple[tuple, tuple | None]:
+        """The space-frame joint axes of one frame and (two axes) the look direction."""
+        u = self._units
+        c1, s1 = math.cos(angles[0]), math.sin(angles[0])
+        first = self._seq.indices[0]
+        e1 = _rotate(first, c1, s1, u[1])
+        if len(angles) == 2:
+            c2, s2 = math.cos(angles[1]), math.sin(angles[1])
+            carried = _rotate(self._seq.indices[1], c2, s2, self._look)
+            return (u[0], e1), _rotate(first, c1, s1, carried)
+        c2, s2 = math.cos(angles[1]), math.sin(angles[1])
+        e2 = _rotate(first, c1, s1, _rotate(self._seq.indices[1], c2, s2, u[2]))
+        return (u[0], e1, e2), None
+
+
+_UNITS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def _rotate(axis: int, c: float, s: float, v: tuple) -> tuple:
+    """``R_axis(angle) v`` for ``c, s`` the angle's cosine and sine (0 = x, 1 = y, 2 = z)."""
+    x, y, z = v
+    if axis == 0:
+        return x, c * y - s * z, s * y + c * z
+    if axis == 1:
+        return c * x + s * z, y, c * z - s * x
+    return c * x - s * y, s * x + c * y, z

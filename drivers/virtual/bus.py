@@ -13,7 +13,9 @@ the e-Manual; per-servo control tables and register rules in
 ``drivers.virtual.servo``.
 
 Servo motion comes from a ``Plant``: one lock guards it, and every plant call
-is made holding it. A write of registers the plant does not simulate (it
+is made holding it. The bus may carry more servos than the plant has joints
+(``plant_ids`` names the plant's): the others idle behind a first-order plant
+(``drivers.virtual.chain.ChainPlant``), answering and moving as servos do. A write of registers the plant does not simulate (it
 raises one of ``unsupported``) is undone and answered with Result Fail. Two clocks:
 
 - real time (``lockstep_dt_s=None``, the default): simulated time is the wall
@@ -70,9 +72,10 @@ from trajgen.drivers.protocol import (
     decode,
 )
 from trajgen.drivers.units import rad_to_servo_ticks, servo_ticks_to_rad
+from trajgen.drivers.virtual.chain import ChainPlant
 from trajgen.drivers.virtual.faults import Fault, FaultInjection
 from trajgen.drivers.virtual.handlers import SECONDARY_ID, InstructionHandlers
-from trajgen.drivers.virtual.plant import Plant
+from trajgen.drivers.virtual.plant import FirstOrderPlant, Plant
 from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
@@ -100,15 +103,50 @@ _SWITCH_INTERVAL_S = 1e-3
 _GOAL_CLAMP = {"Min Position Limit", "Max Position Limit", "Operating Mode"}
 
 
+def _chain_plant(plant: Plant | None, ids: tuple[int, ...], plant_ids) -> Plant:
+    """The plant behind all of ``ids``: ``plant`` itself when it has one joint per id
+    (and ``plant_ids`` is None or ``ids``), else a ``ChainPlant`` with ``plant`` behind
+    ``plant_ids`` (default the first ids) and the other servos idle; every servo idle
+    without a plant."""
+    if plant is None:
+        if plant_ids is not None:
+            raise BadArgument(f"Expected a `plant` for `plant_ids` {tuple(plant_ids)}.")
+        return FirstOrderPlant(len(ids))
+    if not isinstance(plant, Plant):
+        raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
+    if plant_ids is None:
+        if plant.n_joints > len(ids):
+            raise BadArgument(
+                f"Expected at least one id per plant joint ({plant.n_joints}), got `ids` {ids}."
+            )
+        plant_ids = ids[: plant.n_joints]
+    plant_ids = tuple(plant_ids)
+    if len(plant_ids) != plant.n_joints or not set(plant_ids) <= set(ids):
+        raise BadArgument(
+            f"Expected `plant_ids` to be {plant.n_joints} of `ids` {ids} (one per plant "
+            f"joint), got {plant_ids}."
+        )
+    if plant_ids == ids:
+        return plant
+    return ChainPlant(plant, len(ids), [ids.index(i) for i in plant_ids])
+
+
 class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjection):
     """Emulated servos on a pseudo-terminal, backed by a plant.
 
     Parameters
     ----------
-    plant : Plant
-        Joint ``j`` is the servo ``ids[j]``.
+    plant : Plant or None, optional
+        What moves the servos ``plant_ids`` (its joint ``k`` is the servo
+        ``plant_ids[k]``). The other servos on the chain idle as servos do: they
+        answer, take goals and hold torque in any Operating Mode they accept, and
+        follow their goals with a first-order response (``chain.ChainPlant``). None:
+        every servo idles.
     ids : sequence of int, optional
-        Servo ids at power-up, one per plant joint.
+        Servo ids at power-up, any number of them.
+    plant_ids : sequence of int, optional
+        The ids, among ``ids``, of the plant's joints in its joint order; default the
+        first ``plant.n_joints`` of ``ids``.
     models : str or sequence of str, optional
         Model name for every servo, or one per servo.
     lockstep_dt_s : float or None, optional
@@ -144,8 +182,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
     Raises
     ------
     ValueError
-        If the ids do not match the plant's joints, a model is unknown, or a
-        period is not positive.
+        If ``plant_ids`` are not one of ``ids`` per plant joint (fewer ``ids`` than
+        plant joints), a model is unknown, or a period is not positive.
     TypeError
         If ``plant`` is not a ``Plant``.
 
@@ -179,9 +217,10 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
 
     def __init__(
         self,
-        plant: Plant,
+        plant: Plant | None = None,
         *,
         ids: Sequence[int] = (1, 2, 3),
+        plant_ids: Sequence[int] | None = None,
         models: str | Sequence[str] = "XM430-W350",
         lockstep_dt_s: float | None = None,
         timing: WireTiming | None = None,
@@ -194,13 +233,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         on_refusal: Callable[[int, str], None] | None = None,
         baud: int | None = None,
     ) -> None:
-        if not isinstance(plant, Plant):
-            raise TypeError(f"Expected `plant` to be a Plant, got {type(plant).__name__}.")
         ids = tuple(ids)
-        if len(ids) != plant.n_joints:
-            raise BadArgument(
-                f"Expected one id per plant joint ({plant.n_joints}), got `ids` {ids}."
-            )
+        plant = _chain_plant(plant, ids, plant_ids)
         names = [models] * len(ids) if isinstance(models, str) else list(models)
         if len(names) != len(ids):
             raise BadArgument(f"Expected {len(ids)} `models`, got {len(names)}.")

@@ -167,8 +167,9 @@ def add_ids_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--ids",
         type=servo_ids,
-        metavar="P,T,R",
-        help="servo ids of pan, tilt, roll; default: the file's [bus] ids, else 1,2,3",
+        metavar="ID,ID[,ID]",
+        help="servo ids of the joints in order (pan, tilt, roll); default: the file's "
+        "[bus] ids, else 1,2,3",
     )
 
 
@@ -459,13 +460,14 @@ class Progress:
 
 
 def servo_ids(text: str) -> tuple[int, ...]:
-    """argparse type: three comma-separated servo ids (pan, tilt, roll)."""
+    """argparse type: comma-separated distinct servo ids in 0..252 (how many is the
+    command's to check against the file's joints)."""
     try:
         ids = tuple(int(part) for part in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected ids like 1,2,3, got {text!r}") from None
-    if len(ids) != 3 or len(set(ids)) != 3 or not all(0 <= i <= 252 for i in ids):
-        raise argparse.ArgumentTypeError(f"expected 3 distinct ids in 0..252, got {text!r}")
+    if len(set(ids)) != len(ids) or not all(0 <= i <= 252 for i in ids):
+        raise argparse.ArgumentTypeError(f"expected distinct ids in 0..252, got {text!r}")
     return ids
 
 

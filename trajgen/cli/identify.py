@@ -135,9 +135,10 @@ def run_identify(args) -> int:
             raise BadInput(f"--delay-ms: expected 0 <= ms < 1000, got {args.delay_ms}")
         if args.fit_current_scale and args.no_current:
             raise BadInput("--fit-current-scale needs the current: drop --no-current")
-        checked = load_checked(args.file, spline=False)  # every table, as every command checks them
+        # every table, as every command checks them
+        checked = load_checked(args.file, spline=False, any_axes=True)
         config = checked.gimbal
-        logs = [_load_log(path) for path in args.logs]
+        logs = [_load_log(path, config.names) for path in args.logs]
         source_text = read_text(args.file)
         fit = identify(
             config,
@@ -163,16 +164,16 @@ def run_identify(args) -> int:
             if Path(tmp).is_file():  # not a device (/dev/null), which cannot be read back
                 # The result must load as the file it claims to be, before it replaces anything.
                 fitted = load_keyframe_file(tmp)
-                gimbal_config_from_tables(fitted.tables, fitted.path)
+                gimbal_config_from_tables(fitted.tables, fitted.path, any_axes=True)
     except (ValueError, OSError) as e:
         return bad_input(e)
     print(f"fitted: {args.out}")
     return EXIT_OK
 
 
-def _load_log(path: str):
-    """A telemetry log, refused in one line naming it when it is missing, a folder or
-    not a log."""
+def _load_log(path: str, joints):
+    """A telemetry log of the gimbal's ``joints``, refused in one line naming it when it is
+    missing, a folder or not a log."""
     from trajgen.sim.identify import IdentifyError, load_telemetry
 
     p = Path(path)
@@ -183,7 +184,7 @@ def _load_log(path: str):
     if p.stat().st_size == 0:
         raise BadInput(f"{path}: empty telemetry log (a log of trajgen excite has a header row)")
     try:
-        return load_telemetry(p)
+        return load_telemetry(p, joints)
     except UnicodeDecodeError:
         raise BadInput(f"{path}: not a telemetry log (not UTF-8 text)") from None
     except (TrajgenError, IdentifyError):

@@ -46,7 +46,7 @@ from trajgen.cli.common import (
 )
 from trajgen.errors import TrajgenError
 from trajgen.gimbal import JOINT_NAMES as JOINTS
-from trajgen.jobs import LimitsRefused, NoPort, StreamJob
+from trajgen.jobs import IdCount, LimitsRefused, NoPort, StreamJob
 
 STREAM_DESCRIPTION = """\
 Plan the joint stream of a keyframe file and stream it to Dynamixel X-series
@@ -243,6 +243,12 @@ def planned(make, args) -> StreamJob:
         job = make(**job_options(args))
     except NoPort:
         raise BadInput("no serial port: give --port, set [bus] port, or use --virtual") from None
+    except IdCount as e:
+        ids = ",".join(map(str, e.ids))
+        raise BadInput(
+            f"--ids {ids}: expected {len(e.joint_names)} ids, one per joint "
+            f"({', '.join(e.joint_names)})"
+        ) from None
     for note in job.notes:
         tell(f"note: {note}")
     return job

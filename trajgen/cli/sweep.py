@@ -31,7 +31,6 @@ from trajgen.cli.common import (
     write_json,
 )
 from trajgen.errors import TrajgenError
-from trajgen.gimbal import JOINT_NAMES as JOINTS
 
 DESCRIPTION = """\
 Run `trajgen sim`'s torque check on every combination of payload mass, payload
@@ -76,9 +75,9 @@ def _offset(text: str) -> tuple[float, float, float]:
 
 def _servo(text: str) -> tuple[str, list[str]]:
     joint, sep, models = text.partition("=")
-    if not sep or joint not in JOINTS or not models:
+    if not sep or not joint or not models:
         raise argparse.ArgumentTypeError(
-            f"expected JOINT=MODEL[,MODEL...] with JOINT one of {', '.join(JOINTS)}, got {text!r}"
+            f"expected JOINT=MODEL[,MODEL...] with JOINT a joint of the file's gimbal, got {text!r}"
         )
     return joint, models.split(",")
 
@@ -153,12 +152,17 @@ def run_sweep(args) -> int:
     try:
         check_plot_path(args.plot, [args.file])
         check_output_path("--json", args.json, (".json",), [args.file])
-        checked = load_checked(args.file)  # every table of the file
+        checked = load_checked(args.file, any_axes=True)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
-        per_joint = {j: [s.name] for j, s in zip(JOINTS, base.servos, strict=True)}
+        per_joint = {j: [s.name] for j, s in zip(base.names, base.servos, strict=True)}
         for joint, models in args.servo or []:
+            if joint not in per_joint:
+                raise BadInput(
+                    f"--servo {joint}=...: no joint {joint!r} (the file's gimbal has "
+                    f"{', '.join(base.names)})"
+                )
             per_joint[joint] = models
-        servo_sets = list(itertools.product(*(per_joint[j] for j in JOINTS)))
+        servo_sets = list(itertools.product(*(per_joint[j] for j in base.names)))
         payloads = args.payload_kg or [base.payload_kg]
         offsets = args.offset_m or [base.payload_offset_m]
         count = len(payloads) * len(offsets) * len(servo_sets) * len(args.time_scale)
@@ -201,7 +205,7 @@ def run_sweep(args) -> int:
             from trajgen.sim.sweep_plot import plot_sweep
 
             with output_path("--plot", args.plot) as tmp:
-                plot_sweep(results, tmp)
+                plot_sweep(results, tmp, base.names)
             print(f"plot: {args.plot}")
         if args.json:
             write_json("--json", args.json, [asdict(r) for r in results])

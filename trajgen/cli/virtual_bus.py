@@ -13,11 +13,12 @@ import threading
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    BadInput,
     add_file_argument,
-    add_ids_argument,
     bad_input,
     exit_status_text,
     load_checked,
+    servo_ids,
     tell,
 )
 from trajgen.errors import TrajgenError
@@ -25,21 +26,25 @@ from trajgen.servo_table import DEFAULT_SERVO
 
 VIRTUAL_BUS_DESCRIPTION = """\
 Serve the simulated gimbal of a keyframe file (its [gimbal] table; the built-in
-one by default) as three Dynamixel X-series servos on a pseudo-terminal, for
+one by default) as Dynamixel X-series servos on a pseudo-terminal, for
 any Protocol 2.0 tool: the official dynamixel-sdk, LeRobot's motor bus, a ROS 2
 hardware interface, your own scripts. Prints the port path as its first line,
 then serves until SIGINT (Ctrl-C) or SIGTERM.
 
 The servos start at rest at 0 rad (tick 2048) with torque off and their
 factory registers, but for the position gains of the file's [gimbal.<joint>]
-tables (the file's [bus] ids and models apply). Real time by
+tables (the file's [bus] ids and models apply). --ids puts more servos on the
+chain (say 11,12,13,14,15,16 for an arm with a gripper): those that are not the
+gimbal's joints idle as servos do, answering, holding torque and following
+their goals in any Operating Mode they accept (a gripper in Current-based
+Position, mode 5). Real time by
 default: the simulation runs on the wall clock whether packets arrive or not.
 --lockstep advances it only with the traffic: one period of the file's
 [stream] rate (200 Hz by default) per packet that writes Goal Position, and
 per poll of the present values with no goal written since the previous one.
 
-The simulated servos run the firmware's position loop in Position and
-Extended Position Mode with no profile. A write that asks for anything else
+The gimbal's simulated servos run the firmware's position loop in Position and
+Extended Position Mode with no profile. A write to them that asks for anything else
 (another Operating Mode, a non-zero Profile Velocity or Acceleration) is
 refused with Result Fail, and the reason is printed on stderr.
 
@@ -48,15 +53,16 @@ signal number (130 Ctrl-C, 143 SIGTERM), as for every other command."""
 
 
 def model_names(text: str) -> tuple[str, ...]:
-    """argparse type: one X-series model name, or three separated by commas."""
+    """argparse type: X-series model names separated by commas (one for every servo, or
+    one per id)."""
     from trajgen.drivers.control_table import MODELS
 
     names = tuple(part.strip() for part in text.split(","))
-    if len(names) not in (1, 3) or not all(n in MODELS for n in names):
+    if not all(n in MODELS for n in names):
         raise argparse.ArgumentTypeError(
-            f"expected a model or 3 separated by commas, among {', '.join(MODELS)}; got {text!r}"
+            f"expected model names separated by commas, among {', '.join(MODELS)}; got {text!r}"
         )
-    return names * 3 if len(names) == 1 else names
+    return names
 
 
 def register(subparsers) -> None:
@@ -69,13 +75,20 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
-    add_ids_argument(p)
+    p.add_argument(
+        "--ids",
+        type=servo_ids,
+        metavar="ID,ID,...",
+        help="the servos on the chain, any number: the gimbal's joints are the file's [bus] "
+        "ids where they are all among them, else the first ones; the others idle "
+        "(default: the file's [bus] ids, else 1,2,3)",
+    )
     p.add_argument(
         "--models",
         type=model_names,
-        metavar="MODEL[,MODEL,MODEL]",
-        help=f"servo model(s) of pan, tilt, roll; default: the file's [bus] models, else "
-        f"{DEFAULT_SERVO}",
+        metavar="MODEL[,MODEL...]",
+        help=f"servo model of every servo, or one per id; default: the file's [bus] models "
+        f"for the gimbal's joints, {DEFAULT_SERVO} for the others",
     )
     p.add_argument(
         "--lockstep",
@@ -83,6 +96,39 @@ def register(subparsers) -> None:
         help="advance the simulation with the traffic instead of the wall clock",
     )
     p.set_defaults(func=run_virtual_bus)
+
+
+def chain_of(ids, models, config) -> tuple[tuple[int, ...], tuple[int, ...], tuple[str, ...]]:
+    """The servos to serve: ``(ids, plant_ids, models)`` from --ids, --models and the
+    file's [bus] table (``BusConfig``).
+
+    The gimbal's joints are the file's [bus] ids when all are among ``ids``, else the
+    first ids; a servo's model is ``models`` (one for all, or one per id), else the
+    file's for the gimbal's joints and the default for the others.
+
+    Raises
+    ------
+    BadInput
+        Fewer ids than the gimbal has joints, or a count of --models that is neither
+        1 nor one per id.
+    """
+    file_ids = config.joints.ids
+    ids = tuple(ids or file_ids)
+    n = len(file_ids)
+    if len(ids) < n:
+        raise BadInput(
+            f"--ids {','.join(map(str, ids))}: expected at least {n} ids, one per joint of "
+            f"the gimbal ({', '.join(config.joint_names)})"
+        )
+    plant_ids = file_ids if set(file_ids) <= set(ids) else ids[:n]
+    if models is None:
+        by_id = dict(zip(plant_ids, config.models, strict=True))
+        models = tuple(by_id.get(i, DEFAULT_SERVO) for i in ids)
+    elif len(models) == 1:
+        models = models * len(ids)
+    elif len(models) != len(ids):
+        raise BadInput(f"--models: expected 1 model or {len(ids)} (one per id), got {len(models)}")
+    return ids, tuple(plant_ids), tuple(models)
 
 
 def _tell_refusal(servo_id: int, reason: str) -> None:
@@ -104,8 +150,10 @@ def run_virtual_bus(args) -> int:
     plant = GimbalPlant(checked.gimbal, record=False)
     from trajgen.drivers.virtual.bus import VirtualBus
 
-    ids = args.ids or config.joints.ids
-    models = args.models or config.models
+    try:
+        ids, plant_ids, models = chain_of(args.ids, args.models, config)
+    except BadInput as e:
+        return bad_input(e)
     period_s = 1.0 / kf.stream_rate() if args.lockstep else None
     stop = threading.Event()
     received = []
@@ -118,18 +166,21 @@ def run_virtual_bus(args) -> int:
     virtual = VirtualBus(
         plant,
         ids=ids,
+        plant_ids=plant_ids,
         models=models,
         lockstep_dt_s=period_s,
-        registers=dict(zip(ids, plant.initial_registers(), strict=True)),  # the file's gains
+        registers=dict(zip(plant_ids, plant.initial_registers(), strict=True)),  # the file's gains
         unsupported=(UnsupportedServoSetting,),
         on_refusal=_tell_refusal,
     ).start()
     try:
         print(virtual.port, flush=True)
         clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
+        idle = [i for i in ids if i not in plant_ids]
         tell(
             f"serving servos {', '.join(map(str, ids))} ({', '.join(models)}), {clock}; "
-            "Ctrl-C to stop"
+            + (f"idle (not the gimbal's): {', '.join(map(str, idle))}; " if idle else "")
+            + "Ctrl-C to stop"
         )
         while not stop.wait(0.2):
             if virtual.error is not None:

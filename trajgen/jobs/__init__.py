@@ -19,6 +19,7 @@ job is planned or run.
 
 from trajgen.jobs.checked_file import CheckedFile, check_timing, load_checked
 from trajgen.jobs.stream_job import (
+    IdCount,
     LimitsRefused,
     NoPort,
     StreamJob,
@@ -28,6 +29,7 @@ from trajgen.jobs.stream_job import (
 
 __all__ = [
     "CheckedFile",
+    "IdCount",
     "LimitsRefused",
     "NoPort",
     "StreamJob",

@@ -97,8 +97,8 @@ def load_checked(
     spline : bool
         Build a slow spline here (see above); default True.
     any_axes : bool
-        Accept a ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll (only
-        ``trajgen plan`` does so far); otherwise such a file is refused in one line
+        Accept a ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll (``plan``,
+        ``sim``, ``sweep``, ``identify`` do so far); otherwise such a file is refused in one line
         (``trajgen.sim.model.gimbal_config_from_tables``).
     say, progress : callable, optional
         See :class:`CheckedFile`; default silent.

@@ -31,6 +31,23 @@ class NoPort(BadArgument):
     """A job for servos with no serial port named (no ``port``, no ``[bus] port``)."""
 
 
+class IdCount(BadArgument):
+    """``ids`` that are not one per joint of the file's gimbal.
+
+    Attributes
+    ----------
+    ids : tuple of int
+    joint_names : tuple of str
+    """
+
+    def __init__(self, ids: Sequence[int], joint_names: Sequence[str]) -> None:
+        self.ids, self.joint_names = tuple(ids), tuple(joint_names)
+        super().__init__(
+            f"expected {len(joint_names)} ids, one per joint ({', '.join(joint_names)}), "
+            f"got {list(self.ids)}"
+        )
+
+
 class LimitsRefused(BadArgument):
     """A ``set_limits_rad`` entry the joint's registers cannot hold.
 
@@ -160,7 +177,8 @@ class StreamJob:
             Stream to a virtual bus around the simulated gimbal (assembled ideally:
             direction +1, zero 2048) instead of a port.
         port, baud, ids : optional
-            Override the [bus] port, baud rate and servo ids (pan, tilt, roll).
+            Override the [bus] port, baud rate and servo ids (one per joint, in the
+            order of the file's ``[gimbal] joints``: pan, tilt, roll by default).
         lead : {"model", "advance", "none"}, optional
             Default the source's [stream] lead, else ``trajgen.lead.DEFAULT_LEAD``.
         configure, restore : bool
@@ -173,6 +191,8 @@ class StreamJob:
         ------
         NoPort
             Not virtual, and neither ``port`` nor [bus] port.
+        IdCount
+            ``ids`` that are not one per joint of the file's ``[gimbal] joints``.
         KinematicsError, SimError
             A plan the gimbal cannot follow; a [gimbal] table the lead cannot use.
         """
@@ -183,6 +203,8 @@ class StreamJob:
         from trajgen.stream import plan_joint_trajectory
 
         joints = config.joints
+        if ids and len(ids) != len(joints):
+            raise IdCount(ids, config.joint_names)
         if virtual:
             joints = JointMap(joints.ids)  # the simulated gimbal is assembled ideally
         elif not (port or config.port):
@@ -199,7 +221,7 @@ class StreamJob:
         )
         lead = lead or getattr(source, "lead", None) or DEFAULT_LEAD
         gimbal = gimbal_config_from_tables(source.tables, source.path)
-        planned = plan_joint_trajectory(source.spline(), rate_hz)
+        planned = plan_joint_trajectory(source.spline(), rate_hz, kinematics_of(source))
         # The goals a session will send (it leads them again from where the servos are).
         trajectory, _, notes = lead_trajectory(planned, gimbal, lead)
         options = session_options
@@ -252,7 +274,9 @@ class StreamJob:
     def stream(self, session):
         """Stream the source's path with ``session`` (planned again from where the servos
         are); returns its ``Outcome``."""
-        return session.stream_path(self.source.spline(), self.rate_hz)
+        return session.stream_path(
+            self.source.spline(), self.rate_hz, kinematics=kinematics_of(self.source)
+        )
 
     def run(
         self,
@@ -432,7 +456,7 @@ class StreamResult:
         result = {
             "status": self.exit_status,
             "on_stop": self.on_stop,
-            **self.outcome.to_json_dict(JOINT_NAMES),
+            **self.outcome.to_json_dict(),
             **self.extra,
         }
         if self.torque is not None:
@@ -453,6 +477,18 @@ class StreamResult:
         from trajgen.drivers.telemetry import add_report
 
         add_report(self.telemetry, self.to_json_dict(), progress)
+
+
+def kinematics_of(source):
+    """The kinematics of a source's ``[gimbal] axes`` and ``joints`` (its ``axes``); None
+    for pan-tilt-roll, the default kinematics."""
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.keyframe_axes import is_default
+
+    axes = getattr(source, "axes", None)
+    if axes is None or is_default(axes):
+        return None
+    return GimbalKinematics(axes=axes.sequence, joints=axes.joints)
 
 
 def run_stream_file(path, **options) -> StreamResult:
