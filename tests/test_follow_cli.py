@@ -417,11 +417,9 @@ def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monke
     import io
 
     from trajgen.gimbal import GimbalKinematics
-    from trajgen.lead import LedFrames, lead_cap
     from trajgen.sim.check import envelope_check
-    from trajgen.sim.lead import lead_params, torque_function
+    from trajgen.sim.lead import Leader
     from trajgen.sim.model import gimbal_config_from_tables
-    from trajgen.sim.run import simulation_model
 
     seen = {}
     real_follow = Session.follow
@@ -463,17 +461,7 @@ def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monke
     plan = np.array([[float(r[f"plan_rad_{j}"]) for j in joints] for r in rows])
     goal = np.array([[float(r[f"goal_rad_{j}"]) for j in joints] for r in rows])
     np.testing.assert_array_equal(plan, traj.q)
-    config = gimbal_config_from_tables(kf.tables, kf.path)
-    params = lead_params(config)
-    cap = lead_cap(np.array([[s.no_load_speed_rad_s for s in config.servos]]), params)
-    led = LedFrames(
-        iter(traj),
-        RATE_HZ,
-        "model",
-        params,
-        np.array(GimbalKinematics().limits_rad),
-        cap,
-        torque_function(simulation_model(config)),
-    )
+    leader = Leader(gimbal_config_from_tables(kf.tables, kf.path), "model")
+    led = leader.frames(iter(traj), RATE_HZ, np.array(GimbalKinematics().limits_rad))
     np.testing.assert_allclose(goal, [f.goal for f in led], atol=1e-12)
     assert np.abs(goal - plan).max() > 0.005  # led: ahead of the plan while it moves

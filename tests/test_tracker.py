@@ -264,8 +264,8 @@ def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_l
     from trajgen.follower import Follower
 
     rng = np.random.default_rng(11)
-    t_lines = np.arange(0.1, 1.6, 1 / 30)
-    walk = np.clip((t_lines - 0.1) / 0.8, 0.0, 1.0)  # walks 0.8 s, then stands
+    t_lines = np.arange(0.1, 1.2, 1 / 30)
+    walk = np.clip((t_lines - 0.1) / 0.6, 0.0, 1.0)  # walks 0.6 s, then stands
     face = np.array([2.0, 0.0, 0.0]) + np.outer(walk, [0.0, 1.2, -0.4])
     reports = face + rng.normal(0.0, 0.01, face.shape)
     spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
