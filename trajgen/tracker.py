@@ -79,7 +79,7 @@ VIA_COUNTS = (1, 2, 4, 8)
 
 #: Points ``u = (t - at) / h`` in (0, 1] at which the coarse search samples each candidate
 #: path (the chosen one is then checked at every frame of the stream).
-COARSE_SAMPLES = 40
+COARSE_SAMPLES = 24
 
 #: Ratio of neighbouring leads on the coarse search's grid of candidate arrivals.
 GRID_RATIO = 1.25
