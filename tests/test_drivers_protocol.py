@@ -233,8 +233,9 @@ def test_joint_map_rejects_bad_input():
         JointMap(ids=(1, 1, 2))
     with pytest.raises(ValueError, match=r"Expected `directions` of \+1 or -1, got \(1, 2, 1\)"):
         JointMap(directions=(1, 2, 1))
-    with pytest.raises(ValueError, match="one non-zero length, got 2, 3, 3"):
-        JointMap(ids=(1, 2))
+    with pytest.raises(ValueError, match="one non-zero length, got 2, 3, 2"):
+        JointMap(ids=(1, 2), directions=(1, 1, 1))
+    assert JointMap(ids=(11, 12)).zeros == (2048, 2048)  # two joints on any ids
     with pytest.raises(TypeError, match=r"Expected `ids\[0\]` to be an integer, got 1.0"):
         JointMap(ids=(1.0, 2, 3))
     with pytest.raises(ValueError, match=r"Expected `q_rad` of shape \(..., 3\), got \(2,\)"):
