@@ -18,10 +18,14 @@ lines taken, dead-banded, deferred; the tracking error (angle between the
 camera's look axis and the direction to the noise-free face) from the earliest
 arrival of the first target on, and while the face stands still; the per-target
 cost. The peer is the same stream without target lines
-(frames beyond limits, CPU per frame). Late frames at 1 kHz in real time are
-NOT measured here (this stream runs on the simulated clock).
+(frames beyond limits, CPU per frame).
 
-Run: .venv/bin/python bench/tracker_stream.py [--seconds 60] [--seed 3]
+``--realtime RATE``: also run ``trajgen follow --virtual --rate RATE`` (wall
+clock) twice, the lines written to its stdin at 30 Hz of wall time, and the same
+file without lines (the peer), and print each run's frames sent, rate achieved,
+period error, stalls and worst lateness side by side (the late frames).
+
+Run: .venv/bin/python bench/tracker_stream.py [--seconds 60] [--seed 3] [--realtime 1000]
 """
 
 from __future__ import annotations
@@ -30,8 +34,12 @@ import argparse
 import json
 import math
 import os
+import subprocess
+import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -142,6 +150,79 @@ def tracking(f, face):
     return err, err[still[j]]
 
 
+REALTIME_FILE = """[limits]
+speed_rad_s = 3.0
+acceleration_rad_s2 = 20.0
+jerk_rad_s3 = 200.0
+
+[bus]
+watchdog_s = 0.5
+
+[[keyframes]]
+t = 0.0
+pan = 0.0
+
+[[keyframes]]
+t = {end}
+pan = 0.0
+"""
+
+
+def realtime(seconds: float, seed: int, rate_hz: float, with_lines: bool) -> dict:
+    """``trajgen follow --virtual`` on the wall clock, with the face's lines written at
+    30 Hz (or none, the file's plan lasting as long): its JSON report's stream stats."""
+    t_lines, _, noisy = face_stream(seconds, seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        keys, out = Path(tmp) / "keys.toml", Path(tmp) / "out.json"
+        keys.write_text(REALTIME_FILE.format(end=0.3 if with_lines else seconds))
+        command = str(Path(sys.executable).with_name("trajgen"))  # the venv's command
+        argv = [command, "follow", str(keys), "--virtual"]
+        argv += ["--configure", "--rate", f"{rate_hz:g}", "--max-delay", "60", "--json", str(out)]
+        proc = subprocess.Popen(
+            argv, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        )
+        if with_lines:
+            start = time.monotonic() + 2.0  # bring-up first
+            for t, p in zip(t_lines, noisy, strict=True):
+                time.sleep(max(0.0, start + t - time.monotonic()))
+                try:
+                    proc.stdin.write((json.dumps({"look_at": p.round(4).tolist()}) + "\n").encode())
+                    proc.stdin.flush()
+                except BrokenPipeError:  # the stream stopped (its report says why)
+                    break
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
+        err = proc.stderr.read().decode()
+        proc.wait()
+        report = json.loads(out.read_text()) if out.exists() else {}
+    why = report.get("stopped_by") or " ".join(err.strip().splitlines()[-1:])
+    return {
+        "exit": proc.returncode,
+        "stream": report.get("stream", {}),
+        "follow": report.get("follow", {}),
+        "why": why,
+    }
+
+
+def show_realtime(name: str, r: dict) -> None:
+    s = r["stream"]
+
+    def ms(key):
+        v = s.get(key)
+        return "n/a" if v is None else f"{1e3 * v:.2f} ms"
+
+    print(
+        f"  {name}: exit {r['exit']}, frames {s.get('frames_sent', 'n/a')}, achieved "
+        f"{s.get('achieved_rate_hz') or float('nan'):.1f} Hz, period error p50 "
+        f"{ms('period_error_p50_s')} p99 {ms('period_error_p99_s')} "
+        f"max {ms('period_error_max_s')}, stalls {s.get('stalls', 'n/a')} "
+        f"(longest {ms('stall_max_s')}), lateness max {ms('lateness_max_s')}; "
+        f"lines accepted {r['follow'].get('accepted', 0)}{'; ' + r['why'] if r['why'] else ''}"
+    )
+
+
 def pct(x) -> str:
     if len(x) == 0:
         return "n/a"
@@ -152,6 +233,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument(
+        "--realtime", type=float, default=None, help="also run trajgen follow --virtual at RATE Hz"
+    )
     args = parser.parse_args()
     from trajgen.sim.check import envelope_check
     from trajgen.sim.model import GimbalConfig
@@ -188,7 +272,12 @@ def main() -> int:
         f"{beyond(ptraj, envelope)}; CPU {1e6 * cpu_peer / len(ptraj.t):.1f} us per frame "
         f"against {1e6 * cpu / len(traj.t):.1f} with targets"
     )
-    print("late frames at 1 kHz in real time: not measured by this bench (simulated clock)")
+    if args.realtime is None:
+        print("late frames in real time: not measured (give --realtime RATE)")
+    else:
+        print(f"real time, trajgen follow --virtual --rate {args.realtime:g}, {args.seconds:g} s:")
+        show_realtime("with the lines", realtime(args.seconds, args.seed, args.realtime, True))
+        show_realtime("peer, no lines", realtime(args.seconds, args.seed, args.realtime, False))
     print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
     return 0
 
