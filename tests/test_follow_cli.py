@@ -52,14 +52,19 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     def stream_time():
         return seen["follower"].spline.committed if "follower" in seen else -1.0
 
+    ended = threading.Event()
+
     def writer():
         # Lines paced on the stream's own clock, not the wall clock: after a host stall
         # the stream shifts its clock (it never catches up), so wall time runs ahead.
+        # Once the command has returned, the pipe is closed (whatever happened): the
+        # reading thread then sees the end of its input instead of waiting on it.
         with os.fdopen(write_end, "w") as pipe:
             due = 0.5  # the stream is running: lines arrive mid-motion
             for line in lines:
                 while stream_time() < due:
-                    time.sleep(0.005)
+                    if ended.wait(0.005):
+                        return
                 pipe.write(line + "\n")
                 pipe.flush()
                 due = stream_time() + 0.35
@@ -83,8 +88,12 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     # The plan sent as it is (--lead none): the goals on the bus are the frames; the
     # led goals of follow are checked in test_lead_stream.py.
     argv = ["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]
-    assert main([*argv, "--lead", "none"]) == 0
-    thread.join(timeout=5)
+    try:
+        status = main([*argv, "--lead", "none"])
+    finally:
+        ended.set()
+        thread.join(timeout=5)
+    assert status == 0, out.read_text() if out.exists() else "no report"
     run = json.loads(out.read_text())
     assert run["stream"]["fault"] == "" and "torque" in run
     result = run["follow"]
