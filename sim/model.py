@@ -298,9 +298,8 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
     path : str or Path
         The file, named in error messages; ``model`` is relative to its folder.
     any_axes : bool
-        Accept ``axes`` / ``joints`` other than pan-tilt-roll (``plan``, ``sim``,
-        ``fit``, ``sweep``, ``identify``); the drivers' joint map is pan-tilt-roll
-        so far, so otherwise they are refused.
+        Accept ``axes`` / ``joints`` other than pan-tilt-roll (every command that
+        takes them passes True); otherwise they are refused in one line.
 
     Returns
     -------
@@ -375,8 +374,8 @@ def _model_path(value, path) -> Path:
 
 
 def _refuse_other_axes(axes: AxisSequence, path) -> None:
-    """Refuse ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll in one line: the
-    drivers' joint map is pan-tilt-roll so far."""
+    """Refuse ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll in one line, for a
+    caller that takes pan-tilt-roll only (``any_axes=False``)."""
     if is_default(axes):
         return
     if axes.n == 2:
@@ -387,8 +386,8 @@ def _refuse_other_axes(axes: AxisSequence, path) -> None:
         what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
     raise _file_error(
         path,
-        f"{what}: stream, virtual-bus and excite need pan-tilt-roll (axes = 'zyx'), not "
-        "yet; plan, sim, fit, sweep and identify take any axes",
+        f"{what}: pan-tilt-roll (axes = 'zyx') only here (any_axes=False); plan, sim, fit, "
+        "sweep, identify, stream and virtual-bus take any axes",
     )
 
 
