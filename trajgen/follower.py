@@ -469,7 +469,10 @@ def load_compiled_kernel() -> bool:
 def online_spline(kf) -> OnlineSpline:
     """The plan of a keyframe file as an OnlineSpline: at rest at its first keyframe,
     extended by the others (the same path as the file's BlendingSpline; a file whose
-    ``[spline] method`` is "smooth" gets the blending spline's defaults).
+    ``[spline] method`` is "smooth" gets the blending spline's defaults). A file
+    fitted by ``trajgen fit`` (a ``[timing]`` table) is played as fitted
+    (:meth:`OnlineSpline.from_path`: its frames are ``trajgen stream``'s until a
+    change; a retarget splices onto it, an extend goes on after its end).
 
     Raises
     ------
@@ -479,10 +482,7 @@ def online_spline(kf) -> OnlineSpline:
         closer than 0.2 s to the first.
     """
     if getattr(kf, "timing", None) is not None:  # a file retimed by `trajgen fit`
-        raise KeyframeFileError(
-            f"{kf.path}: [timing]: follow cannot splice changes onto a fitted time law; "
-            "stream the file with `trajgen stream`, or delete [timing] (then check it again)"
-        )
+        return OnlineSpline.from_path(kf.spline())
     options = dict(kf.spline_options)
     options.pop("knots", None)  # the smooth spline's knot choice; follow plans the blending one
     if options.pop("boundary", "rest") != "rest":

@@ -13,7 +13,7 @@ import itertools
 import sys
 
 from trajgen.cli import stream as stream_command
-from trajgen.cli.common import exit_status_text, tell
+from trajgen.cli.common import exit_status_text, refuse_other_axes, tell
 from trajgen.follower import CHANGE_MARGIN_S, Follower, load_compiled_kernel, online_spline
 from trajgen.keyframe_lines import capped_lines
 
@@ -108,6 +108,7 @@ def follow(args, lines) -> int:
         from trajgen.sim.limits import limits_from_tables
 
         job = stream_command.plan(args)
+        refuse_other_axes(job.source, "follow", "its keyframe lines give pan, tilt, roll")
         made["follower"] = Follower(
             online_spline(job.source),
             job.rate_hz,
@@ -116,7 +117,7 @@ def follow(args, lines) -> int:
             envelope=envelope_check(job.gimbal),
         )
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
-        if job.source.method != "blending":
+        if job.source.method != "blending" and job.source.timing is None:  # fitted: as is
             print(
                 f"trajgen follow: note: {job.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "
