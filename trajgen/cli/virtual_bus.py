@@ -148,6 +148,7 @@ def run_virtual_bus(args) -> int:
     kf, config = checked.keyframes, checked.bus
     # Served until stopped and never reported on: no step record kept.
     plant = GimbalPlant(checked.gimbal, record=False)
+    from trajgen.drivers.priority import stream_priority
     from trajgen.drivers.virtual.bus import VirtualBus
 
     try:
@@ -177,14 +178,16 @@ def run_virtual_bus(args) -> int:
         print(virtual.port, flush=True)
         clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
         idle = [i for i in ids if i not in plant_ids]
-        tell(
-            f"serving servos {', '.join(map(str, ids))} ({', '.join(models)}), {clock}; "
-            + (f"idle (not the gimbal's): {', '.join(map(str, idle))}; " if idle else "")
-            + "Ctrl-C to stop"
-        )
-        while not stop.wait(0.2):
-            if virtual.error is not None:
-                break
+        # Its threads (serving, simulating) answer ahead of other programs where permitted.
+        with stream_priority() as scheduling:
+            tell(
+                f"serving servos {', '.join(map(str, ids))} ({', '.join(models)}), {clock}; "
+                + (f"idle (not the gimbal's): {', '.join(map(str, idle))}; " if idle else "")
+                + f"{scheduling}; Ctrl-C to stop"
+            )
+            while not stop.wait(0.2):
+                if virtual.error is not None:
+                    break
     finally:
         wall_s = virtual.wall_time_s
         virtual.stop()
