@@ -546,6 +546,8 @@ class ServoBus:
         the next request: same id and length (another register of the same
         servo), the wrong value. Costs one timeout per failed try.
         """
+        import termios
+
         import serial
 
         port = self._port
@@ -557,8 +559,8 @@ class ServoBus:
                 port.clearPort()
                 if not select.select([port.ser.fileno()], [], [], quiet_s)[0]:
                     return
-        except (serial.SerialException, OSError, ValueError):
-            pass  # the port failed: the next try says so
+        except (serial.SerialException, OSError, ValueError, termios.error):
+            pass  # the port failed (pyserial lets termios.error through): the next try says so
 
     def _unicast(self, servo_id: int, what: str, call, *args, data_bytes: int = 0):
         """One unicast transaction with retries; returns the SDK call's result tuple.
