@@ -17,11 +17,16 @@ What it adds to them (see docs/dynamixel.md for why):
   number;
 - signed decoding of 2- and 4-byte registers;
 - group reads (fast sync read, or sync read) that keep each servo's ERR byte,
-  which the SDK's ``GroupSyncRead`` discards, so the Alert bit is seen.
+  which the SDK's ``GroupSyncRead`` discards, so the Alert bit is seen;
+- the two packets of every stream frame, Sync Write and Fast Sync Read, built
+  and checked by ``drivers.frame_packets`` (laid out once, one read of the
+  reply, the same checks), not by the SDK's per-byte Python: the SDK does
+  everything else (pings, reads, writes, sync read, reboot).
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import select
 import time
@@ -38,7 +43,8 @@ from trajgen.drivers.control_table import (
 )
 from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.errors import CommError, ServoError
-from trajgen.drivers.protocol import ALERT_BIT, BROADCAST_ID, StatusError
+from trajgen.drivers.frame_packets import FastSyncReadPacket, SyncWritePacket, frame_status
+from trajgen.drivers.protocol import ALERT_BIT, StatusError
 from trajgen.drivers.units import to_signed, to_unsigned
 from trajgen.validate import check_number
 
@@ -57,6 +63,9 @@ _PKT_ID, _PKT_LENGTH = 4, 5
 _STATUS_MIN_BYTES = 11  # header 4, ID, LEN 2, INST, ERR, CRC 2
 # LEN of a status packet without data: INST, ERR, CRC 2.
 _STATUS_LENGTH_NO_DATA = 4
+# The SDK's result codes (dynamixel_sdk.robotis_def), for the frame packets' own path.
+_COMM_SUCCESS, _COMM_TX_FAIL, _COMM_RX_TIMEOUT, _COMM_RX_CORRUPT = 0, -1001, -3001, -3002
+_RX_MAX_LENGTH = 1024  # the SDK's RXPACKET_MAX_LEN (Protocol 2.0)
 
 
 def _make_port(port_name: str, latency_ms: float, responder=None):
@@ -127,7 +136,60 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
 
         def setPacketTimeout(self, packet_length):  # noqa: N802 (SDK name)
             self.packet_start_time = self.getCurrentTime()
-            self.packet_timeout = self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
+            self.packet_timeout = self.timeout_ms(packet_length)
+
+        def timeout_ms(self, packet_length: int) -> float:
+            """The reply timeout (ms) for ``packet_length`` bytes (as the SDK counts them)."""
+            return self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
+
+        def send(self, packet: bytes) -> int:
+            """Write ``packet`` whole (``os.write``, no pyserial); returns the bytes written.
+
+            Input is flushed first, as the SDK's ``txPacket`` does.
+            """
+            self.clearPort()
+            fd, view, sent = self.ser.fileno(), memoryview(packet), 0
+            while sent < len(packet):
+                try:
+                    sent += os.write(fd, view[sent:])
+                except BlockingIOError:
+                    select.select([], [fd], [], 0.001)
+            if responder is not None:
+                self.owed += responder.answer(sent)
+            return sent
+
+        def receive_status(self, expected: int, timeout_ms: float) -> tuple[int, bytes]:
+            """One status packet framed as the SDK's ``rxPacket`` does, read in as few reads
+            as the bytes allow (``expected`` at once); returns (SDK result code, packet).
+
+            Timeout after ``timeout_ms`` (ms) from now, as the SDK's packet
+            timeout: no byte is "no status packet", a part is "incorrect".
+            Lock-step reply bytes the responder wrote are waited for however
+            long the kernel takes (bounded by ``_OWED_WAIT_S``).
+            """
+            fd = self.ser.fileno()
+            now = time.monotonic()
+            deadline, owed_deadline = now + timeout_ms / 1e3, now + _OWED_WAIT_S
+            buffer = bytearray()
+            total = expected
+            while True:
+                try:
+                    data = os.read(fd, max(expected, total) - len(buffer))
+                except BlockingIOError:
+                    data = b""
+                if data:
+                    self.owed = max(0, self.owed - len(data))
+                    buffer += data
+                    state, total = frame_status(buffer, _RX_MAX_LENGTH)
+                    if state == "ok":
+                        return _COMM_SUCCESS, bytes(buffer[:total])
+                    if state == "crc":
+                        return _COMM_RX_CORRUPT, b""
+                    continue
+                left = (owed_deadline if self.owed else deadline) - time.monotonic()
+                if left <= 0:
+                    return (_COMM_RX_CORRUPT if buffer else _COMM_RX_TIMEOUT), b""
+                select.select([fd], [], [], left)
 
     return _Port(port_name)
 
@@ -231,14 +293,25 @@ class BlockRead:
 
     Attributes
     ----------
-    values : dict of int to dict of Register to int
-        Per servo id, each register of the block, decoded (signed where signed).
+    registers : tuple of Register
+        The registers read, in the order asked.
     errors : dict of int to int
-        Per servo id, its status ERR byte (bit 7 = Alert).
+        Per servo id (in the order read), its status ERR byte (bit 7 = Alert).
+    table : list of list of int
+        Per servo in the order read, each register's value in the order
+        asked, decoded (signed where signed): for arrays, without a lookup
+        per value.
     """
 
-    values: dict[int, dict[Register, int]]
+    registers: tuple[Register, ...]
     errors: dict[int, int]
+    table: list[list[int]]
+
+    @functools.cached_property
+    def values(self) -> dict[int, dict[Register, int]]:
+        """Per servo id, each register of the block (the ``table`` by id and register)."""
+        rows = zip(self.errors, self.table, strict=True)
+        return {i: dict(zip(self.registers, row, strict=True)) for i, row in rows}
 
 
 class ServoBus:
@@ -319,6 +392,7 @@ class ServoBus:
         self.driven: set[int] = set()
         self._port = None
         self._ph = None
+        self._frame_packets: dict[tuple, object] = {}  # laid-out packets, by servos and registers
 
     # -- port ------------------------------------------------------------
 
@@ -413,6 +487,7 @@ class ServoBus:
     def add_servo(self, servo_id: int, model: Model) -> None:
         """Declare the model of servo ``servo_id`` (register addresses follow it)."""
         self.models[servo_id] = model
+        self._frame_packets.clear()
 
     def _address(self, servo_id: int, register: Register) -> tuple[int, int]:
         try:
@@ -471,6 +546,8 @@ class ServoBus:
         the next request: same id and length (another register of the same
         servo), the wrong value. Costs one timeout per failed try.
         """
+        import termios
+
         import serial
 
         port = self._port
@@ -482,8 +559,8 @@ class ServoBus:
                 port.clearPort()
                 if not select.select([port.ser.fileno()], [], [], quiet_s)[0]:
                     return
-        except (serial.SerialException, OSError, ValueError):
-            pass  # the port failed: the next try says so
+        except (serial.SerialException, OSError, ValueError, termios.error):
+            pass  # the port failed (pyserial lets termios.error through): the next try says so
 
     def _unicast(self, servo_id: int, what: str, call, *args, data_bytes: int = 0):
         """One unicast transaction with retries; returns the SDK call's result tuple.
@@ -619,8 +696,8 @@ class ServoBus:
     def sync_write(self, register: Register, values: dict[int, int]) -> None:
         """One Sync Write of ``register`` to several servos (no reply to wait for).
 
-        Only for blocks whose bytes cannot contain ``FF FF FD`` (the SDK's TX path
-        drops byte stuffing): Goal Position is safe.
+        Built by ``frame_packets.SyncWritePacket`` (byte-stuffed where the data
+        holds ``FF FF FD``, which the SDK's TX path would drop).
 
         Raises
         ------
@@ -629,27 +706,19 @@ class ServoBus:
         CommError
             If the port fails.
         """
-        ids = list(values)
-        address, size = self._address(ids[0], register)
+        ids = tuple(values)
+        key = ("sync write", register, ids)
+        packet = self._frame_packets.get(key)
+        if packet is None:
+            address, size = self._address(ids[0], register)
+            packet = self._frame_packets[key] = SyncWritePacket(address, size, ids)
         if register is Register.GOAL_POSITION:
             self.driven.update(ids)
-        param = []
-        for servo_id, value in values.items():
-            param.append(servo_id)
-            param.extend(to_unsigned(int(value), size).to_bytes(size, "little"))
-        result = self._sdk(
-            f"sync write {register.value}",
-            self._ph.syncWriteTxOnly,
-            self._port,
-            address,
-            size,
-            param,
-            len(param),
-        )
-        if result != 0:
-            raise CommError(
-                f"servos {ids}: sync write {register.value} failed: {self._result_text(result)}"
-            )
+        data = packet.encode(list(values.values()))
+        what = f"sync write {register.value}"
+        if self._sdk(what, self._port.send, data) != len(data):
+            failed = self._result_text(_COMM_TX_FAIL)
+            raise CommError(f"servos {list(ids)}: {what} failed: {failed}")
 
     def read_block(
         self, ids: Sequence[int], registers: Sequence[Register], *, fast: bool = True
@@ -678,60 +747,73 @@ class ServoBus:
             If a reply is missing, corrupt, from another id or of another length
             than the block asked, after the retry budget.
         """
+        ids, registers = tuple(ids), tuple(registers)
+        key = ("read", ids, registers, fast)
+        laid_out = self._frame_packets.get(key)
+        if laid_out is None:
+            kind = "fast sync read" if fast else "sync read"
+            what = f"{kind} of {', '.join(r.value for r in registers)}"
+            laid_out = self._frame_packets[key] = (self._read_spec(ids, registers, fast), what)
+        spec, what = laid_out
+        read = self._fast_group_read if fast else self._group_read
+        errors, table = self._retry(f"servos {list(ids)}", what, lambda: read(spec, what))
+        return BlockRead(registers, dict(zip(ids, errors, strict=True)), table)
+
+    def _read_spec(self, ids, registers, fast):
+        """A fast sync read's packets (``FastSyncReadPacket``), or a sync read's block."""
         spans = [self._address(ids[0], r) for r in registers]
         start = min(a for a, _ in spans)
         length = max(a + s for a, s in spans) - start
-        kind = "fast sync read" if fast else "sync read"
-        what = f"{kind} of {', '.join(r.value for r in registers)}"
-        ids = list(ids)
-        raw = self._retry(
-            f"servos {ids}", what, lambda: self._group_read(ids, start, length, fast, what)
-        )
-        values, errors = {}, {}
-        for servo_id, (error, data) in raw.items():
-            errors[servo_id] = error
-            decoded = {}
-            for register, (address, size) in zip(registers, spans, strict=True):
-                value = int.from_bytes(
-                    bytes(data[address - start : address - start + size]), "little"
-                )
-                decoded[register] = to_signed(value, size) if register in SIGNED else value
-            values[servo_id] = decoded
-        return BlockRead(values, errors)
+        fields = [(a, s, r in SIGNED) for r, (a, s) in zip(registers, spans, strict=True)]
+        if fast:
+            return FastSyncReadPacket(start, fields, length, ids)
+        return ids, start, length, fields
 
-    def _group_read(self, ids, start, length, fast, what):
-        """One try: ({id: (error, data)}, None), or (None, what went wrong).
+    def _fast_group_read(self, spec: FastSyncReadPacket, what: str):
+        """One try of a fast sync read: ((errors, table), None), or (None, what went wrong).
 
-        Every servo's part of the reply is checked for its id and ``length``
+        The reply is trusted only after ``frame_status`` (header, instruction,
+        CRC) and ``FastSyncReadPacket.check`` (id, LEN, each part's id).
+        """
+        port = self._port
+        if self._sdk(what, port.send, spec.request) != len(spec.request):
+            return None, self._result_text(_COMM_TX_FAIL)
+        # The SDK's timeout for this reply: (11 + data) bytes per servo.
+        timeout_ms = port.timeout_ms((11 + spec.length) * len(spec.ids))
+        result, packet = self._sdk(what, port.receive_status, spec.reply_bytes, timeout_ms)
+        if result != _COMM_SUCCESS:
+            return None, self._result_text(result)
+        problem, errors, table = spec.check(packet)
+        if problem is not None:
+            return None, problem
+        return (errors, table), None
+
+    def _group_read(self, spec, what):
+        """One try of a sync read (through the SDK): ((errors, table), None), or (None, what
+        went wrong).
+
+        Every servo's reply is checked for its id and the block's length in
         data bytes before its data is kept.
         """
+        ids, start, length, fields = spec
         ph, port = self._ph, self._port
-        result = self._sdk(what, ph.syncReadTx, port, start, length, ids, len(ids), fast)
+        result = self._sdk(what, ph.syncReadTx, port, start, length, list(ids), len(ids), False)
         if result != 0:
             return None, self._result_text(result)
-        raw = {}
-        if fast:
-            # One packet: INST, then ERR ID DATA CRC2 per servo (the last CRC2 is the packet's).
-            block = length + 4
-            data, result, _ = self._sdk(
-                what, ph.fastSyncReadRx, port, BROADCAST_ID, block * len(ids)
-            )
-            problem = self._problem(result, BROADCAST_ID, 1 + block * len(ids))
-            if problem is not None:
-                return None, problem
-            for k, servo_id in enumerate(ids):
-                part = data[k * block : (k + 1) * block]
-                if part[1] != servo_id:
-                    return None, f"reply part {k} from id {part[1]}, expected {servo_id}"
-                raw[servo_id] = (part[0], part[2 : 2 + length])
-            return raw, None
+        errors, table = [], []
         for servo_id in ids:
             data, result, error = self._sdk(what, ph.readRx, port, servo_id, length)
             problem = self._problem(result, servo_id, length + _STATUS_LENGTH_NO_DATA)
             if problem is not None:
                 return None, f"servo {servo_id}: {problem}"
-            raw[servo_id] = (error, data)
-        return raw, None
+            errors.append(error)
+            row = []
+            for address, size, signed in fields:
+                at = address - start
+                value = int.from_bytes(bytes(data[at : at + size]), "little")
+                row.append(to_signed(value, size) if signed else value)
+            table.append(row)
+        return (errors, table), None
 
     def check_block(self, block: BlockRead, what: str) -> None:
         """Raise ``ServoError`` for the first servo whose ERR byte is non-zero.

@@ -19,6 +19,7 @@ from enum import IntEnum
 from .errors import BadArgument, PacketError
 
 HEADER = b"\xff\xff\xfd\x00"
+STUFF_MARK = HEADER[:3]  # what byte stuffing follows with an extra FD
 BROADCAST_ID = 0xFE
 _MIN_LENGTH = 3  # INST + CRC
 
@@ -93,6 +94,8 @@ def crc16(data: bytes | bytearray, crc: int = 0) -> int:
 
 def stuff(body: bytes) -> bytes:
     """Insert an ``FD`` after every ``FF FF FD`` in ``body`` (INST + params)."""
+    if STUFF_MARK not in body:
+        return bytes(body)
     out = bytearray()
     for byte in body:
         out.append(byte)
@@ -103,6 +106,8 @@ def stuff(body: bytes) -> bytes:
 
 def unstuff(body: bytes) -> bytes:
     """Remove the ``FD`` that follows every ``FF FF FD`` in ``body``."""
+    if STUFF_MARK not in body:
+        return bytes(body)
     out = bytearray()
     i = 0
     while i < len(body):
@@ -165,10 +170,14 @@ def encode_fast_sync_status(entries: list[tuple[int, int, bytes]]) -> bytes:
     """
     length = 1 + sum(len(data) + 4 for _, _, data in entries)
     packet = bytearray(HEADER + bytes([BROADCAST_ID, length & 0xFF, length >> 8, 0x55]))
+    crc = crc16(packet)
     for error, servo_id, data in entries:
-        packet += bytes([error, servo_id]) + bytes(data)
-        crc = crc16(packet)
-        packet += bytes([crc & 0xFF, crc >> 8])
+        part = bytes([error, servo_id]) + bytes(data)
+        crc = crc16(part, crc)  # the running CRC of the packet so far
+        packet += part
+        check = bytes([crc & 0xFF, crc >> 8])
+        crc = crc16(check, crc)
+        packet += check
     return bytes(packet)
 
 

@@ -40,6 +40,7 @@ statistics; CSV telemetry is written as it goes).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import warnings
 from collections.abc import Iterator, Sequence
@@ -73,6 +74,7 @@ from trajgen.drivers.errors import (
     WatchdogTripped,
 )
 from trajgen.drivers.health import PowerLimits, health_problem
+from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.probe import PROBE_FRAMES, max_rate_hz, probe_cycle, read_every_for
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import RAD_PER_TICK, JointMap
@@ -185,6 +187,10 @@ class StreamStats:
     probe_write_s, probe_read_s : float
         A goal write's wire time and what a read-back took before the stream (s, median;
         NaN when not probed: on a simulated clock, or ``probe_frames=0``).
+    scheduling : str
+        How the stream thread was scheduled on the wall clock
+        (``drivers.priority``; "" when not raised: a simulated clock, or
+        ``realtime=False``).
     fault : str
         The message of the fault or signal that stopped the stream ("" if none).
     """
@@ -211,6 +217,7 @@ class StreamStats:
     read_every: int = 1
     probe_write_s: float = math.nan
     probe_read_s: float = math.nan
+    scheduling: str = ""
     fault: str = ""
     _errors: RunningQuantiles = field(default_factory=RunningQuantiles, repr=False)
     _first: tuple[float, float] | None = field(default=None, repr=False)
@@ -269,6 +276,8 @@ class StreamStats:
                 f"probe before the stream: goal write {ms(self.probe_write_s)}, read-back "
                 f"{ms(self.probe_read_s)}"
             )
+        if self.scheduling:
+            lines.append(f"stream thread: {self.scheduling}")
         if self.position_glitches:
             lines.append(f"position reads not trusted (glitches): {self.position_glitches}")
         if self.fault:
@@ -371,6 +380,10 @@ class Streamer:
         moved), or read back less often than ``telemetry_every`` where that
         is what does not fit (a ``RuntimeWarning``; ``stats.read_every``); see
         ``drivers.probe``. 0: no probe.
+    realtime : bool, optional
+        On the wall clock, stream from a thread raised to ``SCHED_FIFO`` with
+        a short GIL switch interval (``drivers.priority``; said in
+        ``stats.scheduling``, also where the system does not permit it).
 
     Attributes
     ----------
@@ -407,6 +420,7 @@ class Streamer:
         restore: Sequence = (),
         clock=None,
         probe_frames: int = PROBE_FRAMES,
+        realtime: bool = True,
     ) -> None:
         positive = {"low": 0.0, "low_open": True}
         telemetry_every = check_number("telemetry_every", telemetry_every, low=1, integer=True)
@@ -456,6 +470,7 @@ class Streamer:
             clock = SimulatedClock() if bus.lockstep else WALL_CLOCK
         self.clock = clock
         self.probe_frames = probe_frames
+        self.realtime = bool(realtime)
         self.stats: StreamStats | None = None
         self.stop_errors: list[str] = []
 
@@ -510,6 +525,9 @@ class Streamer:
         )
         self._glitches = np.zeros(len(self.joints), dtype=int)
         failed_before = self.bus.failed_tries
+        priority = contextlib.nullcontext("")
+        if self.realtime and self.clock.real_time:
+            priority = stream_priority()
         try:
             if self.telemetry_path is not None:
                 models = [self.bus.models[i] for i in self.joints.ids]
@@ -524,15 +542,16 @@ class Streamer:
             first_goal = np.asarray(sent_q(first), float)
             check_start(present, first_goal, self.max_approach_rad, self.joint_names)
             stats.read_every = self.telemetry_every
-            if self.clock.real_time and self.probe_frames:
-                self._probe()
             t_ramp, q_ramp = min_jerk_ramp(present, first_goal, rate_hz, self.approach_speed_rad_s)
             stats.approach_frames = len(t_ramp)
-            self._loop(zip(t_ramp, q_ramp, q_ramp, strict=True), "approach", timed=False)
-            # A frame's goal (led ahead of the plan, trajgen.lead) is sent; its plan is logged.
-            self._loop(
-                ((f.t, sent_q(f), f.q) for f in chain([first], frames)), "stream", timed=True
-            )
+            with priority as stats.scheduling:
+                if self.clock.real_time and self.probe_frames:
+                    self._probe()
+                self._loop(zip(t_ramp, q_ramp, q_ramp, strict=True), "approach", timed=False)
+                # A frame's goal (led ahead of the plan, trajgen.lead) is sent; its plan is logged.
+                self._loop(
+                    ((f.t, sent_q(f), f.q) for f in chain([first], frames)), "stream", timed=True
+                )
         except (DriverError, KeyboardInterrupt) as e:
             stats.fault = str(e) or type(e).__name__
             self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop, self.restore)
@@ -612,9 +631,10 @@ class Streamer:
         block = self.bus.read_block(self.joints.ids, _STATE, fast=self._use_fast)
         self.bus.check_block(block, "streaming")
         self.stats.reads += 1
-        ids = self.joints.ids
-        raw = np.array([[block.values[i][r] for r in _STATE] for i in ids], dtype=float)
-        current = np.array([self.bus.models[i].current_a(block.values[i][_STATE[0]]) for i in ids])
+        raw = np.array(block.table, dtype=float)
+        models = [self.bus.models[i] for i in self.joints.ids]
+        rows = zip(models, block.table, strict=True)
+        current = np.array([m.current_a(row[0]) for m, row in rows])
         return (
             self._plausible(raw[:, 2]),
             self.joints.velocity_to_rad_s(raw[:, 1]),

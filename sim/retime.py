@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.gimbal import JOINT_NAMES
 from trajgen.timelaw import DEGREE
 
 from .errors import SimError
@@ -150,12 +149,13 @@ class LawProblem:
             dense[np.abs(dense) < 1e-14] = 0.0
             self.B.append(csr_matrix(dense))
         limits = bounds.limits.as_array()
+        joints = range(len(bounds.limits.joints))
         self._families = [
-            ("torque envelope", j, (a, b)) for j in range(3) for a in (1, -1) for b in (1, -1)
+            ("torque envelope", j, (a, b)) for j in joints for a in (1, -1) for b in (1, -1)
         ]
-        self._families += [("torque rate", j, (a,)) for j in range(3) for a in (1, -1)]
+        self._families += [("torque rate", j, (a,)) for j in joints for a in (1, -1)]
         for name, row in zip(FAMILIES[2:], limits, strict=True):
-            for j in range(3):
+            for j in joints:
                 if np.isfinite(row[j]) or (
                     name == "speed limit" and np.isfinite(bounds.speed_cap[:, j]).any()
                 ):
@@ -163,7 +163,8 @@ class LawProblem:
 
     def family_names(self) -> list[str]:
         """One label per family of rows, e.g. ``"torque envelope (tilt)"``."""
-        return [f"{name} ({JOINT_NAMES[j]})" for name, j, _ in self._families]
+        names = self.bounds.limits.joints
+        return [f"{name} ({names[j]})" for name, j, _ in self._families]
 
     def rows(self, c: np.ndarray, z: float):
         """Relative rows ``h`` (F, K) (``<= 0`` keeps the limit) and the parts of their gradient.

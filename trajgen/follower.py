@@ -24,7 +24,7 @@ import numpy as np
 
 from . import fast
 from .errors import KeyframeFileError, KinematicsError
-from .gimbal import GimbalKinematics, forward
+from .gimbal import GimbalKinematics
 from .keyframe_lines import MAX_LINE_BYTES, TRACK, decode_line, parse_line
 from .online import ChangeTooLate, OnlineSpline
 from .path import Steps
@@ -38,6 +38,11 @@ from .tracker import Tracker
 #: (a few periods at 1 kHz; see bench/online_cost.py). `Follower` allows more where the
 #: steps need it.
 CHANGE_MARGIN_S = 0.05
+
+#: Steps (one a frame) an untimed target's change is given before its ``at``: the
+#: tracker's search takes about 8 (prepare, coarse checks, refinement, the chosen
+#: lead's build and frame check); doubled on each new attempt.
+TARGET_STEPS = 12
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
 #: how long the streaming thread may wait for the thread that parses the lines.
@@ -105,6 +110,9 @@ class Follower:
         Per-joint speed, acceleration, jerk bounds for untimed targets (lines with
         neither ``t`` nor ``in``), which a :class:`~trajgen.tracker.Tracker` reaches as
         early as these allow; see there. Default: none.
+    envelope : callable, optional
+        ``envelope(q, qd, qdd) -> bool (N,)``: where the servos can make the motion
+        (e.g. ``trajgen.sim.check.envelope_check``), kept by untimed targets too.
 
     Attributes
     ----------
@@ -134,6 +142,7 @@ class Follower:
         source: str = "stdin",
         on_skip=None,
         limits=None,
+        envelope=None,
     ):
         self.spline = spline
         self.rate_hz = float(rate_hz)
@@ -155,7 +164,9 @@ class Follower:
         #: Why the stream ended early ("" if it did not).
         self.fault = ""
         #: Untimed targets' planner: each such line is a retarget at the earliest arrival.
-        self.tracker = Tracker(spline, limits, kinematics=self.kinematics, rate_hz=rate_hz)
+        self.tracker = Tracker(
+            spline, limits, kinematics=self.kinematics, envelope=envelope, rate_hz=rate_hz
+        )
 
     # -- lines -------------------------------------------------------------
 
@@ -230,6 +241,7 @@ class Follower:
         steps = 2 + 2 * math.ceil((t - now) * self.rate_hz / CHECK_STEP_FRAMES)
         at = max(self.spline.committed, self.spline.t_start)
         at += max(self.margin_s, (steps + 1) / self.rate_hz)
+        at = max(at, self.spline.last_change_at)  # a change may not precede the last
         if t - at < self.spline.min_lead_s:
             raise self._error(
                 where,
@@ -271,9 +283,10 @@ class Follower:
         """An untimed target line's change, in steps: the tracker's search for the earliest
         arrival (each candidate checked against the limits, the lock margin and the joint
         limits on the stream's grid), made at ``margin_s`` or more after the stream."""
-        for _ in range(3):
+        for attempt in range(3):
+            # room for the search's steps, one a frame (more on each attempt)
             at = max(self.spline.committed, self.spline.t_start)
-            at += max(self.margin_s, 4.0 / self.rate_hz)
+            at += max(self.margin_s, (TARGET_STEPS * 2**attempt + 1) / self.rate_hz)
             try:
                 result = yield from self.tracker.set_target_steps(
                     target["quat"],
@@ -286,6 +299,7 @@ class Follower:
             except ValueError as e:  # KinematicsError: no path keeps the limits
                 raise self._error(where, str(e)) from None
             if result.changed:
+                at = result.at  # later than asked where no arrival from there kept the limits
                 with self._lock:
                     self._pending.append((arrival, at))
                 self.keyframes.append(
@@ -293,7 +307,7 @@ class Follower:
                         "line": number,
                         "mode": TRACK,
                         "t": result.arrival,
-                        "quat": forward(result.goal).tolist(),
+                        "quat": self.kinematics.forward(result.goal).tolist(),
                         "at": at,
                         "now": now,
                         "clamped": result.clamped,

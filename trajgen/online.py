@@ -243,6 +243,11 @@ class OnlineSpline:
         return self._version
 
     @property
+    def last_change_at(self) -> float:
+        """Time (s) of the latest change (``t0`` before any): the next may not be earlier."""
+        return self._last_at
+
+    @property
     def committed(self) -> float:
         """Latest time (s) a stream has used (-inf before any): changes must not be earlier."""
         return self._committed
