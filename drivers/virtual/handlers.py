@@ -120,8 +120,7 @@ class InstructionHandlers:
 
     def _read_one(self, servo_id: int, address: int, length: int) -> tuple[int, bytes]:
         servo = self.servos[servo_id]
-        if self._reads_present(servo, address, length):  # else none of them is read
-            self._refresh_present(poll=True)
+        self._refresh_present(poll=self._reads_present(servo, address, length))
         return servo.read(address, length)
 
     def _read(self, packet_id: int, params: bytes) -> list:
@@ -278,8 +277,8 @@ class InstructionHandlers:
             for servo_id in self._addressed(servo_key)
             if self._answers(servo_id, Instruction.READ)
         ]
-        if any(self._reads_present(self.servos[i], a, n) for i, a, n in found):
-            self._refresh_present(poll=True)  # once: the servos sample together
+        poll = any(self._reads_present(self.servos[i], a, n) for i, a, n in found)
+        self._refresh_present(poll=poll)  # once: the servos sample together
         entries = [(i, *self.servos[i].read(a, n)) for i, a, n in found]
         if not fast:
             return [(i, self._status(i, e, d)) for i, e, d in entries]
