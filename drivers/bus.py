@@ -26,6 +26,7 @@ What it adds to them (see docs/dynamixel.md for why):
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import select
@@ -176,7 +177,9 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
                 try:
                     data = os.read(fd, max(expected, total) - len(buffer))
                 except BlockingIOError:
-                    data = b""
+                    data = None  # nothing yet
+                if data == b"":  # readable, yet nothing: the other end is gone (as pyserial says)
+                    raise OSError(errno.EIO, "the port is readable but returns nothing (gone?)")
                 if data:
                     self.owed = max(0, self.owed - len(data))
                     buffer += data
@@ -546,6 +549,8 @@ class ServoBus:
         the next request: same id and length (another register of the same
         servo), the wrong value. Costs one timeout per failed try.
         """
+        import termios
+
         import serial
 
         port = self._port
@@ -557,7 +562,7 @@ class ServoBus:
                 port.clearPort()
                 if not select.select([port.ser.fileno()], [], [], quiet_s)[0]:
                     return
-        except (serial.SerialException, OSError, ValueError):
+        except (serial.SerialException, OSError, ValueError, termios.error):
             pass  # the port failed: the next try says so
 
     def _unicast(self, servo_id: int, what: str, call, *args, data_bytes: int = 0):
