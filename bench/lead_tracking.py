@@ -11,6 +11,14 @@ simulated torque over the three joints as a ratio to no lead (the named peer,
 same run), goals outside their bounds, and the verdict. The last lines give
 the machine load.
 
+For the model lead it also prints, per motion, the cost of computing the
+goals per frame (``trajgen.lead.led_goals`` with the bounded preview, against
+the plain clip as the peer, same run, inverse dynamics included), and, for each
+joint whose goals a bound clips, the loop-model floor: the least max error that
+any goals inside the bounds can give against the servo loop's linear model
+(a linear programme, ``scipy.optimize.linprog``), beside what that model
+predicts for the plain clip and for the preview.
+
 Usage::
 
     python bench/lead_tracking.py [--random 6] [--seed 7] [--p-divisor 128]
@@ -45,7 +53,7 @@ def motions(n_random: int, seed: int):
 
     for path in [*sorted((ROOT / "examples").glob("*.toml")), BUILTIN_EXAMPLE]:
         kf = load_keyframe_file(path)
-        yield path.stem, kf, gimbal_config_from_tables(kf.tables, kf.path)
+        yield path.stem, kf, gimbal_config_from_tables(kf.tables, kf.path, any_axes=True)
     rng = np.random.default_rng(seed)
     made = tries = 0
     while made < n_random and tries < 20 * max(n_random, 1):
@@ -81,12 +89,28 @@ def run(name, source, config, p_divisor):
         rows[lead] = {
             "max_mrad": 1e3 * err[:, worst].max(),
             "rms_mrad": 1e3 * np.sqrt(np.mean(err[:, worst] ** 2)),
-            "joint": ("pan", "tilt", "roll")[worst],
+            "joint": config.names[worst],
             "peak_nm": float(np.abs(rec.torque_nm).max()),
             "outside": outside,
             "ok": report.ok,
             "starts_moving": bool(np.abs(report.trajectory.qd[0]).max() > 1e-9),
         }
+    from trajgen.sim.check import resolve_source
+
+    trajectory, _ = resolve_source(source, config=config)
+    with_preview, clip = lead_cost(trajectory, config)
+    print(
+        f"  {name}: model goals {1e6 * with_preview:.1f} us/frame with the preview, "
+        f"{1e6 * clip:.1f} plain clip (ratio {with_preview / clip:.2f}), "
+        f"{len(trajectory.t)} frames",
+        flush=True,
+    )
+    for joint, floor, clipped, preview in loop_floor(trajectory, config):
+        print(
+            f"  {name} {joint}: clipped; loop-model max error: floor {1e3 * floor:.2f} mrad, "
+            f"plain clip {1e3 * clipped:.2f}, preview {1e3 * preview:.2f}",
+            flush=True,
+        )
     base = rows["none"]["peak_nm"]
     for lead in LEADS:
         r = rows[lead]
@@ -96,6 +120,70 @@ def run(name, source, config, p_divisor):
             f"{'OK' if r['ok'] else 'FAILED'} |",
             flush=True,
         )
+    return rows
+
+
+def lead_cost(trajectory, config, rounds=3):
+    """Seconds per frame of the model lead's goals: (with the preview, plain clip)."""
+    import time
+
+    from trajgen.lead import led_goals
+    from trajgen.sim.lead import lead_params, torque_function
+    from trajgen.sim.run import simulation_model
+
+    model = simulation_model(config)
+    torque = torque_function(model)
+    previewed = lead_params(config, model)
+    plain = dataclasses.replace(previewed, inertia_kg_m2=None)
+    out = []
+    for params in (previewed, plain):
+        best = np.inf
+        for _ in range(rounds):
+            start = time.perf_counter()
+            led_goals(trajectory, "model", params, torque=torque)
+            best = min(best, time.perf_counter() - start)
+        out.append(best / len(trajectory.t))
+    return out
+
+
+def loop_floor(trajectory, config):
+    """Per clipped joint: (name, floor, clip, preview) max error in rad against the loop's
+    linear model (``trajgen.lead_preview``): the least any goals inside the range can
+    give (a linear programme over each window), and what the plain clip and the
+    preview give."""
+    from scipy.optimize import linprog
+
+    from trajgen.lead_preview import _windows, pulse_response
+    from trajgen.sim.lead import lead_params, lead_trajectory
+    from trajgen.sim.run import simulation_model
+
+    model = simulation_model(config)
+    _, goals, _ = lead_trajectory(trajectory, config, "model", model=model)
+    params = lead_params(config, model)
+    period = 1.0 / trajectory.rate_hz
+    rows = []
+    for j, name in enumerate(config.names):
+        wanted, lo, hi = goals.wanted[:, j], goals.bounds[j, 0], goals.bounds[j, 1]
+        frames = np.flatnonzero((wanted < lo) | (wanted > hi))
+        if not len(frames):
+            continue
+        kp, inertia = params.kp_nm_rad[j], params.inertia_kg_m2[j]
+        h = pulse_response(kp, kp * params.lag_s[j], inertia, period)
+        floor = 0.0
+        for first, last in _windows(frames, len(h), len(wanted)):
+            k = last - first
+            response = np.zeros((k + len(h), k))
+            for m in range(k):
+                response[m : m + len(h), m] = h
+            ones = np.ones((len(response), 1))
+            a_ub = np.block([[response, -ones], [-response, -ones]])
+            box = [(lo - w, hi - w) for w in wanted[first:last]] + [(0.0, None)]
+            c = np.r_[np.zeros(k), 1.0]
+            result = linprog(c, A_ub=a_ub, b_ub=np.zeros(2 * len(response)), bounds=box)
+            floor = max(floor, result.x[-1])
+        clip = np.abs(np.convolve(np.clip(wanted, lo, hi) - wanted, h)).max()
+        preview = np.abs(np.convolve(goals.goal[:, j] - wanted, h)).max()
+        rows.append((name, floor, clip, preview))
     return rows
 
 

@@ -17,9 +17,15 @@ Per motion:
   LinearConstraint, split at reversals): its raw duration (it leaves the
   envelope between gridpoints and has no torque-rate bound) and stretched
   uniformly into the envelope; ``ours / raw`` is the goal's ratio;
+- ``R-bounded optimum``: the time-optimal profile under the envelope and the
+  torque-rate bound R on a grid of ``OPTIMUM_POINTS`` points
+  (``trajgen.sim.retime_optimum``: a direct transcription in ``s'^2``, sequential
+  LP on HiGHS, started from our plan), TOPP-RA's peer where the bound binds:
+  like TOPP-RA's raw profile it holds its limits at its gridpoints only;
+  ``ours / optimum``;
 - ``3x points``: the same fit with three times the control points and 1.5x
   the constraint points per interval (``--dense``): how much a richer law
-  would gain (the torque-rate-bounded optimum is at most this and ours);
+  would gain;
 - ``ours, full check``: ``fit_timing(path)`` (plan and simulated servo, the
   public ``check_torque``), and ``today's fit``
   (``trajgen.sim.fit_durations.fit_durations``, the keyframe-times fit this
@@ -56,6 +62,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 
 ROOT = Path(__file__).resolve().parent.parent
 R_NM_S = 300.0
+#: Gridpoints of the R-bounded optimum (uniform in our plan's time).
+OPTIMUM_POINTS = 800
 SCALING_KEYFRAMES = (8, 16, 24, 40)
 
 
@@ -111,13 +119,28 @@ def toppra_times(result, config) -> tuple[float, float]:
     return raw, stretched
 
 
+def rate_bounded_optimum(result, config) -> float:
+    """The R-bounded time-optimal duration (s) on the fit's path, from our plan's profile."""
+    from trajgen.sim.retime_optimum import rate_bounded_optimum
+    from trajgen.sim.retime_path import path_dynamics
+    from trajgen.sim.run import simulation_model
+
+    dyn = path_dynamics(result.path.path, simulation_model(config), config)
+    law = result.law
+    s, speed = law(np.linspace(law.t_start, law.t_end, OPTIMUM_POINTS + 1), 1)
+    s = np.clip(s - law.s_start, 0.0, dyn.s_span)
+    s[0], s[-1] = 0.0, dyn.s_span
+    return rate_bounded_optimum(dyn, s, speed, R_NM_S).duration_s
+
+
 def dense_optimum(path) -> float:
     """The plan-only fit with three times the control and constraint points (s)."""
     import trajgen.sim.retime as retime
     from trajgen.sim import fit_timing
 
     saved = retime.COEFFICIENTS_PER_SEGMENT, retime.POINTS_PER_INTERVAL
-    retime.COEFFICIENTS_PER_SEGMENT, retime.POINTS_PER_INTERVAL = 24, 6
+    retime.COEFFICIENTS_PER_SEGMENT = 3 * saved[0]
+    retime.POINTS_PER_INTERVAL = 6
     try:
         return fit_timing(path, simulate=False).duration_s
     finally:
@@ -147,12 +170,13 @@ def compare(names_paths, dense: bool) -> None:
 
     print(
         "| motion | keys | ours plan only (s) | fit wall (CPU) s | TOPP-RA raw (s) "
-        "| TOPP-RA stretched (s) | ours / raw | ours / stretched | 3x points (s) "
+        "| TOPP-RA stretched (s) | ours / raw | ours / stretched | R-bounded optimum (s) "
+        "| ours / optimum | 3x points (s) "
         "| ours full check (s) | fit wall (CPU) s | today's fit (s) | fit wall (CPU) s "
         "| ours / today | peak torque rate 1 kHz (N m/s) | jerk step 1k / 10k | load |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
-    raw_ratios, today_ratios, rates, jerks = [], [], [], []
+    print("|---|" + "---:|" * 17 + "---|")
+    raw_ratios, optimum_ratios, today_ratios, rates, jerks = [], [], [], [], []
     for name, path in names_paths.items():
         clock = _Clock()
         plan = fit_timing(path, simulate=False)
@@ -168,6 +192,10 @@ def compare(names_paths, dense: bool) -> None:
             raw_ratios.append(plan.duration_s / raw)
         except RuntimeError as e:
             raw_cells = f"failed: {e} | - | - | -"
+        clock = _Clock()
+        best = rate_bounded_optimum(plan, config)
+        optimum_ratios.append(plan.duration_s / best)
+        raw_cells += f" | {best:.3f} ({clock}) | {plan.duration_s / best:.3f}"
         optimum = f"{dense_optimum(path):.3f}" if dense else "-"
         clock = _Clock()
         full = fit_timing(path)
@@ -197,6 +225,11 @@ def compare(names_paths, dense: bool) -> None:
         print(
             f"ours plan only / TOPP-RA raw: median {np.median(raw_ratios):.3f}, max "
             f"{np.max(raw_ratios):.3f} (goals: median <= 1.03, every motion <= 1.05)"
+        )
+    if optimum_ratios:
+        print(
+            f"ours plan only / R-bounded optimum: median {np.median(optimum_ratios):.3f}, max "
+            f"{np.max(optimum_ratios):.3f}"
         )
     if today_ratios:
         print(

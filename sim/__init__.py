@@ -1,4 +1,6 @@
-"""MuJoCo simulation of a pan-tilt-roll Dynamixel gimbal and its torque check.
+"""MuJoCo simulation of a Dynamixel gimbal and its torque check: 2 or 3 joints in any
+axis order (``trajgen.axes``), a servo per joint, built in or the user's own MJCF/URDF
+model (``sim.user_model``).
 
 The simulator consumes trajgen's joint stream (``trajgen.stream.JointTrajectory``)
 and nothing else from trajgen. MuJoCo is imported only when a model is built.

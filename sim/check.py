@@ -265,6 +265,33 @@ def check_planned_torque(trajectory, config: GimbalConfig, *, model=None) -> tup
     return tuple(reasons)
 
 
+def envelope_check(config: GimbalConfig, *, model=None) -> Callable:
+    """The torque check of part (a) as a function of a joint motion, for
+    ``trajgen.tracker.Tracker(envelope=...)``: ``within(q, qd, qdd)`` (each (N, 3);
+    rad, rad/s, rad/s^2) is a bool array (N,), True where every joint's torque
+    (``mj_inverse``, with Coulomb friction) is within ``torque_margin x`` its
+    servo's torque-speed envelope at that speed, as :func:`check_planned_torque`.
+
+    Parameters
+    ----------
+    config : GimbalConfig
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it already.
+    """
+    from trajgen.sim.dynamics import inverse_dynamics
+
+    model = simulation_model(config) if model is None else model
+    servos, margin = config.servos, config.torque_margin
+
+    def within(q, qd, qdd):
+        tau = inverse_dynamics(model, q, qd, qdd)
+        qd = np.asarray(qd, dtype=float)
+        usable = np.stack([margin * s.tau_max(qd[:, j]) for j, s in enumerate(servos)], axis=1)
+        return (np.abs(tau) <= usable).all(axis=1)
+
+    return within
+
+
 def lag_time_s(config: GimbalConfig, joint: int) -> float:
     """How far (s) joint ``joint``'s servo lags a goal moving at constant speed.
 

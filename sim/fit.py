@@ -30,7 +30,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.fit_result import (
     FitError,
     FitResult,
@@ -154,13 +153,13 @@ def plan_reasons(path, config: GimbalConfig, limits: JointLimits, torque_rate_nm
     from trajgen.stream import plan_joint_trajectory
 
     try:
-        fine = plan_joint_trajectory(path, CHECK_RATE_HZ)
-        stream = plan_joint_trajectory(path, rate_hz)
+        fine = plan_joint_trajectory(path, CHECK_RATE_HZ, config.kinematics())
+        stream = plan_joint_trajectory(path, rate_hz, config.kinematics())
     except KinematicsError as e:
         raise FitError(f"no timing can help: the path {e}") from e
     tau, smooth = inverse_dynamics_split(simulation_model(config), fine.q, fine.qd, fine.qdd)
     reasons = []
-    for j, name in enumerate(JOINT_NAMES):
+    for j, name in enumerate(config.names):
         servo = config.servos[j]
         avail = config.torque_margin * servo.tau_max(fine.qd[:, j])
         k = int(np.argmax(np.abs(tau[:, j]) - avail))
@@ -207,7 +206,7 @@ class _Fitter:
 
         source = keyframe_source(source)
         if config is None:
-            config = gimbal_config_from_tables(source.tables, source.path)
+            config = gimbal_config_from_tables(source.tables, source.path, any_axes=True)
         if limits is None:
             limits = limits_from_tables(source.tables, source.path)
         if torque_rate is None:
@@ -256,7 +255,11 @@ class _Fitter:
             0.0, self.dyn.s_span, _LEARN_POINTS_PER_SEGMENT * (len(self.path_times) - 1) + 1
         )
         self.bounds = LawBounds(
-            limits, torque_rate, grid, np.ones(len(grid)), np.full((len(grid), 3), np.inf)
+            limits,
+            torque_rate,
+            grid,
+            np.ones(len(grid)),
+            np.full((len(grid), config.n_joints), np.inf),
         )
         self.knots = knots_for(self.dyn.s_keys)
         self._problem_class = LawProblem
@@ -271,8 +274,8 @@ class _Fitter:
         if over.any():
             k, j = np.argwhere(over)[0]
             raise FitError(
-                f"the path passes a pose where the {JOINT_NAMES[j]} servo cannot hold against "
-                f"gravity: it needs {hold[k, j]:.3f} N m, the budget is "
+                f"the path passes a pose where the {self.config.names[j]} servo cannot hold "
+                f"against gravity: it needs {hold[k, j]:.3f} N m, the budget is "
                 f"{self.dyn.budget[j]:.3f} N m"
             )
 
@@ -335,7 +338,7 @@ class _Fitter:
     def trajectory(self, law):
         from trajgen.stream import plan_joint_trajectory
 
-        return plan_joint_trajectory(self.retimed(law), self.rate_hz)
+        return plan_joint_trajectory(self.retimed(law), self.rate_hz, self.config.kinematics())
 
     def learn_from_sim(self, report, law) -> bool:
         """Turn the simulation's failures into local bounds; False if nothing to learn.
@@ -360,7 +363,7 @@ class _Fitter:
             return (bounds.s_grid >= lo) & (bounds.s_grid <= hi), (s_plan >= lo) & (s_plan <= hi)
 
         learned = False
-        for j in range(3):
+        for j in range(self.config.n_joints):
             over = error[:, j] > limit
             if over.any():
                 for t in np.unique(np.round(record.t[over], 2)):
@@ -465,15 +468,15 @@ class _Fitter:
             sub = h[:, cols]
             f, _ = np.unravel_index(int(np.argmax(sub)), sub.shape)
             name = names[f]
-            joint = JOINT_NAMES.index(name[name.index("(") + 1 : -1])
+            joint = self.config.names.index(name[name.index("(") + 1 : -1])
             learned = self.bounds.index(self.dyn.s_span * sig[cols])
             if name.startswith("torque envelope") and (self.bounds.budget_scale[learned] < 1).any():
-                name = f"sim torque limit ({JOINT_NAMES[joint]})"
+                name = f"sim torque limit ({self.config.names[joint]})"
             if (
                 name.startswith("speed limit")
                 and np.isfinite(self.bounds.speed_cap[learned, joint]).any()
             ):
-                name = f"tracking error ({JOINT_NAMES[joint]})"
+                name = f"tracking error ({self.config.names[joint]})"
             out.append(f"{name}, {1 + sub.max():.0%}")
         return out
 

@@ -43,7 +43,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.fit_result import (
     FitError,
     FitResult,
@@ -250,7 +249,7 @@ def _make_fitter(source, config, limits, rate_hz, tolerance, progress) -> _Fitte
     source = keyframe_source(source)
     tolerance = check_number("tolerance", tolerance, low=0.0, high=0.05, low_open=True)
     if config is None:
-        config = gimbal_config_from_tables(source.tables, source.path)
+        config = gimbal_config_from_tables(source.tables, source.path, any_axes=True)
     if limits is None:
         limits = limits_from_tables(source.tables, source.path)
     rate = rate_hz or source.rate_hz or DEFAULT_RATE_HZ
@@ -281,7 +280,7 @@ class _Fitter:
         self.say = say
         n_seg = len(source.times) - 1
         #: Learned from simulation, per segment and joint: speed caps (rad/s).
-        self.speed_cap = np.full((n_seg, 3), np.inf)
+        self.speed_cap = np.full((n_seg, config.n_joints), np.inf)
         #: Per segment: a factor <= 1 on its speed-up, and the joint that reached
         #: the torque limit in simulation there.
         self.slow = np.ones(n_seg)
@@ -308,17 +307,17 @@ class _Fitter:
         -------
         JointTrajectory
         """
-        from trajgen.gimbal import GimbalKinematics, KinematicsError, joint_rates
+        from trajgen.gimbal import KinematicsError
         from trajgen.stream import JointTrajectory, plan_joint_trajectory
 
-        source = self.source
+        source, kinematics = self.source, self.config.kinematics()
         spline = source.spline_class(source.quats, times, **source.spline_options)
         try:
             if at is None:
-                return plan_joint_trajectory(spline, self.rate_hz)
+                return plan_joint_trajectory(spline, self.rate_hz, kinematics)
             samples = spline.evaluate(at, max_order=2)
-            q = GimbalKinematics().inverse(samples.q, at)
-            qd, qdd = joint_rates(q, samples.omega, samples.alpha)
+            q = kinematics.inverse(samples.q, at)
+            qd, qdd = kinematics.joint_rates(q, samples.omega, samples.alpha)
         except KinematicsError as e:
             raise FitError(f"no timing can help: the path {e}") from e
         return JointTrajectory(at, q, qd, qdd, self.rate_hz)
@@ -341,13 +340,13 @@ class _Fitter:
         viscous = self.damping * qd
         inertial = smooth - static - viscous
         speed = np.abs(qd)
-        budget = self.config.torque_margin * self.stall  # (3,)
+        budget = self.config.torque_margin * self.stall  # (n,)
         over = np.abs(static) > budget
         if over.any():
             k, j = np.argwhere(over)[0]
             raise FitError(
                 f"at t = {trajectory.t[k]:.3f} s the path passes a pose where the "
-                f"{JOINT_NAMES[j]} servo cannot hold against gravity: it needs "
+                f"{self.config.names[j]} servo cannot hold against gravity: it needs "
                 f"{abs(static[k, j]):.3f} N m, the budget is {budget[j]:.3f} N m"
             )
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -442,7 +441,7 @@ class _Fitter:
                 continue
             r = rows[np.argmin(flat[rows])]
             seg_factor[i] = flat[r]
-            binding[i] = f"{BINDINGS[code[r, joint[r]]]} ({JOINT_NAMES[joint[r]]})"
+            binding[i] = f"{BINDINGS[code[r, joint[r]]]} ({self.config.names[joint[r]]})"
             if self.slow[i] < 1.0 and flat[r] >= self.slow[i] * (1.0 + self.tolerance):
                 # The plan alone would allow more: the simulation's slow-down binds.
                 binding[i] = f"{BINDINGS[_SIM_LIMIT]} ({self.slow_joint[i]})"
@@ -655,7 +654,7 @@ class _Fitter:
         for i in range(n_seg):
             rows, plan_rows = seg == i, plan_seg == i
             capped = False
-            for j in range(3):
+            for j in range(self.config.n_joints):
                 worst = error[rows, j].max(initial=0.0)
                 if worst > limit:
                     peak = np.abs(plan.qd[plan_rows, j]).max(initial=0.0)
@@ -663,10 +662,10 @@ class _Fitter:
                     self.speed_cap[i, j] = min(self.speed_cap[i, j], cap)
                     learned = capped = True
             # A servo that falls behind also saturates: the speed cap deals with both.
-            hit = [j for j in range(3) if at_limit[rows, j].any()]
+            hit = [j for j in range(self.config.n_joints) if at_limit[rows, j].any()]
             if hit and not capped:
                 self.slow[i] *= _SIM_SLOW_STEP
-                self.slow_joint[i] = JOINT_NAMES[hit[0]]
+                self.slow_joint[i] = self.config.names[hit[0]]
                 learned = True
         self.say("  simulation: " + ("; ".join(report.reasons[:2]) if report.reasons else "passes"))
         return learned

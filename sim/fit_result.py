@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-from trajgen.gimbal import JOINT_NAMES
 from trajgen.sim.errors import SimError
 from trajgen.sim.limits import JointLimits
 
@@ -157,7 +156,7 @@ def refuse_unholdable_keyframes(source, model, config) -> None:
     from trajgen.sim.dynamics import inverse_dynamics
 
     try:
-        q = gimbal.GimbalKinematics().inverse(source.quats, source.times)
+        q = config.kinematics().inverse(source.quats, source.times)
     except gimbal.KinematicsError as e:
         raise FitError(f"no timing can help: at a keyframe, {e}") from e
     zero = np.zeros_like(q)
@@ -168,7 +167,7 @@ def refuse_unholdable_keyframes(source, model, config) -> None:
     if over.any():
         i, j = np.argwhere(over)[0]
         raise FitError(
-            f"keyframe {i + 1}: the {JOINT_NAMES[j]} servo cannot hold this pose against "
+            f"keyframe {i + 1}: the {config.names[j]} servo cannot hold this pose against "
             f"gravity: it needs {hold[i, j]:.3f} N m, {config.torque_margin:g} x stall "
             f"is {avail[j]:.3f} N m ({config.servos[j].name}, payload "
             f"{config.payload_kg:g} kg)"

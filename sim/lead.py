@@ -19,12 +19,14 @@ from trajgen.lead import LeadParams, led_goals, led_trajectory
 from trajgen.sim.model import GimbalConfig
 
 
-def lead_params(config: GimbalConfig) -> LeadParams:
+def lead_params(config: GimbalConfig, model=None) -> LeadParams:
     """Each joint's ``kp``, ``K^2/R``, lag time and Coulomb friction under ``config``.
 
     ``kp`` and ``K^2/R`` are the ``<dcmotor>`` controller's (``sim.firmware``:
     ``P / p_divisor`` in torque space, and the back-EMF the drive leaves); the
-    lag time is ``(K^2/R + damping) / kp`` (``sim.check.lag_time_s``).
+    lag time is ``(K^2/R + damping) / kp`` (``sim.check.lag_time_s``). With
+    ``model`` (the simulated gimbal) also each joint's inertia
+    (:func:`joint_inertia`), which the model lead's bounded preview needs.
     """
     kp, back_emf, lag, friction = [], [], [], []
     for j in range(config.n_joints):
@@ -33,7 +35,20 @@ def lead_params(config: GimbalConfig) -> LeadParams:
         back_emf.append(kd)
         lag.append((kd + config.joints[j].damping) / k)
         friction.append(config.joints[j].frictionloss)
-    return LeadParams(kp, back_emf, lag, friction, enabled=True)
+    inertia = None if model is None else joint_inertia(model)
+    return LeadParams(kp, back_emf, lag, friction, enabled=True, inertia_kg_m2=inertia)
+
+
+def joint_inertia(model) -> np.ndarray:
+    """Each joint's inertia at the home pose (kg m^2, shape (n,)): the diagonal of
+    MuJoCo's mass matrix (links and reflected rotor inertia, ``armature``)."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    return np.diag(full).copy()
 
 
 def torque_function(model):
@@ -70,13 +85,14 @@ def lead_trajectory(
     goals : trajgen.lead.LedGoals
         The goals and what bounded them.
     reasons : tuple of str
-        Why a joint got no lead (its plan fails the torque check).
+        Why a joint got no lead (its plan fails the torque check), and a note if
+        the plan starts or ends moving (:func:`moving_ends`).
     """
     from trajgen.sim.check import check_planned_torque
     from trajgen.sim.run import simulation_model
 
     model = simulation_model(config) if model is None else model
-    params = lead_params(config)
+    params = lead_params(config, model)
     reasons: tuple[str, ...] = ()
     if lead != "none":
         failed = check_planned_torque(trajectory, config, model=model)
@@ -93,7 +109,22 @@ def lead_trajectory(
     goals = led_goals(
         trajectory, lead, params, torque=torque_function(model), limits_rad=limits_rad
     )
-    return led_trajectory(trajectory, goals), goals, reasons
+    return led_trajectory(trajectory, goals), goals, reasons + moving_ends(trajectory)
+
+
+def moving_ends(trajectory) -> tuple[str, ...]:
+    """A note if the plan starts or ends moving (a servo at rest cannot follow it), with
+    the remedy: ``[stream] run_in_s`` (``trajgen.run_in``) plays it from rest."""
+    from trajgen.run_in import starts_or_ends_moving
+
+    if not starts_or_ends_moving(trajectory.qd):
+        return ()
+    speed = np.abs(np.asarray(trajectory.qd)[[0, -1]]).max()
+    return (
+        f"the plan starts or ends moving (up to {np.degrees(speed):.1f} deg/s) and the "
+        "servos start and end at rest: add `[stream] run_in_s = 0.5` to play it from "
+        "rest and back (docs/lead.md)",
+    )
 
 
 def live_frames(

@@ -299,8 +299,8 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
         The file, named in error messages; ``model`` is relative to its folder.
     any_axes : bool
         Accept ``axes`` / ``joints`` other than pan-tilt-roll (``plan``, ``sim``,
-        ``sweep``, ``identify``); the drivers' joint map and the timing fit are
-        pan-tilt-roll so far, so otherwise they are refused.
+        ``fit``, ``sweep``, ``identify``); the drivers' joint map is pan-tilt-roll
+        so far, so otherwise they are refused.
 
     Returns
     -------
@@ -341,6 +341,13 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
         )
     if "model" in table:
         kwargs["model"] = _model_path(table["model"], path)
+        for key in ("payload_kg", "payload_offset_m"):
+            if key in table:
+                raise _file_error(
+                    path,
+                    f"[gimbal] {key}: your own model's payload is in its file "
+                    f"(model = {table['model']!r}); leave {key} out",
+                )
     if not any_axes:
         _refuse_other_axes(axes, path)
     config = GimbalConfig(**kwargs)
@@ -369,7 +376,7 @@ def _model_path(value, path) -> Path:
 
 def _refuse_other_axes(axes: AxisSequence, path) -> None:
     """Refuse ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll in one line: the
-    drivers' joint map and the timing fit are pan-tilt-roll so far."""
+    drivers' joint map is pan-tilt-roll so far."""
     if is_default(axes):
         return
     if axes.n == 2:
@@ -380,8 +387,8 @@ def _refuse_other_axes(axes: AxisSequence, path) -> None:
         what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
     raise _file_error(
         path,
-        f"{what}: stream, virtual-bus, excite and fit need pan-tilt-roll (axes = 'zyx'), "
-        "not yet; plan, sim, sweep and identify take any axes",
+        f"{what}: stream, virtual-bus and excite need pan-tilt-roll (axes = 'zyx'), not "
+        "yet; plan, sim, fit, sweep and identify take any axes",
     )
 
 

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.gimbal import JOINT_NAMES
 from trajgen.timelaw import DEGREE
 
 from .errors import SimError
@@ -39,7 +38,7 @@ from .limits import JointLimits
 from .retime_path import PathDynamics
 
 #: B-spline coefficients of sigma per path segment.
-COEFFICIENTS_PER_SEGMENT = 8
+COEFFICIENTS_PER_SEGMENT = 16
 #: Constraint points per knot interval of sigma.
 POINTS_PER_INTERVAL = 4
 #: ... and in the first and last ``_END_INTERVALS``, where the path is near rest and the
@@ -150,12 +149,13 @@ class LawProblem:
             dense[np.abs(dense) < 1e-14] = 0.0
             self.B.append(csr_matrix(dense))
         limits = bounds.limits.as_array()
+        joints = range(len(bounds.limits.joints))
         self._families = [
-            ("torque envelope", j, (a, b)) for j in range(3) for a in (1, -1) for b in (1, -1)
+            ("torque envelope", j, (a, b)) for j in joints for a in (1, -1) for b in (1, -1)
         ]
-        self._families += [("torque rate", j, (a,)) for j in range(3) for a in (1, -1)]
+        self._families += [("torque rate", j, (a,)) for j in joints for a in (1, -1)]
         for name, row in zip(FAMILIES[2:], limits, strict=True):
-            for j in range(3):
+            for j in joints:
                 if np.isfinite(row[j]) or (
                     name == "speed limit" and np.isfinite(bounds.speed_cap[:, j]).any()
                 ):
@@ -163,7 +163,8 @@ class LawProblem:
 
     def family_names(self) -> list[str]:
         """One label per family of rows, e.g. ``"torque envelope (tilt)"``."""
-        return [f"{name} ({JOINT_NAMES[j]})" for name, j, _ in self._families]
+        names = self.bounds.limits.joints
+        return [f"{name} ({names[j]})" for name, j, _ in self._families]
 
     def rows(self, c: np.ndarray, z: float):
         """Relative rows ``h`` (F, K) (``<= 0`` keeps the limit) and the parts of their gradient.
@@ -280,6 +281,15 @@ class LawProblem:
         return hi
 
 
+def trust_step(ratio: float, radius: float, largest: float) -> tuple[bool, float]:
+    """A trust-region step's fate from ``ratio``, its actual over its predicted fall of the
+    merit function: kept if above 0.1; the next radius doubled (to ``largest``) after a
+    step above 0.75, cut to 0.3x after a rejected one."""
+    if ratio > 0.1:
+        return True, min(radius * 2.0, largest) if ratio > 0.75 else radius
+    return False, radius * 0.3
+
+
 def optimise(problem: LawProblem, c: np.ndarray, z: float, say: Callable[[str], None]):
     """Sequential LP from ``(c, z)``: the coefficients and ``log T`` of the fastest law found.
 
@@ -343,14 +353,11 @@ def optimise(problem: LawProblem, c: np.ndarray, z: float, say: Callable[[str], 
         trial_phi, trial_h, trial_parts = merit(trial_c, trial_z)
         ratio = (phi - trial_phi) / predicted
         sticky |= trial_h.ravel() > 0
-        if ratio > 0.1:
+        kept, radius = trust_step(ratio, radius, 8.0)
+        if kept:
             c, z, phi, h, parts = trial_c, trial_z, trial_phi, trial_h, trial_parts
-            if ratio > 0.75:
-                radius = min(radius * 2.0, 8.0)
-        else:
-            radius *= 0.3
-            if radius < 1e-6:
-                break
+        elif radius < 1e-6:
+            break
         if iterations % 10 == 0:
             say(f"  law {iterations}: {np.exp(z):.3f} s, worst {max(0.0, float(h.max())):.1%} over")
     return c, z, iterations, float(h.max())

@@ -39,9 +39,9 @@ class PathDynamics:
     s_keys : ndarray, shape (N,)
         Path times of the keyframes, from 0 (s of path time).
     table : scipy.interpolate.CubicSpline
-        ``table(s, nu)`` -> (M, 6, 3): ``COLUMNS`` x joints, or their ``nu``-th
+        ``table(s, nu)`` -> (M, 6, n): ``COLUMNS`` x joints, or their ``nu``-th
         derivative in ``s``, at path times ``s`` (M,) from 0.
-    friction, budget, slope : ndarray, shape (3,)
+    friction, budget, slope : ndarray, shape (n,)
         Coulomb friction (N m), torque budget ``torque_margin x stall`` (N m) and
         the envelope's slope ``budget / no-load speed`` (N m s/rad).
     """
@@ -62,22 +62,24 @@ class PathDynamics:
         return np.clip(np.searchsorted(self.s_keys, s, side="right") - 1, 0, len(self.s_keys) - 2)
 
 
-def joint_path(path, s: np.ndarray):
-    """Joint angles, ``q_s`` and ``q_ss`` (M, 3 each) of ``path`` at its own times ``s`` (M,).
+def joint_path(path, s: np.ndarray, kinematics=None):
+    """Joint angles, ``q_s`` and ``q_ss`` (M, n each) of ``path`` at its own times ``s`` (M,),
+    through ``kinematics`` (the gimbal's ``GimbalKinematics``; default pan-tilt-roll).
 
     Raises
     ------
     SimError
         If the path nears gimbal lock or leaves a joint limit.
     """
-    from trajgen.gimbal import GimbalKinematics, KinematicsError, joint_rates
+    from trajgen.gimbal import GimbalKinematics, KinematicsError
 
+    kinematics = GimbalKinematics() if kinematics is None else kinematics
     samples = path.evaluate(s, max_order=2)
     try:
-        q = GimbalKinematics().inverse(samples.q, s)
+        q = kinematics.inverse(samples.q, s)
     except KinematicsError as e:
         raise SimError(f"no timing can help: the path {e}") from e
-    qs, qss = joint_rates(q, samples.omega, samples.alpha)
+    qs, qss = kinematics.joint_rates(q, samples.omega, samples.alpha)
     return q, qs, qss
 
 
@@ -110,7 +112,7 @@ def path_dynamics(path, model, config, points_per_segment: int = POINTS_PER_SEGM
     keys = np.asarray(path.times, dtype=float)
     u = np.arange(points_per_segment) / points_per_segment
     s = np.append((keys[:-1, None] + np.outer(np.diff(keys), u)).ravel(), keys[-1])
-    q, qs, qss = joint_path(path, s)
+    q, qs, qss = joint_path(path, s, config.kinematics())
     bare = copy.copy(model)
     bare.dof_damping[:] = 0.0
     zero = np.zeros_like(q)
@@ -118,7 +120,7 @@ def path_dynamics(path, model, config, points_per_segment: int = POINTS_PER_SEGM
     a = inverse_dynamics(bare, q, zero, qs, coulomb=False) - c
     b = inverse_dynamics(bare, q, qs, qss, coulomb=False) - c
     d = np.asarray(model.dof_damping) * qs
-    columns = np.stack([a, b, c, d, qs, qss], axis=1)  # (M, 6, 3)
+    columns = np.stack([a, b, c, d, qs, qss], axis=1)  # (M, 6, n)
     stall = np.array([sv.stall_torque_nm for sv in config.servos])
     w0 = np.array([sv.no_load_speed_rad_s for sv in config.servos])
     budget = config.torque_margin * stall

@@ -65,11 +65,16 @@ def render_video(
     path = Path(path)
     writer = imageio_ffmpeg.write_frames(str(path), (width, height), fps=fps, quality=7)
     writer.send(None)
+    # A model without geoms on its links (a URDF, whose visuals MuJoCo discards) is
+    # drawn as each link's equivalent-inertia box.
+    option = mujoco.MjvOption()
+    moving = model.body_dofnum[model.geom_bodyid] > 0 if model.ngeom else np.zeros(1, bool)
+    option.flags[mujoco.mjtVisFlag.mjVIS_INERTIA] = not moving.any()
     with mujoco.Renderer(model, height, width) as renderer:
         for t in times:
-            data.qpos[:] = [np.interp(t, record.t, record.q[:, j]) for j in range(3)]
+            data.qpos[:] = [np.interp(t, record.t, q) for q in record.q.T]
             mujoco.mj_forward(model, data)
-            renderer.update_scene(data, camera="overview")
+            renderer.update_scene(data, camera="overview", scene_option=option)
             renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             writer.send(np.ascontiguousarray(renderer.render()))
     writer.close()

@@ -690,18 +690,22 @@ def test_bad_two_axis_keyframes_are_refused_naming_the_key(tmp_path, gimbal, key
         load_keyframe_file(f)
 
 
-def test_the_drivers_refuse_other_axes_in_one_line(tmp_path, capsys):
+def test_excite_and_follow_refuse_other_axes_in_one_line(tmp_path, capsys):
     from trajgen.cli import main
 
     f = tmp_path / "head.toml"
     f.write_text(HEAD)
-    assert main(["stream", str(f), "--virtual"]) == 2
-    err = capsys.readouterr().err
-    assert err == (
-        f"trajgen stream: error: {f}: [gimbal] axes = 'zy': 2-axis gimbals: stream, "
-        "virtual-bus, excite and fit need pan-tilt-roll (axes = 'zyx'), not yet; plan, sim, "
-        "sweep and identify take any axes\n"
-    )
+    for command, why in [
+        ("excite", "its multisine excites pan, tilt and roll"),
+        ("follow", "its keyframe lines give pan, tilt, roll"),
+    ]:
+        assert main([command, str(f), "--virtual", "--telemetry", str(tmp_path / "t.csv")]) == 2
+        err = capsys.readouterr().err
+        assert err == (
+            f"trajgen {command}: error: {f}: [gimbal] axes = 'zy', joints = ['yaw', 'pitch']: "
+            f"{command} takes pan-tilt-roll gimbals only so far ({why}); plan, sim, sweep, "
+            "identify and stream take any axes\n"
+        )
 
 
 def test_an_explicit_default_gimbal_is_todays(tmp_path):

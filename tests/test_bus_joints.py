@@ -205,3 +205,71 @@ def test_the_mcap_run_log_names_the_files_joints(tmp_path):
             if channel.topic in (GOAL, PRESENT, PLAN)
         }
     assert names == {("wrist_flex", "wrist_roll")}
+
+
+# -- the command line ----------------------------------------------------------------
+
+
+def _cli(argv) -> int:
+    from trajgen.cli import main
+
+    return main([str(a) for a in argv])
+
+
+def test_stream_virtual_streams_the_pan_tilt_head_on_ids_11_and_12(tmp_path, capsys):
+    import json
+
+    report = tmp_path / "head.json"
+    argv = ["stream", "examples/pan_tilt_head.toml", "--virtual", "--configure"]
+    assert _cli([*argv, "--json", report, "--telemetry", tmp_path / "head.csv"]) == 0
+    out = capsys.readouterr().out
+    assert "pan (servo 11): torque on, holding its goal" in out
+    assert "tilt (servo 12): torque on, holding its goal" in out
+    assert "torque check: OK" in out
+    result = json.loads(report.read_text())
+    assert result["servos"] == {"11": "holding", "12": "holding"}
+    assert list(result["bring_up"]) == ["pan", "tilt"]
+    assert result["bring_up"]["pan"]["operating_mode"] == 4  # the pan turns past 180 deg
+    with open(tmp_path / "head.csv") as f:
+        header = next(csv.reader(f))
+    assert "goal_rad_tilt" in header and not any("roll" in c for c in header)
+
+
+def test_stream_virtual_streams_the_flex_roll_wrist(capsys):
+    assert _cli(["stream", "examples/flex_roll_wrist.toml", "--virtual"]) == 0
+    out = capsys.readouterr().out
+    assert "wrist_flex (servo 14): torque on" in out and "wrist_roll (servo 15)" in out
+    assert "torque check: OK" in out
+
+
+def test_stream_refuses_ids_that_are_not_one_per_joint(capsys):
+    assert _cli(["stream", "examples/pan_tilt_head.toml", "--virtual", "--ids", "1,2,3"]) == 2
+    err = capsys.readouterr().err
+    assert err == "trajgen stream: error: --ids 1,2,3: expected 2 ids, one per joint (pan, tilt)\n"
+
+
+def test_follow_refuses_a_gimbal_that_is_not_pan_tilt_roll(capsys):
+    assert _cli(["follow", "examples/flex_roll_wrist.toml", "--virtual"]) == 2
+    err = capsys.readouterr().err
+    assert "follow takes pan-tilt-roll gimbals only so far" in err
+    assert err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "gimbal",
+    [
+        {},
+        {"servo": "XL330-M288"},
+        {"servo": {"tilt": "XC330-M288"}},
+        {"servo": "XM430-W350", "tilt": {"servo": "XL330-M077"}},
+        {"axes": "yx", "joints": ["flex", "roll"], "roll": {"servo": "XL330-M077"}},
+    ],
+)
+def test_the_bus_expects_the_servos_the_simulator_simulates(gimbal):
+    """The [bus] models default and the simulated gimbal's servos are read from the same
+    keys by the drivers and the simulator (which the drivers may not import)."""
+    sim_model = pytest.importorskip("trajgen.sim.model")
+    tables = {"gimbal": gimbal}
+    simulated = sim_model.gimbal_config_from_tables(tables, "f.toml", any_axes=True)
+    expected = bus_config_from_tables(tables, "f.toml").models
+    assert expected == tuple(s.name for s in simulated.servos)

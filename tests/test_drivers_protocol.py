@@ -235,7 +235,8 @@ def test_joint_map_rejects_bad_input():
         JointMap(directions=(1, 2, 1))
     with pytest.raises(ValueError, match="one non-zero length, got 2, 3, 2"):
         JointMap(ids=(1, 2), directions=(1, 1, 1))
-    assert JointMap(ids=(11, 12)).zeros == (2048, 2048)  # two joints on any ids
+    two = JointMap(ids=(11, 12))  # directions and zeros default per id
+    assert two.directions == (1, 1) and two.zeros == (2048, 2048)
     with pytest.raises(TypeError, match=r"Expected `ids\[0\]` to be an integer, got 1.0"):
         JointMap(ids=(1.0, 2, 3))
     with pytest.raises(ValueError, match=r"Expected `q_rad` of shape \(..., 3\), got \(2,\)"):

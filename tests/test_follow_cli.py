@@ -52,14 +52,19 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     def stream_time():
         return seen["follower"].spline.committed if "follower" in seen else -1.0
 
+    ended = threading.Event()
+
     def writer():
         # Lines paced on the stream's own clock, not the wall clock: after a host stall
         # the stream shifts its clock (it never catches up), so wall time runs ahead.
+        # Once the command has returned, the pipe is closed (whatever happened): the
+        # reading thread then sees the end of its input instead of waiting on it.
         with os.fdopen(write_end, "w") as pipe:
             due = 0.5  # the stream is running: lines arrive mid-motion
             for line in lines:
                 while stream_time() < due:
-                    time.sleep(0.005)
+                    if ended.wait(0.005):
+                        return
                 pipe.write(line + "\n")
                 pipe.flush()
                 due = stream_time() + 0.35
@@ -83,8 +88,12 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     # The plan sent as it is (--lead none): the goals on the bus are the frames; the
     # led goals of follow are checked in test_lead_stream.py.
     argv = ["follow", str(keys), "--virtual", "--max-delay", "60", "--json", str(out)]
-    assert main([*argv, "--lead", "none"]) == 0
-    thread.join(timeout=5)
+    try:
+        status = main([*argv, "--lead", "none"])
+    finally:
+        ended.set()
+        thread.join(timeout=5)
+    assert status == 0, out.read_text() if out.exists() else "no report"
     run = json.loads(out.read_text())
     assert run["stream"]["fault"] == "" and "torque" in run
     result = run["follow"]
@@ -406,3 +415,62 @@ def test_capped_lines_reads_a_text_file_alike():
 
     lines = list(capped_lines(io.StringIO("a\n" + "b" * 50 + "\nc"), max_bytes=10))
     assert lines == ["a\n", "b" * 11, "c"]
+
+
+def test_untimed_step_targets_keep_the_files_limits_and_envelope(tmp_path, monkeypatch):
+    """[limits] and the servos' envelope reach the tracker through the CLI: a 30 deg step
+    (that the spline's minimum lead alone would take at about 4 rad/s) and a second
+    target replacing it in mid-motion keep them on every frame streamed; the goals sent
+    are the tracker's frames led as every follow frame is (the model lead)."""
+    import csv
+    import io
+
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.sim.check import envelope_check
+    from trajgen.sim.lead import Leader
+    from trajgen.sim.model import gimbal_config_from_tables
+
+    seen = {}
+    real_follow = Session.follow
+
+    def spy_follow(self, follower, lines, **kwargs):
+        seen["follower"] = follower
+        return real_follow(self, follower, lines, **kwargs)
+
+    monkeypatch.setattr(Session, "follow", spy_follow)
+    limits = (1.0, 8.0, 100.0)  # rad/s, rad/s^2, rad/s^3
+    keys = tmp_path / "limited.toml"
+    keys.write_text(
+        "[limits]\nspeed_rad_s = {}\nacceleration_rad_s2 = {}\njerk_rad_s3 = {}\n\n"
+        "[bus]\nwatchdog_s = 0.5\n\n"
+        "[[keyframes]]\nt = 0.0\npan = 0.0\n\n[[keyframes]]\nt = 0.3\npan = 0.0\n".format(*limits)
+    )
+    monkeypatch.setattr(sys, "stdin", io.StringIO('{"pan": 30}\n{"pan": -10, "tilt": 12}\n'))
+    out, log = tmp_path / "follow.json", tmp_path / "follow.csv"
+    argv = ["follow", str(keys), "--virtual", "--configure", "--max-delay", "60"]
+    assert main([*argv, "--json", str(out), "--telemetry", str(log)]) == 0
+    assert json.loads(out.read_text())["follow"]["accepted"] == 2
+    f = seen["follower"]
+    traj = f.trajectory()
+    speed, accel = np.abs(traj.qd).max(axis=0), np.abs(traj.qdd).max(axis=0)
+    jerk = np.abs(np.diff(traj.qdd, axis=0)).max(axis=0) * RATE_HZ  # mean jerk per frame
+    assert (speed <= limits[0]).all() and (accel <= limits[1]).all()
+    assert (jerk <= limits[2] * (1 + 1e-6)).all()
+    assert speed[0] > 0.5 * limits[0] or accel[0] > 0.5 * limits[1]  # the limits bind
+    kf = load_keyframe_file(keys)
+    within = envelope_check(gimbal_config_from_tables(kf.tables, kf.path))
+    assert within(traj.q, traj.qd, traj.qdd).all()
+    # both targets reached: the second in mid-motion of the first, ending at rest on it
+    np.testing.assert_allclose(np.degrees(traj.q[-1]), [-10, 12, 0], atol=1e-6)
+    np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)
+    # the goals on the bus: the tracker's frames through the same lead as any follow frame
+    with open(log, newline="") as fh:
+        rows = [r for r in csv.DictReader(fh) if r["phase"] == "stream"]
+    joints = ("pan", "tilt", "roll")
+    plan = np.array([[float(r[f"plan_rad_{j}"]) for j in joints] for r in rows])
+    goal = np.array([[float(r[f"goal_rad_{j}"]) for j in joints] for r in rows])
+    np.testing.assert_array_equal(plan, traj.q)
+    leader = Leader(gimbal_config_from_tables(kf.tables, kf.path), "model")
+    led = leader.frames(iter(traj), RATE_HZ, np.array(GimbalKinematics().limits_rad))
+    np.testing.assert_allclose(goal, [f.goal for f in led], atol=1e-12)
+    assert np.abs(goal - plan).max() > 0.005  # led: ahead of the plan while it moves

@@ -169,7 +169,7 @@ CASES = [
         r"--out '.*': is a directory; give a file name",
         "crash",
     ),
-    ("plan --out ''", ["plan", "--out", ""], None, 2, r"--out '': is a directory", "silent"),
+    ("plan --out ''", ["plan", "--out", ""], None, 2, r"--out '': an empty name", "silent"),
     # --- the keyframe file as a file -------------------------------------------
     ("file missing", ["plan", "{tmp}/missing.toml"], None, 2, r"missing.toml: no such file", "ok"),
     (
@@ -365,7 +365,7 @@ CASES = [
         ["plan", "{file}"],
         "[stream]\nrate = 100\n" + KEYS,
         2,
-        r"\[stream\]: unknown key 'rate' \(known: rate_hz, lead\)",
+        r"\[stream\]: unknown key 'rate' \(known: rate_hz, lead, run_in_s\)",
         "ok",
     ),
     (
@@ -1467,6 +1467,47 @@ CASES = [
         2,
         r"\[bus\] watchdog_s: expected",
         "ok",
+    ),
+    (
+        "stream --telemetry '' (said to be a directory before)",
+        ["stream", "--virtual", "--telemetry", ""],
+        None,
+        2,
+        r"^trajgen stream: error: --telemetry '': an empty name; give a file name",
+        "unclear",
+    ),
+    (
+        "stream --telemetry run.NPZ (refused by the writer after bring-up before)",
+        ["stream", "--virtual", "--telemetry", "{tmp}/run.NPZ"],
+        None,
+        2,
+        r"^trajgen stream: error: --telemetry '.*run\.NPZ': write the suffix in lower case "
+        r"\(\.npz\)",
+        "silent",
+    ),
+    (
+        "stream --set-limits a joint twice (the last one won before)",
+        ["stream", "--virtual", "--set-limits", "pan=0:10", "--set-limits", "pan=-5:5"],
+        None,
+        2,
+        r"^trajgen stream: error: --set-limits pan: given twice; give each joint once",
+        "silent",
+    ),
+    (
+        "excite --seconds 1e9 (7 TiB asked for before)",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "1e9"],
+        None,
+        2,
+        r"^trajgen excite: error: --seconds 1e\+09: longer than 600 s, the longest excitation",
+        "crash",
+    ),
+    (
+        "excite --seconds 1e5 (minutes with no word, memory growing, before)",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "1e5"],
+        None,
+        2,
+        r"--seconds 100000: longer than 600 s",
+        "hang",
     ),
     (
         "[limits] a joint table with a string",

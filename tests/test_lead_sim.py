@@ -2,6 +2,7 @@
 against the plan, the old lag comes back without a lead, and the P scale is fitted."""
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,8 @@ from trajgen.sim.check import check_torque, lag_time_s
 from trajgen.sim.lead import lead_params, lead_trajectory
 from trajgen.sim.model import GimbalConfig, gimbal_config_from_tables
 from trajgen.sim.run import goal_ticks_rad, planned_path, step_frames
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_lead_params_are_the_firmware_loops():
@@ -99,3 +102,50 @@ def test_identify_fits_the_p_scale(tmp_path, capsys):
         assert config.joints[j].position_p_gain == 800
         assert config.loop(j).p_divisor == pytest.approx(256.0, rel=0.05)
     assert "p_divisor = " in fitted.read_text()
+
+
+def test_bus_u2d2_pan_goals_are_previewed_inside_the_plans_range():
+    # The XM540 pan's model lead wants a goal past the plan's range on its way into
+    # the reversal; the preview keeps every goal inside and acts only around it.
+    from dataclasses import replace
+
+    from trajgen.lead import led_goals
+    from trajgen.lead_preview import pulse_response
+    from trajgen.sim.check import resolve_source
+    from trajgen.sim.lead import torque_function
+    from trajgen.sim.run import simulation_model
+
+    kf = load_keyframe_file(ROOT / "examples" / "bus_u2d2.toml")
+    config = gimbal_config_from_tables(kf.tables, kf.path)
+    trajectory, _ = resolve_source(kf, config=config)
+    model = simulation_model(config)
+    led, goals, notes = lead_trajectory(trajectory, config, "model", model=model)
+    assert notes == ()
+    pan, b = goals.goal[:, 0], goals.bounds[0]
+    assert goals.wanted[:, 0].max() > b[1] + 0.004  # what the lead asked for
+    assert pan.max() <= b[1] and pan.min() >= b[0]
+    offset = config.joints[0].frictionloss / lead_params(config).kp_nm_rad[0]  # no gravity on pan
+    np.testing.assert_allclose(b[1], trajectory.q[:, 0].max() + offset, atol=1e-12)
+    plain = led_goals(
+        trajectory,
+        "model",
+        replace(lead_params(config, model), inertia_kg_m2=None),
+        torque=torque_function(model),
+    )
+    moved = np.flatnonzero(pan != plain.goal[:, 0])
+    wanted = goals.wanted[:, 0]
+    clipped = np.flatnonzero((wanted > b[1]) | (wanted < b[0]))
+    assert len(moved) > len(clipped) > 0
+    # Only within a settling time of the loop (its windows' reach) of a clip.
+    params = lead_params(config, model)
+    reach = len(
+        pulse_response(
+            params.kp_nm_rad[0],
+            params.kp_nm_rad[0] * params.lag_s[0],
+            params.inertia_kg_m2[0],
+            1.0 / trajectory.rate_hz,
+        )
+    )
+    assert np.abs(moved[:, None] - clipped[None, :]).min(axis=1).max() <= reach
+    assert len(moved) < 0.8 * len(pan)
+    np.testing.assert_array_equal(goals.goal[:, 1:], plain.goal[:, 1:])  # tilt, roll unclipped

@@ -280,3 +280,74 @@ def test_trajgen_sim_takes_a_two_axis_file(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "torque check: OK" in out
     assert "\nyaw   XL330-M288" in out and "\npitch XL330-M288" in out
+
+
+def test_the_timing_fit_retimes_a_two_axis_head(tmp_path):
+    from trajgen.sim.fit import fit_timing
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    result = fit_timing(f)
+    fitted = check_torque(result.path, config=gimbal_config_from_tables(
+        {"gimbal": {"axes": "zy", "joints": ["yaw", "pitch"], "servo": "XL330-M288"}},
+        f,
+        any_axes=True,
+    ))  # fmt: skip
+    assert fitted.ok, fitted.reasons
+    assert list(fitted.joints) == ["yaw", "pitch"]
+    assert result.times[-1] - result.times[0] < 3.0  # faster than the file's 3 s
+
+
+def test_identify_recovers_a_simulated_two_axis_gimbal(tmp_path):
+    pytest.importorskip("mujoco.sysid", exc_type=ImportError)
+    from trajgen.sim.identify import identify, load_telemetry
+
+    names = ("yaw", "pitch")
+    axes = AxisSequence("zy", names)
+    true = (
+        {"armature": 0.05, "frictionloss": 0.04, "damping": 0.05, "position_p_gain": 1000},
+        {"armature": 0.035, "frictionloss": 0.02, "damping": 0.1, "position_p_gain": 640},
+    )
+    plant = GimbalPlant(GimbalConfig(axes=axes, joints=true), initial_rad=[0.0, 0.0])
+    for j in range(2):
+        plant.set_torque_enabled(j, True)
+    rate, seconds = 200.0, 4.0
+    t = np.arange(int(rate * seconds)) / rate
+    window = np.sin(np.pi * t / seconds)[:, None] ** 2
+    goals = window * np.column_stack(
+        [0.4 * np.sin(2 * np.pi * 0.7 * t) + 0.2 * np.sin(2 * np.pi * 2.3 * t),
+         0.3 * np.sin(2 * np.pi * 1.1 * t) + 0.15 * np.sin(2 * np.pi * 3.1 * t)]
+    )  # fmt: skip
+    goals = np.round(goals * 4096 / (2 * np.pi)) * (2 * np.pi) / 4096
+    rows = []
+    for i, goal in enumerate(goals):
+        q, qd, current = plant.read()
+        rows.append([i, t[i], *goal, *q, *qd, *current])
+        plant.set_goal(goal)
+        plant.advance(1.0 / rate)
+    header = ["frame", "t_s"] + [
+        f"{p}_{j}" for p in ("goal_rad", "position_rad", "velocity_rad_s", "current_a")
+        for j in names
+    ]  # fmt: skip
+    log = tmp_path / "log.csv"
+    log.write_text(
+        ",".join(header) + "\n" + "\n".join(",".join(str(float(v)) for v in r) for r in rows)
+    )
+    fit = identify(GimbalConfig(axes=axes), [load_telemetry(log, names)], max_iter=20)
+    assert list(fit.joints) == list(names)
+    for joint, want in zip(fit.joints.values(), true, strict=True):
+        assert joint.values["armature"] == pytest.approx(want["armature"], rel=0.1)
+        assert joint.values["position_p_gain"] == pytest.approx(want["position_p_gain"], rel=0.1)
+    assert fit.config.n_joints == 2 and "[gimbal.pitch]" in fit.toml()
+
+
+def test_trajgen_sweep_takes_a_two_axis_file_by_joint_name(tmp_path, capsys):
+    from trajgen.cli import main
+
+    f = tmp_path / "head.toml"
+    f.write_text(HEAD)
+    args = ["sweep", str(f), "--servo", "pitch=XL330-M288,XM430-W350", "--time-scale", "1"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "servos (yaw/pitch)" in out
+    assert "XL330-M288/XM430-W350" in out and "2 of 2 variants pass" in out

@@ -9,15 +9,18 @@ EXAMPLES = Path(__file__).parents[1] / "examples"
 
 
 @pytest.mark.parametrize(
-    ("name", "joints"),
+    ("name", "joints", "ids"),
     [
-        ("pan_tilt_head.toml", ["pan", "tilt"]),
-        ("flex_roll_wrist.toml", ["wrist_flex", "wrist_roll"]),
-        ("urdf_gimbal.toml", ["pan", "tilt"]),
+        ("pan_tilt_head.toml", ["pan", "tilt"], (11, 12)),
+        ("flex_roll_wrist.toml", ["wrist_flex", "wrist_roll"], (14, 15)),
+        ("urdf_gimbal.toml", ["pan", "tilt"], (1, 2)),
     ],
 )
-def test_a_gimbal_example_plans_and_passes_the_simulator(tmp_path, capsys, name, joints):
+def test_a_gimbal_example_plans_and_passes_the_simulator(tmp_path, capsys, name, joints, ids):
     from trajgen.cli import main
+    from trajgen.jobs import load_checked
+
+    assert load_checked(EXAMPLES / name, any_axes=True).bus.joints.ids == ids
 
     out = tmp_path / "plan.csv"
     assert main(["plan", str(EXAMPLES / name), "--out", str(out)]) == 0

@@ -305,3 +305,31 @@ def test_the_plant_runs_on_the_users_model(tmp_path):
     plant.advance(1.0)
     np.testing.assert_allclose(plant.read()[0], [0.2, 0.1], atol=0.05)
     assert mujoco.MjData(plant._model).qpos.shape == (2,)
+
+
+def test_a_payload_beside_an_own_model_is_refused(tmp_path, capsys):
+    from trajgen.cli import main
+
+    f = _file(tmp_path, _head(tmp_path).name, extra="payload_kg = 0.2")
+    with pytest.raises(KeyframeFileError, match=re.escape(
+        f"{f}: [gimbal] payload_kg: your own model's payload is in its file "
+        "(model = 'head.xml'); leave payload_kg out"
+    )):  # fmt: skip
+        _config(f)
+    f = _file(tmp_path, _head(tmp_path).name)
+    assert main(["sweep", str(f), "--offset-m", "0,0,0.1"]) == 2
+    assert "--offset-m: the payload of your own model" in capsys.readouterr().err
+
+
+def test_fit_refuses_to_write_beside_another_folder_than_the_model_it_names(tmp_path, capsys):
+    from trajgen.cli import main
+
+    f = _file(tmp_path, _head(tmp_path).name)
+    elsewhere = tmp_path / "out"
+    elsewhere.mkdir()
+    assert main(["fit", str(f), "--out", str(elsewhere / "fit.toml")]) == 2
+    assert capsys.readouterr().err == (
+        f"trajgen fit: error: --out {elsewhere / 'fit.toml'}: the file's [gimbal] model = "
+        "'head.xml' is relative to its folder; write the fitted file there\n"
+    )
+    assert not (elsewhere / "fit.toml").exists()

@@ -203,11 +203,89 @@ def test_bad_timing_table(tmp_path, text, match):
         load_keyframe_file(path)
 
 
-def test_follow_refuses_a_fitted_file(tmp_path):
-    """follow splices changes onto the blending spline: it cannot play a time law."""
+FITTED_ANGLES = [(0.0, 0.0, 0.0), (50.0, 20.0, 5.0), (-20.0, -10.0, 0.0), (10.0, 5.0, 0.0)]
+
+
+def _fitted_file(tmp_path, rng, duration=1.2):
+    """A keyframe file with a [timing] table (an uneven law, as `trajgen fit` writes one)."""
+    path_times = [0.0, 1.0, 2.2, 3.0]
+    angles = np.radians(FITTED_ANGLES)
+    base = SmoothSpline(Q.from_pan_tilt_roll(*angles.T), path_times)
+    knots = np.concatenate([np.zeros(6), [0.2, 0.35, 0.5, 0.65, 0.8], np.ones(6)])
+    c = np.concatenate([[0.0], np.sort(rng.uniform(0.02, 0.98, 9)), [1.0]])
+    law = TimeLaw(knots, c, 0.0, duration, 0.0, 3.0)
+    times = RetimedPath(base, law).times
+    text = '[spline]\nmethod = "smooth"\n\n'
+    for t, (pan, tilt, roll) in zip(times.tolist(), FITTED_ANGLES, strict=True):
+        text += f"[[keyframes]]\nt = {t!r}\npan = {pan}\ntilt = {tilt}\nroll = {roll}\n\n"
+    text += (
+        f"[timing]\npath_times = {path_times}\nduration_s = {duration}\n"
+        f"knots = {knots.tolist()}\ncoefficients = {c.tolist()}\n"
+    )
+    path = tmp_path / "fitted.toml"
+    path.write_text(text)
+    return load_keyframe_file(path)
+
+
+def _arrays(frames):
+    return (np.array([getattr(f, name) for f in frames]) for name in ("t", "q", "qd", "qdd"))
+
+
+def test_follow_plays_a_fitted_file_as_stream_does(tmp_path, rng):
+    from trajgen.follower import Follower, online_spline
+
+    kf = _fitted_file(tmp_path, rng)
+    follower = Follower(online_spline(kf), 200.0)
+    follower.spline.close()  # no change: the whole fitted motion
+    t, q, qd, qdd = _arrays(list(follower.frames()))
+    t0, q0, qd0, qdd0 = _arrays(list(stream_frames(kf.spline(), 200.0)))
+    assert len(t) == len(t0) == 241
+    # The same frames, to rounding (the online clock is t0 + i / rate, the offline one
+    # sample_times': they differ by an ulp; at t_end the online plan holds its rest
+    # exactly, the law's own evaluation leaves ~1e-10 rad/s^2 there).
+    for got, want in ((t, t0), (q, q0), (qd, qd0), (qdd, qdd0)):
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+    assert np.abs(qd0).max() > 1.0  # a real motion, not a rest
+
+
+def test_a_retarget_splices_onto_the_fitted_law(tmp_path, rng):
     from trajgen.follower import online_spline
 
-    path = tmp_path / "timed.toml"
-    path.write_text(TIMED.format(t1=0.4))
-    with pytest.raises(ValueError, match=r"\[timing\]: follow cannot splice changes onto a fitted"):
-        online_spline(load_keyframe_file(path))
+    kf = _fitted_file(tmp_path, rng)
+    fitted = kf.spline()
+    spline = online_spline(kf)
+    at, goal = 0.5, Q.from_pan_tilt_roll(0.3, 0.1, 0.0)
+    spline.retarget(goal[None], [1.3], at=at)
+    before = np.linspace(0.0, at, 50)
+    for order in range(3):
+        np.testing.assert_allclose(spline(before, order), fitted(before, order), atol=1e-12)
+    # C2 across `at` (k = 2): the splice matches the law's jet there.
+    for order in range(3):
+        np.testing.assert_allclose(spline(at + 1e-9, order), fitted(at, order), atol=1e-5)
+    assert Q.distance(spline(1.3), goal) < 1e-9
+    np.testing.assert_allclose(spline(1.3, 1), 0.0, atol=1e-9)
+
+
+def test_an_extend_keeps_the_whole_fitted_motion(tmp_path, rng):
+    from trajgen.follower import online_spline
+
+    kf = _fitted_file(tmp_path, rng)
+    fitted = kf.spline()
+    spline = online_spline(kf)
+    goal = Q.from_pan_tilt_roll(0.3, 0.1, 0.0)
+    spline.extend(goal[None], [2.0], at=0.5)
+    during = np.linspace(0.0, fitted.t_end, 80)
+    for order in range(3):  # (at t_end the plan holds the rest exactly, the law to ~1e-10)
+        np.testing.assert_allclose(spline(during, order), fitted(during, order), atol=1e-9)
+    assert Q.distance(spline(2.0), goal) < 1e-9
+    assert np.linalg.norm(spline(1.6, 1)) > 0.1  # then on, from its rest, to the goal
+
+
+def test_from_path_refuses_k3_and_a_bare_object(tmp_path, rng):
+    from trajgen.online import OnlineSpline
+
+    kf = _fitted_file(tmp_path, rng)
+    with pytest.raises(ValueError, match=r"Expected `k` to be an integer in 1\.\.2, got 3"):
+        OnlineSpline.from_path(kf.spline(), k=3)
+    with pytest.raises(TypeError, match="Expected `path` to have times, quats and evaluate"):
+        OnlineSpline.from_path(object())

@@ -187,3 +187,145 @@ def test_follow_lines_without_a_time_go_to_the_tracker():
     assert len(f.keyframes) == 3
     with pytest.raises(ValueError, match=r"stdin: line 6: field 'max_speed': expected"):
         f.feed('{"pan": 3, "max_speed": 0}', 6)
+
+
+def frame_peaks(tr, path, t0, t1, near):
+    """Peak |speed|, |acceleration|, |jerk| (3, 3) of ``path`` at the frames in (t0, t1]."""
+    _, qd, qdd, jerk = tr.joint_motion(path, t0, t1, near)
+    return np.array([np.abs(x).max(axis=0) for x in (qd, qdd, jerk)])
+
+
+@pytest.mark.parametrize("at", [0.1, 5.0])  # in motion, and at rest after the first target
+def test_the_splice_family_is_the_retarget_at_every_lead(at):
+    tr = tracker()
+    tr.set_target(angles=[D(30), D(-10), 0], at=0.0)
+    goal = forward([[D(-20), D(15), 0]])
+    probe = tr.spline.prepare("retarget", goal, [at + 0.4], at=at)
+    coefs, q_a = tr._family(probe.path.pieces[-1].splice, at >= tr.spline.t_end)
+    for h in (0.25, 0.7, 2.0):
+        other = tr.spline.prepare("retarget", goal, [at + h], at=at).path.pieces[-1].splice
+        np.testing.assert_allclose(coefs(np.array([h]))[0], other.coef, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(other.q_a, q_a)
+
+
+def test_a_30_hz_stream_keeps_the_limits_at_every_frame_and_each_change_is_c2():
+    rng = np.random.default_rng(7)
+    tr = tracker()
+    at, changed = 0.0, 0
+    for _ in range(45):
+        target = [rng.uniform(-0.6, 0.6), rng.uniform(-0.4, 0.4), 0.0]
+        before = tr.spline.snapshot()[1]
+        r = tr.set_target(angles=target, at=at)
+        if r.changed:
+            changed += 1
+            after = tr.spline.snapshot()[1]
+            (q0, w0, a0), (q1, w1, a1) = one_sided(before, after, r.at)
+            np.testing.assert_allclose(q1, q0, atol=1e-12)
+            np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+            np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+            near = tr._unwrapped(after(np.array([r.at]))[0], r.goal)
+            peaks = frame_peaks(tr, after, r.at, r.arrival, near)
+            assert (peaks <= LIMITS).all(), peaks
+            np.testing.assert_allclose(peaks, r.peaks, rtol=1e-6, atol=1e-9)
+        at += 1 / 30
+    assert changed == 45
+
+
+def test_a_reversal_that_no_lead_can_take_now_is_deferred():
+    tr = tracker()
+    tr.set_target(angles=[1.0, 0, 0], at=0.0)  # starts with a jerk at its limit
+    goal = forward([[-1.0, 0, 0]])
+    near = tr._unwrapped(tr.spline(np.array([0.01]))[0], tr.goal)
+    for h in np.geomspace(0.2, 4.0, 25):  # from 0.01, every lead breaks a limit
+        change = tr.spline.prepare("retarget", goal, [0.01 + h], at=0.01)
+        try:
+            tr.kinematics.check(tr.joint_motion(change.path, 0.01, 0.01 + h, near)[0])
+        except KinematicsError:
+            continue
+        assert (frame_peaks(tr, change.path, 0.01, 0.01 + h, near) > LIMITS).any()
+    before = tr.spline.snapshot()[1]
+    r = tr.set_target(angles=[-1.0, 0, 0], at=0.01)
+    assert r.changed and r.at > 0.01 and (r.peaks <= LIMITS).all()
+    (q0, w0, a0), (q1, w1, a1) = one_sided(before, tr.spline.snapshot()[1], r.at)
+    np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+    np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+    # a target asked for before the deferred change starts from it
+    assert tr.set_target(angles=[0.3, 0, 0], at=0.02).at >= r.at
+
+
+def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_limits():
+    """A short version of bench/tracker_stream.py: a face that moves then stands still,
+    reported at 30 Hz with noise, fed to a Follower while its 1 kHz stream runs (each
+    change built in steps between frames): no frame beyond the limits (a change that
+    were not C2 would give an unbounded jerk), and it settles on the last report."""
+    import json
+    import threading
+
+    from trajgen.follower import Follower
+
+    rng = np.random.default_rng(11)
+    t_lines = np.arange(0.1, 1.2, 1 / 30)
+    walk = np.clip((t_lines - 0.1) / 0.6, 0.0, 1.0)  # walks 0.6 s, then stands
+    face = np.array([2.0, 0.0, 0.0]) + np.outer(walk, [0.0, 1.2, -0.4])
+    reports = face + rng.normal(0.0, 0.01, face.shape)
+    spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
+    f = Follower(spline, 1000.0, limits=LIMITS)
+    last, i, errors = None, 0, []
+    for frame in f.frames():
+        if i < len(t_lines) and frame.t >= t_lines[i]:
+            line = json.dumps({"look_at": reports[i].tolist()})
+
+            def feed(line=line, n=i + 1):
+                try:
+                    f.feed(line, n)
+                except ValueError as e:  # pragma: no cover - reported below
+                    errors.append(str(e))
+
+            last = threading.Thread(target=feed)
+            last.start()
+            i += 1
+        if not spline.closed and i == len(t_lines) and not last.is_alive():
+            spline.close()
+    assert errors == [] and len(f.keyframes) >= len(t_lines) - 5
+    traj = f.trajectory()
+    assert (np.abs(traj.qd) <= LIMITS[0]).all() and (np.abs(traj.qdd) <= LIMITS[1]).all()
+    assert (np.abs(np.diff(traj.qdd, axis=0)) * 1000.0 <= LIMITS[2] * (1 + 1e-6)).all()
+    assert np.abs(traj.qd).max() > 0.3  # it moved
+    np.testing.assert_allclose(traj.q[-1], look_at_angles(reports[-1]), atol=RAD_PER_TICK)
+    np.testing.assert_allclose(traj.qd[-1], 0.0, atol=1e-9)
+
+
+def test_a_two_axis_head_points_at_a_point_within_its_limits():
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.quat import rotate
+
+    kin = GimbalKinematics(axes="zy")  # pan-tilt head: look axis x
+    limits = LIMITS[:, :2]
+    tr = Tracker(OnlineSpline(kin.forward([0.0, 0.0]), 0.0, k=2), limits, kinematics=kin)
+    point = np.array([1.0, 1.0, -math.sqrt(2.0)])
+    r = tr.set_target(look_at=point, at=0.0)
+    # hand-worked: pan atan2(1, 1) = 45 deg, tilt atan2(sqrt 2, sqrt 2) = 45 deg (down)
+    np.testing.assert_allclose(np.degrees(r.goal), [45.0, 45.0], atol=1e-12)
+    assert r.peaks.shape == (3, 2) and (r.peaks <= limits).all()
+    q_end = tr.spline(np.array([r.arrival + 0.1]))[0]
+    np.testing.assert_allclose(rotate(q_end, [1.0, 0.0, 0.0]), point / 2.0, atol=1e-12)
+    # a replacement in mid-motion: C2 across it, the limits on its frames
+    before = tr.spline.snapshot()[1]
+    r2 = tr.set_target(look_at=[1.0, -0.5, 0.2], at=0.15)
+    after = tr.spline.snapshot()[1]
+    (q0, w0, a0), (q1, w1, a1) = one_sided(before, after, r2.at)
+    np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+    np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+    near = tr._unwrapped(after(np.array([r2.at]))[0], r2.goal)
+    assert (frame_peaks(tr, after, r2.at, r2.arrival, near) <= limits).all()
+    q_end = tr.spline(np.array([r2.arrival + 0.1]))[0]
+    d = np.array([1.0, -0.5, 0.2])
+    np.testing.assert_allclose(rotate(q_end, [1.0, 0.0, 0.0]), d / np.linalg.norm(d), atol=1e-12)
+
+
+def test_look_at_on_a_three_axis_gimbal_other_than_pan_tilt_roll_is_refused():
+    from trajgen.gimbal import GimbalKinematics
+
+    tr = Tracker(OnlineSpline([1.0, 0, 0, 0]), LIMITS, kinematics=GimbalKinematics(axes="zxy"))
+    with pytest.raises(ValueError, match="`look_at` needs a pan-tilt-roll"):
+        tr.set_target(look_at=[1.0, 0, 0], at=0.0)

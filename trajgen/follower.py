@@ -24,7 +24,7 @@ import numpy as np
 
 from . import fast
 from .errors import KeyframeFileError, KinematicsError
-from .gimbal import GimbalKinematics, forward
+from .gimbal import GimbalKinematics
 from .keyframe_lines import MAX_LINE_BYTES, TRACK, decode_line, parse_line
 from .online import ChangeTooLate, OnlineSpline
 from .path import Steps
@@ -105,6 +105,9 @@ class Follower:
         Per-joint speed, acceleration, jerk bounds for untimed targets (lines with
         neither ``t`` nor ``in``), which a :class:`~trajgen.tracker.Tracker` reaches as
         early as these allow; see there. Default: none.
+    envelope : callable, optional
+        ``envelope(q, qd, qdd) -> bool (N,)``: where the servos can make the motion
+        (e.g. ``trajgen.sim.check.envelope_check``), kept by untimed targets too.
 
     Attributes
     ----------
@@ -134,6 +137,7 @@ class Follower:
         source: str = "stdin",
         on_skip=None,
         limits=None,
+        envelope=None,
     ):
         self.spline = spline
         self.rate_hz = float(rate_hz)
@@ -155,7 +159,9 @@ class Follower:
         #: Why the stream ended early ("" if it did not).
         self.fault = ""
         #: Untimed targets' planner: each such line is a retarget at the earliest arrival.
-        self.tracker = Tracker(spline, limits, kinematics=self.kinematics, rate_hz=rate_hz)
+        self.tracker = Tracker(
+            spline, limits, kinematics=self.kinematics, envelope=envelope, rate_hz=rate_hz
+        )
 
     # -- lines -------------------------------------------------------------
 
@@ -286,6 +292,7 @@ class Follower:
             except ValueError as e:  # KinematicsError: no path keeps the limits
                 raise self._error(where, str(e)) from None
             if result.changed:
+                at = result.at  # later than asked where no arrival from there kept the limits
                 with self._lock:
                     self._pending.append((arrival, at))
                 self.keyframes.append(
@@ -293,7 +300,7 @@ class Follower:
                         "line": number,
                         "mode": TRACK,
                         "t": result.arrival,
-                        "quat": forward(result.goal).tolist(),
+                        "quat": self.kinematics.forward(result.goal).tolist(),
                         "at": at,
                         "now": now,
                         "clamped": result.clamped,
@@ -455,7 +462,10 @@ def load_compiled_kernel() -> bool:
 def online_spline(kf) -> OnlineSpline:
     """The plan of a keyframe file as an OnlineSpline: at rest at its first keyframe,
     extended by the others (the same path as the file's BlendingSpline; a file whose
-    ``[spline] method`` is "smooth" gets the blending spline's defaults).
+    ``[spline] method`` is "smooth" gets the blending spline's defaults). A file
+    fitted by ``trajgen fit`` (a ``[timing]`` table) is played as fitted
+    (:meth:`OnlineSpline.from_path`: its frames are ``trajgen stream``'s until a
+    change; a retarget splices onto it, an extend goes on after its end).
 
     Raises
     ------
@@ -465,10 +475,7 @@ def online_spline(kf) -> OnlineSpline:
         closer than 0.2 s to the first.
     """
     if getattr(kf, "timing", None) is not None:  # a file retimed by `trajgen fit`
-        raise KeyframeFileError(
-            f"{kf.path}: [timing]: follow cannot splice changes onto a fitted time law; "
-            "stream the file with `trajgen stream`, or delete [timing] (then check it again)"
-        )
+        return OnlineSpline.from_path(kf.spline())
     options = dict(kf.spline_options)
     options.pop("knots", None)  # the smooth spline's knot choice; follow plans the blending one
     if options.pop("boundary", "rest") != "rest":

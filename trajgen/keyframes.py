@@ -100,7 +100,7 @@ METHODS = {"smooth": SmoothSpline, "blending": BlendingSpline}
 DEFAULT_METHOD = "smooth"
 #: Keys only the blending spline takes; a file giving one without ``method`` gets it.
 BLENDING_ONLY = ("k", "local", "reparam")
-STREAM_KEYS = ("rate_hz", "lead")
+STREAM_KEYS = ("rate_hz", "lead", "run_in_s")
 KEYFRAME_KEYS = ("t", "pan", "tilt", "roll", "quat")
 #: Keyframe angle fields (degrees), one per gimbal joint.
 ANGLE_KEYS = JOINT_NAMES
@@ -151,6 +151,9 @@ class KeyframeFile:
         ``[spline] method``.
     lead : str or None
         The ``[stream] lead`` (``trajgen.lead.LEADS``), if given.
+    run_in_s : float or None
+        The ``[stream] run_in_s`` (s), if given: :meth:`spline` plays the path from
+        rest and back to rest, each ramp this long (:mod:`trajgen.run_in`).
     """
 
     path: Path
@@ -168,6 +171,7 @@ class KeyframeFile:
     #: ``[gimbal] axes`` and ``joints`` (:mod:`trajgen.keyframe_axes`); ``quats`` are
     #: the orientations this gimbal has at the keyframes.
     axes: AxisSequence = field(default_factory=AxisSequence)
+    run_in_s: float | None = None
 
     @property
     def spline_class(self) -> type[SmoothSpline] | type[BlendingSpline]:
@@ -203,6 +207,13 @@ class KeyframeFile:
                 raise KeyframeFileError(f"{self.path}: {e}") from None
             if self.timing is not None:
                 built = RetimedPath(built, self.timing[1])
+            if self.run_in_s is not None:
+                from .run_in import run_in
+
+                try:
+                    built = run_in(built, self.run_in_s)
+                except ValueError as e:
+                    raise KeyframeFileError(f"{self.path}: [stream] run_in_s: {e}") from None
             object.__setattr__(self, "_built_spline", built)  # a cache, not a field
         return built
 
@@ -271,6 +282,7 @@ def load_keyframe_file(path) -> KeyframeFile:
         timing=timing,
         lead=lead,
         axes=axes,
+        run_in_s=_stream_run_in(stream, path),
     )
 
 
@@ -500,6 +512,14 @@ def _stream_lead(table, path: Path) -> str | None:
     from .lead import LEADS
 
     return check_choice("lead", table["lead"], LEADS, error=_error(path, "[stream] lead"))
+
+
+def _stream_run_in(table, path: Path) -> float | None:
+    """The ``[stream] run_in_s`` (s, > 0), or None."""
+    if "run_in_s" not in table:
+        return None
+    where = _error(path, "[stream] run_in_s")
+    return check_number("run_in_s", table["run_in_s"], low=0.0, low_open=True, error=where)
 
 
 # --- keyframes -----------------------------------------------------------------------

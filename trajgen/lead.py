@@ -25,6 +25,9 @@ Bounded, because a goal is what moves a servo:
   out, so the last goal is ``q_end`` plus the static gravity term;
 - every goal is clipped to the plan's own range of that joint widened by at
   most the static gravity/friction offset, and to the position limits given;
+  with the joints' inertia (``LeadParams.inertia_kg_m2``) the model lead's goals
+  around a clip are chosen again by the bounded preview
+  (:mod:`trajgen.lead_preview`), inside the same bounds;
 - a joint whose lead is switched off (its plan fails the torque check, where a
   saturated servo only pushes the goal further out) gets the plan.
 
@@ -72,6 +75,10 @@ class LeadParams:
         Coulomb friction (N m).
     enabled : ndarray of bool, shape (n,)
         Joints that get a lead (False: the plan is sent as it is).
+    inertia_kg_m2 : ndarray, shape (n,), optional
+        Each joint's inertia as its loop sees it (kg m^2: reflected rotor plus
+        links). With it, a model lead that a bound clips is corrected by the
+        bounded preview (:func:`preview_goals`); None: clipped goals stay clipped.
     """
 
     kp_nm_rad: np.ndarray
@@ -79,6 +86,7 @@ class LeadParams:
     lag_s: np.ndarray
     frictionloss_nm: np.ndarray
     enabled: np.ndarray
+    inertia_kg_m2: np.ndarray | None = None
 
     def __post_init__(self):
         n = None
@@ -96,6 +104,13 @@ class LeadParams:
             object.__setattr__(self, name, a)
         enabled = np.broadcast_to(np.asarray(self.enabled, dtype=bool), (n,)).copy()
         object.__setattr__(self, "enabled", enabled)
+        if self.inertia_kg_m2 is not None:
+            inertia = np.array(self.inertia_kg_m2, dtype=float).reshape(-1)
+            if len(inertia) != n or not np.all(np.isfinite(inertia)) or inertia.min() <= 0:
+                raise BadArgument(
+                    f"Expected `inertia_kg_m2` to have {n} finite entries > 0, got {inertia}."
+                )
+            object.__setattr__(self, "inertia_kg_m2", inertia)
 
     def without(self, joints) -> LeadParams:
         """These parameters with the lead switched off on ``joints`` (indices)."""
@@ -118,12 +133,16 @@ class LedGoals:
         Frames per joint whose goal the cap, the plan's range or the limits changed.
     bounds : ndarray, shape (n, 2)
         Lowest and highest goal allowed per joint (rad).
+    wanted : ndarray, shape (N, n), optional
+        The goals the lead asked for before the cap, the range and the limits
+        (the ramps applied; rad), for diagnostics such as ``bench/lead_tracking.py``.
     """
 
     goal: np.ndarray
     lead: str
     clipped: np.ndarray
     bounds: np.ndarray
+    wanted: np.ndarray | None = None
 
 
 def check_lead(lead) -> str:
@@ -218,17 +237,28 @@ def _weights(t, t_start, t_end, lag_s) -> tuple[np.ndarray, np.ndarray]:
     return ramp((t[:, None] - t_start) / width), ramp((t_end - t[:, None]) / width)
 
 
+def _band(plan_at_s, static, w_in, w_out, cap, bounds):
+    """Each frame's lowest and highest goal, (N, n) each: the range intersected with
+    the cap around the plan (``plan + w_in static +- w_in w_out cap``)."""
+    centre, half = plan_at_s + w_in * static, w_in * w_out * cap
+    lo = np.clip(centre - half, bounds[:, 0], bounds[:, 1])
+    hi = np.clip(centre + half, bounds[:, 0], bounds[:, 1])
+    return lo, hi
+
+
 def _bound(plan_at_s, lead, static, w_in, w_out, cap, bounds, enabled, q):
     """Apply the cap, the ramps, the range and the enabled mask; return (goal, clipped).
 
     The dynamic lead is ramped in and out; the static gravity term only in (the
     servo holds its start against gravity already; it ends on ``q_end`` + gravity).
+    The cap and the ramps clip ``w_in (w_out lead + static)`` to the band
+    ``w_in (static +- w_out cap)`` (the same as capping the lead, then ramping).
     """
-    capped = np.clip(lead, -cap, cap)
-    unbounded = plan_at_s + w_in * (w_out * capped + static)
-    bounded = np.clip(unbounded, bounds[:, 0], bounds[:, 1])
+    unbounded = plan_at_s + w_in * (w_out * lead + static)
+    lo, hi = _band(plan_at_s, static, w_in, w_out, cap, bounds)
+    bounded = np.clip(unbounded, lo, hi)
     goal = np.where(enabled[None, :], bounded, q)
-    changed = (capped != lead) | (bounded != unbounded)
+    changed = bounded != unbounded
     return goal, (changed & enabled[None, :]).sum(axis=0)
 
 
@@ -276,11 +306,30 @@ def led_goals(
     gravity = None if lead != "model" else torque(q, zero, zero)
     bounds = plan_bounds(q, gravity, params, limits_rad)
     if lead == "none":  # the plan as it is: a plan outside the limits is refused, not clipped
-        return LedGoals(q.copy(), lead, np.zeros(q.shape[1], dtype=int), bounds)
+        return LedGoals(q.copy(), lead, np.zeros(q.shape[1], dtype=int), bounds, q.copy())
     w_in, w_out = _weights(t, t[0], t[-1], params.lag_s)
     cap = lead_cap(qd, params)
+    if lead == "model" and params.inertia_kg_m2 is not None:
+        return _previewed(plan_at_s, raw, static, w_in, w_out, cap, bounds, params, q, period)
     goal, clipped = _bound(plan_at_s, raw, static, w_in, w_out, cap, bounds, params.enabled, q)
-    return LedGoals(goal, lead, clipped, bounds)
+    wanted = np.where(params.enabled[None, :], plan_at_s + w_in * (w_out * raw + static), q)
+    return LedGoals(goal, lead, clipped, bounds, wanted)
+
+
+def _previewed(plan_at_s, lead, static, w_in, w_out, cap, bounds, params, q, period):
+    """The model lead's goals with their clips anticipated (``trajgen.lead_preview``)."""
+    from trajgen.lead_preview import preview_goals
+
+    unbounded = plan_at_s + w_in * (w_out * lead + static)
+    lo, hi = _band(plan_at_s, static, w_in, w_out, cap, bounds)
+    c = params.kp_nm_rad * params.lag_s
+    goal, changed = preview_goals(
+        unbounded, lo, hi, period, params.kp_nm_rad, c, params.inertia_kg_m2
+    )
+    enabled = params.enabled
+    goal = np.where(enabled[None, :], goal, q)
+    wanted = np.where(enabled[None, :], unbounded, q)
+    return LedGoals(goal, "model", np.where(enabled, changed, 0), bounds, wanted)
 
 
 def led_trajectory(trajectory, goals: LedGoals):

@@ -181,6 +181,44 @@ class OnlineSpline:
         self._swap = threading.Lock()  # held briefly: the swap, commit
         self._change = threading.Lock()  # held while a change is built: one at a time
 
+    @classmethod
+    def from_path(cls, path: OrientationPath, *, k=2, min_lead_s=MIN_LEAD_S) -> OnlineSpline:
+        """An online spline that plays ``path`` exactly until a change.
+
+        For a path that is not a blending spline, such as a file fitted by
+        ``trajgen fit`` (a :class:`~trajgen.timelaw.RetimedPath`): up to the first
+        change every evaluation is the path's own. A retarget splices onto it at
+        ``at`` as onto any piece (the splice matches the path's jet to order
+        ``k + 1``); an extend keeps the whole path and goes on from its rest at
+        ``path.t_end`` (the blending spline's locality, which an extend uses
+        otherwise, does not hold for another path).
+
+        Parameters
+        ----------
+        path : OrientationPath
+            At rest at both ends, with keyframe ``times`` and ``quats`` (N, 4).
+        k : int, optional
+            Continuity order kept across every change, 1 or 2 (a splice at
+            ``k = 3`` needs the path's jet to order 4, which only a blending
+            spline gives). Default 2.
+        min_lead_s : float, optional
+            As for :class:`OnlineSpline`.
+
+        Raises
+        ------
+        ValueError, TypeError
+            For a ``k`` outside 1..2, or a path without ``times`` and ``quats``.
+        """
+        k = check_number("k", k, integer=True, low=1, high=2)
+        if not all(hasattr(path, name) for name in ("times", "quats", "evaluate")):
+            raise TypeError(
+                f"Expected `path` to have times, quats and evaluate, got {type(path).__name__}."
+            )
+        q_end = path(np.array([path.t_end]))[0]
+        spline = cls(path(np.array([path.t_start])), path.t_start, k=k, min_lead_s=min_lead_s)
+        spline._plan = Plan((Piece(path.t_start, path, None, q_end),))
+        return spline
+
     # -- what the path is now ------------------------------------------------
 
     @property
@@ -203,6 +241,11 @@ class OnlineSpline:
     def version(self) -> int:
         """Number of changes so far."""
         return self._version
+
+    @property
+    def last_change_at(self) -> float:
+        """Time (s) of the latest change (``t0`` before any): the next may not be earlier."""
+        return self._last_at
 
     @property
     def committed(self) -> float:
@@ -391,6 +434,9 @@ class OnlineSpline:
             )
         if at >= plan.t_end:  # at rest: start from where it rests
             return self._rest_piece(last.q_end, at, q, t)
+        if mode == "extend" and not isinstance(last.spline, (BlendingSpline, type(None))):
+            # A path of from_path: kept whole, then on from its rest.
+            return self._rest_piece(last.q_end, last.t_end, q, t)
         if mode == "extend":
             ahead = int((kt > at).sum())
             if ahead >= 2:  # splice at the second-to-last keyframe: the offline spline

@@ -30,11 +30,14 @@ class Piece:
     ``spline`` is a rest BlendingSpline, ``splice`` a spliced segment that replaces
     its first segment (or, without a spline, leads to ``q_end`` on its own); with
     neither, the piece holds ``q_end`` from ``start``. After ``t_end`` the piece
-    holds ``q_end``.
+    holds ``q_end``. The first piece of :meth:`OnlineSpline.from_path
+    <trajgen.online.OnlineSpline.from_path>` is any path at rest at its ends (with
+    ``times`` and ``quats``, e.g. a fitted file's RetimedPath) in place of the
+    blending spline.
     """
 
     start: float
-    spline: BlendingSpline | None
+    spline: BlendingSpline | OrientationPath | None
     splice: Splice | None
     q_end: np.ndarray  # (4,)
 

@@ -61,11 +61,7 @@ class Splice(OrientationPath):
         u = (t - self.s) * (1.0 / self.h)
         powers = u[:, None] ** np.arange(len(self.coef))  # (M, 2k + 3)
         r = [(powers[:, : len(c)] @ c).T for c in self._derivative_coefs[: max_order + 1]]
-        cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
-        e = [np.concatenate([ca[None], v]) for ca, v in zip(cos_a, D.product(sinc, r), strict=True)]
-        _, rates = rates_of(e)
-        q = D.hamilton(e[0], self.q_a[:, None])
-        return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
+        return exp_rates(r, self.q_a)
 
     def frame(self, t: float) -> tuple[tuple, tuple, tuple]:
         """Orientation, angular velocity (rad/s) and acceleration (rad/s^2) at one time
@@ -113,6 +109,17 @@ class Splice(OrientationPath):
             c = c[1:] * (np.arange(1.0, len(c))[:, None] / self.h)
             out.append(c)
         return out
+
+
+def exp_rates(r: list, q_a: np.ndarray) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Unit quaternions (M, 4) and space-frame rates of orders 1..K (each (M, 3)) of
+    ``exp(r(t)) q_a`` from ``[r, dr/dt, ...]`` (K + 1 arrays (3, M), K <= 3; any
+    ``r`` per sample, e.g. several splices at once) and ``q_a`` (4,)."""
+    cos_a, sinc = D.cos_sinc_sqrt(D.vdot(r, r))
+    e = [np.concatenate([ca[None], v]) for ca, v in zip(cos_a, D.product(sinc, r), strict=True)]
+    _, rates = rates_of(e)
+    q = D.hamilton(e[0], q_a[:, None])
+    return (q / np.sqrt(D.vdot([q], [q])[0])).T, rates
 
 
 def rates_of(derivs: list) -> tuple[np.ndarray, list[np.ndarray]]:

@@ -191,6 +191,8 @@ class RetimedPath(OrientationPath):
     ----------
     times : ndarray, shape (N,)
         Motion times (s) at which the path's keyframes are passed.
+    quats : ndarray, shape (N, 4)
+        The path's keyframes (``path.quats``), passed at ``times``.
     """
 
     def __init__(self, path: OrientationPath, law: TimeLaw):
@@ -204,6 +206,7 @@ class RetimedPath(OrientationPath):
         times = law.inverse(path.times)
         times[0], times[-1] = law.t_start, law.t_end
         self.times = check_times(times, len(path.times))
+        self.quats = np.asarray(path.quats)
 
     def _space_rates(self, t, seg, max_order):
         s = self.law(t, max_order)

@@ -4,13 +4,24 @@ A vision loop reports where to look many times a second, without saying when to 
 there. :class:`Tracker` turns each such target into a retarget of an
 :class:`~trajgen.online.OnlineSpline` at the time ``at`` it is given, arriving at the
 earliest time that keeps per-joint speed, acceleration and jerk limits (and, if given,
-a torque-speed envelope): it bisects on the arrival time, checking each candidate path's
-joint-space peaks on the stream's frame grid. Joint speed and acceleration there are
-exact (:func:`trajgen.gimbal.joint_rates` of the path's closed-form angular rates);
-joint jerk is the central difference of those exact accelerations over +-``JERK_STEP_S``
-(error of order ``JERK_STEP_S^2``, not the stream period). Every change is a retarget,
-so the path stays C^k (the spline's k) across it and a new target replaces the old one in
-mid-motion without a jump.
+a torque-speed envelope). Every change is a retarget, so the path stays C^k (the
+spline's k) across it and a new target replaces the old one in mid-motion without a jump.
+
+The search: the retarget through one keyframe at lead ``h`` is one splice
+``exp(r(u)) q_a``, ``u = (t - at) / h``, whose polynomial ``r`` is known in closed
+form for every ``h`` once one retarget is built (:meth:`Tracker._family`). Candidate
+leads on a geometric grid (``GRID_RATIO``) are checked together, ``GRID_CHUNK`` at a
+time, at ``COARSE_SAMPLES`` points each; between the first that passes and the one
+before it, leads ``ARRIVAL_TOLERANCE`` apart are checked together; the lead chosen is
+built and checked at every frame of the stream (a little later, if a frame between
+the coarse points breaks a limit). The grid is scanned, not bisected: in motion the
+peaks are not monotone in ``h`` (a long lead carries the present speed further before
+turning back). Joint speed and acceleration are exact (:func:`trajgen.gimbal.joint_rates`
+of the path's closed-form angular rates); joint jerk is the central difference of those
+exact accelerations over +-``JERK_STEP_S`` (error of order ``JERK_STEP_S^2``). When no
+lead from ``at`` keeps the limits (in motion the splice starts with the old path's rates
+to order k + 1, e.g. a jerk at its limit), the change is tried again ``DEFER_S`` later,
+and at the old path's end (at rest), the old path being followed meanwhile.
 
 Noise: a target whose joint angles differ from the current goal's by less than the dead
 band (default one encoder tick, :data:`trajgen.servo_table.RAD_PER_TICK`) changes
@@ -19,7 +30,10 @@ nothing. No filter is applied: a target that passes the dead band is planned to 
 Geometry (:mod:`trajgen.gimbal`): orientation ``Rz(pan) Ry(tilt) Rx(roll)``; the camera
 looks along its body x axis, so a point ``p`` in the base frame (m) is looked at with
 ``pan = atan2(p_y, p_x)``, ``tilt = atan2(-p_z, hypot(p_x, p_y))`` (positive tilt looks
-down, towards -z) and roll 0 (horizon level).
+down, towards -z) and roll 0 (horizon level). Any ``GimbalKinematics`` plans (its
+forward and inverse kinematics, exact joint rates, lock and wrapped joints); a two-axis
+head (e.g. ``axes="zy"``) looks at ``p`` with its look axis along it, exactly
+(:func:`trajgen.axes.direction_angles`); the limits are then (3, 2).
 
 Limits: a target outside the joint limits or within the gimbal-lock margin is clamped,
 joint by joint, to the nearest angle inside them (and reported in
@@ -37,8 +51,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import quat as Q
+from .axes import direction_angles
 from .errors import BadArgument, KinematicsError
-from .gimbal import GimbalKinematics, angles_of, forward, joint_rates
+from .gimbal import GimbalKinematics, angles_of
+from .online_splice import exp_rates, hermite_matrix
 from .path import run_steps
 from .servo_table import RAD_PER_TICK
 from .validate import check_number
@@ -60,6 +76,21 @@ TWO_PI = 2.0 * math.pi
 
 #: Via-point counts tried, in order, when the direct path crosses the lock margin.
 VIA_COUNTS = (1, 2, 4, 8)
+
+#: Points ``u = (t - at) / h`` in (0, 1] at which the coarse search samples each candidate
+#: path (the chosen one is then checked at every frame of the stream).
+COARSE_SAMPLES = 24
+
+#: Ratio of neighbouring leads on the coarse search's grid of candidate arrivals.
+GRID_RATIO = 1.25
+
+#: Candidate leads evaluated together (one step of :meth:`Tracker.set_target_steps`).
+GRID_CHUNK = 8
+
+#: Delays (s) after ``at`` at which the change is tried again when no arrival from ``at``
+#: keeps the limits (in motion, the path must start with the old path's rates to order
+#: k + 1, e.g. a jerk at its limit); the old path, which keeps them, is followed meanwhile.
+DEFER_S = (0.02, 0.05, 0.1, 0.2, 0.4, 0.8)
 
 #: How far (rad) inside the lock margin a clamped tilt is put: room for the path between
 #: via points, which cuts a little towards the lock.
@@ -106,7 +137,8 @@ class TargetResult:
     changed : bool
         False when the target was within the dead band of the current goal.
     at : float
-        Time (s) of the change.
+        Time (s) of the change: the one asked, or later where no arrival from it kept
+        the limits (the old path followed until then).
     arrival : float
         Time (s) the path reaches the goal (the current goal's, when unchanged).
     goal : ndarray, shape (3,)
@@ -129,19 +161,19 @@ class TargetResult:
     peaks: np.ndarray | None = None
 
 
-def _as_limits(limits) -> np.ndarray:
-    """Limits as (3, 3): rows speed, acceleration, jerk; columns pan, tilt, roll."""
+def _as_limits(limits, n: int = 3) -> np.ndarray:
+    """Limits as (3, n): rows speed, acceleration, jerk; columns the n joints."""
     if limits is None:
-        return np.full((3, 3), np.inf)
-    if hasattr(limits, "as_array"):  # trajgen.sim.limits.JointLimits
-        limits = limits.as_array()
+        return np.full((3, n), np.inf)
+    if hasattr(limits, "as_array"):  # trajgen.sim.limits.JointLimits: pan, tilt, roll
+        limits = limits.as_array()[:, :n]
     a = np.asarray(limits, dtype=float)
     if a.shape == (3,):
-        a = np.repeat(a[:, None], 3, axis=1)
-    if a.shape != (3, 3) or np.isnan(a).any() or (a <= 0).any():
+        a = np.repeat(a[:, None], n, axis=1)
+    if a.shape != (3, n) or np.isnan(a).any() or (a <= 0).any():
         raise BadArgument(
-            "Expected `limits` to be (3, 3) numbers > 0 (rows speed, acceleration, jerk; "
-            f"columns pan, tilt, roll; inf for none), got {limits!r}."
+            f"Expected `limits` to be (3, {n}) numbers > 0 (rows speed, acceleration, jerk; "
+            f"columns the joints; inf for none), got {limits!r}."
         )
     return a
 
@@ -160,7 +192,8 @@ class Tracker:
         bound per quantity for every joint. A ``trajgen.sim.limits.JointLimits`` (the
         file's ``[limits]``) is taken as is. Default: none (the spline's minimum lead).
     kinematics : GimbalKinematics, optional
-        Joint limits and lock margin.
+        Axes, joint limits and lock margin (default pan-tilt-roll, ``"zyx"``); n joints
+        (2 or 3): ``limits`` is (3, n), angles and goals (n,).
     dead_band_rad : float, optional
         A target whose joint angles all lie within this (rad) of the current goal's
         changes nothing. Default one encoder tick, 2 pi / 4096.
@@ -170,17 +203,19 @@ class Tracker:
         (e.g. a torque-speed envelope check). Every sample must pass.
     rate_hz : float, optional
         Stream rate (Hz): candidate paths are checked at its frame times
-        ``spline.t_start + n / rate_hz``. Default 1000.
+        ``t0 + n / rate_hz``, ``t0`` the spline's ``t_start`` when the tracker is
+        made. Default 1000.
     start : array_like, shape (3,), optional
         Joint angles whose 2 pi branch pan and roll take (default: the spline's start
         in (-pi, pi]).
 
     Notes
     -----
-    Cost: each candidate arrival is one ``OnlineSpline.prepare`` and an evaluation of
-    the candidate on the frame grid (three, for the jerk); a target takes about
-    10-15 candidates. :meth:`set_target_steps` yields between them, for a caller that
-    runs the work in steps between frames.
+    Cost: two ``OnlineSpline.prepare`` (one to learn the family of splices, one of the
+    lead chosen), two or three coarse checks of up to ``GRID_CHUNK`` (or 1 /
+    ``ARRIVAL_TOLERANCE`` times the grid step) candidates at once, and one check on the
+    frame grid; ``bench/tracker_cost.py`` measures it. :meth:`set_target_steps` yields
+    between them, for a caller that runs the work in steps between frames.
     """
 
     def __init__(
@@ -195,11 +230,15 @@ class Tracker:
         start=None,
     ):
         self.spline = spline
-        self.limits = _as_limits(limits)
         self.kinematics = GimbalKinematics() if kinematics is None else kinematics
+        self.limits = _as_limits(limits, self.kinematics.n_joints)
+        #: Joints free modulo 2 pi (pan and roll for pan-tilt-roll).
+        self._wrapped = list(self.kinematics.sequence.wrapped)
         self.dead_band_rad = check_number("dead_band_rad", dead_band_rad, low=0.0)
         self.envelope = envelope
         self.rate_hz = check_number("rate_hz", rate_hz, low=0.0, low_open=True)
+        #: Time (s) of frame 0 of the stream's grid (the spline's start when built).
+        self.frame_base = float(spline.t_start)
         self.goal = None if start is None else np.asarray(start, dtype=float)
         self._sync()
 
@@ -221,7 +260,8 @@ class Tracker:
             Target orientation (w, x, y, z), any norm and sign.
         at : float
             Time (s) of the change (the path up to it is kept), e.g. a little after
-            the frame being streamed.
+            the frame being streamed; the spline's previous change, if that is later
+            (a change deferred, see below).
         angles : array_like, shape (3,), optional
             Target joint angles (pan, tilt, roll) (rad), instead of ``orientation``.
         look_at : array_like, shape (3,), optional
@@ -253,45 +293,220 @@ class Tracker:
         given = [x is not None for x in (orientation, angles, look_at)]
         if sum(given) != 1:
             raise BadArgument("Give exactly one of `orientation`, `angles` or `look_at`.")
-        at = check_number("at", at)
+        at = max(check_number("at", at), self.spline.last_change_at)
         speed = self.limits[0]
         if max_speed is not None:
             speed = np.minimum(speed, check_number("max_speed", max_speed, low=0.0, low_open=True))
         limits = np.vstack([speed, self.limits[1:]])
+        n = self.kinematics.n_joints
         if look_at is not None:
-            raw = look_at_angles(look_at)
+            raw = look_at_angles(look_at)  # checks the point
+            if n == 2:  # the look axis along the point, exactly (trajgen.axes)
+                p = np.asarray(look_at, dtype=float)
+                raw = direction_angles(self.kinematics.sequence.indices, p / np.linalg.norm(p))
+            elif not self.kinematics.is_default:
+                raise BadArgument(
+                    '`look_at` needs a pan-tilt-roll ("zyx") or two-axis gimbal, got axes '
+                    f"{self.kinematics.axes!r}."
+                )
         elif angles is not None:
-            raw = np.array(np.broadcast_to(np.asarray(angles, dtype=float), (3,)))
+            raw = np.array(np.broadcast_to(np.asarray(angles, dtype=float), (n,)))
             if not np.isfinite(raw).all():
                 raise BadArgument(
-                    f"Expected `angles` to be 3 finite numbers (rad), got {angles!r}."
+                    f"Expected `angles` to be {n} finite numbers (rad), got {angles!r}."
                 )
         else:
-            q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")[0]
-            raw = np.array(angles_of(*q, math.atan2, math.hypot))
+            q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")
+            raw = self.kinematics.angles(q)[0]
         if self.spline.version != self._version:
             self._sync()
         goal, clamped = self._clamp(raw)
         if np.max(np.abs(goal - self.goal)) < self.dead_band_rad:
             return TargetResult(False, at, self.arrival, self.goal.copy(), clamped)
-        now_q = self.spline(np.array([at]))[0]
-        now = self._unwrapped(now_q, self.goal)
-        for vias in (0, *VIA_COUNTS):
-            keys = [now + (goal - now) * (i + 1) / (vias + 1) for i in range(vias + 1)]
-            quats = forward(np.array(keys))
-            found = yield from self._earliest(quats, keys, now, at, limits)
-            if found is not None:
-                change, h, peaks = found
-                self.spline.apply(change)
-                self.goal, self.arrival, self._version = goal, at + h, self.spline.version
-                return TargetResult(True, at, at + h, goal.copy(), clamped, vias, peaks)
-        raise KinematicsError(
-            f"no path from {np.degrees(now).round(1).tolist()} deg to "
-            f"{np.degrees(goal).round(1).tolist()} deg keeps the joint limits and the "
-            f"gimbal-lock margin within {MAX_ARRIVAL_S:g} s"
-        )
+        found = yield from self._search(goal, at, limits)
+        if found is None:
+            now = self._unwrapped(self.spline(np.array([at]))[0], self.goal)
+            raise KinematicsError(
+                f"no path from {np.degrees(now).round(1).tolist()} deg to "
+                f"{np.degrees(goal).round(1).tolist()} deg keeps the joint limits and the "
+                f"gimbal-lock margin within {MAX_ARRIVAL_S:g} s"
+            )
+        change, at, h, vias, peaks = found
+        self.spline.apply(change)
+        self.goal, self.arrival, self._version = goal, at + h, self.spline.version
+        return TargetResult(True, at, at + h, goal.copy(), clamped, vias, peaks)
 
     # -- the search ------------------------------------------------------------
+
+    def _search(self, goal, at, limits):
+        """``(change, at, h, vias, peaks)`` of the earliest arrival ``at + h`` at ``goal``
+        (3,) from ``at``, or from a time after it where none from ``at`` keeps the limits
+        (``DEFER_S``, and the old path's end, where it rests); None if there is none."""
+        t_end = float(self.spline.t_end)
+        tries = [at, *(at + d for d in DEFER_S if at + d < t_end)]
+        if t_end > at:
+            tries.append(t_end)
+        for a in tries:
+            now = self._unwrapped(self.spline(np.array([a]))[0], self.goal)
+            found, blocked = yield from self._direct(goal, now, a, limits)
+            if found is not None:
+                return (found[0], a, found[1], 0, found[2])
+            if blocked and a >= t_end:  # from rest, straight through the lock: go round
+                for vias in VIA_COUNTS:
+                    keys = [now + (goal - now) * (i + 1) / (vias + 1) for i in range(vias + 1)]
+                    quats = self.kinematics.forward(np.array(keys))
+                    found = yield from self._earliest(quats, keys, now, a, limits)
+                    if found is not None:
+                        return (found[0], a, found[1], vias, found[2])
+        return None
+
+    def _direct(self, goal, now, at, limits):
+        """The earliest lead ``h`` (s) of the direct path from ``now`` (3,) at ``at`` to
+        ``goal``: a coarse search (:meth:`_coarse`, every candidate of a chunk of a
+        geometric grid of leads at once, then bisection to ``ARRIVAL_TOLERANCE``), then
+        the check at every frame of the one chosen (a little later, if a frame between
+        the coarse samples breaks a limit). Returns ``((change, h, peaks) or None,
+        blocked)``, ``blocked`` True if a candidate kept the limits but not the lock
+        margin or the joint limits."""
+        quats = self.kinematics.forward(goal[None])
+        lo = self.spline.min_lead_s
+        rest = at >= self.spline.t_end
+        if rest:  # a rest-to-rest move: a lower bound on its lead
+            d = np.abs(goal - now)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                guess = np.nanmax(
+                    [d / limits[0], 2 * np.sqrt(d / limits[1]), 2 * np.cbrt(d / limits[2])]
+                )
+            lo = max(lo, float(guess) if np.isfinite(guess) else lo)
+        if lo > MAX_ARRIVAL_S:
+            return None, False
+        probe = yield from self.spline.prepare_steps("retarget", quats, [at + lo], at=at)
+        family = self._family(probe.path.pieces[-1].splice, rest)
+        grid = lo * GRID_RATIO ** np.arange(math.ceil(math.log(MAX_ARRIVAL_S / lo, GRID_RATIO)))
+        good, bad, blocked = None, None, False
+        for i in range(0, len(grid), GRID_CHUNK):
+            yield
+            ok, path_bad, _ = self._coarse(family, grid[i : i + GRID_CHUNK], now, limits)
+            blocked |= bool(path_bad.any())
+            if ok.any():
+                j = i + int(np.argmax(ok))
+                good, bad = grid[j], (grid[j - 1] if j > 0 else None)
+                break
+        if good is None:
+            return None, blocked
+        if bad is not None:  # between the two, all at once, ARRIVAL_TOLERANCE apart
+            n = math.ceil(math.log(good / bad) / math.log1p(ARRIVAL_TOLERANCE))
+            between = bad * (good / bad) ** (np.arange(1, n) / n)
+            yield
+            ok, _, _ = self._coarse(family, between, now, limits)
+            if ok.any():
+                good = between[int(np.argmax(ok))]
+        h = good
+        while h <= good * GRID_RATIO:
+            result = yield from self._verified(family, quats, now, at, h, limits)
+            if not isinstance(result, str):
+                return (result[0], h, result[1]), blocked
+            h *= 1 + ARRIVAL_TOLERANCE
+        return None, blocked
+
+    def _verified(self, family, quats, now, at, h, limits):
+        """The change to ``quats`` at ``at + h``, checked at every frame of the stream:
+        ``(change, peaks)``, or ``"limits"`` / ``"path"`` as :meth:`_attempt`. The
+        frames are evaluated from ``family`` where the change's splice is the family's
+        polynomial at ``h`` (to 1e-12), else as :meth:`_attempt` does."""
+        change = yield from self.spline.prepare_steps("retarget", quats, [at + h], at=at)
+        yield
+        piece = change.path.pieces[-1]
+        coefs, q_a = family
+        if (
+            piece.spline is not None
+            or piece.splice is None
+            or not np.array_equal(piece.splice.q_a, q_a)
+            or not np.allclose(piece.splice.coef, coefs(np.array([h]))[0], rtol=0, atol=1e-12)
+        ):
+            return (yield from self._attempt(quats, now, at, h, limits))
+        base = self.frame_base
+        n0 = math.floor((at - base) * self.rate_hz) + 1
+        n1 = math.floor((at + h - base) * self.rate_hz)
+        u = (base + np.arange(n0, n1 + 1) / self.rate_hz - at) / h
+        ok, path_bad, peaks = self._coarse(family, np.array([h]), now, limits, u=u)
+        if ok[0]:
+            return change, peaks[0]
+        return "path" if path_bad[0] else "limits"
+
+    def _family(self, splice, rest: bool):
+        """``(coefs, q_a)``: ``coefs(hs)`` gives the splice polynomials (H, 2k + 3, 3)
+        (power basis in ``u``, see :mod:`trajgen.online`) of the retargets at leads
+        ``hs`` (H,) that ``splice`` (the retarget at one lead) is one of. From rest the
+        polynomial does not depend on the lead; in motion its low coefficients are
+        ``h^j P_j`` (``P_j`` the old path's Taylor coefficients, j = 0..k + 1) and its top
+        ones solve the rest conditions at ``u = 1`` (``r(1) = R_0``, the goal's log)."""
+        if rest:
+            return (lambda hs: np.broadcast_to(splice.coef, (len(hs), *splice.coef.shape))), (
+                splice.q_a
+            )
+        k = self.spline.k
+        p = splice.coef[: k + 2] / splice.h ** np.arange(k + 2)[:, None]
+        r0 = splice.coef.sum(axis=0)  # r(1)
+        herm = hermite_matrix(k)
+        low_taylor = np.array([[math.comb(i, j) for i in range(k + 2)] for j in range(k + 1)])
+
+        def coefs(hs):
+            low = hs[:, None, None] ** np.arange(k + 2)[None, :, None] * p
+            rhs = -np.einsum("ab,hbi->hai", low_taylor, low)
+            rhs[:, 0] += r0
+            return np.concatenate([low, np.einsum("ab,hbi->hai", herm, rhs)], axis=1)
+
+        return coefs, splice.q_a
+
+    def _coarse(self, family, hs, now, limits, u=None):
+        """Check the direct paths at leads ``hs`` (H,) (s) at ``COARSE_SAMPLES`` points
+        each (or at ``u`` (n,), ``(t - at) / h``): ``(ok, path_bad, peaks)``, ``ok``
+        (H,) True for the first (in the order given) that keeps ``limits``, the
+        envelope, the lock margin and the joint limits; ``path_bad`` (H,) where a
+        candidate kept ``limits`` but not the last two; ``peaks`` (H, 3, 3) the peak
+        |speed|, |acceleration|, |jerk| (rows) per joint."""
+        coefs, q_a = family
+        c = coefs(hs)
+        if u is None:
+            u = np.arange(1, COARSE_SAMPLES + 1) / COARSE_SAMPLES
+        n, m = len(u), len(hs)
+        du = JERK_STEP_S / hs[:, None]
+        uu = np.concatenate([np.broadcast_to(u, (m, n)), u - du, u + du], axis=1)  # (H, 3n)
+        powers = np.empty((*uu.shape, c.shape[1]))
+        powers[..., 0] = 1.0
+        for j in range(1, c.shape[1]):
+            np.multiply(powers[..., j - 1], uu, out=powers[..., j])
+        r = []
+        for _ in range(3):  # r and its first two time derivatives, each (3, H 3n)
+            r.append(np.ascontiguousarray((powers[..., : c.shape[1]] @ c).reshape(-1, 3).T))
+            c = c[:, 1:] * (np.arange(1.0, c.shape[1])[None, :, None] / hs[:, None, None])
+        q, (omega, alpha) = exp_rates(r, q_a)
+        a = self._unwrap_path(q.reshape(m, 3 * n, 4), now)
+        nj = a.shape[-1]
+        seq = self.kinematics.sequence
+        locked = (seq.lock_distance(a) < 1e-9).any(axis=1)  # rates undefined there
+        a[locked] = np.mean(seq.middle_range) * (np.arange(nj) == 1)
+        qd, qdd = self.kinematics.joint_rates(a.reshape(-1, nj), omega, alpha)
+        qd, qdd = qd.reshape(m, 3 * n, nj), qdd.reshape(m, 3 * n, nj)
+        jerk = (qdd[:, 2 * n :] - qdd[:, n : 2 * n]) / (2 * JERK_STEP_S)
+        peaks = np.stack(
+            [np.abs(x).max(axis=1) for x in (qd[:, :n], qdd[:, :n], jerk)], axis=1
+        )  # (H, 3, joints)
+        ok, path_bad = np.zeros(m, bool), np.zeros(m, bool)
+        for i in np.flatnonzero((peaks <= limits).all(axis=(1, 2))):
+            if locked[i]:
+                path_bad[i] = True
+                continue
+            try:
+                self.kinematics.check(a[i, :n])
+            except KinematicsError:
+                path_bad[i] = True
+                continue
+            if self.envelope is None or np.all(self.envelope(a[i, :n], qd[i, :n], qdd[i, :n])):
+                ok[i] = True
+                break
+        return ok, path_bad, peaks
 
     def _earliest(self, quats, keys, now, at, limits):
         """Bisect on the arrival lead ``h`` (s) for keyframes ``quats`` at equal steps of
@@ -367,14 +582,14 @@ class Tracker:
         rad/s^2, rad/s^3) of ``path`` at the stream's frame times in ``(t0, t1]``
         (and the first frame after ``t1``); pan and roll on the branch nearest ``near`` (3,)
         (rad) at the first frame."""
-        base = self.spline.t_start
+        base = self.frame_base
         n0 = math.floor((t0 - base) * self.rate_hz) + 1
         n1 = math.ceil((t1 - base) * self.rate_hz) + 1
         t = base + np.arange(n0, n1 + 1) / self.rate_hz
         ts = np.concatenate([t, t - JERK_STEP_S, t + JERK_STEP_S])
         s = path.evaluate(ts, max_order=2)
         q = self._unwrap_path(s.q, near)
-        qd, qdd = joint_rates(q, s.omega, s.alpha)
+        qd, qdd = self.kinematics.joint_rates(q, s.omega, s.alpha)
         m = len(t)
         jerk = (qdd[2 * m :] - qdd[m : 2 * m]) / (2 * JERK_STEP_S)
         return q[:m], qd[:m], qdd[:m], jerk
@@ -382,45 +597,53 @@ class Tracker:
     # -- angles ----------------------------------------------------------------
 
     def _unwrap_path(self, quats, near) -> np.ndarray:
-        """Angles (3m, 3) of three grids of m samples each (frames, frames - step,
-        frames + step): the frames unwrapped sample to sample from the branch nearest
-        ``near`` (3,), the others onto the branch of the frame they are next to."""
-        w, x, y, z = quats.T
-        a = np.stack(angles_of(w, x, y, z, np.arctan2, np.hypot), axis=-1)
-        m = len(a) // 3
-        main = a[:m]
-        main[:, [0, 2]] = np.unwrap(main[:, [0, 2]], axis=0)
-        main[:, [0, 2]] += TWO_PI * np.round((near[[0, 2]] - main[0, [0, 2]]) / TWO_PI)
+        """Angles (..., 3m, n) of three grids of m samples each (frames, frames - step,
+        frames + step) of quaternions (..., 3m, 4) (a leading axis: several paths): the
+        frames unwrapped sample to sample from the branch nearest ``near`` (n,), the
+        others onto the branch of the frame they are next to."""
+        if self.kinematics.is_default:
+            w, x, y, z = np.moveaxis(quats, -1, 0)
+            a = np.stack(angles_of(w, x, y, z, np.arctan2, np.hypot), axis=-1)
+        else:
+            a = self.kinematics.angles(quats.reshape(-1, 4)).reshape(*quats.shape[:-1], -1)
+        m, cols = a.shape[-2] // 3, self._wrapped
+        main = a[..., :m, :]
+        main[..., cols] = np.unwrap(main[..., cols], axis=-2)
+        main[..., cols] += TWO_PI * np.round((near[cols] - main[..., :1, cols]) / TWO_PI)
         for k in (1, 2):
-            side = a[k * m : (k + 1) * m]
-            side[:, [0, 2]] = main[:, [0, 2]] + _wrap(side[:, [0, 2]] - main[:, [0, 2]])
+            side = a[..., k * m : (k + 1) * m, :]
+            side[..., cols] = main[..., cols] + _wrap(side[..., cols] - main[..., cols])
         return a
 
     def _unwrapped(self, q, near) -> np.ndarray:
-        a = np.array(angles_of(*q, math.atan2, math.hypot))
+        """Joint angles (n,) of orientation ``q`` (4,), the wrapped joints on the 2 pi
+        branch nearest ``near`` (n,) (if given)."""
+        a = self.kinematics.angles(np.reshape(q, (1, 4)))[0]
         if near is not None:
-            a[[0, 2]] += 2 * math.pi * np.round((near[[0, 2]] - a[[0, 2]]) / (2 * math.pi))
+            cols = self._wrapped
+            a[cols] += TWO_PI * np.round((near[cols] - a[cols]) / TWO_PI)
         return a
 
     def _clamp(self, raw):
-        """The goal nearest ``raw`` (3,) inside the limits (pan, roll on the 2 pi branch
-        nearest the current goal that fits), and a message if it had to be clamped."""
-        lim = np.array(self.kinematics.limits_rad)
-        lock = math.pi / 2 - self.kinematics.lock_margin_rad
-        lim[1] = np.clip(lim[1], -lock + CLAMP_INSET_RAD, lock - CLAMP_INSET_RAD)
+        """The goal nearest ``raw`` (n,) inside the limits (the wrapped joints on the 2 pi
+        branch nearest the current goal that fits), and a message if it had to be clamped."""
+        kin = self.kinematics
+        lim = np.array(kin.limits_rad)
+        low, high = kin.sequence.locks
+        inset = kin.lock_margin_rad + CLAMP_INSET_RAD
+        lim[1] = np.clip(lim[1], low + inset, high - inset)
         goal = raw.copy()
-        for j in (0, 2):
+        for j in self._wrapped:
             k = np.arange(-3, 4)
-            cands = raw[j] + 2 * math.pi * (np.round((self.goal[j] - raw[j]) / (2 * math.pi)) + k)
+            cands = raw[j] + TWO_PI * (np.round((self.goal[j] - raw[j]) / TWO_PI) + k)
             inside = cands[(cands >= lim[j, 0]) & (cands <= lim[j, 1])]
             pool = inside if len(inside) else cands
             # nearest the current goal; of two as near, the one nearer 0
             goal[j] = pool[np.lexsort((np.abs(pool), np.round(np.abs(pool - self.goal[j]), 9)))[0]]
         clipped = np.clip(goal, lim[:, 0], lim[:, 1])
-        names = ("pan", "tilt", "roll")
         moved = [
-            f"{names[j]} {math.degrees(goal[j]):.1f} -> {math.degrees(clipped[j]):.1f} deg"
-            for j in range(3)
+            f"{name} {math.degrees(goal[j]):.1f} -> {math.degrees(clipped[j]):.1f} deg"
+            for j, name in enumerate(kin.joints)
             if clipped[j] != goal[j]
         ]
         return clipped, ("clamped to the joint limits: " + ", ".join(moved)) if moved else ""

@@ -16,8 +16,8 @@ Servo motion comes from a ``Plant``: one lock guards it, and every plant call
 is made holding it. The bus may carry more servos than the plant has joints
 (``plant_ids`` names the plant's): the others idle behind a first-order plant
 (``drivers.virtual.chain.ChainPlant``), answering and moving as servos do. A
-write of registers the plant does not simulate (it
-raises one of ``unsupported``) is undone and answered with Result Fail. Two clocks:
+write of registers the plant does not simulate (it raises one of
+``unsupported``) is undone and answered with Result Fail. Two clocks:
 
 - real time (``lockstep_dt_s=None``, the default): simulated time is the wall
   clock since ``start``, in whole steps of ``sim_step_s``. A simulation thread

@@ -23,6 +23,7 @@ from trajgen.cli.common import (
     exit_status_text,
     load_checked,
     positive_float,
+    refuse_other_axes,
 )
 
 DESCRIPTION = """\
@@ -44,6 +45,11 @@ limits is bad input (exit status 2), refused before anything moves.
 
 Then: trajgen identify FILE LOG.csv --out FITTED.toml"""
 
+#: The longest excitation (s). Identification needs tens of seconds; the multi-sine is
+#: scaled on a fine grid whose time and memory grow with its length (5,000 s took 55 s
+#: and 2.0 GB here), so a slip of the keyboard (``--seconds 1e5``) is refused up front.
+MAX_SECONDS = 600.0
+
 #: Tracking budget (rad) of the torque report with --virtual: an excitation lags on purpose.
 _NO_TRACKING_BUDGET = math.pi
 
@@ -63,7 +69,7 @@ def register(subparsers) -> None:
         type=positive_float,
         default=8.0,
         metavar="S",
-        help="duration (s), >= 3; default 8",
+        help=f"duration (s), 3 to {MAX_SECONDS:g}; default 8",
     )
     p.add_argument(
         "--amplitude",
@@ -116,12 +122,18 @@ def excitation_file(args) -> ExcitationFile:
     from trajgen.stream import plan_joint_trajectory
 
     stream.check_stream_outputs(args)
-    checked = load_checked(args.file)  # every table of the file
+    checked = load_checked(args.file, any_axes=True)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal
+    refuse_other_axes(kf, "excite", "its multisine excites pan, tilt and roll")
     center = GimbalKinematics().inverse(kf.quats[:1])[0]
     amplitude = (
         DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3
     )
+    if args.seconds > MAX_SECONDS:
+        raise BadInput(
+            f"--seconds {args.seconds:g}: longer than {MAX_SECONDS:g} s, the longest excitation "
+            "(identification needs tens of seconds)"
+        )
     try:
         motion = Multisine(center_rad=center, seconds=args.seconds, amplitude_rad=amplitude)
     except ValueError as e:

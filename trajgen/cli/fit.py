@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    BadInput,
     add_file_argument,
     add_rate_argument,
     bad_input,
@@ -85,6 +87,19 @@ class _Progress:
             self.stream.flush()
 
 
+def _refuse_moved_model(args, model: str) -> None:
+    """Refuse an --out in another folder than the file whose [gimbal] model it names
+    relatively (the fitted file keeps the name, which would no longer lead to it)."""
+    if (
+        Path(args.out).resolve().parent != Path(args.file).resolve().parent
+        and not Path(model).is_absolute()
+    ):
+        raise BadInput(
+            f"--out {args.out}: the file's [gimbal] model = {model!r} is relative to its "
+            "folder; write the fitted file there"
+        )
+
+
 def run_fit(args) -> int:
     """Run ``trajgen fit``; returns the exit status (0 fitted, 1 refused, 2 bad input)."""
     from trajgen.sim.errors import SimError
@@ -93,7 +108,9 @@ def run_fit(args) -> int:
     try:
         check_output_path("--out", args.out, (".toml",), [args.file])
         check_module("fit", "scipy", "scipy")  # HiGHS solves the time law's LPs
-        checked = load_checked(args.file)  # every table, [bus] included
+        checked = load_checked(args.file, any_axes=True)  # every table, [bus] included
+        if checked.gimbal.model is not None:
+            _refuse_moved_model(args, checked.keyframes.tables["gimbal"]["model"])
         result = fit_timing(
             checked.keyframes,
             config=checked.gimbal,

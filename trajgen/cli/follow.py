@@ -13,7 +13,7 @@ import itertools
 import sys
 
 from trajgen.cli import stream as stream_command
-from trajgen.cli.common import exit_status_text, tell
+from trajgen.cli.common import exit_status_text, refuse_other_axes, tell
 from trajgen.follower import CHANGE_MARGIN_S, Follower, load_compiled_kernel, online_spline
 from trajgen.keyframe_lines import capped_lines
 
@@ -24,6 +24,15 @@ runs from JSON lines on stdin, one keyframe per line:
   {{"in": 0.8, "pan": 20, "tilt": 5}}          reach this 0.8 s from now
   {{"t": 12.5, "quat": [1, 0, 0, 0]}}          ... at stream time 12.5 s
   {{"in": 1, "pan": -10, "mode": "extend"}}    after the keyframes still planned
+
+A line with neither "t" nor "in" is an untimed target, reached as early as the
+file's [limits] (speed, acceleration, jerk per joint) and the torque-speed
+envelope of its servos (x [gimbal] torque_margin) allow, from the motion in
+progress; a target within one encoder tick of the current goal changes nothing:
+
+  {{"pan": 20, "tilt": 5}}                    angles (deg), or "quat": [w, x, y, z]
+  {{"look_at": [2.0, 0.5, -0.3]}}             a point to look at (m, base frame)
+  {{"pan": -10, "max_speed": 90}}             this motion's joints at most 90 deg/s
 
 "mode": "retarget" (the default) drops the keyframes still ahead and goes
 through the new one instead; "extend" keeps them and adds the new one after
@@ -95,10 +104,20 @@ def follow(args, lines) -> int:
     made = {}
 
     def make_job(args):
+        from trajgen.sim.check import envelope_check
+        from trajgen.sim.limits import limits_from_tables
+
         job = stream_command.plan(args)
-        made["follower"] = Follower(online_spline(job.source), job.rate_hz, on_skip=_skipped())
+        refuse_other_axes(job.source, "follow", "its keyframe lines give pan, tilt, roll")
+        made["follower"] = Follower(
+            online_spline(job.source),
+            job.rate_hz,
+            on_skip=_skipped(),
+            limits=limits_from_tables(job.source.tables, job.source.path),
+            envelope=envelope_check(job.gimbal),
+        )
         load_compiled_kernel()  # before the stream starts: evaluations then run compiled
-        if job.source.method != "blending":
+        if job.source.method != "blending" and job.source.timing is None:  # fitted: as is
             print(
                 f"trajgen follow: note: {job.source.path}: follow plans with the blending spline "
                 "(changes are spliced onto it), not the file's [spline] method = "

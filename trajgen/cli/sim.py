@@ -32,8 +32,8 @@ from trajgen.cli.common import (
 from trajgen.errors import TrajgenError
 
 DESCRIPTION = """\
-Plan the joint stream of a keyframe file, play it to a simulated pan-tilt-roll
-gimbal of Dynamixel servos (MuJoCo, 1 ms physics; goal positions in whole ticks
+Plan the joint stream of a keyframe file, play it to a simulated gimbal of
+Dynamixel servos (MuJoCo, 1 ms physics; goal positions in whole ticks
 held for one stream period, followed by each servo's own firmware position
 loop) and check torque: the planned torque (inverse dynamics) must stay within
 torque_margin x the rated-voltage torque-speed envelope tau_stall (1 - |w| / w0), no
@@ -41,11 +41,13 @@ simulated step may reach the servo's torque limit, and the tracking error must s
 below the limit (with default gains a servo lags its goal by about speed x
 45 ms, so each goal is sent ahead of the plan: --lead, [stream] lead, default
 model; the error is against the plan, docs/lead.md). The file's [gimbal]
-table picks the servos (servo = "XM430-W350" or servo = {pan = ..., tilt =
-..., roll = ...}), payload_kg, payload_offset_m, torque_margin,
-max_tracking_error_rad and p_divisor; [gimbal.pan], [gimbal.tilt] and
-[gimbal.roll] set armature, frictionloss, damping and position_p_gain per joint
-(trajgen identify fits them).
+table picks the axes and joint names (axes = "zy", joints = [...]; default
+pan-tilt-roll, docs/gimbals.md), the servos (servo = "XM430-W350" for every
+joint), your own MJCF or URDF model (model = "my_gimbal.xml", its hinge joints
+named by joints; docs/simulation.md), payload_kg, payload_offset_m,
+torque_margin, max_tracking_error_rad and p_divisor; [gimbal.<joint>] sets that
+joint's servo, armature, frictionloss, damping and position_p_gain (trajgen
+identify fits them).
 
 Units: keyframe angles in degrees (file), the report in SI units (rad, rad/s,
 N m, s) with the unit in every --json key."""

@@ -20,11 +20,11 @@ import argparse
 import math
 import warnings
 from contextlib import contextmanager
+from pathlib import Path
 
 from trajgen.cli.common import (
     TELEMETRY_SUFFIXES,
     BadInput,
-    Progress,
     add_bus_arguments,
     add_file_argument,
     add_ids_argument,
@@ -39,7 +39,7 @@ from trajgen.cli.common import (
     exit_status_text,
     output_path,
     positive_float,
-    prefix,
+    progress_line,
     tell,
     warn,
     write_json,
@@ -175,6 +175,10 @@ def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=())
     """Refuse ``--telemetry PATH`` up front: writable, a known suffix, not one of
     ``inputs``, and for ``.mcap`` the ``mcap`` extra installed."""
     check_output_path("--telemetry", path, suffixes, inputs)
+    suffix = Path(path or "").suffix
+    if suffix not in suffixes and suffix.lower() in suffixes:
+        # The writers and `trajgen identify` tell the formats apart by the suffix as written.
+        raise BadInput(f"--telemetry {path!r}: write the suffix in lower case ({suffix.lower()})")
     if path and path.lower().endswith(".mcap"):
         check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
 
@@ -203,23 +207,20 @@ def plan(args) -> StreamJob:
         raise BadInput("--plot needs --virtual (it plots the simulated torque report)")
     return planned(
         lambda **options: StreamJob.from_file(
-            args.file, rate_hz=args.rate, say=tell, progress=progress, **options
+            args.file, rate_hz=args.rate, say=tell, progress=progress_line, **options
         ),
         args,
     )
 
 
-def progress(label: str) -> Progress:
-    """The stderr progress line of slow work, ``trajgen <command>: {label} 42%``."""
-    return Progress(f"{prefix()}: {label}")
-
-
 def job_options(args) -> dict:
     """``StreamJob.plan`` keywords from the options of :func:`add_stream_arguments`."""
-    set_limits = {
-        JOINTS.index(joint): (math.radians(low), math.radians(high))
-        for joint, low, high in args.set_limits or ()
-    }
+    set_limits = {}
+    for joint, low, high in args.set_limits or ():
+        j = JOINTS.index(joint)
+        if j in set_limits:
+            raise BadInput(f"--set-limits {joint}: given twice; give each joint once")
+        set_limits[j] = (math.radians(low), math.radians(high))
     return {
         "virtual": bool(args.virtual),
         "port": args.port,
@@ -345,7 +346,7 @@ def report(args, result) -> int:
                 result.exit_status = bad_input(e)
     if result.telemetry:
         try:
-            result.add_to_telemetry(progress(f"adding the report to {result.telemetry}"))
+            result.add_to_telemetry(progress_line(f"adding the report to {result.telemetry}"))
         except OSError as e:
             warn(f"telemetry {result.telemetry}: report not added: {e}")
     return write_report(args.json, result.to_json_dict(), result.exit_status)

@@ -107,7 +107,7 @@ def register(subparsers) -> None:
         type=_servo,
         action="append",
         metavar="JOINT=MODEL[,MODEL...]",
-        help="servo models to try on a joint; repeat per joint",
+        help="servo models to try on a joint (by the file's joint names); repeat per joint",
     )
     p.add_argument(
         "--time-scale",
@@ -163,6 +163,11 @@ def run_sweep(args) -> int:
                 )
             per_joint[joint] = models
         servo_sets = list(itertools.product(*(per_joint[j] for j in base.names)))
+        if base.model is not None and (args.payload_kg or args.offset_m):
+            raise BadInput(
+                f"--{'payload-kg' if args.payload_kg else 'offset-m'}: the payload of your own "
+                f"model ([gimbal] model = {base.model.name!r}) is in that file, not a parameter"
+            )
         payloads = args.payload_kg or [base.payload_kg]
         offsets = args.offset_m or [base.payload_offset_m]
         count = len(payloads) * len(offsets) * len(servo_sets) * len(args.time_scale)
@@ -199,7 +204,7 @@ def run_sweep(args) -> int:
         return EXIT_FAILED
     except OSError as e:  # a Dask scheduler that cannot be reached
         return bad_input(f"--dask {args.dask}: {e}")
-    print(format_results(results))
+    print(format_results(results, base.names))
     try:
         if args.plot:
             from trajgen.sim.sweep_plot import plot_sweep
@@ -229,10 +234,12 @@ def _on_dask(address, sweep, source, variants, base, rate):
         )
 
 
-def format_results(results) -> str:
-    """A table, one row per variant: payload, offset, servos, time scale, verdict, margin."""
+def format_results(results, joints=("pan", "tilt", "roll")) -> str:
+    """A table, one row per variant: payload, offset, servos (one per joint of ``joints``),
+    time scale, verdict, margin."""
+    servos = f"servos ({'/'.join(joints)})"
     lines = [
-        f"{'payload':>8} {'offset (m)':<17} {'servos (pan/tilt/roll)':<34} {'scale':>6} "
+        f"{'payload':>8} {'offset (m)':<17} {servos:<34} {'scale':>6} "
         f"{'time s':>7} {'check':<6} {'worst margin':>13}  failed",
     ]
     for r in results:

@@ -33,19 +33,19 @@ then serves until SIGINT (Ctrl-C) or SIGTERM.
 
 The servos start at rest at 0 rad (tick 2048) with torque off and their
 factory registers, but for the position gains of the file's [gimbal.<joint>]
-tables (the file's [bus] ids and models apply). --ids puts more servos on the
-chain (say 11,12,13,14,15,16 for an arm with a gripper): those that are not the
-gimbal's joints idle as servos do, answering, holding torque and following
-their goals in any Operating Mode they accept (a gripper in Current-based
-Position, mode 5). Real time by
-default: the simulation runs on the wall clock whether packets arrive or not.
---lockstep advances it only with the traffic: one period of the file's
-[stream] rate (200 Hz by default) per packet that writes Goal Position, and
-per poll of the present values with no goal written since the previous one.
+tables (the file's [bus] ids and models apply; any [gimbal] axes, 2 or 3
+joints). --ids puts more servos on the chain (say 11,12,13,14,15,16 for an arm
+with a gripper): those that are not the gimbal's joints idle as servos do,
+answering, holding torque and following their goals in any Operating Mode they
+accept (a gripper in Current-based Position, mode 5). Real time by default: the
+simulation runs on the wall clock whether packets arrive or not. --lockstep
+advances it only with the traffic: one period of the file's [stream] rate (200
+Hz by default) per packet that writes Goal Position, and per poll of the present
+values with no goal written since the previous one.
 
 The gimbal's simulated servos run the firmware's position loop in Position and
-Extended Position Mode with no profile. A write to them that asks for anything else
-(another Operating Mode, a non-zero Profile Velocity or Acceleration) is
+Extended Position Mode with no profile. A write to them that asks for anything
+else (another Operating Mode, a non-zero Profile Velocity or Acceleration) is
 refused with Result Fail, and the reason is printed on stderr.
 
 It serves until stopped, so a signal is how it ends: exit status 128 + the
@@ -142,7 +142,7 @@ def run_virtual_bus(args) -> int:
     from trajgen.sim.plant import GimbalPlant
 
     try:
-        checked = load_checked(args.file, spline=False)
+        checked = load_checked(args.file, spline=False, any_axes=True)
     except TrajgenError as e:
         return bad_input(e)
     kf, config = checked.keyframes, checked.bus

@@ -98,8 +98,8 @@ def load_checked(
         Build a slow spline here (see above); default True.
     any_axes : bool
         Accept a ``[gimbal] axes`` / ``joints`` other than pan-tilt-roll (``plan``,
-        ``sim``, ``sweep``, ``identify`` do so far); otherwise such a file is refused in one line
-        (``trajgen.sim.model.gimbal_config_from_tables``).
+        ``sim``, ``fit``, ``sweep``, ``identify`` do so far); otherwise such a file is
+        refused in one line (``trajgen.sim.model.gimbal_config_from_tables``).
     say, progress : callable, optional
         See :class:`CheckedFile`; default silent.
 

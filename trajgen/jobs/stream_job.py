@@ -140,7 +140,7 @@ class StreamJob:
         """
         from trajgen.jobs.checked_file import check_timing, load_checked
 
-        checked = load_checked(path, say=say, progress=progress)
+        checked = load_checked(path, say=say, progress=progress, any_axes=True)
         kf = checked.keyframes
         rate = kf.stream_rate(rate_hz)
         check_timing(kf, rate)
@@ -220,7 +220,7 @@ class StreamJob:
             restore=config.restore or restore,
         )
         lead = lead or getattr(source, "lead", None) or DEFAULT_LEAD
-        gimbal = gimbal_config_from_tables(source.tables, source.path)
+        gimbal = gimbal_config_from_tables(source.tables, source.path, any_axes=True)
         planned = plan_joint_trajectory(source.spline(), rate_hz, kinematics_of(source))
         # The goals a session will send (it leads them again from where the servos are).
         trajectory, _, notes = lead_trajectory(planned, gimbal, lead)

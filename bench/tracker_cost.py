@@ -1,0 +1,124 @@
+"""What an untimed target costs: CPU per ``Tracker.set_target``, against a timed line.
+
+A 30 Hz vision loop gives the tracker 33 ms per target at most (and the stream
+thread that runs its steps needs most of that for itself). This bench feeds a
+``Tracker`` (per-joint limits 3 rad/s, 20 rad/s^2, 200 rad/s^3, k = 2, 1 kHz
+frame grid) seeded random targets in two regimes:
+
+- ``stream``: a target every 1/30 s, each replacing the last in mid-motion (the
+  vision-loop case: the path must continue from the old one's rates);
+- ``from rest``: a target every 1.5 s, each after the last has arrived.
+
+and prints the CPU time (``time.process_time``) per target, p50 / p99 / max, with
+the candidates it evaluated, how often the change was deferred (no arrival from
+``at`` kept the limits) and the leads chosen. The peer, measured in the same run
+on the same plans, is the timed-keyframe path of ``trajgen follow``: one
+``OnlineSpline.prepare`` of a retarget 0.5 s ahead and the joint-limit /
+lock-margin check ``Follower`` makes on its frames (``GimbalKinematics.inverse``
+of the new path at 1 kHz). Load average printed beside the figures.
+
+Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+
+from trajgen import tracker as tracker_module
+from trajgen.gimbal import GimbalKinematics, forward
+from trajgen.online import OnlineSpline
+from trajgen.path import sample_times
+from trajgen.tracker import Tracker
+
+LIMITS = np.array([[3.0] * 3, [20.0] * 3, [200.0] * 3])  # rad/s, rad/s^2, rad/s^3
+RATE_HZ = 1000.0
+
+
+def counting(tracker):
+    """Count the candidate leads the tracker's coarse search evaluates."""
+    counts = {"candidates": 0}
+    coarse = tracker._coarse
+
+    def wrapped(family, hs, now, limits, u=None):
+        counts["candidates"] += u is None and len(hs)
+        return coarse(family, hs, now, limits, u=u)
+
+    tracker._coarse = wrapped
+    return counts
+
+
+def timed_peer(spline, goal, at, kinematics):
+    """The timed-line change ``follow`` makes: a retarget 0.5 s ahead, checked on frames."""
+    change = spline.prepare("retarget", forward(goal[None]), [at + 0.5], at=at)
+    t = sample_times(at, change.path.t_end, RATE_HZ)[1:]
+    kinematics.inverse(change.path.evaluate(t, max_order=0).q, t)
+
+
+def run(period_s: float, n: int, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    tracker = Tracker(OnlineSpline(forward([0, 0, 0]), 0.0, k=2), LIMITS, rate_hz=RATE_HZ)
+    counts = counting(tracker)
+    kinematics = GimbalKinematics()
+    cost, peer, cands, deferred, leads = [], [], [], 0, []
+    t = 0.0
+    for _ in range(n):
+        goal = np.array([*rng.uniform(-0.6, 0.6, 2), 0.0])
+        c0 = time.process_time()
+        timed_peer(tracker.spline, goal, t, kinematics)
+        c1 = time.process_time()
+        before = counts["candidates"]
+        r = tracker.set_target(angles=goal, at=t)
+        c2 = time.process_time()
+        peer.append(c1 - c0)
+        cost.append(c2 - c1)
+        cands.append(counts["candidates"] - before)
+        deferred += r.at > t
+        leads.append(r.arrival - r.at)
+        assert (r.peaks <= LIMITS).all()
+        t += period_s
+    return {
+        "cost": np.array(cost),
+        "peer": np.array(peer),
+        "cands": np.array(cands),
+        "deferred": deferred,
+        "leads": np.array(leads),
+    }
+
+
+def ms(x) -> str:
+    p50, p99, top = 1e3 * np.median(x), 1e3 * np.percentile(x, 99), 1e3 * x.max()
+    return f"p50 {p50:6.2f}  p99 {p99:6.2f}  max {top:6.2f} ms"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--targets", type=int, default=150, help="targets per regime")
+    parser.add_argument("--seed", type=int, default=1)
+    args = parser.parse_args()
+    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} (1, 5 min)")
+    print(
+        f"coarse search: {tracker_module.COARSE_SAMPLES} samples per candidate, grid ratio "
+        f"{tracker_module.GRID_RATIO}, {tracker_module.GRID_CHUNK} per step"
+    )
+    for name, period in (("stream (30 Hz, in motion)", 1 / 30), ("from rest (1.5 s)", 1.5)):
+        out = run(period, args.targets, args.seed)
+        ratio = np.median(out["cost"]) / np.median(out["peer"])
+        print(f"\n{name}, {args.targets} targets")
+        print(f"  tracker set_target CPU  {ms(out['cost'])}")
+        print(f"  peer: timed retarget    {ms(out['peer'])}")
+        print(f"  ratio (p50 / p50)       {ratio:.2f}x the timed line")
+        print(
+            f"  candidates per target   median {np.median(out['cands']):.0f}, "
+            f"max {out['cands'].max()}; deferred {out['deferred']} of {args.targets}; "
+            f"lead median {np.median(out['leads']):.3f} s"
+        )
+        print(f"  load average {os.getloadavg()[0]:.2f} (1 min)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

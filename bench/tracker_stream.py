@@ -1,0 +1,286 @@
+"""A 60 s, 30 Hz noisy face stream through ``trajgen follow``'s Follower at 1 kHz.
+
+A synthesised face (seeded): it walks between random places in front of the
+camera (1.5-3 m away, +-50 deg across, +-20 deg up and down), each walk 0.5-2 s
+with a smooth (minimum-jerk) profile, then stands still 0.5-3 s; the vision
+pipeline reports its position 30 times a second with 1 cm Gaussian noise
+(``{"look_at": [x, y, z]}`` lines). The lines go to a ``Follower`` (the file's
+per-joint limits 3 rad/s, 20 rad/s^2, 200 rad/s^3 and the torque-speed envelope
+of the default gimbal's servos, ``trajgen.sim.check.envelope_check``) while its
+1 kHz stream runs on the simulated clock: each line is handed over when the
+stream reaches its time, and the change is built in steps between frames, as
+``trajgen follow`` does.
+
+Printed: frames beyond the speed, acceleration, jerk (difference of the
+frames' exact accelerations) or envelope limits, counted on every frame
+streamed (a change that were not C2 would show as an unbounded jerk there); the
+lines taken, dead-banded, deferred; the tracking error (angle between the
+camera's look axis and the direction to the noise-free face) from the earliest
+arrival of the first target on, and while the face stands still; the per-target
+cost. The peer is the same stream without target lines
+(frames beyond limits, CPU per frame).
+
+``--realtime RATE``: also run ``trajgen follow --virtual --rate RATE`` (wall
+clock) twice, the lines written to its stdin at 30 Hz of wall time, and the same
+file without lines (the peer), and print each run's frames sent, rate achieved,
+period error, stalls and worst lateness side by side (the late frames).
+
+Run: .venv/bin/python bench/tracker_stream.py [--seconds 60] [--seed 3] [--realtime 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from trajgen.follower import Follower
+from trajgen.gimbal import forward
+from trajgen.online import OnlineSpline
+from trajgen.quat import rotate
+
+LIMITS = np.array([[3.0] * 3, [20.0] * 3, [200.0] * 3])  # rad/s, rad/s^2, rad/s^3
+RATE_HZ = 1000.0
+LINE_HZ = 30.0
+NOISE_M = 0.01
+
+
+def face_stream(seconds: float, seed: int):
+    """Times (N,) at 30 Hz, true face positions (N, 3) and the noisy reports (N, 3) (m)."""
+    rng = np.random.default_rng(seed)
+
+    def place():
+        d, az, el = rng.uniform(1.5, 3.0), math.radians(rng.uniform(-50, 50)), rng.uniform(-20, 20)
+        el = math.radians(el)
+        return d * np.array(
+            [math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), -math.sin(el)]
+        )
+
+    t = np.arange(0.5, seconds, 1.0 / LINE_HZ)
+    true = np.empty((len(t), 3))
+    here, t0 = place(), 0.0
+    plan = []  # (start, end, from, to) walks, standing between them
+    while t0 < seconds:
+        stand = rng.uniform(0.5, 3.0)
+        walk = rng.uniform(0.5, 2.0)
+        there = place()
+        plan.append((t0 + stand, t0 + stand + walk, here, there))
+        here, t0 = there, t0 + stand + walk
+    for i, x in enumerate(t):
+        pos = plan[0][2]
+        for start, end, a, b in plan:
+            if x < start:
+                break
+            s = min(1.0, (x - start) / (end - start))
+            pos = a + (b - a) * (10 * s**3 - 15 * s**4 + 6 * s**5)
+        true[i] = pos
+    return t, true, true + rng.normal(0.0, NOISE_M, true.shape)
+
+
+def run(seconds: float, seed: int, with_lines: bool, envelope):
+    t_lines, true, noisy = face_stream(seconds, seed)
+    spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
+    f = Follower(spline, RATE_HZ, limits=LIMITS, envelope=envelope)
+    if not with_lines:  # the peer: the same stream length, no targets
+        spline.extend(forward([[0, 0, 0]]), [seconds], at=0.0)
+        t_lines = t_lines[:0]
+    errors, last, i = [], None, 0
+    c0 = time.process_time()
+    for frame in f.frames():
+        if i < len(t_lines) and frame.t >= t_lines[i]:
+            line = json.dumps({"look_at": noisy[i].round(4).tolist()})
+
+            def feed(line=line, n=i + 1):
+                try:
+                    f.feed(line, n)
+                except ValueError as e:
+                    errors.append(str(e))
+
+            last = threading.Thread(target=feed)
+            last.start()
+            i += 1
+        # every line handed over and made (changes are made in order): the plan is complete
+        if not spline.closed and i == len(t_lines) and (last is None or not last.is_alive()):
+            spline.close()
+    cpu = time.process_time() - c0
+    return f, cpu, errors, (t_lines, true, noisy)
+
+
+def beyond(traj, envelope) -> dict:
+    jerk = np.abs(np.diff(traj.qdd, axis=0)) * RATE_HZ
+    out = {
+        "speed": int((np.abs(traj.qd) > LIMITS[0]).any(axis=1).sum()),
+        "acceleration": int((np.abs(traj.qdd) > LIMITS[1]).any(axis=1).sum()),
+        "jerk": int((jerk > LIMITS[2] * (1 + 1e-6)).any(axis=1).sum()),
+        "envelope": int((~envelope(traj.q, traj.qd, traj.qdd)).sum()),
+    }
+    out["peaks"] = [
+        np.abs(traj.qd).max(axis=0).round(3).tolist(),
+        np.abs(traj.qdd).max(axis=0).round(2).tolist(),
+        jerk.max(axis=0).round(1).tolist(),
+    ]
+    return out
+
+
+def tracking(f, face):
+    """Look-axis error (deg) to the noise-free face at every frame from the first target's
+    earliest arrival on, and at the frames where the face has stood still for 0.5 s or
+    more (the plan then settles on the noisy reports: what is left is the noise)."""
+    t_lines, true, _ = face
+    traj = f.trajectory()
+    look = rotate(forward(traj.q), np.array([1.0, 0.0, 0.0]))
+    m = traj.t >= f.keyframes[0]["t"]
+    j = np.clip(np.searchsorted(t_lines, traj.t[m], side="right") - 1, 0, len(t_lines) - 1)
+    d = true[j] / np.linalg.norm(true[j], axis=1)[:, None]
+    err = np.degrees(np.arccos(np.clip((look[m] * d).sum(axis=1), -1.0, 1.0)))
+    still = np.zeros(len(t_lines), bool)
+    window = int(0.5 * LINE_HZ)
+    moved = np.linalg.norm(np.diff(true, axis=0), axis=1) > 1e-9
+    for i in range(window, len(t_lines)):
+        still[i] = not moved[i - window : i].any()
+    return err, err[still[j]]
+
+
+REALTIME_FILE = """[limits]
+speed_rad_s = 3.0
+acceleration_rad_s2 = 20.0
+jerk_rad_s3 = 200.0
+
+[bus]
+watchdog_s = 0.5
+
+[[keyframes]]
+t = 0.0
+pan = 0.0
+
+[[keyframes]]
+t = {end}
+pan = 0.0
+"""
+
+
+def realtime(seconds: float, seed: int, rate_hz: float, with_lines: bool) -> dict:
+    """``trajgen follow --virtual`` on the wall clock, with the face's lines written at
+    30 Hz (or none, the file's plan lasting as long): its JSON report's stream stats."""
+    t_lines, _, noisy = face_stream(seconds, seed)
+    with tempfile.TemporaryDirectory() as tmp:
+        keys, out = Path(tmp) / "keys.toml", Path(tmp) / "out.json"
+        keys.write_text(REALTIME_FILE.format(end=0.3 if with_lines else seconds))
+        command = str(Path(sys.executable).with_name("trajgen"))  # the venv's command
+        argv = [command, "follow", str(keys), "--virtual"]
+        argv += ["--configure", "--rate", f"{rate_hz:g}", "--max-delay", "60", "--json", str(out)]
+        proc = subprocess.Popen(
+            argv, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        )
+        if with_lines:
+            start = time.monotonic() + 2.0  # bring-up first
+            for t, p in zip(t_lines, noisy, strict=True):
+                time.sleep(max(0.0, start + t - time.monotonic()))
+                try:
+                    proc.stdin.write((json.dumps({"look_at": p.round(4).tolist()}) + "\n").encode())
+                    proc.stdin.flush()
+                except BrokenPipeError:  # the stream stopped (its report says why)
+                    break
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
+        err = proc.stderr.read().decode()
+        proc.wait()
+        report = json.loads(out.read_text()) if out.exists() else {}
+    why = report.get("stopped_by") or " ".join(err.strip().splitlines()[-1:])
+    return {
+        "exit": proc.returncode,
+        "stream": report.get("stream", {}),
+        "follow": report.get("follow", {}),
+        "why": why,
+    }
+
+
+def show_realtime(name: str, r: dict) -> None:
+    s = r["stream"]
+
+    def ms(key):
+        v = s.get(key)
+        return "n/a" if v is None else f"{1e3 * v:.2f} ms"
+
+    print(
+        f"  {name}: exit {r['exit']}, frames {s.get('frames_sent', 'n/a')}, achieved "
+        f"{s.get('achieved_rate_hz') or float('nan'):.1f} Hz, period error p50 "
+        f"{ms('period_error_p50_s')} p99 {ms('period_error_p99_s')} "
+        f"max {ms('period_error_max_s')}, stalls {s.get('stalls', 'n/a')} "
+        f"(longest {ms('stall_max_s')}), lateness max {ms('lateness_max_s')}; "
+        f"lines accepted {r['follow'].get('accepted', 0)}{'; ' + r['why'] if r['why'] else ''}"
+    )
+
+
+def pct(x) -> str:
+    if len(x) == 0:
+        return "n/a"
+    return f"p50 {np.median(x):.3f}  p95 {np.percentile(x, 95):.3f}  max {x.max():.3f} deg"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--seed", type=int, default=3)
+    parser.add_argument(
+        "--realtime", type=float, default=None, help="also run trajgen follow --virtual at RATE Hz"
+    )
+    args = parser.parse_args()
+    from trajgen.sim.check import envelope_check
+    from trajgen.sim.model import GimbalConfig
+
+    envelope = envelope_check(GimbalConfig())
+    print(f"load average {os.getloadavg()[0]:.2f} (1 min)")
+    f, cpu, errors, face = run(args.seconds, args.seed, True, envelope)
+    traj = f.trajectory()
+    n_lines = len(face[0])
+    deferred = sum(k["at"] > k["now"] + 0.1 for k in f.keyframes)
+    print(
+        f"targets: {n_lines} lines at {LINE_HZ:g} Hz, {len(f.keyframes)} changed the plan, "
+        f"{n_lines - len(f.keyframes) - len(errors)} within the dead band, {len(errors)} refused"
+        f"{' (' + errors[0] + ')' if errors else ''}; {deferred} started > 0.1 s after the line"
+    )
+    print(f"frames: {len(traj.t)} at {RATE_HZ:g} Hz; beyond the limits: {beyond(traj, envelope)}")
+    err, err_still = tracking(f, face)
+    print(f"tracking error to the noise-free face (look axis), from the first arrival: {pct(err)}")
+    print(f"  ... while the face stands still (0.5 s or more): {pct(err_still)}")
+    print(
+        f"  (reports carry {NOISE_M * 100:g} cm noise, about "
+        f"{math.degrees(NOISE_M / 2.0):.2f} deg at 2 m; a target in the dead band changes nothing)"
+    )
+    costs = np.array(f.change_costs_s)
+    print(
+        f"per target (wall, on the streaming thread's steps): p50 {1e3 * np.median(costs):.2f} "
+        f"p99 {1e3 * np.percentile(costs, 99):.2f} ms; longest step p99 "
+        f"{1e3 * np.percentile(f.change_steps_s, 99):.2f} ms; CPU of the run {cpu:.1f} s"
+    )
+    peer, cpu_peer, _, _ = run(args.seconds, args.seed, False, envelope)
+    ptraj = peer.trajectory()
+    print(
+        f"peer, no targets: {len(ptraj.t)} frames, beyond the limits: "
+        f"{beyond(ptraj, envelope)}; CPU {1e6 * cpu_peer / len(ptraj.t):.1f} us per frame "
+        f"against {1e6 * cpu / len(traj.t):.1f} with targets"
+    )
+    if args.realtime is None:
+        print("late frames in real time: not measured (give --realtime RATE)")
+    else:
+        print(f"real time, trajgen follow --virtual --rate {args.realtime:g}, {args.seconds:g} s:")
+        show_realtime("with the lines", realtime(args.seconds, args.seed, args.realtime, True))
+        show_realtime("peer, no lines", realtime(args.seconds, args.seed, args.realtime, False))
+    print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
