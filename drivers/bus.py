@@ -565,7 +565,7 @@ class ServoBus:
                 if not select.select([port.ser.fileno()], [], [], quiet_s)[0]:
                     return
         except (serial.SerialException, OSError, ValueError, termios.error):
-            pass  # the port failed: the next try says so
+            pass  # the port failed (pyserial lets termios.error through): the next try says so
 
     def _unicast(self, servo_id: int, what: str, call, *args, data_bytes: int = 0):
         """One unicast transaction with retries; returns the SDK call's result tuple.

@@ -39,6 +39,11 @@ from .tracker import Tracker
 #: steps need it.
 CHANGE_MARGIN_S = 0.05
 
+#: Steps (one a frame) an untimed target's change is given before its ``at``: the
+#: tracker's search takes about 8 (prepare, coarse checks, refinement, the chosen
+#: lead's build and frame check); doubled on each new attempt.
+TARGET_STEPS = 12
+
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
 #: how long the streaming thread may wait for the thread that parses the lines.
 SWITCH_INTERVAL_S = 1e-4
@@ -236,6 +241,7 @@ class Follower:
         steps = 2 + 2 * math.ceil((t - now) * self.rate_hz / CHECK_STEP_FRAMES)
         at = max(self.spline.committed, self.spline.t_start)
         at += max(self.margin_s, (steps + 1) / self.rate_hz)
+        at = max(at, self.spline.last_change_at)  # a change may not precede the last
         if t - at < self.spline.min_lead_s:
             raise self._error(
                 where,
@@ -277,9 +283,10 @@ class Follower:
         """An untimed target line's change, in steps: the tracker's search for the earliest
         arrival (each candidate checked against the limits, the lock margin and the joint
         limits on the stream's grid), made at ``margin_s`` or more after the stream."""
-        for _ in range(3):
+        for attempt in range(3):
+            # room for the search's steps, one a frame (more on each attempt)
             at = max(self.spline.committed, self.spline.t_start)
-            at += max(self.margin_s, 4.0 / self.rate_hz)
+            at += max(self.margin_s, (TARGET_STEPS * 2**attempt + 1) / self.rate_hz)
             try:
                 result = yield from self.tracker.set_target_steps(
                     target["quat"],
