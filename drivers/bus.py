@@ -26,6 +26,7 @@ What it adds to them (see docs/dynamixel.md for why):
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import select
@@ -172,11 +173,15 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
             deadline, owed_deadline = now + timeout_ms / 1e3, now + _OWED_WAIT_S
             buffer = bytearray()
             total = expected
+            ready = False  # select said readable
             while True:
                 try:
                     data = os.read(fd, max(expected, total) - len(buffer))
                 except BlockingIOError:
                     data = b""
+                if ready and not data:  # readable, yet nothing: gone (as pyserial says)
+                    raise OSError(errno.EIO, "the port is readable but returns nothing (gone?)")
+                ready = False
                 if data:
                     self.owed = max(0, self.owed - len(data))
                     buffer += data
@@ -189,7 +194,7 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
                 left = (owed_deadline if self.owed else deadline) - time.monotonic()
                 if left <= 0:
                     return (_COMM_RX_CORRUPT if buffer else _COMM_RX_TIMEOUT), b""
-                select.select([fd], [], [], left)
+                ready = bool(select.select([fd], [], [], left)[0])
 
     return _Port(port_name)
 
