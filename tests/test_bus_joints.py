@@ -242,6 +242,20 @@ def test_stream_virtual_streams_the_flex_roll_wrist(capsys):
     assert "torque check: OK" in out
 
 
+def test_set_limits_names_the_files_own_joints(capsys):
+    argv = ["stream", "examples/flex_roll_wrist.toml", "--virtual"]
+    assert _cli([*argv, "--set-limits", "wrist_roll=-170:170"]) == 0
+    out, err = capsys.readouterr()
+    assert "torque check: OK" in out
+    assert "servo 15 (wrist_roll): Min Position Limit 0 -> 114 (EEPROM): --set-limits" in err
+    assert _cli([*argv, "--set-limits", "roll=-170:170"]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        "trajgen stream: error: limits for 'roll': not a joint of this gimbal "
+        "(one of wrist_flex, wrist_roll)\n"
+    )
+
+
 def test_stream_refuses_ids_that_are_not_one_per_joint(capsys):
     assert _cli(["stream", "examples/pan_tilt_head.toml", "--virtual", "--ids", "1,2,3"]) == 2
     err = capsys.readouterr().err

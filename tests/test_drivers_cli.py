@@ -309,9 +309,12 @@ def test_set_limits_bad_values(tmp_path, capsys):
     assert _run(["stream", path, "--virtual", "--set-limits", "tilt=-200:10"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("trajgen: error: --set-limits tilt=-200:10: ticks -228..2162 fall")
+    assert _run(["stream", path, "--virtual", "--set-limits", "yaw=1:2"]) == 2
+    err = capsys.readouterr().err
+    assert "limits for 'yaw': not a joint of this gimbal (one of pan, tilt, roll)" in err
     with pytest.raises(SystemExit):
-        _run(["stream", path, "--virtual", "--set-limits", "yaw=1:2"])
-    assert "expected a joint of pan, tilt, roll, got 'yaw'" in capsys.readouterr().err
+        _run(["stream", path, "--virtual", "--set-limits", "9x=1:2"])
+    assert "expected a joint name, got '9x'" in capsys.readouterr().err
 
 
 def test_fast_sync_read_fallback_is_said_on_stderr(tmp_path, capsys):

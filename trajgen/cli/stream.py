@@ -45,7 +45,6 @@ from trajgen.cli.common import (
     write_json,
 )
 from trajgen.errors import TrajgenError
-from trajgen.gimbal import JOINT_NAMES as JOINTS
 from trajgen.jobs import IdCount, LimitsRefused, NoPort, StreamJob
 
 STREAM_DESCRIPTION = """\
@@ -89,8 +88,8 @@ def _limits(text: str) -> tuple[str, float, float]:
         low, high = (float(v) for v in span.split(":"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected JOINT=MIN:MAX, got {text!r}") from None
-    if joint not in JOINTS:
-        raise argparse.ArgumentTypeError(f"expected a joint of {', '.join(JOINTS)}, got {joint!r}")
+    if not joint.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected a joint name, got {joint!r}")
     if not (math.isfinite(low) and math.isfinite(high) and low < high):
         raise argparse.ArgumentTypeError(f"expected finite MIN < MAX, got {text!r}")
     return joint, low, high
@@ -143,6 +142,7 @@ def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
         action="append",
         metavar="JOINT=MIN:MAX",
         help="write this joint's Min/Max Position Limit (joint degrees) during bring-up; "
+        "JOINT is a name of the file's [gimbal] joints (pan, tilt, roll by default); "
         "without it the installed limits are only read, and a plan leaving them is refused",
     )
     p.add_argument(
@@ -217,10 +217,9 @@ def job_options(args) -> dict:
     """``StreamJob.plan`` keywords from the options of :func:`add_stream_arguments`."""
     set_limits = {}
     for joint, low, high in args.set_limits or ():
-        j = JOINTS.index(joint)
-        if j in set_limits:
+        if joint in set_limits:
             raise BadInput(f"--set-limits {joint}: given twice; give each joint once")
-        set_limits[j] = (math.radians(low), math.radians(high))
+        set_limits[joint] = (math.radians(low), math.radians(high))
     return {
         "virtual": bool(args.virtual),
         "port": args.port,
@@ -302,7 +301,7 @@ def run_plan(args, make_job, stream=None, extra=None) -> int:
             result = job.run(stream=go, stop_signals=signals, report_to_telemetry=False)
         except LimitsRefused as e:
             low, high = (math.degrees(v) for v in e.limits_rad)
-            return bad_input(f"--set-limits {JOINTS[e.joint]}={low:g}:{high:g}: {e.problem}")
+            return bad_input(f"--set-limits {e.name}={low:g}:{high:g}: {e.problem}")
         except (ValueError, TypeError, OSError) as e:  # TrajgenError: re-planning at start
             return bad_input(e)
         if result.outcome.virtual_error is not None:

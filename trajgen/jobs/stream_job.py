@@ -55,15 +55,20 @@ class LimitsRefused(BadArgument):
     ----------
     joint : int
         The joint index.
+    name : str
+        The joint's name (the file's ``[gimbal] joints``).
     limits_rad : tuple of float
         The refused (low, high) joint angles (rad).
     problem : str
         Why (the joint map's message).
     """
 
-    def __init__(self, joint: int, limits_rad: tuple[float, float], problem: str) -> None:
-        super().__init__(f"{JOINT_NAMES[joint]} limits: {problem}")
-        self.joint, self.limits_rad, self.problem = joint, limits_rad, problem
+    def __init__(
+        self, joint: int, limits_rad: tuple[float, float], problem: str, name: str | None = None
+    ) -> None:
+        name = JOINT_NAMES[joint] if name is None else name
+        super().__init__(f"{name} limits: {problem}")
+        self.joint, self.name, self.limits_rad, self.problem = joint, name, limits_rad, problem
 
 
 @dataclass
@@ -185,7 +190,7 @@ class StreamJob:
             Turn on [bus] configure / restore (they stay on where the file sets them).
         **session_options
             ``Session`` keywords: ``on_stop``, ``telemetry``, ``max_delay_s``,
-            ``max_approach_rad``, ``set_limits_rad``.
+            ``max_approach_rad``, ``set_limits_rad`` (keyed by joint index or name).
 
         Raises
         ------
@@ -224,7 +229,11 @@ class StreamJob:
         planned = plan_joint_trajectory(source.spline(), rate_hz, kinematics_of(source))
         # The goals a session will send (it leads them again from where the servos are).
         trajectory, _, notes = lead_trajectory(planned, gimbal, lead)
-        options = session_options
+        options = dict(session_options)
+        if options.get("set_limits_rad"):
+            options["set_limits_rad"] = _limits_by_index(
+                options["set_limits_rad"], config.joint_names
+            )
         return cls(source, config, rate_hz, trajectory, bool(virtual), options, lead, gimbal, notes)
 
     # -- running -----------------------------------------------------------
@@ -268,7 +277,7 @@ class StreamJob:
         except ValueError as e:
             if not limits:
                 raise
-            raise _limits_refused(limits, e) from None
+            raise _limits_refused(limits, e, self.config.joint_names) from None
         return session, plant
 
     def stream(self, session):
@@ -321,14 +330,38 @@ class StreamJob:
         return result
 
 
-def _limits_refused(limits: dict, error: Exception) -> Exception:
-    """The :class:`LimitsRefused` of the joint a Session refused (its message names it),
-    or ``error`` when it names none of ``limits``."""
+def _limits_refused(limits: dict, error: Exception, names: Sequence[str]) -> Exception:
+    """The :class:`LimitsRefused` of the joint a Session refused (its message names it,
+    one of ``names``), or ``error`` when it names none of ``limits``."""
     joint, _, problem = str(error).partition(" limits: ")
-    if joint not in JOINT_NAMES or JOINT_NAMES.index(joint) not in limits:
+    if joint not in names or list(names).index(joint) not in limits:
         return error
-    j = JOINT_NAMES.index(joint)
-    return LimitsRefused(j, tuple(limits[j]), problem)
+    j = list(names).index(joint)
+    return LimitsRefused(j, tuple(limits[j]), problem, joint)
+
+
+def _limits_by_index(limits: dict, names: Sequence[str]) -> dict:
+    """``set_limits_rad`` keyed by joint index, from keys that are indices or joint names.
+
+    Raises
+    ------
+    BadArgument
+        A name that is not one of ``names``, or an index outside them.
+    """
+    by_index = {}
+    for key, value in limits.items():
+        if isinstance(key, str):
+            if key not in names:
+                raise BadArgument(
+                    f"limits for {key!r}: not a joint of this gimbal (one of {', '.join(names)})"
+                )
+            key = list(names).index(key)
+        elif not 0 <= key < len(names):
+            raise BadArgument(f"limits for joint {key}: out of 0..{len(names) - 1}")
+        if key in by_index:
+            raise BadArgument(f"limits for {names[key]}: given twice")
+        by_index[key] = value
+    return by_index
 
 
 @dataclass
