@@ -21,7 +21,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 from trajgen.errors import BadArgument
-from trajgen.gimbal import JOINT_NAMES
 
 #: Exit statuses of a run, as the command line gives them.
 STATUS_OK, STATUS_FAILED, STATUS_BAD_INPUT = 0, 1, 2
@@ -63,10 +62,7 @@ class LimitsRefused(BadArgument):
         Why (the joint map's message).
     """
 
-    def __init__(
-        self, joint: int, limits_rad: tuple[float, float], problem: str, name: str | None = None
-    ) -> None:
-        name = JOINT_NAMES[joint] if name is None else name
+    def __init__(self, joint: int, name: str, limits_rad: tuple[float, float], problem: str):
         super().__init__(f"{name} limits: {problem}")
         self.joint, self.name, self.limits_rad, self.problem = joint, name, limits_rad, problem
 
@@ -337,7 +333,7 @@ def _limits_refused(limits: dict, error: Exception, names: Sequence[str]) -> Exc
     if joint not in names or list(names).index(joint) not in limits:
         return error
     j = list(names).index(joint)
-    return LimitsRefused(j, tuple(limits[j]), problem, joint)
+    return LimitsRefused(j, joint, tuple(limits[j]), problem)
 
 
 def _limits_by_index(limits: dict, names: Sequence[str]) -> dict:
