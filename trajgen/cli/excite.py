@@ -129,6 +129,8 @@ def excitation_file(args) -> ExcitationFile:
     amplitude = (
         DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3
     )
+    if args.amplitude is not None and args.amplitude > 180:
+        raise BadInput(f"--amplitude {args.amplitude:g}: more than 180 deg, half a turn")
     if args.seconds > MAX_SECONDS:
         raise BadInput(
             f"--seconds {args.seconds:g}: longer than {MAX_SECONDS:g} s, the longest excitation "
