@@ -6,6 +6,7 @@ the same flag with one metavar everywhere, no abbreviations, ``--port`` and
 from __future__ import annotations
 
 import collections
+import re
 from pathlib import Path
 
 import pytest
@@ -73,3 +74,21 @@ def test_port_and_virtual_exclude_each_other_in_every_parser():
             ]
             assert {"--port", "--virtual"} in groups
     assert both == 3  # stream, follow, excite
+
+
+def test_every_default_in_help_has_one_of_two_shapes():
+    # "default: the file's [table] key, else V" where a file may set it, "(default V)"
+    # where only the flag does; never a bare "default V" or "; default V".
+    shapes = re.compile(r"default: the file's \[\w+\] \w+|default: |\(default ")
+    for name, command in _commands().items():
+        for action in command._actions:
+            if not action.help:
+                continue
+            text = " ".join(command._get_formatter()._expand_help(action).split())
+            for found in re.finditer(r"\bdefault\b", text):
+                start = max(0, found.start() - 1)
+                assert shapes.match(text, start) or shapes.match(text, found.start()), (
+                    name,
+                    action.option_strings,
+                    text,
+                )

@@ -69,13 +69,13 @@ def register(subparsers) -> None:
         type=positive_float,
         default=8.0,
         metavar="S",
-        help=f"duration (s), 3 to {MAX_SECONDS:g}; default 8",
+        help=f"duration (s), 3 to {MAX_SECONDS:g} (default %(default)g)",
     )
     p.add_argument(
         "--amplitude",
         type=positive_float,
         metavar="DEG",
-        help="largest excursion of every joint (deg); default pan 25, tilt 15, roll 20",
+        help="largest excursion of every joint (deg) (default pan 25, tilt 15, roll 20)",
     )
     p.set_defaults(func=run_excite)
 

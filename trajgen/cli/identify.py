@@ -83,7 +83,7 @@ def register(subparsers) -> None:
         type=float,
         default=0.0,
         metavar="MS",
-        help="time from a goal to its row's present values (ms); default 0",
+        help="time from a goal to its row's present values (ms) (default %(default)g)",
     )
     p.add_argument("--fit-delay", action="store_true", help="fit that delay too")
     p.add_argument(
@@ -96,7 +96,7 @@ def register(subparsers) -> None:
         type=positive_int,
         default=30,
         metavar="N",
-        help="Gauss-Newton iterations (default 30)",
+        help="Gauss-Newton iterations (default %(default)d)",
     )
     p.set_defaults(func=run_identify)
 

@@ -98,21 +98,21 @@ def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
         action="append",
         metavar="JOINT=MIN:MAX",
         help="write this joint's Min/Max Position Limit (joint degrees) during bring-up; "
-        "JOINT is a name of the file's [gimbal] joints (pan, tilt, roll by default); "
+        "JOINT is a name of the file's [gimbal] joints (default: pan, tilt, roll); "
         "without it the installed limits are only read, and a plan leaving them is refused",
     )
     p.add_argument(
         "--configure",
         action="store_true",
         help="let bring-up change EEPROM settings the stream needs (Operating Mode) or is "
-        "advised (Return Delay Time 0); default [bus] configure, else off: it says what it "
-        "would change and refuses where the stream needs it",
+        "advised (Return Delay Time 0); default: the file's [bus] configure, else off: it "
+        "says what it would change and refuses where the stream needs it",
     )
     p.add_argument(
         "--restore",
         action="store_true",
         help="on exit, write back the settings bring-up changed (EEPROM ones need "
-        "--torque-off); default [bus] restore, else off",
+        "--torque-off); default: the file's [bus] restore, else off",
     )
     p.add_argument(
         "--max-approach",
@@ -120,7 +120,7 @@ def add_stream_arguments(p, *, telemetry_required: bool = False) -> None:
         default=45.0,
         metavar="DEG",
         help="refuse to start when a joint is farther than DEG (joint degrees) from the first "
-        "frame (default 45)",
+        "frame (default %(default)g)",
     )
 
 

@@ -74,7 +74,11 @@ def register(subparsers) -> None:
     )
     add_rate_argument(p)
     p.add_argument(
-        "--threads", type=positive_int, default=2, metavar="N", help="rollout threads (default 2)"
+        "--threads",
+        type=positive_int,
+        default=2,
+        metavar="N",
+        help="rollout threads (default %(default)d)",
     )
     p.add_argument(
         "--max-variants",
