@@ -14,9 +14,11 @@ own files.
 
 Peers, in the same run and the same interpreter:
 
-- ``peer``: a two-line ``-c`` script that installs a SIGTERM handler as its
-  first statement (with ``_signal``, as ours does): the window every Python
-  program in this environment has, ``site`` and its ``.pth`` files included;
+- ``peer``: a three-line script file that installs a SIGTERM handler as its
+  first statement (with ``_signal``, as ours does) and then works for 0.3 s
+  (as ``trajgen`` goes on loading: a sleeping peer would leave the poller more
+  of the shared cores and be seen sooner): the window every Python program in
+  this environment has, ``site`` and its ``.pth`` files included;
 - ``peer -S``: the same without ``site``: the interpreter's own floor, so that
   ``peer - peer -S`` is what this environment's ``site`` costs every program
   (an editable install's import hook is there).
@@ -35,12 +37,18 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-PEER = "import _signal; _signal.signal(15, lambda *a: None)\nimport time; time.sleep(0.3)"
+#: The peer script (see above).
+PEER = (
+    "import _signal; _signal.signal(15, lambda *a: None)\n"
+    "import time; end = time.perf_counter() + 0.3\n"
+    "while time.perf_counter() < end: pass"
+)
 INT, TERM = 1 << (signal.SIGINT - 1), 1 << (signal.SIGTERM - 1)
 
 
@@ -95,7 +103,10 @@ def probe(trajgen: Path, n: int, seed: int) -> collections.Counter:
         elif proc.returncode == 130 and len(err.strip().splitlines()) == 1:
             counts["exit 130, one line"] += 1
         else:
-            counts[f"exit {proc.returncode}, {len(err.strip().splitlines())} lines"] += 1
+            lines = err.strip().splitlines()
+            counts[
+                f"exit {proc.returncode}, {len(lines)} lines: {lines[-1][:70] if lines else ''!r}"
+            ] += 1
     return counts
 
 
@@ -128,17 +139,19 @@ def main() -> None:
     pth = sorted(p.name for p in args.venv.glob("lib/python*/site-packages/*.pth"))
     print(f"environment: {args.venv} (.pth files: {', '.join(pth) or 'none'})")
     print(f"load before: {os.getloadavg()}")
+    script = Path(tempfile.mkdtemp()) / "peer.py"
+    script.write_text(PEER + "\n")
     ours, peer, floor = [], [], []
     for _ in range(args.runs):  # interleaved: the same load for all three
         ours.append(times([str(trajgen), "plan", "--out", os.devnull]))
-        peer.append(times([str(python), "-c", PEER]))
-        floor.append(times([str(python), "-S", "-c", PEER]))
+        peer.append(times([str(python), str(script)]))
+        floor.append(times([str(python), "-S", str(script)]))
     ours, peer, floor = np.array(ours), np.array(peer), np.array(floor)
     window, peer_window, floor_window = (a[:, 1] - a[:, 0] for a in (ours, peer, floor))
     for name, values in [
         ("exec -> Python's SIGINT handler (silent kill)", ours[:, 0]),
         ("Python's handler -> our first statement (traceback window)", window),
-        ("  peer: the same for a two-line -c script", peer_window),
+        ("  peer: the same for a three-line script", peer_window),
         ("  peer -S: the same without site (the interpreter's floor)", floor_window),
         ("our first statement -> hand-over to trajgen.cli (one line)", ours[:, 2] - ours[:, 1]),
     ]:
