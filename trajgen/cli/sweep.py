@@ -135,6 +135,8 @@ def run_sweep(args) -> int:
         tell(f"simulation failed: {e}")
         return EXIT_FAILED
     except OSError as e:  # a Dask scheduler that cannot be reached
+        if not args.dask:
+            raise
         return bad_input(f"--dask {args.dask}: {e}")
     print(format_results(results, base.names))
     try:
