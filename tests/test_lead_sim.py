@@ -36,9 +36,11 @@ def test_sim_runs_the_goals_sent_and_judges_the_plan():
     report = check_torque(kf, config=config)
     assert report.lead == "model" and report.ok
     traj, rec = report.trajectory, report.record
-    # The setpoints are the led goals in whole ticks, held per frame ...
+    # The setpoints are the led goals in whole ticks, the lift's first, held per frame ...
     _, frame = step_frames(traj, config.timestep_s)
-    np.testing.assert_array_equal(rec.setpoint, goal_ticks_rad(traj.goal)[frame])
+    sent = np.vstack([traj.lift.goal, traj.goal])
+    np.testing.assert_array_equal(rec.with_lift().setpoint, goal_ticks_rad(sent)[frame])
+    assert len(rec.lift.t) == round(traj.lift.duration_s / config.timestep_s)
     assert np.abs(traj.goal - traj.q).max() > 0.02
     # ... the same goals a stream sends (one function) ...
     sent, _, _ = lead_trajectory(traj, config, "model")
