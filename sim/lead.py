@@ -128,7 +128,14 @@ def moving_ends(trajectory) -> tuple[str, ...]:
 
 
 def live_frames(
-    frames, config: GimbalConfig, lead: str, rate_hz: float, bounds_rad, *, speed_rad_s=None
+    frames,
+    config: GimbalConfig,
+    lead: str,
+    rate_hz: float,
+    bounds_rad,
+    *,
+    speed_rad_s=None,
+    model=None,
 ):
     """Led goals of a live stream (``trajgen follow``), one frame at a time.
 
@@ -145,6 +152,8 @@ def live_frames(
     speed_rad_s : array_like, shape (n,), optional
         The fastest the live plan may move (rad/s), for the lead's cap
         (``trajgen.lead.lead_cap``); default each servo's no-load speed.
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it.
 
     Returns
     -------
@@ -153,7 +162,7 @@ def live_frames(
     from trajgen.lead import LedFrames, lead_cap
     from trajgen.sim.run import simulation_model
 
-    model = simulation_model(config)
+    model = simulation_model(config) if model is None else model
     params = lead_params(config, model)
     if speed_rad_s is None:
         speed_rad_s = [s.no_load_speed_rad_s for s in config.servos]
@@ -218,4 +227,4 @@ class Leader:
 
     def frames(self, frames, rate_hz: float, bounds_rad):
         """A live stream's frames with led goals (:func:`live_frames`)."""
-        return live_frames(frames, self.config, self.lead, rate_hz, bounds_rad)
+        return live_frames(frames, self.config, self.lead, rate_hz, bounds_rad, model=self.model)
