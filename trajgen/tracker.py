@@ -57,6 +57,7 @@ from .gimbal import GimbalKinematics, angles_of
 from .online_splice import exp_rates, hermite_matrix
 from .path import run_steps
 from .servo_table import RAD_PER_TICK
+from .tracker_profile import JointProfile, JointSplice, fastest
 from .validate import check_number
 
 __all__ = ["JERK_STEP_S", "TargetResult", "Tracker", "look_at_angles"]
@@ -91,6 +92,10 @@ GRID_CHUNK = 8
 #: keeps the limits (in motion, the path must start with the old path's rates to order
 #: k + 1, e.g. a jerk at its limit); the old path, which keeps them, is followed meanwhile.
 DEFER_S = (0.02, 0.05, 0.1, 0.2, 0.4, 0.8)
+
+#: Factors on the speed and acceleration limits tried, in order, when a joint motion
+#: keeps the limits but not the envelope (the torque it needs at speed).
+ENVELOPE_SCALES = (1.0, 0.8, 0.64, 0.5, 0.35, 0.25, 0.15)
 
 #: How far (rad) inside the lock margin a clamped tilt is put: room for the path between
 #: via points, which cuts a little towards the lock.
@@ -346,6 +351,10 @@ class Tracker:
         tries = [at, *(at + d for d in DEFER_S if at + d < t_end)]
         if t_end > at:
             tries.append(t_end)
+        if self.spline.k <= 2 and np.isfinite(limits).all():
+            found = yield from self._joint_search(goal, tries, limits)
+            if found != "orientation":
+                return found
         for a in tries:
             now = self._unwrapped(self.spline(np.array([a]))[0], self.goal)
             found, blocked = yield from self._direct(goal, now, a, limits)
@@ -359,6 +368,61 @@ class Tracker:
                     if found is not None:
                         return (found[0], a, found[1], vias, found[2])
         return None
+
+    def _joint_search(self, goal, tries, limits):
+        """``(change, at, h, 0, peaks)`` of each joint's fastest motion to ``goal`` (n,)
+        (:func:`~trajgen.tracker_profile.fastest`) from the first time of ``tries`` where
+        it keeps ``limits`` (the old path's speed and acceleration there may force it
+        past them), the lock margin, the joint limits and the envelope (the speed and
+        acceleration limits scaled by ``ENVELOPE_SCALES`` until it does); None if none
+        does; ``"orientation"`` where the path at a time tried is not the joints' own
+        orientation (a two-axis head after a twist about its look axis): the
+        orientation splices apply."""
+        kin = self.kinematics
+        for a in tries:
+            yield
+            s = self.spline.evaluate(np.array([a]), max_order=2)
+            now = self._unwrapped(s.q[0], self.goal)
+            if abs(float(kin.forward(now) @ s.q[0])) < 1.0 - 1e-12:
+                return "orientation"
+            if kin.sequence.lock_distance(now) <= kin.lock_margin_rad:
+                continue  # no joint rates at the lock; the old path leaves it
+            qd, qdd = kin.joint_rates(now, s.omega[0], s.alpha[0])
+            for scale in ENVELOPE_SCALES:
+                # a hair inside, so that rounding stays within the limits themselves
+                scaled = limits * np.array([[scale], [scale], [1.0]]) * (1.0 - 1e-9)
+                profile = JointProfile(now, qd, qdd, *fastest(now, qd, qdd, goal, scaled), goal)
+                peaks = profile.peaks()
+                if profile.duration > MAX_ARRIVAL_S:
+                    return None
+                if (peaks > limits).any():
+                    break  # the motion in progress cannot stop within them from here
+                yield
+                verdict = self._check_joints(profile, a)
+                if verdict == "path":
+                    break
+                if verdict == "ok":
+                    segment = JointSplice(a, profile, kin.sequence.indices, s.q[0])
+                    change = self.spline.prepare_segment(segment, at=a)
+                    return change, a, profile.duration, 0, peaks
+        return None
+
+    def _check_joints(self, profile, at: float) -> str:
+        """``"ok"``, ``"path"`` (a frame near the lock or past a joint limit) or
+        ``"envelope"`` (a frame the envelope refuses) for the joint motion ``profile``
+        from ``at``, at the stream's frames after ``at`` up to the first after its end."""
+        base = self.frame_base
+        n0 = math.floor((at - base) * self.rate_hz) + 1
+        n1 = math.ceil((at + profile.duration - base) * self.rate_hz) + 1
+        t = base + np.arange(n0, n1 + 1) / self.rate_hz
+        q, qd, qdd, _ = profile.state(t - at)
+        try:
+            self.kinematics.check(q)
+        except KinematicsError:
+            return "path"
+        if self.envelope is not None and not np.all(self.envelope(q, qd, qdd)):
+            return "envelope"
+        return "ok"
 
     def _direct(self, goal, now, at, limits):
         """The earliest lead ``h`` (s) of the direct path from ``now`` (3,) at ``at`` to
