@@ -9,13 +9,16 @@ frame grid) seeded random targets in two regimes:
   vision-loop case: the path must continue from the old one's rates);
 - ``from rest``: a target every 1.5 s, each after the last has arrived.
 
-and prints the CPU time (``time.process_time``) per target, p50 / p99 / max, with
-the candidates it evaluated, how often the change was deferred (no arrival from
-``at`` kept the limits) and the leads chosen. The peer, measured in the same run
-on the same plans, is the timed-keyframe path of ``trajgen follow``: one
-``OnlineSpline.prepare`` of a retarget 0.5 s ahead and the joint-limit /
-lock-margin check ``Follower`` makes on its frames (``GimbalKinematics.inverse``
-of the new path at 1 kHz). Load average printed beside the figures.
+and prints the CPU time (``time.process_time``) per target, p50 / p99 / max, the
+longest single step of ``Tracker.set_target_steps`` (``trajgen follow`` runs one
+step between two frames of its stream, so a step longer than a frame period
+would make a frame late), the steps per target, how often the change was
+deferred (the motion in progress could not keep the limits from ``at``) and the
+arrival leads. The peer, measured in the same run on the same plans, is the
+timed-keyframe path of ``trajgen follow``: one ``OnlineSpline.prepare`` of a
+retarget 0.5 s ahead and the joint-limit / lock-margin check ``Follower`` makes
+on its frames (``GimbalKinematics.inverse`` of the new path at 1 kHz). Load
+average printed beside the figures.
 
 Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1]
 """
@@ -28,7 +31,6 @@ import time
 
 import numpy as np
 
-from trajgen import tracker as tracker_module
 from trajgen.gimbal import GimbalKinematics, forward
 from trajgen.online import OnlineSpline
 from trajgen.path import sample_times
@@ -38,17 +40,17 @@ LIMITS = np.array([[3.0] * 3, [20.0] * 3, [200.0] * 3])  # rad/s, rad/s^2, rad/s
 RATE_HZ = 1000.0
 
 
-def counting(tracker):
-    """Count the candidate leads the tracker's coarse search evaluates."""
-    counts = {"candidates": 0}
-    coarse = tracker._coarse
-
-    def wrapped(family, hs, now, limits, u=None):
-        counts["candidates"] += u is None and len(hs)
-        return coarse(family, hs, now, limits, u=u)
-
-    tracker._coarse = wrapped
-    return counts
+def stepped(steps):
+    """Run a generator of steps to its end: its value, and each step's CPU time (s)."""
+    times = []
+    while True:
+        c0 = time.process_time()
+        try:
+            next(steps)
+        except StopIteration as stop:
+            times.append(time.process_time() - c0)
+            return stop.value, times
+        times.append(time.process_time() - c0)
 
 
 def timed_peer(spline, goal, at, kinematics):
@@ -61,21 +63,20 @@ def timed_peer(spline, goal, at, kinematics):
 def run(period_s: float, n: int, seed: int) -> dict:
     rng = np.random.default_rng(seed)
     tracker = Tracker(OnlineSpline(forward([0, 0, 0]), 0.0, k=2), LIMITS, rate_hz=RATE_HZ)
-    counts = counting(tracker)
     kinematics = GimbalKinematics()
-    cost, peer, cands, deferred, leads = [], [], [], 0, []
+    cost, peer, longest, steps, deferred, leads = [], [], [], [], 0, []
     t = 0.0
     for _ in range(n):
         goal = np.array([*rng.uniform(-0.6, 0.6, 2), 0.0])
         c0 = time.process_time()
         timed_peer(tracker.spline, goal, t, kinematics)
         c1 = time.process_time()
-        before = counts["candidates"]
-        r = tracker.set_target(angles=goal, at=t)
+        r, times = stepped(tracker.set_target_steps(angles=goal, at=t))
         c2 = time.process_time()
         peer.append(c1 - c0)
         cost.append(c2 - c1)
-        cands.append(counts["candidates"] - before)
+        longest.append(max(times))
+        steps.append(len(times))
         deferred += r.at > t
         leads.append(r.arrival - r.at)
         assert (r.peaks <= LIMITS).all()
@@ -83,7 +84,8 @@ def run(period_s: float, n: int, seed: int) -> dict:
     return {
         "cost": np.array(cost),
         "peer": np.array(peer),
-        "cands": np.array(cands),
+        "longest": np.array(longest),
+        "steps": np.array(steps),
         "deferred": deferred,
         "leads": np.array(leads),
     }
@@ -100,10 +102,6 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1)
     args = parser.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} (1, 5 min)")
-    print(
-        f"coarse search: {tracker_module.COARSE_SAMPLES} samples per candidate, grid ratio "
-        f"{tracker_module.GRID_RATIO}, {tracker_module.GRID_CHUNK} per step"
-    )
     for name, period in (("stream (30 Hz, in motion)", 1 / 30), ("from rest (1.5 s)", 1.5)):
         out = run(period, args.targets, args.seed)
         ratio = np.median(out["cost"]) / np.median(out["peer"])
@@ -111,9 +109,10 @@ def main() -> int:
         print(f"  tracker set_target CPU  {ms(out['cost'])}")
         print(f"  peer: timed retarget    {ms(out['peer'])}")
         print(f"  ratio (p50 / p50)       {ratio:.2f}x the timed line")
+        print(f"  longest step            {ms(out['longest'])}")
         print(
-            f"  candidates per target   median {np.median(out['cands']):.0f}, "
-            f"max {out['cands'].max()}; deferred {out['deferred']} of {args.targets}; "
+            f"  steps per target        median {np.median(out['steps']):.0f}, "
+            f"max {out['steps'].max()}; deferred {out['deferred']} of {args.targets}; "
             f"lead median {np.median(out['leads']):.3f} s"
         )
         print(f"  load average {os.getloadavg()[0]:.2f} (1 min)")

@@ -57,7 +57,7 @@ from .gimbal import GimbalKinematics, angles_of
 from .online_splice import exp_rates, hermite_matrix
 from .path import run_steps
 from .servo_table import RAD_PER_TICK
-from .tracker_profile import JointProfile, JointSplice, fastest
+from .tracker_profile import JointProfile, JointSplice, fastest_steps
 from .validate import check_number
 
 __all__ = ["JERK_STEP_S", "TargetResult", "Tracker", "look_at_angles"]
@@ -381,17 +381,17 @@ class Tracker:
         kin = self.kinematics
         for a in tries:
             yield
-            s = self.spline.evaluate(np.array([a]), max_order=2)
-            now = self._unwrapped(s.q[0], self.goal)
-            if abs(float(kin.forward(now) @ s.q[0])) < 1.0 - 1e-12:
+            state = self._joint_state(a)
+            if state is None:
                 return "orientation"
+            q_a, now, qd, qdd = state
             if kin.sequence.lock_distance(now) <= kin.lock_margin_rad:
                 continue  # no joint rates at the lock; the old path leaves it
-            qd, qdd = kin.joint_rates(now, s.omega[0], s.alpha[0])
             for scale in ENVELOPE_SCALES:
                 # a hair inside, so that rounding stays within the limits themselves
                 scaled = limits * np.array([[scale], [scale], [1.0]]) * (1.0 - 1e-9)
-                profile = JointProfile(now, qd, qdd, *fastest(now, qd, qdd, goal, scaled), goal)
+                phases = yield from fastest_steps(now, qd, qdd, goal, scaled)
+                profile = JointProfile(now, qd, qdd, *phases, goal)
                 peaks = profile.peaks()
                 if profile.duration > MAX_ARRIVAL_S:
                     return None
@@ -402,10 +402,30 @@ class Tracker:
                 if verdict == "path":
                     break
                 if verdict == "ok":
-                    segment = JointSplice(a, profile, kin.sequence.indices, s.q[0])
+                    segment = JointSplice(a, profile, kin.sequence.indices, q_a)
                     change = self.spline.prepare_segment(segment, at=a)
                     return change, a, profile.duration, 0, peaks
         return None
+
+    def _joint_state(self, t: float):
+        """``(q, angles, speeds, accelerations)`` of the path at ``t`` (s): the orientation
+        (4,) and the joints' (n,) motion, read off a joint motion in progress, else by
+        the exact joint rates of the path's angular motion; None where the path's
+        orientation is not one of the joints' (a two-axis head twisted about its look
+        axis)."""
+        _, plan = self.spline.snapshot()
+        segment = plan.pieces[int(plan._segment(np.array([t]))[0][0])].splice
+        if isinstance(segment, JointSplice) and segment.s <= t < segment.t_end:
+            x, v, a, _ = np.array(segment.profile.state_at(t - segment.s)).T
+            return segment.rates(t)[0], x, v, a
+        s = plan.evaluate(np.array([t]), max_order=2)
+        now = self._unwrapped(s.q[0], self.goal)
+        if abs(float(self.kinematics.forward(now) @ s.q[0])) < 1.0 - 1e-12:
+            return None
+        if self.kinematics.sequence.lock_distance(now) <= self.kinematics.lock_margin_rad:
+            return s.q[0], now, np.zeros_like(now), np.zeros_like(now)  # refused by the caller
+        qd, qdd = self.kinematics.joint_rates(now, s.omega[0], s.alpha[0])
+        return s.q[0], now, qd, qdd
 
     def _check_joints(self, profile, at: float) -> str:
         """``"ok"``, ``"path"`` (a frame near the lock or past a joint limit) or

@@ -30,7 +30,7 @@ import numpy as np
 from . import jet as J
 from . import quat as Q
 from .axes import _cross, matrix_entries
-from .path import OrientationPath
+from .path import OrientationPath, run_steps
 from .per_sample import hamilton
 
 #: Phases of a joint's profile: a hold of the acceleration, a speed change (3), a
@@ -96,23 +96,35 @@ def _phases(v0, a0, j0, hold, vp, cruise, acc, jerk):
     )
 
 
-def _end(v0, a0, d, j):
-    """Displacement (rad) of phases of constant jerk (durations ``d``, jerks ``j``,
-    (..., P)) from speed ``v0`` and acceleration ``a0``."""
-    x = 0.0
-    v, a = v0, a0
-    for k in range(d.shape[-1]):
-        dk, jk = d[..., k], j[..., k]
-        x = x + dk * (v + dk * (a / 2.0 + dk * jk / 6.0))
-        v = v + dk * (a + dk * jk / 2.0)
-        a = a + dk * jk
+def _distance(v0, a0, j0, hold, vp, acc, jerk):
+    """Displacement (rad) of :func:`_phases`' profile without its cruise, in closed form
+    (the phases of :func:`_speed_change` integrated where they are computed)."""
+    x = hold * (v0 + hold * (a0 / 2.0 + hold * j0 / 6.0))
+    v = v0 + hold * (a0 + hold * j0 / 2.0)
+    a = a0 + hold * j0
+    for ve in (vp, 0.0):
+        stop = v + a * np.abs(a) / (2.0 * jerk)
+        sg = np.where(ve >= stop, 1.0, -1.0)
+        top = np.minimum(np.sqrt(np.maximum(0.5 * (2.0 * jerk * sg * (ve - v) + a * a), 0.0)), acc)
+        ap = sg * top
+        t1 = np.maximum((ap - a) * sg / jerk, 0.0)
+        t3 = top / jerk
+        j1 = sg * jerk
+        x = x + t1 * (v + t1 * (a / 2.0 + t1 * j1 / 6.0))
+        v = v + t1 * (a + t1 * j1 / 2.0)
+        ramp3 = 0.5 * ap * t3
+        t2 = np.maximum((ve - v - ramp3) / np.where(top > 0.0, ap, 1.0), 0.0) * (top > 0.0)
+        x = x + t2 * (v + t2 * ap / 2.0)
+        v = v + t2 * ap
+        x = x + t3 * (v + t3 * (ap / 2.0 - t3 * j1 / 6.0))
+        v, a = ve, 0.0
     return x
 
 
-def _roots(fun, grid, f):
+def _root_steps(fun, grid, f):
     """Every root of ``fun`` between neighbours of ``grid`` (..., G) where ``f`` (its
     values there) changes sign, by regula falsi (Illinois): (..., G - 1), NaN where
-    there is none."""
+    there is none. A generator of steps (one an iteration); its value is the roots."""
     lo, hi, flo, fhi = grid[..., :-1], grid[..., 1:], f[..., :-1], f[..., 1:]
     found = (np.sign(flo) != np.sign(fhi)) | (flo == 0.0)
     at_lo = flo == 0.0
@@ -126,6 +138,7 @@ def _roots(fun, grid, f):
         fm = fun(mid)
         if np.all(~found | (np.abs(fm) < ROOT_TOLERANCE_RAD)):
             break
+        yield
         same = np.sign(fm) == np.sign(flo)  # the root lies between mid and hi
         flo = np.where(same, fm, np.where(side < 0, flo / 2.0, flo))
         fhi = np.where(same, np.where(side > 0, fhi / 2.0, fhi), fm)
@@ -135,7 +148,15 @@ def _roots(fun, grid, f):
 
 
 def fastest(x0, v0, a0, goal, limits):
-    """Each joint's fastest motion to rest at its goal within the limits.
+    """Each joint's fastest motion to rest at its goal within the limits: see
+    :func:`fastest_steps`."""
+    return run_steps(fastest_steps(x0, v0, a0, goal, limits))
+
+
+def fastest_steps(x0, v0, a0, goal, limits):
+    """Each joint's fastest motion to rest at its goal within the limits, as a generator
+    of steps (one an iteration of the root search; each well under a millisecond);
+    its value is the motion.
 
     Parameters
     ----------
@@ -177,11 +198,12 @@ def fastest(x0, v0, a0, goal, limits):
     j0 = np.concatenate([0.0 * a, 0.0 * a, -np.sign(a) * jerk], axis=1)
 
     def shortfall(p):
-        d, j = _phases(v, a, j0, p * (1.0 - is_peak), p * is_peak, 0.0, acc, jerk)
-        return dist - _end(v, a, d, j)
+        return dist - _distance(v, a, j0, p * (1.0 - is_peak), p * is_peak, acc, jerk)
 
     f = shortfall(grid)
-    roots = _roots(shortfall, grid, f).reshape(n, -1)  # (n, 3 (G - 1))
+    yield
+    roots = (yield from _root_steps(shortfall, grid, f)).reshape(n, -1)
+    yield  # (n, 3 (G - 1))
     cruise_v = np.concatenate([-vmax, vmax], axis=1)[:, :, 0]  # (n, 2)
     params = np.concatenate([roots, np.zeros((n, 2))], axis=1)
     fam = np.concatenate([np.repeat(np.arange(3), PEAK_GRID - 1), [0, 0]])
