@@ -4,24 +4,37 @@ A vision loop reports where to look many times a second, without saying when to 
 there. :class:`Tracker` turns each such target into a retarget of an
 :class:`~trajgen.online.OnlineSpline` at the time ``at`` it is given, arriving at the
 earliest time that keeps per-joint speed, acceleration and jerk limits (and, if given,
-a torque-speed envelope). Every change is a retarget, so the path stays C^k (the
-spline's k) across it and a new target replaces the old one in mid-motion without a jump.
+a torque-speed envelope). The path stays C^k (the spline's k: C2 for the default
+k = 2) across every change, so a new target replaces the old one in mid-motion without
+a jump.
 
-The search: the retarget through one keyframe at lead ``h`` is one splice
+The motion (k <= 2, finite limits): each joint goes from its present angle, speed and
+acceleration (read off the path at ``at``: exact joint rates of its angular motion) to
+rest at its goal in the least time its own limits allow, a seven-phase jerk-limited
+profile (:func:`trajgen.tracker_profile.fastest`: jerk ``+-J`` or 0 in each phase, the
+time-optimal motion that Ruckig also computes). The path is the joints' motion through
+the gimbal's axes, ``forward(x(t))`` (:class:`~trajgen.tracker_profile.JointSplice`),
+played by the spline as a splice (:meth:`OnlineSpline.prepare_segment
+<trajgen.online.OnlineSpline.prepare_segment>`). It is C2 across the change (angle,
+speed and acceleration of every joint continuous, so orientation, angular velocity and
+acceleration are), not C3: the jerk jumps there, as between the profile's phases. The
+limits hold between frames as on them (the profile's peaks are exact); its frames are
+checked against the lock margin, the joint limits and the envelope (where the envelope
+refuses one, the speed and acceleration limits are scaled by ``ENVELOPE_SCALES`` in
+turn). Where the motion in progress cannot keep the limits from ``at`` (faster than a
+``max_speed`` asked, or decelerating too late to stay within the speed limit), the
+change is tried again ``DEFER_S`` later, and at the old path's end (at rest), the old
+path being followed meanwhile.
+
+For ``k = 3`` (C3 asked; a jerk-limited profile is only C2) or a limit left infinite,
+the older search applies: the retarget through one keyframe at lead ``h`` is one splice
 ``exp(r(u)) q_a``, ``u = (t - at) / h``, whose polynomial ``r`` is known in closed
 form for every ``h`` once one retarget is built (:meth:`Tracker._family`). Candidate
 leads on a geometric grid (``GRID_RATIO``) are checked together, ``GRID_CHUNK`` at a
 time, at ``COARSE_SAMPLES`` points each; between the first that passes and the one
 before it, leads ``ARRIVAL_TOLERANCE`` apart are checked together; the lead chosen is
-built and checked at every frame of the stream (a little later, if a frame between
-the coarse points breaks a limit). The grid is scanned, not bisected: in motion the
-peaks are not monotone in ``h`` (a long lead carries the present speed further before
-turning back). Joint speed and acceleration are exact (:func:`trajgen.gimbal.joint_rates`
-of the path's closed-form angular rates); joint jerk is the central difference of those
-exact accelerations over +-``JERK_STEP_S`` (error of order ``JERK_STEP_S^2``). When no
-lead from ``at`` keeps the limits (in motion the splice starts with the old path's rates
-to order k + 1, e.g. a jerk at its limit), the change is tried again ``DEFER_S`` later,
-and at the old path's end (at rest), the old path being followed meanwhile.
+built and checked at every frame of the stream. Joint jerk there is the central
+difference of exact accelerations over +-``JERK_STEP_S``.
 
 Noise: a target whose joint angles differ from the current goal's by less than the dead
 band (default one encoder tick, :data:`trajgen.servo_table.RAD_PER_TICK`) changes
@@ -37,10 +50,11 @@ head (e.g. ``axes="zy"``) looks at ``p`` with its look axis along it, exactly
 
 Limits: a target outside the joint limits or within the gimbal-lock margin is clamped,
 joint by joint, to the nearest angle inside them (and reported in
-:attr:`TargetResult.clamped`). A direct path that would pass through the lock region
-(its tilt beyond the margin between two reachable ends, e.g. over the zenith) is
-replaced by one through via points on the straight joint-space line between the two
-ends, which stays as far from the lock as its ends.
+:attr:`TargetResult.clamped`). A joint motion from rest keeps every joint between its
+two ends, so it never comes nearer the lock than they are (a path that the orientation
+splice would take over the zenith goes around it). For the orientation splices, a
+direct path that would pass through the lock region is replaced by one through via
+points on the straight joint-space line between the two ends.
 """
 
 from __future__ import annotations
@@ -216,11 +230,11 @@ class Tracker:
 
     Notes
     -----
-    Cost: two ``OnlineSpline.prepare`` (one to learn the family of splices, one of the
-    lead chosen), two or three coarse checks of up to ``GRID_CHUNK`` (or 1 /
-    ``ARRIVAL_TOLERANCE`` times the grid step) candidates at once, and one check on the
-    frame grid; ``bench/tracker_cost.py`` measures it. :meth:`set_target_steps` yields
-    between them, for a caller that runs the work in steps between frames.
+    Cost: the joints' state at ``at``, a root search on every joint's profile at once
+    (a handful of iterations of a few dozen numpy calls), one check of its frames
+    (lock margin, joint limits, envelope); ``bench/tracker_cost.py`` measures it.
+    :meth:`set_target_steps` yields between them and between the root search's
+    iterations, for a caller that runs the work in steps between frames.
     """
 
     def __init__(
