@@ -405,6 +405,7 @@ class Tracker:
                 # a hair inside, so that rounding stays within the limits themselves
                 scaled = limits * np.array([[scale], [scale], [1.0]]) * (1.0 - 1e-9)
                 phases = yield from fastest_steps(now, qd, qdd, goal, scaled)
+                yield
                 profile = JointProfile(now, qd, qdd, *phases, goal)
                 peaks = profile.peaks()
                 if profile.duration > MAX_ARRIVAL_S:
@@ -416,6 +417,7 @@ class Tracker:
                 if verdict == "path":
                     break
                 if verdict == "ok":
+                    yield
                     segment = JointSplice(a, profile, kin.sequence.indices, q_a)
                     change = self.spline.prepare_segment(segment, at=a)
                     return change, a, profile.duration, 0, peaks
@@ -432,6 +434,10 @@ class Tracker:
         if isinstance(segment, JointSplice) and segment.s <= t < segment.t_end:
             x, v, a, _ = np.array(segment.profile.state_at(t - segment.s)).T
             return segment.rates(t)[0], x, v, a
+        if t >= plan.t_end:  # at rest
+            q = plan.pieces[-1].q_end
+            now = self._unwrapped(q, self.goal)
+            return q, now, np.zeros_like(now), np.zeros_like(now)
         s = plan.evaluate(np.array([t]), max_order=2)
         now = self._unwrapped(s.q[0], self.goal)
         if abs(float(self.kinematics.forward(now) @ s.q[0])) < 1.0 - 1e-12:

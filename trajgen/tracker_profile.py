@@ -98,27 +98,29 @@ def _phases(v0, a0, j0, hold, vp, cruise, acc, jerk):
 
 def _distance(v0, a0, j0, hold, vp, acc, jerk):
     """Displacement (rad) of :func:`_phases`' profile without its cruise, in closed form
-    (the phases of :func:`_speed_change` integrated where they are computed)."""
+    (the phases of :func:`_speed_change` integrated where they are computed; the stop
+    from ``(vp, 0)`` is symmetric, so it covers ``vp`` times half its duration)."""
     x = hold * (v0 + hold * (a0 / 2.0 + hold * j0 / 6.0))
     v = v0 + hold * (a0 + hold * j0 / 2.0)
     a = a0 + hold * j0
-    for ve in (vp, 0.0):
-        stop = v + a * np.abs(a) / (2.0 * jerk)
-        sg = np.where(ve >= stop, 1.0, -1.0)
-        top = np.minimum(np.sqrt(np.maximum(0.5 * (2.0 * jerk * sg * (ve - v) + a * a), 0.0)), acc)
-        ap = sg * top
-        t1 = np.maximum((ap - a) * sg / jerk, 0.0)
-        t3 = top / jerk
-        j1 = sg * jerk
-        x = x + t1 * (v + t1 * (a / 2.0 + t1 * j1 / 6.0))
-        v = v + t1 * (a + t1 * j1 / 2.0)
-        ramp3 = 0.5 * ap * t3
-        t2 = np.maximum((ve - v - ramp3) / np.where(top > 0.0, ap, 1.0), 0.0) * (top > 0.0)
-        x = x + t2 * (v + t2 * ap / 2.0)
-        v = v + t2 * ap
-        x = x + t3 * (v + t3 * (ap / 2.0 - t3 * j1 / 6.0))
-        v, a = ve, 0.0
-    return x
+    stop = v + a * np.abs(a) / (2.0 * jerk)
+    sg = np.where(vp >= stop, 1.0, -1.0)
+    top = np.minimum(np.sqrt(np.maximum(0.5 * (2.0 * jerk * sg * (vp - v) + a * a), 0.0)), acc)
+    ap = sg * top
+    t1 = np.maximum((ap - a) * sg / jerk, 0.0)
+    t3 = top / jerk
+    j1 = sg * jerk
+    x = x + t1 * (v + t1 * (a / 2.0 + t1 * j1 / 6.0))
+    v = v + t1 * (a + t1 * j1 / 2.0)
+    t2 = np.maximum((vp - v - 0.5 * ap * t3) / np.where(top > 0.0, ap, 1.0), 0.0) * (top > 0.0)
+    x = x + t2 * (v + t2 * ap / 2.0)
+    v = v + t2 * ap
+    x = x + t3 * (v + t3 * (ap / 2.0 - t3 * j1 / 6.0))
+    speed = np.abs(vp)
+    top = np.minimum(np.sqrt(jerk * speed), acc)
+    return x + vp * (
+        top / jerk + 0.5 * np.maximum(speed / np.where(top > 0, top, 1.0) - top / jerk, 0.0)
+    )
 
 
 def _root_steps(fun, grid, f):
@@ -217,15 +219,25 @@ def fastest_steps(x0, v0, a0, goal, limits):
     jj = np.where(fam == 2, -np.sign(a0)[:, None] * limits[2][:, None], 0.0)
     v, a, vmax, acc, jerk = (x[:, :, 0] for x in (v, a, vmax, acc, jerk))
     d, j = _phases(v, a, jj, hold, vp, cruise, acc, jerk)
-    zero = np.zeros(d.shape[:-1])
-    _, vk, ak = _integrate(zero, v + zero, a + zero, d, j)
-    tol = 1.0 + 1e-9
-    fits = (_peak_speed(vk, ak, d, j) <= vmax * tol) & (np.abs(ak).max(axis=-1) <= acc * tol)
     total = np.where(valid, d.sum(axis=-1), np.inf)
     rows = np.arange(n)
-    best = np.argmin(np.where(fits, total, np.inf), axis=1)
-    best = np.where(fits[rows, best], best, np.argmin(total, axis=1))
+    best = np.argmin(total, axis=1)
+    fits = _fits(v[:, 0], a[:, 0], d[rows, best], j[rows, best], vmax[:, 0], acc[:, 0])
+    if not fits.all():  # the fastest breaks a limit (from a start that must): the fastest that
+        yield  # does not, if any
+        keep = _fits(v, a, d, j, vmax, acc)
+        other = np.argmin(np.where(keep, total, np.inf), axis=1)
+        best = np.where(~fits & keep[rows, other], other, best)
     return d[rows, best], j[rows, best]
+
+
+def _fits(v0, a0, d, j, vmax, acc):
+    """Whether phases (durations ``d``, jerks ``j``, (..., P)) from speed ``v0`` and
+    acceleration ``a0`` keep ``|v| <= vmax`` and ``|a| <= acc`` (to rounding)."""
+    zero = np.zeros(d.shape[:-1])
+    _, vk, ak = _integrate(zero, v0 + zero, a0 + zero, d, j)
+    tol = 1.0 + 1e-9
+    return (_peak_speed(vk, ak, d, j) <= vmax * tol) & (np.abs(ak).max(axis=-1) <= acc * tol)
 
 
 def _peak_speed(vk, ak, d, j):
