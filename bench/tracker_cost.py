@@ -20,7 +20,10 @@ retarget 0.5 s ahead and the joint-limit / lock-margin check ``Follower`` makes
 on its frames (``GimbalKinematics.inverse`` of the new path at 1 kHz). Load
 average printed beside the figures.
 
-Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1]
+``--envelope`` adds the default gimbal's torque-speed envelope check (MuJoCo's
+inverse dynamics on the new motion's frames), as ``trajgen follow`` passes it.
+
+Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1] [--envelope]
 """
 
 from __future__ import annotations
@@ -60,9 +63,11 @@ def timed_peer(spline, goal, at, kinematics):
     kinematics.inverse(change.path.evaluate(t, max_order=0).q, t)
 
 
-def run(period_s: float, n: int, seed: int) -> dict:
+def run(period_s: float, n: int, seed: int, envelope=None) -> dict:
     rng = np.random.default_rng(seed)
-    tracker = Tracker(OnlineSpline(forward([0, 0, 0]), 0.0, k=2), LIMITS, rate_hz=RATE_HZ)
+    tracker = Tracker(
+        OnlineSpline(forward([0, 0, 0]), 0.0, k=2), LIMITS, rate_hz=RATE_HZ, envelope=envelope
+    )
     kinematics = GimbalKinematics()
     cost, peer, longest, steps, deferred, leads = [], [], [], [], 0, []
     t = 0.0
@@ -100,10 +105,22 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--targets", type=int, default=150, help="targets per regime")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--envelope",
+        action="store_true",
+        help="also check the default gimbal's torque-speed envelope (MuJoCo), as follow does",
+    )
     args = parser.parse_args()
+    envelope = None
+    if args.envelope:
+        from trajgen.sim.check import envelope_check
+        from trajgen.sim.model import GimbalConfig
+
+        envelope = envelope_check(GimbalConfig())
+        print("with the default gimbal's torque-speed envelope (trajgen.sim.check)")
     print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} (1, 5 min)")
     for name, period in (("stream (30 Hz, in motion)", 1 / 30), ("from rest (1.5 s)", 1.5)):
-        out = run(period, args.targets, args.seed)
+        out = run(period, args.targets, args.seed, envelope)
         ratio = np.median(out["cost"]) / np.median(out["peer"])
         print(f"\n{name}, {args.targets} targets")
         print(f"  tracker set_target CPU  {ms(out['cost'])}")
