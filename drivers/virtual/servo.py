@@ -271,7 +271,7 @@ class VirtualServo:
             return StatusError.ACCESS, {}
         span = range(address, address + len(data))
         if self._indirect.keys().isdisjoint(span):  # no Indirect Data byte: as addressed
-            return 0, dict(zip(span, data))
+            return 0, dict(zip(span, data, strict=True))
         return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
 
     def _new_value(self, name: str, bytes_: dict[int, int]) -> int:
