@@ -302,8 +302,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._late: list[tuple[float, int, bytes]] = []
         self._late_count = 0
         self._switch_interval_s = sys.getswitchinterval()
-        self._started_s = time.monotonic()
+        self._started_s = self._credit_at_s = time.monotonic()
         self._steps_done = 0
+        self._credit_s = 0.0  # real time: simulated time the thread may run now (s)
         self.stale_replies = 0
         self.stale_max_s = 0.0
         self._publish()
@@ -328,8 +329,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._reader = PacketReader()
         self._client_answers = False
         with self.lock:
-            self._started_s = time.monotonic()
+            self._started_s = self._credit_at_s = time.monotonic()
             self._steps_done = 0
+            self._credit_s = 0.0
             self._publish()
         self._last_packet_s = dict.fromkeys(self.ids, self._now())
         targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
@@ -451,6 +453,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
             self._note_staleness(arrival_s)
+            # A silence longer than a watchdog's period has tripped it, whether or not
+            # the simulation thread has run since.
+            self._check_watchdogs(arrival_s)
         for servo_id in self._addressed(packet.servo_id, acting=True):
             self._last_packet_s[servo_id] = self._now()
         handler = self._HANDLERS.get(packet.instruction, InstructionHandlers._unknown)

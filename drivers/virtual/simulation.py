@@ -22,6 +22,11 @@ from trajgen.servo_table import PWM_FULL_SCALE
 # Real time: the most steps the simulation thread runs per hold of the lock
 # (short holds: a packet may be waiting for it).
 _MAX_STEPS_PER_HOLD = 2
+# Real time: the simulation never runs faster than this many times real time. After
+# the host held it back (a stall), it catches up over 1 / (rate - 1) times the
+# stall's length instead of at once: the servos never seem to move faster than
+# their simulation lets them (a jump would read as an encoder glitch).
+_CATCH_UP_RATE = 1.25
 # Real time: a reply carries the state of the simulation's latest step; when that
 # is further behind the packet's arrival than this (s), the simulation thread
 # could not keep real time (a busy host): counted in ``stale_replies``.
@@ -44,15 +49,23 @@ class SimulatedTime:
         if self.lockstep_dt_s is not None:
             self._check_watchdogs(self.sim_time_s)
 
-    def _catch_up(self, now_s: float, max_steps: int | None = None) -> None:
-        """Real time: advance the plant by whole steps to ``now_s`` (lock held)."""
+    def _catch_up(self, now_s: float) -> None:
+        """Real time: advance the plant by whole steps toward ``now_s`` (lock held).
+
+        At most ``_MAX_STEPS_PER_HOLD`` steps, and never faster than
+        ``_CATCH_UP_RATE`` times real time: the steps come out of a credit of
+        simulated time that grows at that rate with the wall clock, capped at
+        one hold's worth.
+        """
+        cap = _MAX_STEPS_PER_HOLD * self.sim_step_s
+        self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
+        self._credit_at_s = now_s
         due = int((now_s - self._started_s) / self.sim_step_s)
-        steps = due - self._steps_done
-        if max_steps is not None:
-            steps = min(steps, max_steps)
+        steps = min(due - self._steps_done, int(self._credit_s / self.sim_step_s + 1e-9))
         if steps > 0:
             self._advance(steps * self.sim_step_s)
             self._steps_done += steps
+            self._credit_s -= steps * self.sim_step_s
 
     def _publish(self) -> None:
         """Real time: the state replies carry from now on (lock held; after each step).
@@ -87,8 +100,9 @@ class SimulatedTime:
         Steps once per ``sim_step_s`` of wall time, sleeping until the next step
         is due, and publishes the present values after each (``_publish``): the
         serving thread answers from them and never steps the plant itself. It
-        holds the lock for at most ``_MAX_STEPS_PER_HOLD`` steps at a time and
-        lets a packet that is waiting go first.
+        holds the lock for at most ``_MAX_STEPS_PER_HOLD`` steps at a time, lets
+        a packet that is waiting go first, and after a stall catches up at
+        ``_CATCH_UP_RATE`` times real time (``_catch_up``).
         """
         while not self._stop.is_set():
             try:
@@ -102,7 +116,7 @@ class SimulatedTime:
                 with self.lock:
                     now = time.monotonic()
                     done = self._steps_done
-                    self._catch_up(now, _MAX_STEPS_PER_HOLD)
+                    self._catch_up(now)
                     self._check_watchdogs(now)
                     if self._steps_done != done:
                         self._publish()
