@@ -254,14 +254,17 @@ class VirtualServo:
         pointer = self._indirect.get(address)
         return address if pointer is None else self.get(pointer)
 
+    def direct(self, address: int, length: int) -> bool:
+        """Whether ``length`` bytes at ``address`` hold no Indirect Data byte (each is itself)."""
+        return self._indirect.keys().isdisjoint(range(address, address + length))
+
     def read(self, address: int, length: int) -> tuple[int, bytes]:
         """READ: (status error, data); Indirect Data bytes read their targets."""
         if length == 0 or address + length > self.table_end:
             return StatusError.ACCESS, b""
-        span = range(address, address + length)
-        if self._indirect.keys().isdisjoint(span):  # no Indirect Data byte: as addressed
+        if self.direct(address, length):
             return 0, bytes(self.memory[address : address + length])
-        return 0, bytes(self.memory[self.target(a)] for a in span)
+        return 0, bytes(self.memory[self.target(a)] for a in range(address, address + length))
 
     def _resolve(self, address: int, data: bytes) -> tuple[int, dict[int, int]]:
         """(status error, {target byte: value}) for a write of ``data`` at ``address``."""
@@ -269,9 +272,8 @@ class VirtualServo:
             return StatusError.DATA_LENGTH, {}
         if address + len(data) > self.table_end:
             return StatusError.ACCESS, {}
-        span = range(address, address + len(data))
-        if self._indirect.keys().isdisjoint(span):  # no Indirect Data byte: as addressed
-            return 0, dict(zip(span, data, strict=True))
+        if self.direct(address, len(data)):
+            return 0, dict(zip(range(address, address + len(data)), data, strict=True))
         return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
 
     def _new_value(self, name: str, bytes_: dict[int, int]) -> int:

@@ -26,7 +26,7 @@ _MAX_STEPS_PER_HOLD = 2
 # the host held it back (a stall), it catches up over 1 / (rate - 1) times the
 # stall's length instead of at once: the servos never seem to move faster than
 # their simulation lets them (a jump would read as an encoder glitch).
-_CATCH_UP_RATE = 1.25
+_CATCH_UP_RATE = 1.5
 # Real time: a reply carries the state of the simulation's latest step; when that
 # is further behind the packet's arrival than this (s), the simulation thread
 # could not keep real time (a busy host): counted in ``stale_replies``.
@@ -123,8 +123,10 @@ class SimulatedTime:
             except Exception as e:  # the plant failed: the port goes away
                 self._fail(e)
                 return
-            next_s = self._started_s + (self._steps_done + 1) * self.sim_step_s
-            time.sleep(max(0.0, next_s - time.monotonic()))
+            # Until the next step is due and there is credit for it (never a spin).
+            due_s = self._started_s + (self._steps_done + 1) * self.sim_step_s
+            credit_s = self._credit_at_s + (self.sim_step_s - self._credit_s) / _CATCH_UP_RATE
+            time.sleep(max(0.0, max(due_s, credit_s) - time.monotonic()))
 
     def _commit_goals(self) -> None:
         """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
@@ -192,6 +194,8 @@ class SimulatedTime:
         """Whether a read of ``address``.. touches the motion registers (a poll)."""
         low = servo.items[_PRESENT_FIRST][0]
         high = sum(servo.items[_PRESENT_LAST])
+        if servo.direct(address, length):  # no Indirect Data byte: one overlap test
+            return address < high and low < address + length
         return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     def _check_watchdogs(self, now_s: float) -> None:
