@@ -154,7 +154,9 @@ class PtyTransport:
         sent = 0
         for raw in self._reader.packets():
             try:
+                self._lock_wanted = True  # the simulation thread lets it go first
                 with self.lock:
+                    self._lock_wanted = False
                     replies = self._handle(raw, arrival_s)
             except Exception as e:  # the plant failed: the port goes away
                 self._fail(e)
