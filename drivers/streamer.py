@@ -28,8 +28,11 @@ catch up. The clock of the rest of the stream shifts by its lateness, so it
 goes out now and every later frame keeps its planned spacing. Lateness below
 ``stall_s`` is jitter: that frame goes out late, the next one on time. So two
 goals are never closer than ``period - stall_s``, no burst ever catches up, and
-after a stall the servos follow the plan later, never faster. The Bus Watchdog is polled at once
-(a stall longer than its period stopped the servos), stalls are counted, and
+after a stall the servos follow the plan later, never faster. After a stall
+long enough to have tripped a Bus Watchdog (the bus silent for half its period
+or more) the watchdogs are polled at once (a stall longer than the period
+stopped the servos); shorter ones wait for the next regular poll (at 1 kHz a
+poll after every 0.6 ms stall would itself make the next frame late). Stalls are counted, and
 the stream fails when the total shift passes ``max_delay_s``.
 
 Any fault or stop signal stops the stream safely: the servos hold their last
@@ -61,7 +64,7 @@ from trajgen.drivers.bringup import (
 )
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
-from trajgen.drivers.control_table import VOLTAGE_UNIT_V, Register
+from trajgen.drivers.control_table import VOLTAGE_UNIT_V, WATCHDOG_UNIT_S, Register
 from trajgen.drivers.defaults import MAX_DELAY_S
 from trajgen.drivers.errors import (
     BringUpError,
@@ -546,6 +549,11 @@ class Streamer:
                 )
             self._choose_read_method()
             self._status_at_start = self._read_status()
+            periods = [v[Register.BUS_WATCHDOG] for v in self._status_at_start.values()]
+            # A silence this long (s) may have tripped a Bus Watchdog (inf: none is on).
+            self._watchdog_risk_s = (
+                0.5 * WATCHDOG_UNIT_S * min((p for p in periods if p > 0), default=math.inf)
+            )
             if self.power_limits is None:
                 self.power_limits = self._read_power_limits()
             present = self._start_position()
@@ -887,7 +895,8 @@ class Streamer:
                 f"{1e3 * late_s:.1f} ms before frame {self._frame_no}: the host or the bus cannot "
                 f"keep {stats.rate_hz:g} Hz"
             )
-        self._poll_watchdog(f"after a {1e3 * late_s:.1f} ms stall, before")
+        if late_s + 1.0 / stats.rate_hz >= self._watchdog_risk_s:  # the bus was that silent
+            self._poll_watchdog(f"after a {1e3 * late_s:.1f} ms stall, before")
 
 
 def safe_stop(bus: ServoBus, ids: Sequence[int], on_stop: str, restore: Sequence = ()) -> list[str]:
