@@ -181,8 +181,13 @@ def test_gimbal_table_errors_name_the_joint(table, message):
     assert str(e.value).startswith("h.toml: " + message)
 
 
-def test_the_drivers_path_still_refuses_other_axes():
-    with pytest.raises(KeyframeFileError, match=r"h\.toml: \[gimbal\] axes = 'zy': 2-axis"):
+def test_a_caller_for_pan_tilt_roll_only_refuses_other_axes():
+    with pytest.raises(
+        KeyframeFileError,
+        match=r"^h\.toml: \[gimbal\] axes = 'zy': 2-axis gimbals: this caller takes pan-tilt-roll "
+        r"\(axes = 'zyx'\) only \(any_axes=False\); pass any_axes=True for a caller that takes "
+        r"any axes, as every trajgen command does$",
+    ):
         gimbal_config_from_tables({"gimbal": {"axes": "zy"}}, "h.toml")
 
 
