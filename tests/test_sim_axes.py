@@ -356,3 +356,33 @@ def test_trajgen_sweep_takes_a_two_axis_file_by_joint_name(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "servos (yaw/pitch)" in out
     assert "XL330-M288/XM430-W350" in out and "2 of 2 variants pass" in out
+
+
+@pytest.mark.parametrize(
+    ("axes", "center"),
+    [
+        ("zy", (0.3, -0.2)),
+        ("yx", (-0.4, 0.5)),
+        ("xyz", (0.2, -0.3, 0.4)),
+        ("zxz", (0.3, 1.2, -0.2)),  # proper Euler: away from its lock at 0
+        ("zyx", (0.4, 0.1, -0.2)),
+    ],
+)
+def test_a_multisine_on_any_axes_plans_back_to_its_own_joints(axes, center):
+    """The excitation's orientation path and its angular rates (the general dJ/dt qd term)
+    give its joint motion back through the gimbal's inverse kinematics: each joint moves
+    by its own sines, none is lost to the look axis of a two-axis gimbal."""
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.sim.excite import Multisine, default_amplitude_rad
+
+    kin = GimbalKinematics(axes=axes)
+    motion = Multisine(center_rad=center, seconds=4.0, kinematics=kin)
+    assert motion.amplitude_rad == default_amplitude_rad(kin.n_joints)
+    assert motion.frequencies_hz.shape == (kin.n_joints, 5)
+    trajectory = plan_joint_trajectory(motion, 200.0, kin)
+    q, qd, qdd = motion.joints(trajectory.t)
+    np.testing.assert_allclose(trajectory.q, q, atol=1e-12)
+    np.testing.assert_allclose(trajectory.qd, qd, atol=1e-11)
+    np.testing.assert_allclose(trajectory.qdd, qdd, atol=1e-9)
+    with pytest.raises(ValueError, match=rf"`center_rad` to be {kin.n_joints} finite numbers"):
+        Multisine(center_rad=(0.0,) * (5 - kin.n_joints), kinematics=kin)

@@ -118,6 +118,7 @@ def test_sweep_runs_on_every_gimbal_example(tmp_path, capsys, name):
         ("pan_tilt_head.toml", ("pan", "tilt")),
         ("flex_roll_wrist.toml", ("wrist_flex", "wrist_roll")),
         ("urdf_gimbal.toml", ("pan", "tilt")),
+        ("mjcf", ("pan", "tilt", "roll")),
     ],
 )
 def test_excite_then_identify_recovers_each_joint_of_a_gimbal_example(
