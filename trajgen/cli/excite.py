@@ -69,14 +69,14 @@ def register(subparsers) -> None:
         type=positive_float,
         default=8.0,
         metavar="S",
-        help=f"duration (s), 3 to {MAX_SECONDS:g}; default 8",
+        help=f"duration (s), 3 to {MAX_SECONDS:g} (default %(default)g)",
     )
     p.add_argument(
         "--amplitude",
         type=positive_float,
         metavar="DEG",
-        help="largest excursion of every joint (deg); default 25 for the first joint, "
-        "15 for the second (pan, tilt), 20 for a third (roll)",
+        help="largest excursion of every joint (deg) (default 25 for the first joint, "
+        "15 for the second, 20 for a third: pan 25, tilt 15, roll 20)",
     )
     p.set_defaults(func=run_excite)
 
@@ -135,6 +135,8 @@ def excitation_file(args) -> ExcitationFile:
     amplitude = (
         None if args.amplitude is None else (math.radians(args.amplitude),) * kinematics.n_joints
     )
+    if args.amplitude is not None and args.amplitude > 180:
+        raise BadInput(f"--amplitude {args.amplitude:g}: more than 180 deg, half a turn")
     if args.seconds > MAX_SECONDS:
         raise BadInput(
             f"--seconds {args.seconds:g}: longer than {MAX_SECONDS:g} s, the longest excitation "
