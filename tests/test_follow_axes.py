@@ -17,7 +17,6 @@ from trajgen import follower as follow
 from trajgen import quat as Q
 from trajgen.axes import AxisSequence
 from trajgen.cli import main
-from trajgen.drivers.session import Session
 from trajgen.errors import KeyframeFileError
 from trajgen.jobs.stream_job import kinematics_of
 from trajgen.keyframe_lines import parse_line
@@ -112,14 +111,16 @@ def test_a_three_axis_gimbals_quat_and_angles_agree():
 
 
 def _run_follow(monkeypatch, tmp_path, name, lines, gimbal=""):
-    seen = {}
-    real_follow = Session.follow
+    made = []
 
-    def spy_follow(self, follower, lines, **kwargs):
-        seen["follower"] = follower
-        return real_follow(self, follower, lines, **kwargs)
+    class Recorded(follow.Follower):
+        """The command's follower, kept for the checks."""
 
-    monkeypatch.setattr(Session, "follow", spy_follow)
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr("trajgen.cli.follow.Follower", Recorded)
     # A tracking budget for the lag of quick moves and the first frames' gravity sag,
     # room in the Bus Watchdog for stalls of a busy machine; 50 Hz leaves each frame
     # room for the virtual bus's read-back there.
@@ -137,7 +138,8 @@ def _run_follow(monkeypatch, tmp_path, name, lines, gimbal=""):
     assert status == 0, out.read_text() if out.exists() else "no report"
     with open(log, newline="") as fh:
         rows = [r for r in csv.DictReader(fh) if r["phase"] == "stream"]
-    return json.loads(out.read_text()), seen["follower"], rows
+    (follower,) = made
+    return json.loads(out.read_text()), follower, rows
 
 
 def test_follow_cli_streams_a_pan_tilt_head_to_a_point_on_the_virtual_bus(monkeypatch, tmp_path):
