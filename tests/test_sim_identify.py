@@ -143,9 +143,13 @@ def test_fitted_file_replaces_only_the_joint_tables():
         "[gimbal]\npayload_kg = 0.2\n\n[gimbal.tilt]  # old\ndamping = 0.5\n\n"
         "[[keyframes]]\nt = 0\npan = 0\n"
     )
-    text = fitted_file_text(source, "[gimbal.tilt]\ndamping = 0.1\n")
+    text = fitted_file_text(source, "[gimbal.tilt]\ndamping = 0.1\n", ("pan", "tilt", "roll"))
     assert "damping = 0.5" not in text and "# old" not in text
     assert text.index("payload_kg") < text.index("[[keyframes]]") < text.index("damping = 0.1")
+    # a gimbal's own joint names: its tables go, any other [gimbal.x] table stays
+    source = source.replace("gimbal.tilt", "gimbal.wrist_roll") + "\n[gimbal.tilt]\nx = 1\n"
+    text = fitted_file_text(source, "[gimbal.wrist_roll]\ndamping = 0.1\n", ("wrist_roll",))
+    assert "damping = 0.5" not in text and "[gimbal.tilt]\nx = 1" in text
 
 
 def test_bad_logs_and_options_exit_2(tmp_path, capsys):

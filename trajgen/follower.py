@@ -214,7 +214,7 @@ class Follower:
         """
         arrival = time.monotonic()
         where = f"line {number}"
-        mode, q, t, relative = parse_line(text, self._where(number))
+        mode, q, t, relative = parse_line(text, self._where(number), self.kinematics.sequence)
         now = self._now()
         if mode == TRACK:
             job = _Job(self._target_steps(q, where, arrival, now, number), where)
@@ -403,12 +403,12 @@ class Follower:
 
     def trajectory(self) -> JointTrajectory:
         """What :meth:`frames` yielded, as arrays."""
-        f = self._frames
+        f, n = self._frames, self.kinematics.n_joints
         return JointTrajectory(
             np.array([x.t for x in f]),
-            np.array([x.q for x in f]).reshape(-1, 3),
-            np.array([x.qd for x in f]).reshape(-1, 3),
-            np.array([x.qdd for x in f]).reshape(-1, 3),
+            np.array([x.q for x in f]).reshape(-1, n),
+            np.array([x.qd for x in f]).reshape(-1, n),
+            np.array([x.qdd for x in f]).reshape(-1, n),
             self.rate_hz,
         )
 

@@ -128,6 +128,25 @@ def axis_keyframes(entries, seq: AxisSequence, path: Path):
     return out
 
 
+def written_angles(entries: list, seq: AxisSequence) -> tuple[np.ndarray, np.ndarray]:
+    """The joint angles keyframes (checked by :func:`axis_keyframes`) give by name.
+
+    Returns
+    -------
+    written : ndarray, shape (N, n)
+        Degrees as written, 0 for a joint not given and for a keyframe by ``look`` or
+        ``quat``.
+    has_angle : ndarray of bool, shape (N,)
+        Keyframes given by joint angles.
+    """
+    has_angle = np.array([any(k in kf for k in seq.joints) for kf in entries], dtype=bool)
+    written = np.array(
+        [[float(kf.get(k, 0.0)) if has else 0.0 for k in seq.joints]
+         for kf, has in zip(entries, has_angle, strict=True)]
+    )  # fmt: skip
+    return written.reshape(len(entries), seq.n), has_angle
+
+
 def _field(where: str, key: str):
     return lambda problem: KeyframeFileError(f"{where}: field '{key}': {problem}")
 

@@ -13,7 +13,7 @@ import itertools
 import sys
 
 from trajgen.cli import stream as stream_command
-from trajgen.cli.common import exit_status_text, refuse_other_axes, tell
+from trajgen.cli.common import exit_status_text, tell
 from trajgen.follower import CHANGE_MARGIN_S, Follower, load_compiled_kernel, online_spline
 from trajgen.keyframe_lines import capped_lines
 
@@ -33,6 +33,11 @@ progress; a target within one encoder tick of the current goal changes nothing:
   {{"pan": 20, "tilt": 5}}                    angles (deg), or "quat": [w, x, y, z]
   {{"look_at": [2.0, 0.5, -0.3]}}             a point to look at (m, base frame)
   {{"pan": -10, "max_speed": 90}}             this motion's joints at most 90 deg/s
+
+A gimbal of other [gimbal] axes takes angles by its own joint names
+({{"in": 1, "wrist_flex": 30}}); a two-axis head also "look": [x, y, z] (a
+direction), and of a "quat" it keeps where it points (exactly: the head cannot
+turn about its look axis). "look_at" is for pan-tilt-roll and two-axis gimbals.
 
 "mode": "retarget" (the default) drops the keyframes still ahead and goes
 through the new one instead; "extend" keeps them and adds the new one after
@@ -106,14 +111,15 @@ def follow(args, lines) -> int:
     made = {}
 
     def make_job(args):
+        from trajgen.jobs.stream_job import kinematics_of
         from trajgen.sim.check import envelope_check
         from trajgen.sim.limits import limits_from_tables
 
         job = stream_command.plan(args)
-        refuse_other_axes(job.source, "follow", "its keyframe lines give pan, tilt, roll")
         made["follower"] = Follower(
             online_spline(job.source),
             job.rate_hz,
+            kinematics_of(job.source),
             on_skip=_skipped(),
             limits=limits_from_tables(job.source.tables, job.source.path),
             envelope=envelope_check(job.gimbal),

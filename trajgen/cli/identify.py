@@ -22,6 +22,7 @@ from trajgen.cli.common import (
     positive_int,
     tell,
 )
+from trajgen.cli.outputs import check_model_beside
 from trajgen.errors import TrajgenError
 
 DESCRIPTION = """\
@@ -47,7 +48,6 @@ real servo's reading needs one; it widens the intervals, as only the motor's
 back-EMF then fixes the overall scale), --no-current fits positions and
 velocities only."""
 
-_JOINT_HEADER = re.compile(r"^\s*\[\s*gimbal\s*\.\s*(pan|tilt|roll)\s*\]")
 _ANY_HEADER = re.compile(r"^\s*\[")
 
 
@@ -101,7 +101,7 @@ def register(subparsers) -> None:
     p.set_defaults(func=run_identify)
 
 
-def fitted_file_text(source_text: str, tables: str) -> str:
+def fitted_file_text(source_text: str, tables: str, joints) -> str:
     """``source_text`` without its ``[gimbal.<joint>]`` tables, then ``tables``.
 
     Parameters
@@ -110,10 +110,14 @@ def fitted_file_text(source_text: str, tables: str) -> str:
         A keyframe file's text.
     tables : str
         The fitted ``[gimbal.<joint>]`` tables (``Fit.toml``).
+    joints : sequence of str
+        The gimbal's joint names (``[gimbal] joints``).
     """
+    names = "|".join(re.escape(j) for j in joints)
+    header = re.compile(rf"^\s*\[\s*gimbal\s*\.\s*[\"']?({names})[\"']?\s*\]")
     kept, skipping = [], False
     for line in source_text.splitlines():
-        if _JOINT_HEADER.match(line):
+        if header.match(line):
             skipping = True
         elif _ANY_HEADER.match(line):
             skipping = False
@@ -137,6 +141,7 @@ def run_identify(args) -> int:
             raise BadInput("--fit-current-scale needs the current: drop --no-current")
         # every table, as every command checks them
         checked = load_checked(args.file, spline=False, any_axes=True)
+        check_model_beside("--out", args.out, args.file, checked.keyframes.tables)
         config = checked.gimbal
         logs = [_load_log(path, config.names) for path in args.logs]
         source_text = read_text(args.file)
@@ -157,7 +162,7 @@ def run_identify(args) -> int:
         return EXIT_FAILED
     print(fit.format())
     sources = ", ".join(Path(p).name for p in args.logs)
-    text = fitted_file_text(source_text, fit.toml(sources, p_scale=args.p_scale))
+    text = fitted_file_text(source_text, fit.toml(sources, p_scale=args.p_scale), config.names)
     try:
         with output_path("--out", args.out) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")

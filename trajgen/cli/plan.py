@@ -52,11 +52,6 @@ def _plan(args) -> int:
         raise PlanTooLarge(f"{e}; --max-samples N raises the limit") from None
     spline = checked.spline
     joints = joint_columns(kf)
-    if to_mcap and joints is not None:
-        raise BadInput(
-            f"--out {args.out}: an MCAP plan is for pan-tilt-roll gimbals; {kf.path.name} has "
-            f"axes = {kf.axes.sequence!r}: write CSV (not yet)"
-        )
     if to_mcap:
         from trajgen.plan_mcap import MAX_SAMPLES as MAX_MCAP_SAMPLES
 
@@ -65,7 +60,7 @@ def _plan(args) -> int:
                 f"--out {args.out}: {total:,} samples; an MCAP plan is one JointTrajectory "
                 f"message of at most {MAX_MCAP_SAMPLES:,} samples: lower --rate, or write CSV"
             )
-        return _plan_mcap(args, kf, spline, rate)
+        return _plan_mcap(args, kf, spline, rate, None if joints is None else joints.kin)
     if args.out:
         line = Progress(f"{prefix()}: writing {total:,} rows")
         with output_file("--out", args.out, newline="") as out:
@@ -88,13 +83,14 @@ def _plan(args) -> int:
     return EXIT_OK
 
 
-def _plan_mcap(args, kf, spline, rate) -> int:
-    """``--out plan.mcap``: the exact joint plan and the orientation (``trajgen.plan_mcap``)."""
+def _plan_mcap(args, kf, spline, rate, kinematics) -> int:
+    """``--out plan.mcap``: the exact joint plan and the orientation (``trajgen.plan_mcap``),
+    by the ``kinematics`` of the file's axes (None: pan-tilt-roll)."""
     from trajgen.plan_mcap import write_plan_mcap
 
     progress = Progress(f"{prefix()}: writing {args.out}")
     with output_path("--out", args.out) as tmp:
-        plan = write_plan_mcap(tmp, spline, rate, progress=progress)
+        plan = write_plan_mcap(tmp, spline, rate, progress=progress, kinematics=kinematics)
     print(
         f"planned {kf.path.name}: {len(plan)} samples at {rate:g} Hz over "
         f"{plan.duration_s:.3f} s; peak |qd| {np.abs(plan.qd).max():.4g} rad/s, "
