@@ -40,9 +40,9 @@ from .tracker import Tracker
 CHANGE_MARGIN_S = 0.05
 
 #: Steps (one a frame) an untimed target's change is given before its ``at``: the
-#: tracker's search takes about 8 (prepare, coarse checks, refinement, the chosen
-#: lead's build and frame check); doubled on each new attempt.
-TARGET_STEPS = 12
+#: tracker's search takes 13-18 (the motion in progress, an iteration of the joint
+#: motion's root search each, the frame check); doubled on each new attempt.
+TARGET_STEPS = 20
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
 #: how long the streaming thread may wait for the thread that parses the lines.
