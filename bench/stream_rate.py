@@ -4,28 +4,39 @@ Streams a smooth 3-joint trajectory at 100, 500 and 1000 Hz through the real
 driver, dynamixel-sdk and pyserial to the virtual bus on a pseudo-terminal,
 which adds byte time at 1 and 4 Mbps (10 bits a byte), a 20 us servo
 turnaround and Return Delay 0 (set by bring-up, asked with ``configure=True``).
+The virtual bus runs in a process of its own, in real time (its servos on the
+wall clock, as real ones are), at the priority `trajgen virtual-bus` serves at:
+the stream's process holds only the driver, as it would on a real bus.
 Telemetry (present current, velocity, position by fast sync read) every
-frame, or every 10th frame (the probe before each stream may read back less
-often, shown as "(probe)", or refuse a rate this host cannot keep: that row
-then holds its message).
+frame, or every 10th frame; the probe before each stream may read back less
+often, shown as "(probe)", where a read-back every frame does not fit the
+period (at 1 Mbps, 1 kHz: 29 + 17 + 50 bytes are 0.96 ms of wire a frame), or
+refuse a rate this host cannot keep: that row then holds its message.
+``--telemetry csv`` also writes each stream's CSV telemetry (one row a frame).
 
 Prints a markdown table: achieved rate, period error p50 / p99 / max, overruns,
-communication errors, and bytes per cycle on the wire against the minimum from
-docs/dynamixel.md (sync write 29 B + fast sync read 17 + 50 B every N frames).
+stalls, communication errors, and bytes per cycle on the wire against the
+minimum from docs/dynamixel.md (sync write 29 B + fast sync read 17 + 50 B
+every N frames), and the machine load beside each row.
 
-Run: .venv/bin/python bench/stream_rate.py [--seconds 3]
+Run: .venv/bin/python bench/stream_rate.py [--seconds 3] [--rates 100 500 1000]
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
+import os
 import platform
+import tempfile
+from pathlib import Path
 
 import numpy as np
 
 from trajgen.drivers.bringup import bring_up
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.errors import StreamLagging
+from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.streamer import Streamer
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import VirtualBus, WireTiming
@@ -45,20 +56,37 @@ def trajectory(rate_hz: float, seconds: float) -> JointTrajectory:
     return JointTrajectory(t, q, qd, qdd, rate_hz)
 
 
-def run(rate_hz: float, baud: int, read_every: int, seconds: float) -> dict:
+def serve(baud: int, conn) -> None:
+    """The virtual bus process: serve until told to stop; answer byte counts when asked."""
+    plant = FirstOrderPlant(time_constant_s=0.01)
+    with VirtualBus(plant, timing=WireTiming(baud=baud)) as virtual, stream_priority():
+        conn.send(virtual.port)
+        while conn.recv() == "count":
+            conn.send(virtual.bytes_received + virtual.bytes_sent)
+
+
+def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: str | None) -> dict:
     """Stream once; returns the row of the table."""
     traj = trajectory(rate_hz, seconds)
     joints = JointMap()
-    plant = FirstOrderPlant(time_constant_s=0.01)
-    timing = WireTiming(baud=baud)
-    with VirtualBus(plant, lockstep_dt_s=1 / rate_hz, timing=timing) as virtual:
-        with ServoBus(virtual.port, baud=baud) as bus:
+    conn, child_conn = multiprocessing.get_context("fork").Pipe()
+    server = multiprocessing.get_context("fork").Process(target=serve, args=(baud, child_conn))
+    server.start()
+    try:
+        port = conn.recv()
+        with ServoBus(port, baud=baud) as bus, tempfile.TemporaryDirectory() as tmp:
             bring_up(bus, joints, ("XM430-W350",) * 3, traj, configure=True)  # Return Delay 0
-            streamer = Streamer(bus, joints, telemetry_every=read_every)
-            before = virtual.bytes_received + virtual.bytes_sent
+            path = None if telemetry is None else Path(tmp) / f"run.{telemetry}"
+            streamer = Streamer(bus, joints, telemetry=path, telemetry_every=read_every)
+            conn.send("count")
+            before = conn.recv()
             stats = streamer.run(traj)
+            conn.send("count")
             # Includes the closing watchdog writes (a few dozen bytes in total).
-            wire = virtual.bytes_received + virtual.bytes_sent - before
+            wire = conn.recv() - before
+    finally:
+        conn.send("stop")
+        server.join(timeout=10)
     return {
         "rate": rate_hz,
         "baud": baud,
@@ -68,6 +96,7 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float) -> dict:
         "p99": stats.period_error_p99_s,
         "max": stats.period_error_max_s,
         "overruns": stats.overruns,
+        "stalls": stats.stalls,
         "frames": stats.frames_sent,
         "comm": stats.comm_errors,
         "bytes": wire / stats.frames_sent,
@@ -78,30 +107,38 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="stream length per run (s)")
+    parser.add_argument(
+        "--rates", type=float, nargs="+", default=[100.0, 500.0, 1000.0], help="rates (Hz)"
+    )
+    parser.add_argument("--telemetry", choices=["csv", "npz"], help="also write telemetry")
     args = parser.parse_args()
     print(
-        f"virtual bus on a pty, {platform.machine()} {platform.python_version()}, "
-        f"{args.seconds:g} s per run; period error = |actual - planned interval| between frames"
+        f"virtual bus on a pty (its own process), {platform.machine()} "
+        f"{platform.python_version()}, {os.cpu_count()} cores, {args.seconds:g} s per run, "
+        f"telemetry file: {args.telemetry or 'none'}; period error = |actual - planned "
+        "interval| between frames"
     )
     print()
     print(
         "| rate Hz | baud | read every | achieved Hz | p50 ms | p99 ms | max ms | overruns "
-        "| comm errors | bytes/cycle | minimum |"
+        "| stalls | comm errors | bytes/cycle | minimum | load |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for rate in (100.0, 500.0, 1000.0):
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for rate in args.rates:
         for baud in (1_000_000, 4_000_000):
             for every in (1, 10):
                 try:
-                    r = run(rate, baud, every, args.seconds)
+                    r = run(rate, baud, every, args.seconds, args.telemetry)
                 except StreamLagging as e:  # the probe refused the rate, or it fell behind
-                    print(f"| {rate:g} | {baud / 1e6:g} M | {every} | {e} |", flush=True)
+                    load = os.getloadavg()[0]
+                    print(f"| {rate:g} | {baud / 1e6:g} M | {every} | {e} | {load:.1f} |")
                     continue
                 print(
                     f"| {r['rate']:g} | {r['baud'] / 1e6:g} M | {r['every']} "
                     f"| {r['achieved']:.1f} | {1e3 * r['p50']:.3f} | {1e3 * r['p99']:.3f} "
-                    f"| {1e3 * r['max']:.3f} | {r['overruns']}/{r['frames']} | {r['comm']} "
-                    f"| {r['bytes']:.1f} | {r['minimum']:.1f} |",
+                    f"| {1e3 * r['max']:.3f} | {r['overruns']}/{r['frames']} | {r['stalls']} "
+                    f"| {r['comm']} | {r['bytes']:.1f} | {r['minimum']:.1f} "
+                    f"| {os.getloadavg()[0]:.1f} |",
                     flush=True,
                 )
 

@@ -7,21 +7,33 @@ millisecond, one Sync Write of Goal Position to the 3 servos (a small sine
 about the middle tick) and one Fast Sync Read of present current, velocity and
 position (126..135). A cycle's reply is *missed* when the SDK's result is not
 success (no status packet within its timeout, 34 ms, or a corrupt one), and
-*late* when the cycle took longer than its period (1 ms). Cycles are paced on
-deadlines; a cycle that starts after its deadline is a *slip* of the client,
-and the slots already gone are skipped (cycles done against 1 kHz slots says
-how many the server let through). The client runs at SCHED_FIFO where
-permitted (``drivers.priority``), as a real-time controller would.
+*late* when the cycle took longer than its period (1 ms): two separate counts.
+Cycles are paced on deadlines; a cycle that starts more than a period after its
+deadline is a *slip* of the client, and the slots already gone are skipped
+(cycles done against 1 kHz slots says how many the server let through).
+
+The client's settings, as a real-time controller on Linux would have them:
+``SCHED_FIFO`` where permitted (``drivers.priority``), and the SDK's serial port
+reading with a 1 ms timeout (``PortHandler.ser.timeout = 0.001`` after
+``setBaudRate``) instead of the SDK's ``timeout=0``. The SDK's receive loop is
+unchanged; with ``timeout=0`` it spins on non-blocking reads for up to its
+34 ms, and a spinning ``SCHED_FIFO`` process starves the kernel's tty worker
+(a normal-priority kworker that moves bytes through a pty, and through a USB
+serial adapter's driver alike) on its core: the reply it waits for is then
+held back until the SDK gives up. With a timeout the same loop sleeps in
+``select`` until the bytes come. ``--spin`` runs the SDK's default
+(``timeout=0``) to show it.
 
 Peer, in the same run: the same client against a minimal responder process
-on a pty that answers each cycle with one precomputed reply (the client's own
-cost on this host, and what a pty allows). Prints cycles, missed and late
-counts and shares, reply-time percentiles, the bus's own summary (simulated
-against wall time, stale replies) and the machine load.
+on a pty that answers each cycle with one precomputed reply, at the priority
+`trajgen virtual-bus` serves at (the client's own cost on this host, and what
+a pty allows). Prints cycles, missed and late counts and shares, reply-time
+percentiles, the bus's own summary (simulated against wall time, stale
+replies) and the machine load.
 
 Goal (issue 24): under 0.1 % missed replies over 10 s.
 
-    .venv/bin/python bench/virtual_bus_1khz.py [--seconds 10] [--rate 1000]
+    .venv/bin/python bench/virtual_bus_1khz.py [--seconds 10] [--rate 1000] [--spin]
 """
 
 from __future__ import annotations
@@ -50,17 +62,21 @@ TORQUE_ENABLE, GOAL_POSITION, BLOCK_START, BLOCK_LENGTH = 64, 116, 126, 10
 SYNC_WRITE_B = 14 + 5 * len(IDS)  # header..CRC of a 4-byte sync write to 3 servos
 READ_REQUEST_B = 14 + len(IDS)
 MIDDLE_TICK, AMPLITUDE_TICKS = ZERO_TICK, 200
+READ_TIMEOUT_S = 1e-3  # the SDK port's pyserial read timeout (the SDK's own is 0: spin)
 
 
-def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict:
+def client(port_name: str, seconds: float, rate_hz: float, torque: bool, spin: bool) -> dict:
     """Run the 1 kHz client for ``seconds``; per-cycle results.
 
     The client runs as a real-time controller would (``drivers.priority``:
-    SCHED_FIFO where permitted), so that the figures are the server's.
+    SCHED_FIFO where permitted), so that the figures are the server's; its
+    port reads with a timeout of ``READ_TIMEOUT_S`` unless ``spin``.
     """
     port = PortHandler(port_name)
     port.openPort()
     port.setBaudRate(4_000_000)
+    if not spin:  # after setBaudRate, which opens the pyserial port with timeout=0
+        port.ser.timeout = READ_TIMEOUT_S
     ph = PacketHandler(2.0)
     if torque:
         for i in IDS:
@@ -81,9 +97,7 @@ def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict
             if deadline - start >= seconds:
                 break
             if now < deadline:
-                time.sleep(max(0.0, deadline - now - 2e-4))
-                while time.perf_counter() < deadline:
-                    pass
+                time.sleep(deadline - now)  # no spinning (see the module docstring)
             elif now - deadline > period:
                 slips += 1
             t0 = time.perf_counter()
@@ -112,31 +126,37 @@ def client(port_name: str, seconds: float, rate_hz: float, torque: bool) -> dict
     }
 
 
-def against_virtual_bus(seconds: float, rate_hz: float) -> tuple[dict, str]:
+def against_virtual_bus(seconds: float, rate_hz: float, spin: bool) -> tuple[dict, str]:
     trajgen = shutil.which("trajgen", path=os.path.dirname(sys.executable)) or "trajgen"
     proc = subprocess.Popen(
         [trajgen, "virtual-bus"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
     try:
-        result = client(proc.stdout.readline().strip(), seconds, rate_hz, torque=True)
+        result = client(proc.stdout.readline().strip(), seconds, rate_hz, torque=True, spin=spin)
     finally:
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=30)
-    summary = " ".join(line.removeprefix("trajgen: ") for line in err.splitlines()[1:])
+    summary = " ".join(line.split(": ", 1)[-1] for line in err.splitlines()[1:])
     return result, summary
 
 
-def against_responder(seconds: float, rate_hz: float) -> dict:
+def raised_responder(master: int, request_b: int, reply: bytes) -> None:
+    """``responder`` at the priority `trajgen virtual-bus` serves at."""
+    with stream_priority():
+        responder(master, request_b, reply)
+
+
+def against_responder(seconds: float, rate_hz: float, spin: bool) -> dict:
     data = (0).to_bytes(2, "little") + (0).to_bytes(4, "little") + MIDDLE_TICK.to_bytes(4, "little")
     reply = encode_fast_sync_status([(0, i, data) for i in IDS])
     master, slave = os.openpty()
     tty.setraw(slave)
     proc = multiprocessing.get_context("fork").Process(
-        target=responder, args=(master, SYNC_WRITE_B + READ_REQUEST_B, reply)
+        target=raised_responder, args=(master, SYNC_WRITE_B + READ_REQUEST_B, reply)
     )
     proc.start()
     try:
-        return client(os.ttyname(slave), seconds, rate_hz, torque=False)
+        return client(os.ttyname(slave), seconds, rate_hz, torque=False, spin=spin)
     finally:
         proc.terminate()
         proc.join()
@@ -159,9 +179,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--rate", type=float, default=1000.0, help="client rate (Hz)")
+    parser.add_argument(
+        "--spin", action="store_true", help="the SDK's port as it opens it (timeout=0: spinning)"
+    )
     args = parser.parse_args()
+    reads = "spinning (timeout=0)" if args.spin else f"timeout {1e3 * READ_TIMEOUT_S:g} ms"
     print(
-        f"# 1 kHz SDK client: sync write + fast sync read of {len(IDS)} servos, {args.seconds:g} s"
+        f"# {args.rate:g} Hz SDK client: sync write + fast sync read of {len(IDS)} servos, "
+        f"{args.seconds:g} s; port reads: {reads}"
     )
     print(f"{os.cpu_count()} cores; load before {os.getloadavg()}")
     print()
@@ -170,9 +195,9 @@ def main() -> None:
         "| p50 ms | p99 ms | max ms |"
     )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    peer = against_responder(args.seconds, args.rate)
+    peer = against_responder(args.seconds, args.rate, args.spin)
     print(row("minimal responder (peer)", peer, os.getloadavg()[0]), flush=True)
-    result, summary = against_virtual_bus(args.seconds, args.rate)
+    result, summary = against_virtual_bus(args.seconds, args.rate, args.spin)
     print(row("trajgen virtual-bus", result, os.getloadavg()[0]))
     print()
     print(f"bus: {summary}")

@@ -141,6 +141,9 @@ _JOINT_BOUNDS = {
     **{f"position_{g}_gain": {"low": 0, "high": GAIN_MAX, "integer": True} for g in "pid"},
     "p_divisor": {"low": 0.0, "low_open": True},
 }
+#: Range of each coordinate of ``payload_offset_m`` (m): a payload beyond a metre from the
+#: roll axis is a slip of the keyboard (1e300 overflows MuJoCo's inertia), not a gimbal.
+_OFFSET_BOUNDS = {"low": -1.0, "high": 1.0}
 
 
 @dataclass(frozen=True)
@@ -220,7 +223,8 @@ class GimbalConfig:
         offset = self.payload_offset_m
         if offset is None:
             offset = tuple(0.03 * float(v) for v in axes.look)
-        object.__setattr__(self, "payload_offset_m", check_numbers("payload_offset_m", offset, 3))
+        offset = check_numbers("payload_offset_m", offset, 3, **_OFFSET_BOUNDS)
+        object.__setattr__(self, "payload_offset_m", offset)
         if self.model is not None:
             object.__setattr__(self, "model", Path(self.model))
         joints = ({},) * n if self.joints is None else self.joints
@@ -273,6 +277,9 @@ _FIELD_BOUNDS = {
     "timestep_s": {"low": 0.0, "high": 0.001, "low_open": True},
     "p_divisor": {"low": 0.0, "low_open": True},
 }
+#: Range of each coordinate of ``payload_offset_m`` (m): a payload beyond a metre from the
+#: roll axis is a slip of the keyboard (1e300 overflows MuJoCo's inertia), not a gimbal.
+_OFFSET_BOUNDS = {"low": -1.0, "high": 1.0}
 
 
 def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> GimbalConfig:
@@ -336,7 +343,7 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
     if "payload_offset_m" in table:
         error = _field_error(path, "payload_offset_m")
         kwargs["payload_offset_m"] = check_numbers(
-            "payload_offset_m", table["payload_offset_m"], 3, error=error
+            "payload_offset_m", table["payload_offset_m"], 3, error=error, **_OFFSET_BOUNDS
         )
     if "model" in table:
         kwargs["model"] = _model_path(table["model"], path)

@@ -347,7 +347,9 @@ def test_real_time_mode_advances_with_the_wall_clock():
         before = plant.time_s
         time.sleep(0.2)
         bus.ping(1)
-        assert 0.2 <= plant.time_s - before < 0.5
+        # The simulation thread keeps the plant on the wall clock (a reply never steps
+        # it: it may be a few 1 ms steps behind when the host is busy).
+        assert 0.2 - 0.01 <= plant.time_s - before < 0.5
 
 
 class _SlowPlant(FirstOrderPlant):

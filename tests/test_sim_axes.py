@@ -231,12 +231,15 @@ def test_the_plant_report_matches_simulate_on_two_joints(tmp_path):
     f = tmp_path / "head.toml"
     f.write_text(HEAD)
     from trajgen.keyframes import load_keyframe_file
-    from trajgen.sim.run import simulate
+    from trajgen.sim.lead import sagged_start
+    from trajgen.sim.run import simulate, simulation_model
 
     kf = load_keyframe_file(f)
     config = gimbal_config_from_tables(kf.tables, f, any_axes=True)
     trajectory = plan_joint_trajectory(kf.spline(), 100.0, config.kinematics())
-    plant = GimbalPlant(config, initial_rad=trajectory.q[0])
+    # where `simulate` starts: sagged under the first goal (the XL330 tilt by 37 mrad)
+    start = sagged_start(trajectory, config, simulation_model(config))
+    plant = GimbalPlant(config, initial_rad=start)
     for j in range(2):
         plant.set_torque_enabled(j, True)
     for goal in trajectory.q:

@@ -32,7 +32,7 @@ import numpy as np
 
 from .axes import AxisSequence, direction_angles
 from .errors import BadArgument, KeyframeFileError
-from .validate import check_number
+from .validate import check_keys, check_number
 
 #: The ``[gimbal]`` keys read here (the simulator reads the rest of the table).
 AXES_KEYS = ("axes", "joints")
@@ -106,11 +106,7 @@ def axis_keyframes(entries, seq: AxisSequence, path: Path):
                 f"{where}: field 'quat': a 2-axis gimbal ({seq.sequence}) cannot hold every "
                 f"orientation; give 'look' = [x, y, z] or {'/'.join(seq.joints)} (degrees)"
             )
-        for key in kf:
-            if key not in known:
-                raise KeyframeFileError(
-                    f"{where}: unknown field '{key}' (known: {', '.join(known)})"
-                )
+        check_keys(kf, known, error=lambda m, w=where: KeyframeFileError(f"{w}: {m}"), kind="field")
         angles = [k for k in seq.joints if k in kf]
         if angles and orientation in kf:
             raise KeyframeFileError(

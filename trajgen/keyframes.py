@@ -302,7 +302,8 @@ def read_text(path) -> str:
         with open(path, "rb") as f:
             data = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
-        raise KeyframeFileError(f"{path}: no such file") from None
+        stdin = " (standard input is not read: give a file name)" if str(path) == "-" else ""
+        raise KeyframeFileError(f"{path}: no such file{stdin}") from None
     except IsADirectoryError:
         raise KeyframeFileError(f"{path}: is a directory, not a keyframe file") from None
     except OSError as e:
@@ -617,7 +618,7 @@ def _keyframes(columns: dict, path: Path, minimum: int = 2) -> tuple[np.ndarray,
             f"{path}: keyframe {i + 1}: field 't': {t[i]:g} s is not after keyframe {i}'s "
             f"{t[i - 1]:g} s"
         )
-    zero = has_quat & (np.linalg.norm(np.nan_to_num(quat), axis=1) < 1e-12)
+    zero = has_quat & (np.hypot.reduce(np.nan_to_num(quat), axis=1) < 1e-12)  # no overflow
     if zero.any():
         raise KeyframeFileError(
             f"{path}: keyframe {_first(zero) + 1}: field 'quat': zero quaternion"

@@ -21,11 +21,13 @@ write of registers the plant does not simulate (it raises one of
 
 - real time (``lockstep_dt_s=None``, the default): simulated time is the wall
   clock since ``start``, in whole steps of ``sim_step_s``. A simulation thread
-  keeps the plant there whether packets arrive or not (it wakes every 5 ms),
-  and each packet first brings the plant to its arrival time, so a reply
-  shows the state at that time and never waits for more than 5 ms of
-  simulation, even after a long pause (further behind, on a busy host, the
-  reply goes out with the state it has, counted in ``stale_replies``);
+  steps the plant once per step of wall time whether packets arrive or not,
+  and publishes the present values after each step; the serving thread
+  answers every read from the latest of them and never steps the plant, so a
+  reply never waits for the simulation (when the simulation falls more than
+  5 ms behind the wall clock, on a busy host, the reply goes out with the
+  state it has, counted in ``stale_replies``). Writes still go through every
+  register rule and reach the plant at once (goals, torque, gains);
 - lock-step (``lockstep_dt_s`` given): simulated time advances only with the
   host's traffic, by exactly ``lockstep_dt_s`` per period, so a run does not
   depend on the host's timing and goes as fast as the plant computes. A period
@@ -101,7 +103,10 @@ __all__ = ["IN_POSITION_TICKS", "Fault", "VirtualBus", "WireTiming"]
 # Thread switch interval while serving (the default is 5 ms; see VirtualBus.start).
 _SWITCH_INTERVAL_S = 1e-3
 # Registers that decide how Goal Position is clamped (the limits, in Position Mode).
-_GOAL_CLAMP = {"Min Position Limit", "Max Position Limit", "Operating Mode"}
+_GOAL_CLAMP = frozenset({"Min Position Limit", "Max Position Limit", "Operating Mode"})
+# Registers whose writes the plant hears at once (``_written``), and the id registers.
+_CONTROL = frozenset(CONTROL_REGISTERS)
+_IDS = frozenset({"ID", SECONDARY_ID})
 
 
 def _chain_plant(plant: Plant | None, ids: tuple[int, ...], plant_ids) -> Plant:
@@ -273,6 +278,7 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self.sim_time_s = 0.0
         self.lock = threading.Lock()
         self._io_lock = threading.Lock()  # around reading the master and answering
+        self._lock_wanted = False  # a packet waits for ``lock`` (the simulation yields)
         self._client_answers = False
         self._reader = PacketReader()
         self._goal_rad = np.asarray(plant.read()[0], dtype=float).copy()
@@ -296,10 +302,12 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._late: list[tuple[float, int, bytes]] = []
         self._late_count = 0
         self._switch_interval_s = sys.getswitchinterval()
-        self._started_s = time.monotonic()
+        self._started_s = self._credit_at_s = time.monotonic()
         self._steps_done = 0
+        self._credit_s = 0.0  # real time: simulated time the thread may run now (s)
         self.stale_replies = 0
         self.stale_max_s = 0.0
+        self._publish()
 
     # -- life cycle --------------------------------------------------------
 
@@ -320,8 +328,11 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._stop.clear()
         self._reader = PacketReader()
         self._client_answers = False
-        self._started_s = time.monotonic()
-        self._steps_done = 0
+        with self.lock:
+            self._started_s = self._credit_at_s = time.monotonic()
+            self._steps_done = 0
+            self._credit_s = 0.0
+            self._publish()
         self._last_packet_s = dict.fromkeys(self.ids, self._now())
         targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
         self._threads = [
@@ -407,9 +418,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
         j = self._joint[servo_id]
         servo = self.servos[servo_id]
-        if names & set(CONTROL_REGISTERS):  # first: the plant may refuse them
+        if not _CONTROL.isdisjoint(names):  # first: the plant may refuse them
             self.plant.set_control(j, self._control(servo))
-        if names & {"ID", SECONDARY_ID}:
+        if not _IDS.isdisjoint(names):
             self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
@@ -441,7 +452,10 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
-            self._catch_up_for_reply(arrival_s)
+            self._note_staleness(arrival_s)
+            # A silence longer than a watchdog's period has tripped it, whether or not
+            # the simulation thread has run since.
+            self._check_watchdogs(arrival_s)
         for servo_id in self._addressed(packet.servo_id, acting=True):
             self._last_packet_s[servo_id] = self._now()
         handler = self._HANDLERS.get(packet.instruction, InstructionHandlers._unknown)

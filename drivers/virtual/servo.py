@@ -27,7 +27,8 @@ size, so no simulated quantity can overflow a register.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import struct
+from collections.abc import Iterable, Mapping, Sequence
 
 from trajgen.drivers.control_table import (
     EEPROM_END,
@@ -49,6 +50,24 @@ _GOALS = ("Goal PWM", "Goal Current", "Goal Velocity", "Goal Position")
 #: What changing Operating Mode resets (``control_table.MODE_RESETS``, and Goal
 #: Current on the models that have it; Goal PWM / Goal Current go to their limits).
 _MODE_RESETS = (*(r.value for r in MODE_RESETS), "Goal Current")
+
+#: The present-value registers the simulation fills (``store_present``), in address
+#: order: one contiguous block (120..143) on every X-series model. Present Current
+#: is Present Load on the XL430s (same address, another unit).
+PRESENT_REGISTERS = (
+    "Realtime Tick",
+    "Moving",
+    "Moving Status",
+    "Present PWM",
+    "Present Current",
+    "Present Velocity",
+    "Present Position",
+    "Velocity Trajectory",
+    "Position Trajectory",
+)
+#: struct codes of a register by (size in bytes, signed).
+_STRUCT_CODE = {(1, False): "B", (1, True): "b", (2, False): "H", (2, True): "h"}
+_STRUCT_CODE.update({(4, False): "I", (4, True): "i"})
 
 #: FACTORY_RESET options (Protocol 2.0): what each keeps.
 FACTORY_RESET_KEEPS = {0xFF: (), 0x01: ("ID",), 0x02: ("ID", "Baud Rate")}
@@ -120,6 +139,12 @@ class VirtualServo:
         for register in Register:
             if register.value in self._layout:
                 self._layout[register] = self._layout[register.value]
+        # name or Register -> (unpack_from, pack_into, address): one C call per access
+        self._codec = {}
+        for key, (address, size, signed, _, _) in self._layout.items():
+            packing = struct.Struct("<" + _STRUCT_CODE[size, signed])
+            self._codec[key] = (packing.unpack_from, packing.pack_into, address)
+        self._present_start, self._present_struct, self._present_spans = self._present_layout()
         self.firmware = firmware
         self.turn_offset_ticks = 0
         self.pending: tuple[int, bytes] | None = None
@@ -136,18 +161,51 @@ class VirtualServo:
 
     def get(self, register: Register | str) -> int:
         """A register's value (signed where signed)."""
-        address, size, signed, _, high = self._layout[register]
-        value = int.from_bytes(self.memory[address : address + size], "little")
-        return value - (1 << (8 * size)) if signed and value > high else value
+        unpack, _, address = self._codec[register]
+        return unpack(self.memory, address)[0]
 
     def set(self, register: Register | str, value: int) -> None:
         """Store a value, bypassing the write rules (the servo itself).
 
         The value is clamped to what the register can hold.
         """
-        address, size, _, low, high = self._layout[register]
-        value = min(max(int(value), low), high)
-        self.memory[address : address + size] = (value % (1 << (8 * size))).to_bytes(size, "little")
+        _, _, _, low, high = self._layout[register]
+        _, pack, address = self._codec[register]
+        pack(self.memory, address, min(max(int(value), low), high))
+
+    def _present_layout(self) -> tuple[int, struct.Struct, tuple[tuple[int, int], ...]]:
+        """Where ``PRESENT_REGISTERS`` start, their packing, each one's (lowest, highest).
+
+        Raises
+        ------
+        KeyError
+            If the model's table does not hold them as one block in that order.
+        """
+        start = address = self._layout[PRESENT_REGISTERS[0]][0]
+        codes, spans = [], []
+        for name in PRESENT_REGISTERS:
+            at, size, signed, low, high = self._layout[name]
+            if at != address:
+                raise KeyError(f"{self.model.name}: {name!r} at {at}, expected {address}")
+            codes.append(_STRUCT_CODE[size, signed])
+            spans.append((low, high))
+            address += size
+        return start, struct.Struct("<" + "".join(codes)), tuple(spans)
+
+    def store_present(self, values: Sequence[int]) -> None:
+        """Store every one of ``PRESENT_REGISTERS`` at once (the servo itself, as ``set``).
+
+        Parameters
+        ----------
+        values : sequence of int, shape (9,)
+            In ``PRESENT_REGISTERS`` order, register units; each is clamped to what
+            its register can hold.
+        """
+        clamped = [
+            min(max(int(v), low), high)
+            for v, (low, high) in zip(values, self._present_spans, strict=True)
+        ]
+        self._present_struct.pack_into(self.memory, self._present_start, *clamped)
 
     def _load(self, names: Iterable[str], installed: Mapping[str, int]) -> None:
         """Set ``names`` to their installed or initial values."""
@@ -196,10 +254,16 @@ class VirtualServo:
         pointer = self._indirect.get(address)
         return address if pointer is None else self.get(pointer)
 
+    def direct(self, address: int, length: int) -> bool:
+        """Whether ``length`` bytes at ``address`` hold no Indirect Data byte (each is itself)."""
+        return self._indirect.keys().isdisjoint(range(address, address + length))
+
     def read(self, address: int, length: int) -> tuple[int, bytes]:
         """READ: (status error, data); Indirect Data bytes read their targets."""
         if length == 0 or address + length > self.table_end:
             return StatusError.ACCESS, b""
+        if self.direct(address, length):
+            return 0, bytes(self.memory[address : address + length])
         return 0, bytes(self.memory[self.target(a)] for a in range(address, address + length))
 
     def _resolve(self, address: int, data: bytes) -> tuple[int, dict[int, int]]:
@@ -208,13 +272,21 @@ class VirtualServo:
             return StatusError.DATA_LENGTH, {}
         if address + len(data) > self.table_end:
             return StatusError.ACCESS, {}
+        if self.direct(address, len(data)):
+            return 0, dict(zip(range(address, address + len(data)), data, strict=True))
         return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
 
     def _new_value(self, name: str, bytes_: dict[int, int]) -> int:
-        address, size, signed, _, high = self._layout[name]
-        raw = bytes(bytes_.get(a, self.memory[a]) for a in range(address, address + size))
-        value = int.from_bytes(raw, "little")
-        return value - (1 << (8 * size)) if signed and value > high else value
+        """A register's value once the target bytes ``bytes_`` are written."""
+        unpack, _, address = self._codec[name]
+        span = range(address, address + self._layout[name][1])
+        if bytes_.keys().isdisjoint(span):  # not written
+            return unpack(self.memory, address)[0]
+        raw = bytearray(self.memory[span.start : span.stop])
+        for a in span:
+            if a in bytes_:
+                raw[a - address] = bytes_[a]
+        return unpack(raw, 0)[0]
 
     def check_write(self, address: int, data: bytes) -> tuple[int, dict[int, int], set[str]]:
         """What a WRITE of ``data`` at ``address`` would do.
@@ -239,7 +311,7 @@ class VirtualServo:
             names.add(name)
         for name in names:
             start, size = self.items[name]
-            if any(a not in bytes_ for a in range(start, start + size)):
+            if len(bytes_.keys() & range(start, start + size)) != size:
                 return StatusError.DATA_LENGTH, {}, set()
             if not self.rules[name].writable:
                 return StatusError.ACCESS, {}, set()

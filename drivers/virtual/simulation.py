@@ -12,20 +12,25 @@ from __future__ import annotations
 import select
 import time
 
+import numpy as np
+
 from trajgen.drivers.control_table import WATCHDOG_UNIT_S
 from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks
 from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.servo_table import PWM_FULL_SCALE
 
-# Real time: how often the simulation thread wakes (s), and the most steps it
-# runs per hold of the lock (short holds: a packet may be waiting for it).
-_SIM_WAKE_S = 0.005
+# Real time: the most steps the simulation thread runs per hold of the lock
+# (short holds: a packet may be waiting for it).
 _MAX_STEPS_PER_HOLD = 2
-# Real time: the most simulation a packet waits for before its reply (s). A servo
-# answers within its Return Delay Time whatever happens; when the simulation thread
-# has fallen further behind (a busy host), the reply carries the state that far
-# back (counted in ``stale_replies``) and the thread catches up.
-_MAX_CATCH_UP_S = 0.005
+# Real time: the simulation never runs faster than this many times real time. After
+# the host held it back (a stall), it catches up over 1 / (rate - 1) times the
+# stall's length instead of at once: the servos never seem to move faster than
+# their simulation lets them (a jump would read as an encoder glitch).
+_CATCH_UP_RATE = 1.5
+# Real time: a reply carries the state of the simulation's latest step; when that
+# is further behind the packet's arrival than this (s), the simulation thread
+# could not keep real time (a busy host): counted in ``stale_replies``.
+_STALE_S = 0.005
 # The first and last of the motion registers the plant fills (addresses 120..143;
 # a read of them is a poll). Present Input Voltage and Temperature follow them.
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
@@ -44,53 +49,84 @@ class SimulatedTime:
         if self.lockstep_dt_s is not None:
             self._check_watchdogs(self.sim_time_s)
 
-    def _catch_up(self, now_s: float, max_steps: int | None = None) -> None:
-        """Real time: advance the plant by whole steps to ``now_s`` (lock held)."""
+    def _catch_up(self, now_s: float) -> None:
+        """Real time: advance the plant by whole steps toward ``now_s`` (lock held).
+
+        At most ``_MAX_STEPS_PER_HOLD`` steps, and never faster than
+        ``_CATCH_UP_RATE`` times real time: the steps come out of a credit of
+        simulated time that grows at that rate with the wall clock, capped at
+        one hold's worth.
+        """
+        cap = _MAX_STEPS_PER_HOLD * self.sim_step_s
+        self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
+        self._credit_at_s = now_s
         due = int((now_s - self._started_s) / self.sim_step_s)
-        steps = due - self._steps_done
-        if max_steps is not None:
-            steps = min(steps, max_steps)
+        steps = min(due - self._steps_done, int(self._credit_s / self.sim_step_s + 1e-9))
         if steps > 0:
             self._advance(steps * self.sim_step_s)
             self._steps_done += steps
+            self._credit_s -= steps * self.sim_step_s
 
-    def _catch_up_for_reply(self, arrival_s: float) -> None:
-        """Real time: bring the plant to a packet's arrival, at most ``_MAX_CATCH_UP_S`` of it.
+    def _publish(self) -> None:
+        """Real time: the state replies carry from now on (lock held; after each step).
 
-        Further behind, the reply does not wait: ``stale_replies`` counts it and
-        ``stale_max_s`` keeps how far behind the state it carries was (s).
+        One tuple, swapped in whole: (simulated time (s), position (rad), velocity
+        (rad/s), current (A), drive output), the arrays as lists.
         """
-        self._catch_up(arrival_s, max(1, round(_MAX_CATCH_UP_S / self.sim_step_s)))
-        behind = int((arrival_s - self._started_s) / self.sim_step_s) - self._steps_done
-        if behind > 0:
+        position, velocity, current = self.plant.read()
+        self._snapshot = (
+            self._steps_done * self.sim_step_s,
+            rad_to_servo_ticks(position).tolist(),
+            np.asarray(velocity, dtype=float).tolist(),
+            np.asarray(current, dtype=float).tolist(),
+            np.asarray(self.plant.present_pwm(), dtype=float).tolist(),
+        )
+
+    def _note_staleness(self, arrival_s: float) -> None:
+        """Real time: count a reply whose state is more than ``_STALE_S`` behind its arrival.
+
+        The reply never waits for the simulation: it carries the latest step's
+        state. ``stale_replies`` counts those further behind and ``stale_max_s``
+        keeps the furthest (s).
+        """
+        behind = (arrival_s - self._started_s) - self._snapshot[0]
+        if behind > _STALE_S + self.sim_step_s:
             self.stale_replies += 1
-            self.stale_max_s = max(self.stale_max_s, behind * self.sim_step_s)
+            self.stale_max_s = max(self.stale_max_s, behind)
 
     def _simulate(self) -> None:
         """Real time: keep the plant on the wall clock, whatever the traffic.
 
-        Wakes every ``_SIM_WAKE_S``; a packet brings the plant to its arrival
-        time itself, so a reply waits for at most that much simulation. Steps
-        in short holds of the lock, and not while a packet is waiting.
+        Steps once per ``sim_step_s`` of wall time, sleeping until the next step
+        is due, and publishes the present values after each (``_publish``): the
+        serving thread answers from them and never steps the plant itself. It
+        holds the lock for at most ``_MAX_STEPS_PER_HOLD`` steps at a time, lets
+        a packet that is waiting go first, and after a stall catches up at
+        ``_CATCH_UP_RATE`` times real time (``_catch_up``).
         """
         while not self._stop.is_set():
             try:
                 waiting = select.select([self._master], [], [], 0)[0]
             except (OSError, ValueError):
                 return  # the port is gone
-            if waiting:  # a packet first: the serving thread needs the lock now
+            if waiting or self._lock_wanted:  # a packet first: it needs the lock now
                 time.sleep(0.0002)
                 continue
             try:
                 with self.lock:
                     now = time.monotonic()
-                    self._catch_up(now, _MAX_STEPS_PER_HOLD)
+                    done = self._steps_done
+                    self._catch_up(now)
                     self._check_watchdogs(now)
-                    behind = int((now - self._started_s) / self.sim_step_s) > self._steps_done
+                    if self._steps_done != done:
+                        self._publish()
             except Exception as e:  # the plant failed: the port goes away
                 self._fail(e)
                 return
-            time.sleep(0 if behind else _SIM_WAKE_S)
+            # Until the next step is due and there is credit for it (never a spin).
+            due_s = self._started_s + (self._steps_done + 1) * self.sim_step_s
+            credit_s = self._credit_at_s + (self.sim_step_s - self._credit_s) / _CATCH_UP_RATE
+            time.sleep(max(0.0, max(due_s, credit_s) - time.monotonic()))
 
     def _commit_goals(self) -> None:
         """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
@@ -103,33 +139,42 @@ class SimulatedTime:
         self.plant.set_goal(self._goal_rad.copy())
 
     def _refresh_present(self, *, poll: bool) -> None:
-        """Fill every servo's present-value registers from the plant.
+        """Fill every servo's present-value registers (120..143).
 
-        In lock-step, a poll with no goal written since the previous poll ends
-        a period first.
+        Real time: from the simulation's latest step (``_publish``); the plant
+        is not called. Lock-step: from the plant, and a poll with no goal
+        written since the previous poll ends a period first.
         """
-        if poll and self.lockstep_dt_s is not None:
-            if self._polled:
-                self._advance(self.lockstep_dt_s)
-            self._polled = True
-        position, velocity, current = self.plant.read()
-        pwm = self.plant.present_pwm()
-        ticks = rad_to_servo_ticks(position)
-        tick_ms = round(self.sim_time_s * 1000) % 32_768
+        if self.lockstep_dt_s is None:
+            sim_s, ticks, velocity, current, pwm = self._snapshot
+        else:
+            if poll:
+                if self._polled:
+                    self._advance(self.lockstep_dt_s)
+                self._polled = True
+            position, velocity, current = self.plant.read()
+            sim_s, ticks = self.sim_time_s, rad_to_servo_ticks(position).tolist()
+            velocity, current = np.asarray(velocity).tolist(), np.asarray(current).tolist()
+            pwm = np.asarray(self.plant.present_pwm()).tolist()
+        tick_ms = round(sim_s * 1000) % 32_768
         for j, servo_id in enumerate(self.ids):
             servo = self.servos[servo_id]
-            present = servo.present_ticks(int(ticks[j]))
+            present = servo.present_ticks(ticks[j])
             speed = round(velocity[j] / VELOCITY_UNIT_RAD_S)
             goal = servo.get("Goal Position")
-            servo.set("Realtime Tick", tick_ms)
-            servo.set("Present Position", present)
-            servo.set("Present Velocity", speed)
-            servo.set("Present Current", servo.model.current_raw(current[j]))
-            servo.set("Present PWM", round(pwm[j] * PWM_FULL_SCALE))
-            servo.set("Position Trajectory", goal)
-            servo.set("Velocity Trajectory", 0)
-            servo.set("Moving", abs(speed) > servo.get("Moving Threshold"))
-            servo.set("Moving Status", self._moving_status(servo, goal - present))
+            servo.store_present(
+                (
+                    tick_ms,  # Realtime Tick
+                    abs(speed) > servo.get("Moving Threshold"),  # Moving
+                    self._moving_status(servo, goal - present),
+                    round(pwm[j] * PWM_FULL_SCALE),  # Present PWM
+                    servo.model.current_raw(current[j]),  # Present Current
+                    speed,  # Present Velocity
+                    present,  # Present Position
+                    0,  # Velocity Trajectory
+                    goal,  # Position Trajectory
+                )
+            )
 
     @staticmethod
     def _moving_status(servo: VirtualServo, error_ticks: int) -> int:
@@ -149,6 +194,8 @@ class SimulatedTime:
         """Whether a read of ``address``.. touches the motion registers (a poll)."""
         low = servo.items[_PRESENT_FIRST][0]
         high = sum(servo.items[_PRESENT_LAST])
+        if servo.direct(address, length):  # no Indirect Data byte: one overlap test
+            return address < high and low < address + length
         return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     def _check_watchdogs(self, now_s: float) -> None:

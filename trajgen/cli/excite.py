@@ -69,13 +69,13 @@ def register(subparsers) -> None:
         type=positive_float,
         default=8.0,
         metavar="S",
-        help=f"duration (s), 3 to {MAX_SECONDS:g}; default 8",
+        help=f"duration (s), 3 to {MAX_SECONDS:g} (default %(default)g)",
     )
     p.add_argument(
         "--amplitude",
         type=positive_float,
         metavar="DEG",
-        help="largest excursion of every joint (deg); default pan 25, tilt 15, roll 20",
+        help="largest excursion of every joint (deg) (default pan 25, tilt 15, roll 20)",
     )
     p.set_defaults(func=run_excite)
 
@@ -129,6 +129,8 @@ def excitation_file(args) -> ExcitationFile:
     amplitude = (
         DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3
     )
+    if args.amplitude is not None and args.amplitude > 180:
+        raise BadInput(f"--amplitude {args.amplitude:g}: more than 180 deg, half a turn")
     if args.seconds > MAX_SECONDS:
         raise BadInput(
             f"--seconds {args.seconds:g}: longer than {MAX_SECONDS:g} s, the longest excitation "

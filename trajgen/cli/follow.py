@@ -48,8 +48,10 @@ stdin the stream ends once the last keyframe is reached.
 
 Bring-up, stop signals, safe stop and report are those of `trajgen stream`;
 bring-up checks the whole range the joint limits allow against the servos'
-installed limits. --virtual streams in real time (the lines do), unlike
-`trajgen stream --virtual`, and ends with the torque report of what was streamed.
+installed limits. --virtual streams on simulated time paced by the wall clock:
+in real time beside the lines where the host keeps up, slower (never late, and
+said at the end) where it does not; unlike `trajgen stream --virtual`, which
+runs as fast as it can. It ends with the torque report of what was streamed.
 On a signal the servos hold their last goal, or are released with --torque-off."""
 
 
@@ -128,11 +130,20 @@ def follow(args, lines) -> int:
 
     def go(session, job):
         try:
-            return session.follow(made["follower"], lines)
+            outcome = session.follow(made["follower"], lines)
         finally:
             print(made["follower"].format())
+        if outcome.clock is not None:  # --virtual: simulated time, paced by the wall clock
+            made["clock"] = outcome.clock
+            print(f"follow: {outcome.clock.format()}")
+        return outcome
 
     def extra():
-        return {"follow": made["follower"].summary()} if "follower" in made else {}
+        if "follower" not in made:
+            return {}
+        summary = made["follower"].summary()
+        if "clock" in made:
+            summary["simulated_time"] = made["clock"].summary()
+        return {"follow": summary}
 
     return stream_command.run_plan(args, make_job, go, extra)

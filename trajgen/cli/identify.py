@@ -31,9 +31,9 @@ telemetry logged by `trajgen excite` (or `trajgen stream --telemetry`), with
 mujoco.sysid (install the extra: pip install 'trajgen[sysid]'). FILE gives the
 gimbal (its [gimbal] table: servos, payload) and the starting values. Prints
 fit, 95 % interval and residual per joint and names every parameter the logs
-do not excite enough; writes FITTED.toml: FILE with its [gimbal.pan],
+do not excite enough; writes OUT.toml: FILE with its [gimbal.pan],
 [gimbal.tilt], [gimbal.roll] tables replaced by the fit (intervals in
-comments), ready for `trajgen sim FITTED.toml` (written whole or not at all;
+comments), ready for `trajgen sim OUT.toml` (written whole or not at all;
 never over FILE or a log).
 
 Each row's present values are taken --delay-ms after its goal (default 0: what
@@ -68,7 +68,7 @@ def register(subparsers) -> None:
         help="telemetry logs (.csv, .npz or .mcap) of trajgen excite",
     )
     p.add_argument(
-        "--out", metavar="FITTED.toml", required=True, help="write the fitted file to FITTED.toml"
+        "--out", metavar="OUT.toml", required=True, help="write the fitted file to OUT.toml"
     )
     p.add_argument("--no-current", action="store_true", help="do not fit the logged current")
     p.add_argument(
@@ -83,7 +83,7 @@ def register(subparsers) -> None:
         type=float,
         default=0.0,
         metavar="MS",
-        help="time from a goal to its row's present values (ms); default 0",
+        help="time from a goal to its row's present values (ms) (default %(default)g)",
     )
     p.add_argument("--fit-delay", action="store_true", help="fit that delay too")
     p.add_argument(
@@ -96,7 +96,7 @@ def register(subparsers) -> None:
         type=positive_int,
         default=30,
         metavar="N",
-        help="Gauss-Newton iterations (default 30)",
+        help="Gauss-Newton iterations (default %(default)d)",
     )
     p.set_defaults(func=run_identify)
 
