@@ -38,6 +38,8 @@ class WallClock:
 
     #: Whether waiting for a deadline takes that much of the host's time.
     real_time = True
+    #: Whether the wall clock paces it (a stream on it runs at the stream's priority).
+    paced = True
 
     def now(self) -> float:
         """``time.monotonic()``."""
@@ -58,6 +60,7 @@ class SimulatedClock:
     """
 
     real_time = False
+    paced = False
 
     def __init__(self, start_s: float = 0.0) -> None:
         self.time_s = float(start_s)
@@ -106,6 +109,10 @@ class PacedClock(SimulatedClock):
         ``wait(wall_deadline_s)``: returns once ``wall()`` reaches it; default
         this module's ``sleep_until``.
 
+    A stream on it runs at the stream's priority, as on the wall clock
+    (``Streamer(realtime=True)``, ``drivers.priority``), so that it keeps the
+    wall clock's pace where it can; it is not probed (no frame can be late).
+
     Attributes
     ----------
     lag_s : float
@@ -117,6 +124,8 @@ class PacedClock(SimulatedClock):
     behind_s : float
         Simulated time lost to the wall clock in those shifts (s).
     """
+
+    paced = True
 
     def __init__(
         self,

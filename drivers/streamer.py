@@ -196,7 +196,7 @@ class StreamStats:
         A goal write's wire time and what a read-back took before the stream (s, median;
         NaN when not probed: on a simulated clock, or ``probe_frames=0``).
     scheduling : str
-        How the stream thread was scheduled on the wall clock
+        How the stream thread was scheduled on the wall clock or a paced one
         (``drivers.priority``; "" when not raised: a simulated clock, or
         ``realtime=False``).
     fault : str
@@ -394,7 +394,8 @@ class Streamer:
         is what does not fit (a ``RuntimeWarning``; ``stats.read_every``); see
         ``drivers.probe``. 0: no probe.
     realtime : bool, optional
-        On the wall clock, stream from a thread raised to ``SCHED_FIFO`` with
+        On the wall clock (or a clock it paces, ``clock.paced``: a
+        ``drivers.clock.PacedClock``), stream from a thread raised to ``SCHED_FIFO`` with
         a short GIL switch interval (``drivers.priority``; said in
         ``stats.scheduling``, also where the system does not permit it).
 
@@ -539,8 +540,8 @@ class Streamer:
         self._glitches = np.zeros(len(self.joints), dtype=int)
         failed_before = self.bus.failed_tries
         priority = contextlib.nullcontext("")
-        if self.realtime and self.clock.real_time:
-            priority = stream_priority()
+        if self.realtime and getattr(self.clock, "paced", self.clock.real_time):
+            priority = stream_priority()  # a clock the wall clock paces (PacedClock too)
         try:
             if self.telemetry_path is not None:
                 models = [self.bus.models[i] for i in self.joints.ids]

@@ -279,6 +279,7 @@ def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_l
     change built in steps between frames): no frame beyond the limits (a change that
     were not C2 would give an unbounded jerk), and it settles on the last report."""
     import json
+    import queue
     import threading
 
     from trajgen.follower import Follower
@@ -290,22 +291,25 @@ def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_l
     reports = face + rng.normal(0.0, 0.01, face.shape)
     spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
     f = Follower(spline, 1000.0, limits=LIMITS)
-    last, i, errors = None, 0, []
+    lines, i, errors = queue.Queue(), 0, []
+
+    def reader():  # one thread feeds the lines in order, as `trajgen follow` reads them
+        while (item := lines.get()) is not None:
+            try:
+                f.feed(*item)
+            except ValueError as e:  # pragma: no cover - reported below
+                errors.append(str(e))
+
+    feeder = threading.Thread(target=reader)
+    feeder.start()
     for frame in f.frames():
         if i < len(t_lines) and frame.t >= t_lines[i]:
-            line = json.dumps({"look_at": reports[i].tolist()})
-
-            def feed(line=line, n=i + 1):
-                try:
-                    f.feed(line, n)
-                except ValueError as e:  # pragma: no cover - reported below
-                    errors.append(str(e))
-
-            last = threading.Thread(target=feed)
-            last.start()
+            lines.put((json.dumps({"look_at": reports[i].tolist()}), i + 1))
             i += 1
-        if not spline.closed and i == len(t_lines) and not last.is_alive():
-            spline.close()
+            if i == len(t_lines):
+                lines.put(None)
+        if not spline.closed and i == len(t_lines) and not feeder.is_alive():
+            spline.close()  # every line's change made
     assert errors == [] and len(f.keyframes) >= len(t_lines) - 5
     traj = f.trajectory()
     assert (np.abs(traj.qd) <= LIMITS[0]).all() and (np.abs(traj.qdd) <= LIMITS[1]).all()

@@ -23,6 +23,11 @@ import math
 from trajgen.drivers.control_table import WATCHDOG_UNIT_S
 from trajgen.drivers.virtual.bus import VirtualBus
 
+# A real-time VirtualBus underneath (lockstep_dt_s None: no period per goal or poll,
+# replies from the state ``_publish`` stores), with these in place of the simulation
+# thread and the wall clock: ``_now``, ``_handle`` (the plant brought to the clock's
+# time first), ``_note_staleness``, ``_simulate``, ``attach_client`` and ``connect``.
+
 # Steps closer than this fraction of a step to a whole number of them count as whole.
 _STEP_ROUNDING = 1e-9
 
@@ -78,19 +83,30 @@ class ClockedBus(VirtualBus):
     def _simulate(self) -> None:
         """No simulation thread: the plant moves when a packet comes, to the clock's time."""
 
-    def _catch_up_for_reply(self, arrival_s: float) -> None:
-        """Bring the plant to the clock's time (lock held), tripping Bus Watchdogs on the way."""
-        target = self.clock.now() - self._clock_start_s
+    def _handle(self, raw: bytes, arrival_s: float):
+        """Bring the plant to the clock's time, then answer the packet as it arrived then."""
+        self._catch_up_to_clock()
+        return super()._handle(raw, self._now())
+
+    def _note_staleness(self, arrival_s: float) -> None:
+        """Never stale: every reply carries the state at the clock's time."""
+
+    def _catch_up_to_clock(self) -> None:
+        """Step the plant to the clock's time (lock held), tripping Bus Watchdogs on the
+        way (each in the step its period ends), and publish the state replies carry."""
+        target = self._now() - self._clock_start_s
         while True:
             steps = math.floor((target - self.sim_time_s) / self.sim_step_s + _STEP_ROUNDING)
             if steps <= 0:
-                return
+                break
             trip = self._next_trip_s() - self._clock_start_s
             if trip < target:  # up to the step in which the first watchdog trips
                 first = math.floor((trip - self.sim_time_s) / self.sim_step_s) + 1
                 steps = min(steps, max(first, 1))
             self._advance(steps * self.sim_step_s)  # sim_time_s too
+            self._steps_done += steps
             self._check_watchdogs(self._clock_start_s + self.sim_time_s)
+        self._publish()
 
     def _next_trip_s(self) -> float:
         """The clock time (s) after which the first armed Bus Watchdog trips (inf if none)."""

@@ -12,8 +12,7 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from trajgen.cli.messages import BadInput, bad_input
-from trajgen.errors import TrajgenError
+from trajgen.cli.messages import BadInput
 
 #: Image formats ``--plot`` accepts (matplotlib's Agg backend writes each).
 PLOT_SUFFIXES = (".png", ".pdf", ".svg", ".jpg", ".jpeg")
@@ -217,23 +216,3 @@ def check_stream_outputs(args) -> None:
     check_telemetry_path(args.telemetry, TELEMETRY_SUFFIXES, inputs)
     check_output_path("--json", args.json, (".json",), inputs)
     check_plot_path(args.plot, inputs)
-
-
-def plot_torque(torque, path: str) -> None:
-    """Plot a torque report to ``path`` (written whole or not at all)."""
-    from trajgen.sim.plot import plot_report
-
-    with output_path("--plot", path) as tmp:
-        plot_report(torque, tmp)
-    print(f"plot: {path}")
-
-
-def write_report(path, result: dict, status: int) -> int:
-    """Write ``result`` to ``path`` (--json) if given; return ``status`` (or bad input)."""
-    if path:
-        try:
-            write_json("--json", path, result)
-        except TrajgenError as e:
-            return bad_input(e)
-        print(f"json: {path}")
-    return status

@@ -17,7 +17,8 @@ import warnings
 from contextlib import contextmanager
 
 from trajgen.cli.messages import BadInput, bad_input, progress_line, tell, warn
-from trajgen.cli.outputs import plot_torque, write_report
+from trajgen.cli.outputs import output_path, write_json
+from trajgen.errors import TrajgenError
 from trajgen.jobs import IdCount, LimitsRefused, NoPort, StreamJob
 
 
@@ -149,3 +150,23 @@ def report(args, result) -> int:
         except OSError as e:
             warn(f"telemetry {result.telemetry}: report not added: {e}")
     return write_report(args.json, result.to_json_dict(), result.exit_status)
+
+
+def plot_torque(torque, path: str) -> None:
+    """Plot a torque report to ``path`` (written whole or not at all)."""
+    from trajgen.sim.plot import plot_report
+
+    with output_path("--plot", path) as tmp:
+        plot_report(torque, tmp)
+    print(f"plot: {path}")
+
+
+def write_report(path, result: dict, status: int) -> int:
+    """Write ``result`` to ``path`` (--json) if given; return ``status`` (or bad input)."""
+    if path:
+        try:
+            write_json("--json", path, result)
+        except TrajgenError as e:
+            return bad_input(e)
+        print(f"json: {path}")
+    return status
