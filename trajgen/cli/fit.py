@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
+    BadInput,
     add_file_argument,
     add_rate_argument,
     bad_input,
@@ -21,7 +23,6 @@ from trajgen.cli.common import (
     output_file,
     tell,
 )
-from trajgen.cli.outputs import check_model_beside
 from trajgen.errors import TrajgenError
 
 _PROGRESS_AFTER_S = 1.0
@@ -84,6 +85,30 @@ class _Progress:
         if elapsed >= _PROGRESS_AFTER_S:
             self.stream.write(f"trajgen fit: {elapsed:5.1f} s {line.strip()}\n")
             self.stream.flush()
+
+
+def check_model_beside(option: str, out, source, tables: dict) -> None:
+    """Refuse an output keyframe file in another folder than ``source`` when the source's
+    ``[gimbal] model`` is a relative name (the written file keeps the name, which would
+    no longer lead to the model).
+
+    Raises
+    ------
+    BadInput
+        ``"--out X: the file's [gimbal] model = 'm.xml' is relative to its folder; write
+        the fitted file there"``.
+    """
+    gimbal = tables.get("gimbal", {})
+    model = gimbal.get("model") if isinstance(gimbal, dict) else None
+    if (
+        isinstance(model, str)
+        and not Path(model).is_absolute()
+        and Path(out).resolve().parent != Path(source).resolve().parent
+    ):
+        raise BadInput(
+            f"{option} {out}: the file's [gimbal] model = {model!r} is relative to its "
+            "folder; write the fitted file there"
+        )
 
 
 def run_fit(args) -> int:

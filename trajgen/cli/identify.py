@@ -22,7 +22,7 @@ from trajgen.cli.common import (
     positive_int,
     tell,
 )
-from trajgen.cli.outputs import check_model_beside
+from trajgen.cli.fit import check_model_beside
 from trajgen.errors import TrajgenError
 
 DESCRIPTION = """\

@@ -90,30 +90,6 @@ def check_output_path(
         raise BadInput(f"{option} {path!r}: folder {str(folder)!r} is not writable")
 
 
-def check_model_beside(option: str, out, source, tables: dict) -> None:
-    """Refuse an output keyframe file in another folder than ``source`` when the source's
-    ``[gimbal] model`` is a relative name (the written file keeps the name, which would
-    no longer lead to the model).
-
-    Raises
-    ------
-    BadInput
-        ``"--out X: the file's [gimbal] model = 'm.xml' is relative to its folder; write
-        the fitted file there"``.
-    """
-    gimbal = tables.get("gimbal", {})
-    model = gimbal.get("model") if isinstance(gimbal, dict) else None
-    if (
-        isinstance(model, str)
-        and not Path(model).is_absolute()
-        and Path(out).resolve().parent != Path(source).resolve().parent
-    ):
-        raise BadInput(
-            f"{option} {out}: the file's [gimbal] model = {model!r} is relative to its "
-            "folder; write the fitted file there"
-        )
-
-
 def _link_loop(path: Path) -> bool:
     """Whether ``path`` is a symbolic link that never ends in a file or a missing name."""
     try:
