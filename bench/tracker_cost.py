@@ -9,15 +9,21 @@ frame grid) seeded random targets in two regimes:
   vision-loop case: the path must continue from the old one's rates);
 - ``from rest``: a target every 1.5 s, each after the last has arrived.
 
-and prints the CPU time (``time.process_time``) per target, p50 / p99 / max, with
-the candidates it evaluated, how often the change was deferred (no arrival from
-``at`` kept the limits) and the leads chosen. The peer, measured in the same run
-on the same plans, is the timed-keyframe path of ``trajgen follow``: one
-``OnlineSpline.prepare`` of a retarget 0.5 s ahead and the joint-limit /
-lock-margin check ``Follower`` makes on its frames (``GimbalKinematics.inverse``
-of the new path at 1 kHz). Load average printed beside the figures.
+and prints the CPU time (``time.process_time``) per target, p50 / p99 / max, the
+longest single step of ``Tracker.set_target_steps`` (``trajgen follow`` runs one
+step between two frames of its stream, so a step longer than a frame period
+would make a frame late), the steps per target, how often the change was
+deferred (the motion in progress could not keep the limits from ``at``) and the
+arrival leads. The peer, measured in the same run on the same plans, is the
+timed-keyframe path of ``trajgen follow``: one ``OnlineSpline.prepare`` of a
+retarget 0.5 s ahead and the joint-limit / lock-margin check ``Follower`` makes
+on its frames (``GimbalKinematics.inverse`` of the new path at 1 kHz). Load
+average printed beside the figures.
 
-Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1]
+``--envelope`` adds the default gimbal's torque-speed envelope check (MuJoCo's
+inverse dynamics on the new motion's frames), as ``trajgen follow`` passes it.
+
+Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1] [--envelope]
 """
 
 from __future__ import annotations
@@ -28,7 +34,6 @@ import time
 
 import numpy as np
 
-from trajgen import tracker as tracker_module
 from trajgen.gimbal import GimbalKinematics, forward
 from trajgen.online import OnlineSpline
 from trajgen.path import sample_times
@@ -38,17 +43,17 @@ LIMITS = np.array([[3.0] * 3, [20.0] * 3, [200.0] * 3])  # rad/s, rad/s^2, rad/s
 RATE_HZ = 1000.0
 
 
-def counting(tracker):
-    """Count the candidate leads the tracker's coarse search evaluates."""
-    counts = {"candidates": 0}
-    coarse = tracker._coarse
-
-    def wrapped(family, hs, now, limits, u=None):
-        counts["candidates"] += u is None and len(hs)
-        return coarse(family, hs, now, limits, u=u)
-
-    tracker._coarse = wrapped
-    return counts
+def stepped(steps):
+    """Run a generator of steps to its end: its value, and each step's CPU time (s)."""
+    times = []
+    while True:
+        c0 = time.process_time()
+        try:
+            next(steps)
+        except StopIteration as stop:
+            times.append(time.process_time() - c0)
+            return stop.value, times
+        times.append(time.process_time() - c0)
 
 
 def timed_peer(spline, goal, at, kinematics):
@@ -58,24 +63,25 @@ def timed_peer(spline, goal, at, kinematics):
     kinematics.inverse(change.path.evaluate(t, max_order=0).q, t)
 
 
-def run(period_s: float, n: int, seed: int) -> dict:
+def run(period_s: float, n: int, seed: int, envelope=None) -> dict:
     rng = np.random.default_rng(seed)
-    tracker = Tracker(OnlineSpline(forward([0, 0, 0]), 0.0, k=2), LIMITS, rate_hz=RATE_HZ)
-    counts = counting(tracker)
+    tracker = Tracker(
+        OnlineSpline(forward([0, 0, 0]), 0.0, k=2), LIMITS, rate_hz=RATE_HZ, envelope=envelope
+    )
     kinematics = GimbalKinematics()
-    cost, peer, cands, deferred, leads = [], [], [], 0, []
+    cost, peer, longest, steps, deferred, leads = [], [], [], [], 0, []
     t = 0.0
     for _ in range(n):
         goal = np.array([*rng.uniform(-0.6, 0.6, 2), 0.0])
         c0 = time.process_time()
         timed_peer(tracker.spline, goal, t, kinematics)
         c1 = time.process_time()
-        before = counts["candidates"]
-        r = tracker.set_target(angles=goal, at=t)
+        r, times = stepped(tracker.set_target_steps(angles=goal, at=t))
         c2 = time.process_time()
         peer.append(c1 - c0)
         cost.append(c2 - c1)
-        cands.append(counts["candidates"] - before)
+        longest.append(max(times))
+        steps.append(len(times))
         deferred += r.at > t
         leads.append(r.arrival - r.at)
         assert (r.peaks <= LIMITS).all()
@@ -83,7 +89,8 @@ def run(period_s: float, n: int, seed: int) -> dict:
     return {
         "cost": np.array(cost),
         "peer": np.array(peer),
-        "cands": np.array(cands),
+        "longest": np.array(longest),
+        "steps": np.array(steps),
         "deferred": deferred,
         "leads": np.array(leads),
     }
@@ -98,22 +105,31 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--targets", type=int, default=150, help="targets per regime")
     parser.add_argument("--seed", type=int, default=1)
-    args = parser.parse_args()
-    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} (1, 5 min)")
-    print(
-        f"coarse search: {tracker_module.COARSE_SAMPLES} samples per candidate, grid ratio "
-        f"{tracker_module.GRID_RATIO}, {tracker_module.GRID_CHUNK} per step"
+    parser.add_argument(
+        "--envelope",
+        action="store_true",
+        help="also check the default gimbal's torque-speed envelope (MuJoCo), as follow does",
     )
+    args = parser.parse_args()
+    envelope = None
+    if args.envelope:
+        from trajgen.sim.check import envelope_check
+        from trajgen.sim.model import GimbalConfig
+
+        envelope = envelope_check(GimbalConfig())
+        print("with the default gimbal's torque-speed envelope (trajgen.sim.check)")
+    print(f"load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} (1, 5 min)")
     for name, period in (("stream (30 Hz, in motion)", 1 / 30), ("from rest (1.5 s)", 1.5)):
-        out = run(period, args.targets, args.seed)
+        out = run(period, args.targets, args.seed, envelope)
         ratio = np.median(out["cost"]) / np.median(out["peer"])
         print(f"\n{name}, {args.targets} targets")
         print(f"  tracker set_target CPU  {ms(out['cost'])}")
         print(f"  peer: timed retarget    {ms(out['peer'])}")
         print(f"  ratio (p50 / p50)       {ratio:.2f}x the timed line")
+        print(f"  longest step            {ms(out['longest'])}")
         print(
-            f"  candidates per target   median {np.median(out['cands']):.0f}, "
-            f"max {out['cands'].max()}; deferred {out['deferred']} of {args.targets}; "
+            f"  steps per target        median {np.median(out['steps']):.0f}, "
+            f"max {out['steps'].max()}; deferred {out['deferred']} of {args.targets}; "
             f"lead median {np.median(out['leads']):.3f} s"
         )
         print(f"  load average {os.getloadavg()[0]:.2f} (1 min)")

@@ -34,6 +34,7 @@ import argparse
 import json
 import math
 import os
+import queue
 import subprocess
 import sys
 import tempfile
@@ -93,23 +94,28 @@ def run(seconds: float, seed: int, with_lines: bool, envelope):
     if not with_lines:  # the peer: the same stream length, no targets
         spline.extend(forward([[0, 0, 0]]), [seconds], at=0.0)
         t_lines = t_lines[:0]
-    errors, last, i = [], None, 0
+    errors, lines, i = [], queue.Queue(), 0
+
+    def reader():  # one thread feeds the lines in order, as `trajgen follow` reads them
+        while (item := lines.get()) is not None:
+            try:
+                f.feed(*item)
+            except ValueError as e:
+                errors.append(str(e))
+
+    feeder = threading.Thread(target=reader)
+    feeder.start()
+    if not len(t_lines):
+        lines.put(None)
     c0 = time.process_time()
     for frame in f.frames():
         if i < len(t_lines) and frame.t >= t_lines[i]:
-            line = json.dumps({"look_at": noisy[i].round(4).tolist()})
-
-            def feed(line=line, n=i + 1):
-                try:
-                    f.feed(line, n)
-                except ValueError as e:
-                    errors.append(str(e))
-
-            last = threading.Thread(target=feed)
-            last.start()
+            lines.put((json.dumps({"look_at": noisy[i].round(4).tolist()}), i + 1))
             i += 1
-        # every line handed over and made (changes are made in order): the plan is complete
-        if not spline.closed and i == len(t_lines) and (last is None or not last.is_alive()):
+            if i == len(t_lines):
+                lines.put(None)
+        # every line handed over and its change made: the plan is complete
+        if not spline.closed and i == len(t_lines) and not feeder.is_alive():
             spline.close()
     cpu = time.process_time() - c0
     return f, cpu, errors, (t_lines, true, noisy)

@@ -73,7 +73,7 @@ from trajgen.drivers.errors import BringUpError, CommError, DriverError
 from trajgen.drivers.health import PowerLimits, health_problem
 from trajgen.drivers.units import RAD_PER_TICK, TICKS_PER_REV, JointMap
 from trajgen.gimbal import JOINT_NAMES
-from trajgen.lead import sent_q
+from trajgen.lift import sent_goals
 
 from .errors import BadArgument
 
@@ -269,9 +269,10 @@ def _plan_rows(plan) -> tuple[np.ndarray, object]:
     if isinstance(plan, JointRange):
         rows = np.vstack([plan.first_rad, np.asarray(plan.limits_rad, float).T])
         return rows, lambda k: "at its start" if k == 0 else "within its joint limits"
-    t = np.asarray(plan.t, dtype=float)
-    # The goals that will be sent (led ahead of the plan, trajgen.lead), not only the plan.
-    return np.asarray(sent_q(plan), dtype=float), lambda k: f"at t = {t[k]:.3f} s"
+    # The goals that will be sent (led ahead of the plan, trajgen.lead; the lift before
+    # it, trajgen.lift), not only the plan.
+    t, goals = sent_goals(plan)
+    return goals, lambda k: f"at t = {t[k]:.3f} s"
 
 
 @dataclass(frozen=True)

@@ -31,6 +31,7 @@ from trajgen.drivers.control_table import BAUD_RATES, WATCHDOG_UNIT_S
 from trajgen.drivers.defaults import DEFAULT_BAUD
 from trajgen.drivers.units import ZERO_TICK, JointMap
 from trajgen.gimbal import JOINT_NAMES
+from trajgen.gimbal_servos import joint_servos
 from trajgen.keyframe_axes import axes_from_table
 from trajgen.servo_table import DEFAULT_SERVO, servo_spec
 from trajgen.validate import check_keys, check_number, check_numbers
@@ -113,24 +114,6 @@ def _per_joint_error(path, key: str, names: tuple[str, ...]):
     return lambda problem: error(f"{problem} (one per joint: {', '.join(names)})")
 
 
-def _default_models(tables: dict, joints: tuple[str, ...]) -> tuple:
-    """Per joint: ``[gimbal.<joint>] servo``, else ``[gimbal] servo`` (one name, or a
-    table by joint), else the default servo (checked by the caller)."""
-    gimbal = tables.get("gimbal", {})
-    gimbal = gimbal if isinstance(gimbal, dict) else {}
-    servo = gimbal.get("servo", DEFAULT_SERVO)
-    models = []
-    for j in joints:
-        table = gimbal.get(j)
-        if isinstance(table, dict) and "servo" in table:
-            models.append(table["servo"])
-        elif isinstance(servo, dict):
-            models.append(servo.get(j, DEFAULT_SERVO))
-        else:
-            models.append(servo)
-    return tuple(models)
-
-
 def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
     """Parse and check the ``[bus]`` table of a keyframe file.
 
@@ -196,7 +179,9 @@ def bus_config_from_tables(tables: dict, path: str | Path) -> BusConfig:
         error=_per_joint_error(path, "zeros", names),
     )
     joints = JointMap(ids, directions, zeros)
-    models = table.get("models", _default_models(tables, names))
+    models = table.get("models")
+    if models is None:  # the servos the simulator simulates (trajgen.gimbal_servos)
+        models = joint_servos(tables.get("gimbal", {}), names, path)
     models = (models,) * n if isinstance(models, str) else models
     if not isinstance(models, (list, tuple)) or len(models) != n:
         raise _error(path, "models")(f"expected a model name or a list of {n}, got {models!r}")

@@ -19,14 +19,18 @@ from enum import Enum
 
 from trajgen.servo_table import (
     BAUD_RATES,
+    CURRENT_BASED_POSITION_MODE,
+    CURRENT_MODE,
     EEPROM_END,
     EXTENDED_POSITION_MODE,
     GAIN_MAX,
     HARDWARE_ERROR_BITS,
     POSITION_MODE,
     PWM_FULL_SCALE,
+    PWM_MODE,
     SERVOS,
     TICKS_PER_REV,
+    VELOCITY_MODE,
     WATCHDOG_UNIT_S,
     ServoSpec,
     servo_numbered,
@@ -128,11 +132,7 @@ MODE_RESETS = (
     Register.PROFILE_VELOCITY,
 )
 
-# Operating Mode values (e-Manual, "Operating Mode (11)"; 3 and 4 in trajgen.servo_table).
-CURRENT_MODE = 0
-VELOCITY_MODE = 1
-CURRENT_BASED_POSITION_MODE = 5
-PWM_MODE = 16
+# Operating Mode values: trajgen.servo_table (each model's own in ServoSpec.operating_modes).
 OPERATING_MODE_NAMES = {
     CURRENT_MODE: "current control",
     VELOCITY_MODE: "velocity control",

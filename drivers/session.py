@@ -37,7 +37,7 @@ from trajgen.stream import plan_joint_trajectory
 
 from . import bringup
 from .bringup import MAX_APPROACH_RAD, BringUp, JointRange
-from .clock import WALL_CLOCK
+from .clock import WALL_CLOCK, PacedClock
 from .config import BusConfig
 from .defaults import MAX_DELAY_S
 from .errors import BadArgument, BringUpError, DriverError, Interrupted
@@ -85,6 +85,10 @@ class Outcome:
         What stopped the virtual bus, if it failed.
     joint_names : tuple of str
         The joints' names, in the order of the session's ids (``BusConfig.joint_names``).
+    clock : object or None
+        What the stream ran on when the session chose it (``Session.follow``: a
+        ``drivers.clock.PacedClock`` on a virtual bus, whose ``format()`` says how far
+        simulated time fell behind the wall clock); None otherwise.
     """
 
     stopped_by: str = ""
@@ -98,6 +102,7 @@ class Outcome:
     trajectory: object = None
     virtual_error: Exception | None = None
     joint_names: tuple[str, ...] = JOINT_NAMES
+    clock: object = None
 
     @property
     def ok(self) -> bool:
@@ -317,7 +322,7 @@ class Session:
             outcome.signal = signals.received
         return outcome
 
-    def follow(self, follower, lines, *, clock=WALL_CLOCK) -> Outcome:
+    def follow(self, follower, lines, *, clock=None) -> Outcome:
         """Stream a follower's plan while keyframe lines change it.
 
         Bring-up checks where the stream starts and the whole range the
@@ -334,14 +339,20 @@ class Session:
             The keyframe lines (see ``Follower.read``), or a function of the
             follower returning them (to time them against the stream).
         clock : optional
-            The wall clock by default, with a virtual bus too: lines arrive in
-            real time.
+            Default: on a virtual bus (``plant``), a ``drivers.clock.PacedClock``
+            (``outcome.clock``): simulated time, one period per frame, paced by the
+            wall clock, so the stream runs in real time beside the lines where the
+            host keeps up and falls behind the wall clock, never late, where it
+            does not (a line's time counts from the frame being streamed when it
+            arrives, ``Follower``); else the wall clock.
 
         Returns
         -------
         Outcome
             ``trajectory`` is what was streamed.
         """
+        if clock is None:
+            clock = WALL_CLOCK if self.plant is None else PacedClock()
         limits = np.asarray(follower.kinematics.limits_rad, float)
 
         def plan(present):
@@ -357,6 +368,7 @@ class Session:
             return self.leader.frames(frames, follower.rate_hz, limits)
 
         outcome = self.run(plan, follower.rate_hz, frames=frames, clock=clock)
+        outcome.clock = clock if isinstance(clock, PacedClock) else None
         outcome.trajectory = follower.trajectory()
         if follower.fault and outcome.ok:
             outcome.stopped_by = f"a frame the gimbal cannot take: {follower.fault}"

@@ -48,7 +48,7 @@ import math
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
-from itertools import chain
+from itertools import chain, repeat
 from pathlib import Path
 from typing import Literal
 
@@ -154,6 +154,11 @@ class StreamStats:
         Frames of the trajectory, and how many were sent.
     approach_frames : int
         Frames of the move from the present position to the first frame.
+    lift_frames : int
+        Frames of the lift sent before the first frame (``trajgen.lift``: the plan
+        held at its first point while the goals bring the static gravity term in).
+    lift_s : float
+        How long the lift took (s), 0 without one.
     achieved_rate_hz : float
         ``rate_hz`` times planned over actual time between the first and last
         frame sent (NaN with fewer than two frames); stalls lower it.
@@ -191,7 +196,7 @@ class StreamStats:
         A goal write's wire time and what a read-back took before the stream (s, median;
         NaN when not probed: on a simulated clock, or ``probe_frames=0``).
     scheduling : str
-        How the stream thread was scheduled on the wall clock
+        How the stream thread was scheduled on the wall clock or a paced one
         (``drivers.priority``; "" when not raised: a simulated clock, or
         ``realtime=False``).
     fault : str
@@ -202,6 +207,8 @@ class StreamStats:
     frames_planned: int
     frames_sent: int = 0
     approach_frames: int = 0
+    lift_frames: int = 0
+    lift_s: float = 0.0
     achieved_rate_hz: float = math.nan
     period_error_p50_s: float = math.nan
     period_error_p99_s: float = math.nan
@@ -226,9 +233,10 @@ class StreamStats:
     _first: tuple[float, float] | None = field(default=None, repr=False)
     _last: tuple[float, float] | None = field(default=None, repr=False)
 
-    def _sent(self, sent_s: float, planned_s: float, deadline_s: float) -> None:
-        """Record one frame: when it went out, its unshifted and shifted deadlines."""
-        self.frames_sent += 1
+    def _sent(self, sent_s: float, planned_s: float, deadline_s: float, planned: bool) -> None:
+        """Record one frame: when it went out, its unshifted and shifted deadlines;
+        ``planned``: a frame of the stream (not its lift)."""
+        self.frames_sent += planned
         late = sent_s - deadline_s
         self.lateness_max_s = late if not late <= self.lateness_max_s else self.lateness_max_s
         if late > 1.0 / self.rate_hz:
@@ -260,7 +268,9 @@ class StreamStats:
 
         lines = [
             f"frames sent: {self.frames_sent}/{self.frames_planned} "
-            f"(+{self.approach_frames} approach) at {self.rate_hz:g} Hz planned, "
+            f"(+{self.approach_frames} approach"
+            + (f", +{self.lift_frames} lift, {self.lift_s:.3f} s" if self.lift_frames else "")
+            + f") at {self.rate_hz:g} Hz planned, "
             + (
                 "n/a achieved"
                 if math.isnan(self.achieved_rate_hz)
@@ -384,7 +394,8 @@ class Streamer:
         is what does not fit (a ``RuntimeWarning``; ``stats.read_every``); see
         ``drivers.probe``. 0: no probe.
     realtime : bool, optional
-        On the wall clock, stream from a thread raised to ``SCHED_FIFO`` with
+        On the wall clock (or a clock it paces, ``clock.paced``: a
+        ``drivers.clock.PacedClock``), stream from a thread raised to ``SCHED_FIFO`` with
         a short GIL switch interval (``drivers.priority``; said in
         ``stats.scheduling``, also where the system does not permit it).
 
@@ -529,8 +540,8 @@ class Streamer:
         self._glitches = np.zeros(len(self.joints), dtype=int)
         failed_before = self.bus.failed_tries
         priority = contextlib.nullcontext("")
-        if self.realtime and self.clock.real_time:
-            priority = stream_priority()
+        if self.realtime and getattr(self.clock, "paced", self.clock.real_time):
+            priority = stream_priority()  # a clock the wall clock paces (PacedClock too)
         try:
             if self.telemetry_path is not None:
                 models = [self.bus.models[i] for i in self.joints.ids]
@@ -547,19 +558,25 @@ class Streamer:
             if self.power_limits is None:
                 self.power_limits = self._read_power_limits()
             present = self._start_position()
-            first_goal = np.asarray(sent_q(first), float)
+            # The lift (trajgen.lift) comes first: the first frame drawn has set it.
+            lift = getattr(stream, "lift", None)
+            first_goal = np.asarray(sent_q(first) if lift is None else lift.goal[0], float)
             check_start(present, first_goal, self.max_approach_rad, self.joint_names)
             stats.read_every = self.telemetry_every
             t_ramp, q_ramp = min_jerk_ramp(present, first_goal, rate_hz, self.approach_speed_rad_s)
             stats.approach_frames = len(t_ramp)
+            if lift is not None:
+                stats.lift_frames, stats.lift_s = len(lift), lift.duration_s
+            lifting = [] if lift is None else zip(lift.t, lift.goal, repeat(lift.q), repeat("lift"))
             with priority as stats.scheduling:
                 if self.clock.real_time and self.probe_frames:
                     self._probe()
-                self._loop(zip(t_ramp, q_ramp, q_ramp, strict=True), "approach", timed=False)
-                # A frame's goal (led ahead of the plan, trajgen.lead) is sent; its plan is logged.
-                self._loop(
-                    ((f.t, sent_q(f), f.q) for f in chain([first], frames)), "stream", timed=True
-                )
+                approach = zip(t_ramp, q_ramp, q_ramp, repeat("approach"))
+                self._loop(approach, timed=False)
+                # A frame's goal (led ahead of the plan, trajgen.lead) is sent; its plan is
+                # logged (during the lift, the plan's first point, which it holds).
+                streamed = ((f.t, sent_q(f), f.q, "stream") for f in chain([first], frames))
+                self._loop(chain(lifting, streamed), timed=True)
         except (DriverError, KeyboardInterrupt) as e:
             stats.fault = str(e) or type(e).__name__
             self.stop_errors = safe_stop(self.bus, self.joints.ids, self.on_stop, self.restore)
@@ -817,7 +834,8 @@ class Streamer:
                 "not sent"
             )
 
-    def _loop(self, frames, phase: str, *, timed: bool) -> None:
+    def _loop(self, frames, *, timed: bool) -> None:
+        """Send ``frames``, ``(t, goal, plan, phase)`` each, one per period."""
         stats = self.stats
         ids = self.joints.ids
         period = 1.0 / stats.rate_hz
@@ -829,7 +847,7 @@ class Streamer:
         shift = 0.0  # this phase's clock shift (s), from stalls
         t_first = None
         nan = np.full(len(ids), math.nan)
-        for k, (t, q, plan) in enumerate(frames):
+        for k, (t, q, plan, phase) in enumerate(frames):
             t_first = t if t_first is None else t_first
             planned = start + (t - t_first)
             clock.sleep_until(planned + shift)
@@ -844,7 +862,7 @@ class Streamer:
             self.bus.sync_write(Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True)))
             self._frame_no += 1
             if timed:
-                stats._sent(sent, planned, planned + shift)
+                stats._sent(sent, planned, planned + shift, phase == "stream")
             state = (nan, nan, nan)
             power = (nan, nan)
             try:

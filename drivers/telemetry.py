@@ -36,7 +36,9 @@ from .errors import BadArgument
 def telemetry_columns(joint_names: Sequence[str]) -> list[str]:
     """Column names: frame bookkeeping, then per joint plan / goal / present values.
 
-    ``sent_s`` counts from the start of the frame's phase (approach, stream);
+    ``phase`` is "approach", "lift" (``trajgen.lift``: the plan held at its first
+    point while the goals bring the static gravity term in) or "stream";
+    ``sent_s`` counts from the start of the approach, or of the lift and stream;
     ``clock_s`` is the stream clock's reading when the goal went out (s).
     ``plan_rad`` is the planned angle, ``goal_rad`` what was sent (led ahead of
     the plan, ``trajgen.lead``), ``position_rad`` where the servo was:

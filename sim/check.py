@@ -31,7 +31,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from trajgen.keyframes import DEFAULT_RATE_HZ
-from trajgen.lead import DEFAULT_LEAD, check_lead, sent_q
+from trajgen.lead import DEFAULT_LEAD, check_lead
+from trajgen.lift import sent_goals
 from trajgen.sim.errors import TorqueLimitExceeded
 from trajgen.sim.model import GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
@@ -59,7 +60,10 @@ class JointReport:
     rms_torque_nm : float
         RMS simulated torque (N m).
     max_tracking_error_rad : float
-        Max |simulated angle - planned path| (rad).
+        Max |simulated angle - planned path| (rad), from the plan's first frame.
+    max_lift_error_rad : float
+        Max |simulated angle - the plan's first point| (rad) during the lift
+        before it (``trajgen.lift``: from where the servo sags); 0 without one.
     worst_planned_margin_nm : float
         ``min over samples of (margin tau_max(qd) - |tau|)`` for the plan (N m);
         negative means the plan leaves the envelope x margin.
@@ -69,7 +73,7 @@ class JointReport:
         Max |planned joint speed| (rad/s).
     steps_at_limit : int
         Physics steps at the torque limit: the drive at the rated voltage, or the
-        stall-torque clamp when braking.
+        stall-torque clamp when braking (the lift's included).
     ok : bool
     reasons : tuple of str
         Why not ok (empty when ok).
@@ -88,6 +92,7 @@ class JointReport:
     steps_at_limit: int
     ok: bool
     reasons: tuple[str, ...]
+    max_lift_error_rad: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -122,6 +127,8 @@ class TorqueReport:
         Joints that got no lead, and why.
     goal_bounds_rad : ndarray, shape (n, 2), or None
         The range the goals had to stay inside (rad).
+    lift_s : float
+        How long the lift before the plan lasted (s; ``trajgen.lift``), 0 without one.
     """
 
     ok: bool
@@ -139,6 +146,7 @@ class TorqueReport:
     lead: str = "none"
     lead_notes: tuple[str, ...] = ()
     goal_bounds_rad: np.ndarray | None = field(default=None, repr=False)
+    lift_s: float = 0.0
 
     def to_json_dict(self) -> dict:
         """Plain-JSON summary: ``{"ok", "reasons", ..., "joints": {"pan": {...}, ...}}``."""
@@ -157,6 +165,7 @@ class TorqueReport:
             "max_tracking_error_rad": self.max_tracking_error_rad,
             "lead": self.lead,
             "lead_notes": list(self.lead_notes),
+            "lift_s": self.lift_s,
             "joints": joints,
         }
 
@@ -198,6 +207,14 @@ class TorqueReport:
         )
         lines.extend(f"  - {r}" for r in self.reasons)
         lines.extend(f"  note: {r}" for r in self.lead_notes)
+        if self.lift_s:
+            worst = max(self.joints.values(), key=lambda j: j.max_lift_error_rad)
+            lines.append(
+                f"  lift: {self.lift_s:.3f} s before the plan, which holds its first point "
+                f"while the goals lift the servos from their sag (up to "
+                f"{math.degrees(worst.max_lift_error_rad):.2f} deg, {worst.name}); the error "
+                "above is from the plan's start"
+            )
         return "\n".join(lines)
 
 
@@ -349,21 +366,26 @@ def build_report(
     qd_plan = np.asarray(qd, dtype=float)
     tau_rate = np.gradient(tau_smooth, t, axis=0)
     margin = config.torque_margin
-    goal = np.asarray(sent_q(trajectory), dtype=float)
+    sent_t, goal = sent_goals(trajectory)
     bounds = None if goal_bounds_rad is None else np.asarray(goal_bounds_rad, dtype=float)
+    lift = record.lift
+    # Torque and its limit over every step sent, the lift's too; the tracking error
+    # from the plan's first frame, the lift's apart.
+    whole = record.with_lift()
     joints = {}
     for j, name in enumerate(config.names):
         servo = config.servos[j]
         plan_margin = margin * servo.tau_max(qd_plan[:, j]) - np.abs(tau_plan[:, j])
-        sim_margin = margin * servo.tau_max(record.qd[:, j]) - np.abs(record.torque_nm[:, j])
+        sim_margin = margin * servo.tau_max(whole.qd[:, j]) - np.abs(whole.torque_nm[:, j])
         error = np.abs(record.tracking_error_rad[:, j])
-        at_limit = int(record.steps_at_limit[j])
+        lift_error = 0.0 if lift is None else float(np.abs(lift.tracking_error_rad[:, j]).max())
+        at_limit = int(whole.steps_at_limit[j])
         reasons = []
         worst = int(np.argmin(plan_margin))
         if plan_margin[worst] < 0:
             reasons.append(_envelope_reason(name, servo, margin, tau_plan, qd_plan, t, worst, j))
         if at_limit:
-            first = record.t[np.argmax(record.at_limit[:, j])]
+            first = whole.t[np.argmax(whole.at_limit[:, j])]
             reasons.append(
                 f"{name}: {at_limit} physics steps at the torque limit "
                 f"({servo.voltage_v:g} V drive or stall clamp), the first at t = {first:.3f} s"
@@ -381,7 +403,7 @@ def build_report(
             if len(outside):
                 i = int(outside[0])
                 reasons.append(
-                    f"{name}: goal {goal[i, j]:.4f} rad at t = {t[i]:.3f} s is outside "
+                    f"{name}: goal {goal[i, j]:.4f} rad at t = {sent_t[i]:.3f} s is outside "
                     f"{bounds[j, 0]:.4f}..{bounds[j, 1]:.4f} rad (the plan's range and the "
                     "static offset, or the position limits)"
                 )
@@ -389,7 +411,7 @@ def build_report(
             name=name,
             servo=servo.name,
             peak_planned_torque_nm=float(np.abs(tau_plan[:, j]).max()),
-            peak_torque_nm=float(np.abs(record.torque_nm[:, j]).max()),
+            peak_torque_nm=float(np.abs(whole.torque_nm[:, j]).max()),
             peak_torque_rate_nm_s=float(np.abs(tau_rate[:, j]).max()),
             rms_torque_nm=float(np.sqrt(np.mean(record.torque_nm[:, j] ** 2))),
             max_tracking_error_rad=float(error[k]),
@@ -399,6 +421,7 @@ def build_report(
             steps_at_limit=at_limit,
             ok=not reasons,
             reasons=tuple(reasons),
+            max_lift_error_rad=lift_error,
         )
     reasons = tuple(r for joint in joints.values() for r in joint.reasons)
     return TorqueReport(
@@ -417,6 +440,7 @@ def build_report(
         lead=lead,
         lead_notes=tuple(lead_notes),
         goal_bounds_rad=bounds,
+        lift_s=0.0 if getattr(trajectory, "lift", None) is None else trajectory.lift.duration_s,
     )
 
 

@@ -14,7 +14,10 @@ a slow keyframe motion alone does not separate them.
 
 :class:`Multisine` is an orientation path (the spline protocol:
 ``t_start``, ``t_end``, ``evaluate(t, max_order)``), so it is planned,
-limit-checked and streamed like any keyframe file's path.
+limit-checked and streamed like any keyframe file's path. It moves the joints of
+any gimbal (``kinematics``: 2 or 3 axes in any order, :mod:`trajgen.axes`); a
+two-axis gimbal's orientation path is the one it has at those angles, so its
+inverse kinematics gives the joints back.
 """
 
 from __future__ import annotations
@@ -24,8 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from trajgen import quat
-from trajgen.gimbal import jacobian
+from trajgen.gimbal import GimbalKinematics
 from trajgen.path import Samples
 
 from .errors import BadArgument
@@ -34,8 +36,16 @@ from .errors import BadArgument
 BAND_HZ = (0.3, 2.0)
 #: Sines per joint.
 N_SINES = 5
-#: Default amplitude (rad) per joint: pan, tilt, roll.
+#: Default amplitude (rad) per joint: pan, tilt, roll (the first, middle and last joint
+#: of any sequence; a two-axis gimbal takes the first two).
 DEFAULT_AMPLITUDE_RAD = (math.radians(25.0), math.radians(15.0), math.radians(20.0))
+#: Each joint's frequencies are the base band's times these (joints in order).
+JOINT_FREQUENCY_FACTORS = (1.0, 1.08, 1.17)
+
+
+def default_amplitude_rad(n_joints: int) -> tuple[float, ...]:
+    """:data:`DEFAULT_AMPLITUDE_RAD` for a gimbal of ``n_joints`` (2 or 3) joints (rad)."""
+    return DEFAULT_AMPLITUDE_RAD[:n_joints]
 
 
 @dataclass(frozen=True)
@@ -44,14 +54,18 @@ class Multisine:
 
     Parameters
     ----------
-    center_rad : array_like, shape (3,)
-        Centre pose ``(pan, tilt, roll)`` (rad): where the motion starts and ends.
+    center_rad : array_like, shape (n,)
+        Centre pose (rad), ``(pan, tilt, roll)`` by default: where the motion starts
+        and ends.
     seconds : float
         Duration (s), >= 3 (two 1 s ramps and at least 1 s between them).
-    amplitude_rad : array_like, shape (3,)
-        Largest excursion from the centre per joint (rad), >= 0.
+    amplitude_rad : array_like, shape (n,)
+        Largest excursion from the centre per joint (rad), >= 0; default
+        :func:`default_amplitude_rad`.
     ramp_s : float
         Fade-in and fade-out time (s).
+    kinematics : GimbalKinematics, optional
+        The gimbal's axes (``n`` joints, 2 or 3); default pan-tilt-roll.
 
     Raises
     ------
@@ -61,15 +75,19 @@ class Multisine:
 
     center_rad: tuple = (0.0, 0.0, 0.0)
     seconds: float = 8.0
-    amplitude_rad: tuple = DEFAULT_AMPLITUDE_RAD
+    amplitude_rad: tuple | None = None
     ramp_s: float = 1.0
+    kinematics: GimbalKinematics = field(default_factory=GimbalKinematics)
     _norm: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
+        n = self.kinematics.n_joints
+        if self.amplitude_rad is None:
+            object.__setattr__(self, "amplitude_rad", default_amplitude_rad(n))
         for name in ("center_rad", "amplitude_rad"):
             value = np.asarray(getattr(self, name), dtype=float)
-            if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise BadArgument(f"Expected `{name}` to be 3 finite numbers, got {value!r}.")
+            if value.shape != (n,) or not np.all(np.isfinite(value)):
+                raise BadArgument(f"Expected `{name}` to be {n} finite numbers, got {value!r}.")
             object.__setattr__(self, name, tuple(float(v) for v in value))
         if min(self.amplitude_rad) < 0:
             raise BadArgument(f"Expected `amplitude_rad` >= 0, got {self.amplitude_rad}.")
@@ -97,10 +115,11 @@ class Multisine:
 
     @property
     def frequencies_hz(self) -> np.ndarray:
-        """The sines' frequencies (Hz), shape (3, N_SINES): each joint its own."""
+        """The sines' frequencies (Hz), shape (n, N_SINES): each joint its own."""
         low, high = BAND_HZ
-        base = np.geomspace(low, high / 1.17, N_SINES)
-        return base[None, :] * np.array([1.0, 1.08, 1.17])[:, None]
+        base = np.geomspace(low, high / max(JOINT_FREQUENCY_FACTORS), N_SINES)
+        factors = np.array(JOINT_FREQUENCY_FACTORS[: self.kinematics.n_joints])
+        return base[None, :] * factors[:, None]
 
     def _window(self, t):
         """Quintic fade in and out, ``w``, ``w'``, ``w''``, each shape (M,)."""
@@ -113,8 +132,8 @@ class Multisine:
         return w, dw, ddw
 
     def _unit(self, t):
-        """The unscaled, windowed sum of sines and its derivatives, each (M, 3)."""
-        f = self.frequencies_hz  # (3, K)
+        """The unscaled, windowed sum of sines and its derivatives, each (M, n)."""
+        f = self.frequencies_hz  # (n, K)
         k = np.arange(N_SINES)
         phase = -math.pi * k * (k - 1) / N_SINES  # Schroeder
         omega = 2 * math.pi * f
@@ -135,7 +154,7 @@ class Multisine:
 
         Returns
         -------
-        tuple of 3 ndarray, each shape (M, 3)
+        tuple of 3 ndarray, each shape (M, n)
 
         Raises
         ------
@@ -153,7 +172,8 @@ class Multisine:
         """Orientation and its space-frame rates at ``t`` (the spline protocol).
 
         ``omega = J(q) qd`` and ``alpha = J(q) qdd + (dJ/dt) qd`` with the
-        gimbal's Jacobian (``trajgen.gimbal.jacobian``).
+        gimbal's Jacobian (its space-frame joint axes ``e_j``): each axis turns with
+        the joints before it, ``de_j/dt = (sum_{i<j} qd_i e_i) x e_j``.
 
         Parameters
         ----------
@@ -168,23 +188,16 @@ class Multisine:
         """
         t = np.atleast_1d(np.asarray(t, dtype=float))
         q, qd, qdd = self.joints(t)
-        orientation = quat.from_pan_tilt_roll(q[:, 0], q[:, 1], q[:, 2])
+        orientation = self.kinematics.forward(q)
         if max_order < 1:
             return Samples(t, orientation, None, None, None)
-        jac = jacobian(q)
-        omega = np.einsum("mij,mj->mi", jac, qd)
+        axes = self.kinematics.jacobian(q)  # (M, 3, n)
+        omega = np.einsum("mij,mj->mi", axes, qd)
         if max_order < 2:
             return Samples(t, orientation, omega, None, None)
-        # dJ/dt qd: the tilt axis (-sin p, cos p, 0) turns with pan, the roll axis
-        # (cos p cos t, sin p cos t, -sin t) with pan and tilt.
-        cp, sp = np.cos(q[:, 0]), np.sin(q[:, 0])
-        ct, st = np.cos(q[:, 1]), np.sin(q[:, 1])
-        vp, vt, vr = qd.T
-        zero = np.zeros_like(cp)
-        d_tilt_axis = vp[:, None] * np.stack([-cp, -sp, zero], axis=1)
-        d_roll_axis = vp[:, None] * np.stack([-sp * ct, cp * ct, zero], axis=1) + vt[
-            :, None
-        ] * np.stack([-cp * st, -sp * st, -ct], axis=1)
-        alpha = np.einsum("mij,mj->mi", jac, qdd) + vt[:, None] * d_tilt_axis
-        alpha += vr[:, None] * d_roll_axis
+        alpha = np.einsum("mij,mj->mi", axes, qdd)
+        carried = np.zeros_like(omega)  # angular velocity of the joints before j
+        for j in range(axes.shape[-1]):
+            alpha += qd[:, j, None] * np.cross(carried, axes[..., j])
+            carried += qd[:, j, None] * axes[..., j]
         return Samples(t, orientation, omega, alpha, None)

@@ -128,7 +128,14 @@ def moving_ends(trajectory) -> tuple[str, ...]:
 
 
 def live_frames(
-    frames, config: GimbalConfig, lead: str, rate_hz: float, bounds_rad, *, speed_rad_s=None
+    frames,
+    config: GimbalConfig,
+    lead: str,
+    rate_hz: float,
+    bounds_rad,
+    *,
+    speed_rad_s=None,
+    model=None,
 ):
     """Led goals of a live stream (``trajgen follow``), one frame at a time.
 
@@ -145,6 +152,8 @@ def live_frames(
     speed_rad_s : array_like, shape (n,), optional
         The fastest the live plan may move (rad/s), for the lead's cap
         (``trajgen.lead.lead_cap``); default each servo's no-load speed.
+    model : mujoco.MjModel, optional
+        ``sim.run.simulation_model(config)`` if the caller has built it.
 
     Returns
     -------
@@ -153,12 +162,37 @@ def live_frames(
     from trajgen.lead import LedFrames, lead_cap
     from trajgen.sim.run import simulation_model
 
-    params = lead_params(config)
+    model = simulation_model(config) if model is None else model
+    params = lead_params(config, model)
     if speed_rad_s is None:
         speed_rad_s = [s.no_load_speed_rad_s for s in config.servos]
     cap = lead_cap(np.asarray(speed_rad_s, dtype=float)[None, :], params)
-    torque = torque_function(simulation_model(config)) if lead == "model" else None
+    torque = torque_function(model) if lead == "model" else None
     return LedFrames(frames, rate_hz, lead, params, bounds_rad, cap, torque=torque)
+
+
+def sagged_start(trajectory, config: GimbalConfig, model) -> np.ndarray:
+    """Where the simulated servos rest before ``trajectory`` is sent (rad, shape (n,)):
+    holding its first goal (in whole ticks, as sent) against gravity, at the sagged
+    equilibrium :func:`trajgen.lift.sagged` of ``config``'s loops, as a real servo holding
+    that goal sits (``drivers.bringup`` starts a stream from the goal held). A joint
+    with an I gain rests on its goal (its integral has taken up the load)."""
+    from trajgen.lift import sagged, sent_goals
+    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.run import goal_ticks_rad
+
+    held = goal_ticks_rad(sent_goals(trajectory)[1][0])
+    kp, ki = [], []
+    for j in range(config.n_joints):
+        k, i, _, _ = config.loop(j).mujoco_controller(config.servos[j])
+        kp.append(k)
+        ki.append(i)
+    zero = np.zeros((1, config.n_joints))
+
+    def gravity(q):
+        return inverse_dynamics(model, q[None, :], zero, zero)[0]
+
+    return np.where(np.asarray(ki) > 0, held, sagged(held, np.asarray(kp), gravity))
 
 
 class Leader:
@@ -193,4 +227,4 @@ class Leader:
 
     def frames(self, frames, rate_hz: float, bounds_rad):
         """A live stream's frames with led goals (:func:`live_frames`)."""
-        return live_frames(frames, self.config, self.lead, rate_hz, bounds_rad)
+        return live_frames(frames, self.config, self.lead, rate_hz, bounds_rad, model=self.model)

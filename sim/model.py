@@ -52,6 +52,7 @@ import numpy as np
 
 from trajgen.axes import AxisSequence
 from trajgen.errors import KeyframeFileError
+from trajgen.gimbal_servos import joint_servos
 from trajgen.keyframe_axes import axes_from_table, is_default
 from trajgen.servo_table import GAIN_MAX
 from trajgen.sim.firmware import P_DIVISOR, PositionLoop
@@ -141,6 +142,9 @@ _JOINT_BOUNDS = {
     **{f"position_{g}_gain": {"low": 0, "high": GAIN_MAX, "integer": True} for g in "pid"},
     "p_divisor": {"low": 0.0, "low_open": True},
 }
+#: Range of each coordinate of ``payload_offset_m`` (m): a payload beyond a metre from the
+#: roll axis is a slip of the keyboard (1e300 overflows MuJoCo's inertia), not a gimbal.
+_OFFSET_BOUNDS = {"low": -1.0, "high": 1.0}
 
 
 @dataclass(frozen=True)
@@ -220,7 +224,8 @@ class GimbalConfig:
         offset = self.payload_offset_m
         if offset is None:
             offset = tuple(0.03 * float(v) for v in axes.look)
-        object.__setattr__(self, "payload_offset_m", check_numbers("payload_offset_m", offset, 3))
+        offset = check_numbers("payload_offset_m", offset, 3, **_OFFSET_BOUNDS)
+        object.__setattr__(self, "payload_offset_m", offset)
         if self.model is not None:
             object.__setattr__(self, "model", Path(self.model))
         joints = ({},) * n if self.joints is None else self.joints
@@ -273,6 +278,9 @@ _FIELD_BOUNDS = {
     "timestep_s": {"low": 0.0, "high": 0.001, "low_open": True},
     "p_divisor": {"low": 0.0, "low_open": True},
 }
+#: Range of each coordinate of ``payload_offset_m`` (m): a payload beyond a metre from the
+#: roll axis is a slip of the keyboard (1e300 overflows MuJoCo's inertia), not a gimbal.
+_OFFSET_BOUNDS = {"low": -1.0, "high": 1.0}
 
 
 def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> GimbalConfig:
@@ -320,11 +328,7 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
         table, (*GIMBAL_TABLE_KEYS, *names), error=lambda p: _file_error(path, f"[gimbal]: {p}")
     )
     per_joint = [_joint_table(table.get(j, {}), j, path) for j in names]
-    servos = _servos_from_table(table.get("servo", DEFAULT_SERVO.name), names, path)
-    servos = tuple(
-        _servo_or_error(t["servo"], f"[gimbal.{j}] servo", path) if "servo" in t else s
-        for j, t, s in zip(names, per_joint, servos, strict=True)
-    )
+    servos = tuple(servo_by_name(name) for name in joint_servos(table, names, path))
     kwargs = {"servos": servos, "axes": axes}
     kwargs["joints"] = tuple(
         _joint_from_table(t, j, path) for j, t in zip(names, per_joint, strict=True)
@@ -336,7 +340,7 @@ def gimbal_config_from_tables(tables: dict, path, *, any_axes: bool = False) -> 
     if "payload_offset_m" in table:
         error = _field_error(path, "payload_offset_m")
         kwargs["payload_offset_m"] = check_numbers(
-            "payload_offset_m", table["payload_offset_m"], 3, error=error
+            "payload_offset_m", table["payload_offset_m"], 3, error=error, **_OFFSET_BOUNDS
         )
     if "model" in table:
         kwargs["model"] = _model_path(table["model"], path)
@@ -386,8 +390,8 @@ def _refuse_other_axes(axes: AxisSequence, path) -> None:
         what = f"[gimbal] joints = {list(axes.joints)}: joint names other than pan, tilt, roll"
     raise _file_error(
         path,
-        f"{what}: pan-tilt-roll (axes = 'zyx') only here (any_axes=False); plan, sim, fit, "
-        "sweep, identify, stream and virtual-bus take any axes",
+        f"{what}: this caller takes pan-tilt-roll (axes = 'zyx') only (any_axes=False); "
+        "pass any_axes=True for a caller that takes any axes, as every trajgen command does",
     )
 
 
@@ -414,34 +418,6 @@ def _joint_from_table(value: dict, joint: str, path) -> dict:
         for key, v in value.items()
         if key != "servo"
     }
-
-
-def _servos_from_table(value, names, path) -> tuple[ServoModel, ...]:
-    if isinstance(value, str):
-        return (_servo_or_error(value, "[gimbal] servo", path),) * len(names)
-    if isinstance(value, dict):
-        check_keys(
-            value,
-            names,
-            error=lambda p: _file_error(path, f"[gimbal] servo: {p}"),
-            kind="joint",
-        )
-        return tuple(
-            _servo_or_error(value.get(j, DEFAULT_SERVO.name), f"[gimbal] servo.{j}", path)
-            for j in names
-        )
-    raise _file_error(
-        path, f"[gimbal] servo: expected a model name or a table per joint, got {value!r}"
-    )
-
-
-def _servo_or_error(name, where: str, path) -> ServoModel:
-    if not isinstance(name, str):
-        raise _file_error(path, f"{where}: expected a model name, got {name!r}")
-    try:
-        return servo_by_name(name)
-    except ValueError as e:
-        raise _file_error(path, f"{where}: {e}") from e
 
 
 def _file_error(path, message: str):

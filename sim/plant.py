@@ -16,6 +16,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from trajgen.lift import sent_goals
 from trajgen.sim.firmware import apply_loop, loop_from_registers
 from trajgen.sim.model import GimbalConfig, build_model
 from trajgen.sim.run import (
@@ -298,10 +299,11 @@ class GimbalPlant:
     def report(self, trajectory, *, lead: str = "none"):
         """Torque report on what the plant recorded while ``trajectory`` was streamed.
 
-        The record is aligned so that the goal received ``len(trajectory)``
-        goals before the end is the trajectory's first frame; steps before it
-        are left out. The planned
-        part of the check is computed from ``trajectory`` itself.
+        The record is aligned so that the goal received as many goals before the
+        end as the trajectory sends is its first frame sent (its lift's first,
+        ``trajgen.lift``); steps before it are left out, the lift's are kept
+        apart (``SimRecord.lift``). The planned part of the check is computed
+        from ``trajectory`` itself.
 
         Parameters
         ----------
@@ -330,14 +332,15 @@ class GimbalPlant:
             raise SimError("the plant was made with record=False: nothing to report")
         if not self._goal_times:
             raise SimError("no goal position was received: nothing to report")
-        # The stream's frames are the last goals received (bring-up and the
-        # approach come before them).
-        first = self._goal_times[-min(len(trajectory), len(self._goal_times))]
+        # The stream's frames, its lift's first (trajgen.lift), are the last goals
+        # received (bring-up and the approach come before them).
+        sent_t = sent_goals(trajectory)[0]
+        first = self._goal_times[-min(len(sent_t), len(self._goal_times))]
         log = np.concatenate(self._log) if self._log else np.empty((0, self._log_columns))
         log = log[log[:, 0] >= first - 1e-12]
         if len(log) == 0:
             raise SimError("no physics step ran after the first goal: nothing to report")
-        t = log[:, 0] - first + trajectory.t[0]
+        t = log[:, 0] - first + sent_t[0]
         q, qd, torque, goal, cap = self._blocks(log)
         record = SimRecord(
             t=t,
@@ -348,5 +351,5 @@ class GimbalPlant:
             planned=planned_path(trajectory, t),
             at_limit=at_torque_limit(self.config, qd, torque, cap),
             timestep_s=self.config.timestep_s,
-        )
+        ).split_lift(float(trajectory.t[0]))
         return build_report(trajectory, self.config_now, record, lead=lead)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from trajgen.lead import sent_q
+from trajgen.lift import sent_goals
 from trajgen.sim.errors import SimulationError
 from trajgen.sim.firmware import PULSES_PER_RAD
 from trajgen.sim.model import GimbalConfig, build_model
@@ -15,6 +15,8 @@ from trajgen.sim.model import GimbalConfig, build_model
 from .errors import BadArgument
 
 _LIMIT_RTOL = 1e-6
+#: The per-step arrays of a SimRecord.
+_ARRAYS = ("t", "q", "qd", "torque_nm", "setpoint", "planned", "at_limit")
 _PROGRESS_STEP = 0.05
 
 
@@ -40,6 +42,10 @@ class SimRecord:
         at the stall-torque clamp.
     timestep_s : float
         Physics time step (s).
+    lift : SimRecord or None
+        The steps of the lift before the plan's first frame (``trajgen.lift``:
+        the plan held at its first point), kept apart; None without a lift. The
+        arrays above start at the plan's first frame.
     """
 
     t: np.ndarray
@@ -50,6 +56,25 @@ class SimRecord:
     planned: np.ndarray
     at_limit: np.ndarray
     timestep_s: float
+    lift: SimRecord | None = None
+
+    def split_lift(self, t0: float) -> SimRecord:
+        """This record from ``t0`` (s, the plan's first frame) on, the steps before
+        it as its :attr:`lift` (None if there are none)."""
+        k = int(np.searchsorted(self.t, t0 - 1e-9))
+        if k == 0:
+            return self
+        before = {a: getattr(self, a)[:k] for a in _ARRAYS}
+        after = {a: getattr(self, a)[k:] for a in _ARRAYS}
+        lift = SimRecord(**before, timestep_s=self.timestep_s)
+        return SimRecord(**after, timestep_s=self.timestep_s, lift=lift)
+
+    def with_lift(self) -> SimRecord:
+        """Every step, the lift's first (undoes :meth:`split_lift`)."""
+        if self.lift is None:
+            return self
+        both = {a: np.concatenate([getattr(self.lift, a), getattr(self, a)]) for a in _ARRAYS}
+        return SimRecord(**both, timestep_s=self.timestep_s)
 
     @property
     def tracking_error_rad(self) -> np.ndarray:
@@ -137,17 +162,18 @@ def goal_ticks_rad(q_rad) -> np.ndarray:
 def step_frames(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray]:
     """Physics steps of a stream: each step's start time and the frame it holds.
 
-    Frame ``i`` is held from ``t[i]`` to ``t[i + 1]``, the last one for one
-    stream period.
+    The frames are every frame sent (``trajgen.lift.sent_goals``: the lift's, if
+    any, then the trajectory's). Frame ``i`` is held from ``t[i]`` to ``t[i + 1]``,
+    the last one for one stream period.
 
     Returns
     -------
     step_t : ndarray, shape (K,)
         Step start times (s).
     frame : ndarray of int, shape (K,)
-        Index of the frame held during each step.
+        Index of the frame (of those sent) held during each step.
     """
-    ts = np.asarray(trajectory.t, dtype=float)
+    ts = sent_goals(trajectory)[0]
     period = 1.0 / float(trajectory.rate_hz)
     n_steps = int(round((ts[-1] - ts[0] + period) / timestep_s))
     step_t = ts[0] + np.arange(n_steps) * timestep_s
@@ -158,8 +184,9 @@ def step_controls(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray
     """What the servos are sent, one row per physics step.
 
     Each frame's goal (``trajectory.goal`` if the goals are led, see
-    ``trajgen.lead``; else its planned angles), rounded to whole ticks as Goal
-    Position is, held for its frame (:func:`step_frames`).
+    ``trajgen.lead``; else its planned angles; the lift's first, see
+    ``trajgen.lift``), rounded to whole ticks as Goal Position is, held for its
+    frame (:func:`step_frames`).
 
     Returns
     -------
@@ -169,7 +196,7 @@ def step_controls(trajectory, timestep_s: float) -> tuple[np.ndarray, np.ndarray
         Goal position per joint (rad, whole ticks).
     """
     step_t, frame = step_frames(trajectory, timestep_s)
-    return step_t, goal_ticks_rad(sent_q(trajectory))[frame]
+    return step_t, goal_ticks_rad(sent_goals(trajectory)[1])[frame]
 
 
 def simulation_model(config: GimbalConfig):
@@ -221,7 +248,8 @@ def run_batch(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run the gimbal under open-loop goal positions, one run per model.
 
-    Each run starts at rest at ``q0`` at time ``t0`` (after ``mj_forward``)
+    Each run starts at rest at ``q0`` (one row per run, or one for all) at time
+    ``t0`` (after ``mj_forward``)
     and takes one ``mj_step`` per row of its controls, all inside MuJoCo
     (``mujoco.batch.Batch.rollout`` on ``threads`` threads: no Python per
     step). The results equal a plain ``mj_step`` loop's bit for bit. Runs whose
@@ -232,7 +260,7 @@ def run_batch(
     ----------
     models : sequence of mujoco.MjModel, length B
         One per run (e.g. :func:`simulation_model` of several configs).
-    q0 : array_like, shape (nq,)
+    q0 : array_like, shape (nq,) or (B, nq)
         Joint angles at the start (rad).
     t0 : float
         Simulated time at the start (s).
@@ -273,10 +301,11 @@ def run_batch(
     when = mujoco.mjtState.mjSTATE_TIME
     number = 1  # a warning's (lastinfo, number), as mjWarningStat
     done = 0
+    q0 = np.broadcast_to(np.asarray(q0, dtype=float), (n_runs, nv))
     for ids in _same_layout(models):
         runs = batch.Batch(models[ids[0]], len(ids), nthread=threads)
         runs.set_models([models[i] for i in ids])
-        runs.qpos[:] = q0
+        runs.qpos[:] = q0[ids]
         runs.time[:] = t0
         runs.forward()
         q[ids, 0], qd[ids, 0] = runs.qpos, runs.qvel
@@ -331,7 +360,8 @@ def _raise_on_stopped_runs(risen, time, step_t, ids, labels) -> None:
 
 
 def record_from_run(trajectory, config: GimbalConfig, step_t, ctrl, q, qd, torque) -> SimRecord:
-    """The :class:`SimRecord` of one run of ``trajectory`` (arrays as :func:`run_batch` gives)."""
+    """The :class:`SimRecord` of one run of ``trajectory`` (arrays as :func:`run_batch` gives),
+    the steps of its lift (before ``trajectory.t[0]``) kept apart (``SimRecord.lift``)."""
     return SimRecord(
         t=step_t,
         q=q,
@@ -341,7 +371,7 @@ def record_from_run(trajectory, config: GimbalConfig, step_t, ctrl, q, qd, torqu
         planned=planned_path(trajectory, step_t),
         at_limit=at_torque_limit(config, qd, torque),
         timestep_s=config.timestep_s,
-    )
+    ).split_lift(float(trajectory.t[0]))
 
 
 def step_and_record(model, data, q, qd, torque) -> None:
@@ -408,6 +438,12 @@ def check_trajectory(trajectory, n_joints: int = 3) -> None:
     n = np.shape(trajectory.t)
     if len(n) != 1 or n[0] < 2:
         raise BadArgument(f"Expected `trajectory.t` to have shape (N,), N >= 2, got {n}.")
+    lift = getattr(trajectory, "lift", None)
+    if lift is not None and np.shape(lift.goal) != (len(lift.t), n_joints):
+        raise BadArgument(
+            f"Expected `trajectory.lift.goal` to have shape ({len(lift.t)}, {n_joints}), "
+            f"got {np.shape(lift.goal)}."
+        )
     fields = ("q", "qd", "qdd") + (() if getattr(trajectory, "goal", None) is None else ("goal",))
     for f in fields:
         a = np.asarray(getattr(trajectory, f))
@@ -428,10 +464,12 @@ def simulate(
 ) -> SimRecord:
     """Stream a planned joint trajectory to the simulated servos.
 
-    The gimbal starts at rest at the first frame's angles. Each frame's goal
-    (``trajectory.goal`` when led, else its angles), rounded to whole ticks as
-    Goal Position is, is the servos' goal from ``t[i]`` to ``t[i + 1]`` (the
-    last frame's for one stream period); the servos' own position loop
+    The gimbal starts at rest where servos holding the first goal sent sit
+    (``sim.lead.sagged_start``: sagged under gravity below it, as real ones). Each
+    frame's goal (the lift's first, ``trajgen.lift``; ``trajectory.goal`` when
+    led, else its angles), rounded to whole ticks as Goal Position is, is the
+    servos' goal from ``t[i]`` to ``t[i + 1]`` (the last frame's for one stream
+    period); the servos' own position loop
     (``sim.firmware``, gains from ``config``) does the rest, exactly as
     behind the virtual bus (``sim.plant.GimbalPlant``). Physics runs at
     ``config.timestep_s``, inside MuJoCo (:func:`run_batch`).
@@ -459,12 +497,15 @@ def simulate(
     SimulationError
         If a MuJoCo warning counter rises during the run.
     """
+    from trajgen.sim.lead import sagged_start
+
     config = GimbalConfig() if config is None else config
     check_trajectory(trajectory, config.n_joints)
     step_t, ctrl = step_controls(trajectory, config.timestep_s)
+    model = simulation_model(config) if model is None else model
     q, qd, torque = run_batch(
-        [simulation_model(config) if model is None else model],
-        trajectory.q[0],
+        [model],
+        sagged_start(trajectory, config, model),
         step_t[0],
         step_t,
         ctrl[None],

@@ -247,11 +247,13 @@ def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, thread
     The variants' runs go through one :func:`trajgen.sim.run.run_batch` call on
     ``threads`` threads; each report is :func:`trajgen.sim.check.build_report`'s.
     Each variant's goals are led for that variant (``sim.lead.lead_trajectory``,
-    the default lead), as ``check_torque`` leads them.
+    the default lead), as ``check_torque`` leads them, and each run starts where
+    its servos sag (``sim.lead.sagged_start``); variants whose lifts
+    (``trajgen.lift``) differ in length run in batches of their own.
     """
     from trajgen.lead import DEFAULT_LEAD
     from trajgen.sim.check import build_report
-    from trajgen.sim.lead import lead_trajectory
+    from trajgen.sim.lead import lead_trajectory, sagged_start
     from trajgen.sim.run import record_from_run, run_batch, simulation_model, step_controls
 
     configs = [v.config(base) for v in batch]
@@ -260,22 +262,31 @@ def check_batch(trajectory, batch: Sequence[Variant], base: GimbalConfig, thread
         lead_trajectory(trajectory, c, DEFAULT_LEAD, model=m)
         for c, m in zip(configs, models, strict=True)
     ]
-    step_t = step_controls(trajectory, base.timestep_s)[0]
-    ctrl = np.stack([step_controls(t, base.timestep_s)[1] for t, _, _ in led])
-    q, qd, torque = run_batch(
-        models,
-        trajectory.q[0],
-        step_t[0],
-        step_t,
-        ctrl,
-        threads=threads,
-        labels=[v.label() for v in batch],
-    )
+    runs = [step_controls(t, base.timestep_s) for t, _, _ in led]
+    starts = [sagged_start(t, c, m) for (t, _, _), c, m in zip(led, configs, models, strict=True)]
+    records = [None] * len(batch)
+    # Variants whose lifts (trajgen.lift) last as long run in one batch.
+    for steps in sorted({len(t) for t, _ in runs}):
+        ids = [b for b, (t, _) in enumerate(runs) if len(t) == steps]
+        step_t = runs[ids[0]][0]
+        ctrl = np.stack([runs[b][1] for b in ids])
+        q, qd, torque = run_batch(
+            [models[b] for b in ids],
+            np.array([starts[b] for b in ids]),
+            step_t[0],
+            step_t,
+            ctrl,
+            threads=threads,
+            labels=[batch[b].label() for b in ids],
+        )
+        for k, b in enumerate(ids):
+            t = led[b][0]
+            records[b] = record_from_run(t, configs[b], step_t, ctrl[k], q[k], qd[k], torque[k])
     return [
         build_report(
             t,
             c,
-            record_from_run(t, c, step_t, ctrl[b], q[b], qd[b], torque[b]),
+            records[b],
             model=models[b],
             lead=DEFAULT_LEAD,
             lead_notes=notes,

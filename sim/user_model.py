@@ -12,18 +12,30 @@ naming the model's hinge joints from the base out. MuJoCo reads the file
 - replaces the file's actuators and sensors with one ``<dcmotor>`` per joint
   (the servo's ratings and firmware loop, exactly as the built-in chain's,
   ``sim.model._motor``) and its torque sensor;
+- holds every other joint of the file (a gripper, a second arm, a free base):
+  deleted from the model, so its body is welded to its parent at the joint's
+  reference pose, the pose the file draws (:func:`held_joints`; ``trajgen sim``
+  names them);
 - turns every geom contact-free (a gimbal's links do not touch; the
   simulation runs with contacts off);
 - adds an ``overview`` camera (for ``--video``) if the file has none, and
   takes the physics time step from ``[gimbal]``.
 
+The named joints' axes must be the ones ``[gimbal] axes`` declares: with every
+named joint at 0, each hinge axis, composed down the chain's fixed rotations
+and seen from the body the first joint is mounted on (the gimbal's base,
+however the file places it in the world), must lie within
+:data:`AXIS_TOLERANCE_DEG` of its letter, turning the same way. A tilt within
+that is the model as built and is simulated as drawn; the plan's kinematics
+keep the declared axes.
+
 Refused, in one line naming it: a named joint that is missing or is not a
-hinge, a moving joint the gimbal does not name (trajgen drives only the
-gimbal's joints), joints not named base out, a body with zero or negative
-mass or inertia, and a mesh file that is missing where the body's inertia
-would come from it. A missing mesh under a body whose inertia the file states
-(``<inertial>``, as URDF always does) is dropped: it carries no mass and
-contacts are off, so nothing simulated depends on it.
+hinge, one whose axis is not the declared one (naming both), joints not named
+base out, a body with zero or negative mass or inertia, and a mesh file that
+is missing where the body's inertia would come from it. A missing mesh under a
+body whose inertia the file states (``<inertial>``, as URDF always does) is
+dropped: it carries no mass and contacts are off, so nothing simulated depends
+on it.
 """
 
 from __future__ import annotations
@@ -33,6 +45,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import BadArgument
+
+#: Largest angle (deg) between a named joint's hinge axis in the model and the axis
+#: ``[gimbal] axes`` declares for it (both in the gimbal's base frame, every joint at 0).
+AXIS_TOLERANCE_DEG = 15.0
 
 
 def _load(path: Path):
@@ -105,7 +121,7 @@ def _drop_missing_meshes(spec, folder: Path) -> None:
 
 
 def _check_joints(spec, names) -> None:
-    """Refuse missing or non-hinge named joints and joints the gimbal does not name."""
+    """Refuse missing or non-hinge named joints."""
     import mujoco
 
     joints = {j.name: j for j in spec.joints}
@@ -117,12 +133,52 @@ def _check_joints(spec, names) -> None:
         if kind != mujoco.mjtJoint.mjJNT_HINGE:
             what = kind.name.removeprefix("mjJNT_").lower()
             raise BadArgument(f"joint '{name}' is a {what} joint, not a hinge")
-    for joint in spec.joints:
+
+
+def _joint_label(joint) -> str:
+    return joint.name or f"#{joint.id}"
+
+
+def held_joints(config) -> tuple[str, ...]:
+    """The joints of ``config.model`` the gimbal does not name, in the file's order:
+    :func:`user_spec` welds each at its reference pose."""
+    names = config.names
+    return tuple(_joint_label(j) for j in _load(Path(config.model)).joints if j.name not in names)
+
+
+def _hold_other_joints(spec, names) -> None:
+    """Delete every joint not in ``names``: its body is then fixed to its parent at the
+    pose the file draws (the joint's reference position). The file's keyframes go too
+    (their joint vectors no longer fit)."""
+    for joint in list(spec.joints):
         if joint.name not in names:
+            spec.delete(joint)
+    for key in list(spec.keys):
+        spec.delete(key)
+
+
+def _check_axes(model, config) -> None:
+    """Refuse a named joint whose hinge axis is not the one ``config.axes`` declares
+    (module docstring), naming the joint and both axes."""
+    import mujoco
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = 0.0  # only the named hinges are left: every joint at 0
+    mujoco.mj_kinematics(model, data)
+    base = model.body_parentid[model.jnt_bodyid[model.joint(config.names[0]).id]]
+    to_base = data.xmat[base].reshape(3, 3).T
+    sequence = config.axes.sequence
+    for name, letter in zip(config.names, sequence, strict=True):
+        axis = to_base @ data.xaxis[model.joint(name).id]
+        want = np.eye(3)["xyz".index(letter)]
+        off = float(np.degrees(np.arccos(np.clip(axis @ want, -1.0, 1.0))))
+        if off > AXIS_TOLERANCE_DEG:
+            shown = ", ".join(f"{v:.3g}" for v in axis + 0.0)
             raise BadArgument(
-                f"joint '{joint.name or '#' + str(joint.id)}' is not one of the gimbal's joints "
-                f"({', '.join(names)}): trajgen drives only those; name it in [gimbal] joints "
-                "or make it fixed"
+                f"joint '{name}' turns about ({shown}) in the gimbal's base frame, {off:.1f} "
+                f"deg from +{letter}, its axis in [gimbal] axes = {sequence!r} (at most "
+                f"{AXIS_TOLERANCE_DEG:g} deg, the same way round): fix the model's axis or "
+                "the axes"
             )
 
 
@@ -151,6 +207,7 @@ def user_spec(config):
     spec = _load(path)
     names = config.names
     _check_joints(spec, names)
+    _hold_other_joints(spec, names)
     _check_inertia(spec)
     _drop_missing_meshes(spec, path.parent)
     for actuator in list(spec.actuators):
@@ -203,7 +260,8 @@ def user_model(config):
     ------
     trajgen.sim.errors.BadArgument
         If the model cannot carry the servos, or MuJoCo refuses it (first line of
-        its message), or its joints are not in the order named (base out).
+        its message), or its joints are not in the order named (base out), or a
+        joint's axis is not the declared one.
     """
     spec = user_spec(config)
     try:
@@ -215,6 +273,7 @@ def user_model(config):
         raise BadArgument(
             f"joints {list(config.names)} must be named base out, as the model has them: {order}"
         )
+    _check_axes(model, config)
     return model
 
 

@@ -549,12 +549,12 @@ look = [1.0, -2.0, 0.5]
 
 [[keyframes]]
 t = 4.0
-yaw = 170.0
+yaw = -190.0
 pitch = -35.0
 
 [[keyframes]]
 t = 5.0
-yaw = 200.0
+yaw = -160.0
 pitch = 0.0
 """
 
@@ -608,8 +608,7 @@ def test_plan_of_a_two_axis_file_points_exactly_at_every_keyframe(tmp_path, caps
         err = np.arctan2(np.linalg.norm(np.cross(got, want), axis=1), np.sum(got * want, axis=1))
         assert err.max() < 1e-9
     # The yaw is unwrapped: from the look keyframe (yaw -63.4 deg) the shorter way
-    # round to 170 deg is through -180 deg, so the path reaches -190 deg, then
-    # -160 deg (200 deg written): a turn apart from the file's, never a jump.
+    # round is through -180 deg, to -190 deg as written, then -160 deg: never a jump.
     np.testing.assert_allclose(np.degrees(rows[at[-2:], 14]), [-190.0, -160.0], atol=1e-9)
     assert np.abs(np.diff(rows[:, 14])).max() < 0.05
 
@@ -690,22 +689,34 @@ def test_bad_two_axis_keyframes_are_refused_naming_the_key(tmp_path, gimbal, key
         load_keyframe_file(f)
 
 
-def test_excite_and_follow_refuse_other_axes_in_one_line(tmp_path, capsys):
-    from trajgen.cli import main
+@pytest.mark.parametrize(
+    ("yaws", "message"),
+    [
+        (
+            (170.0, -160.0),
+            "keyframe 4: field 'yaw': 170 deg: the path reaches this orientation with yaw at "
+            "-190 deg; write that, or add keyframes on the way (less than half a turn per "
+            "joint between two)",
+        ),
+        (
+            (-190.0, 200.0),
+            "keyframe 5: field 'yaw': 200 deg: 390 deg from keyframe 4's -190: the path turns "
+            "the shorter way between two keyframes",
+        ),
+    ],
+)
+def test_a_two_axis_files_angles_are_reached_as_written_or_refused(tmp_path, yaws, message):
+    """The rule of pan-tilt-roll files, for every gimbal: a joint angle the path would
+    reach a turn away from the one written (the path turns the shorter way) is refused."""
+    from trajgen.errors import KeyframeFileError
+    from trajgen.keyframes import load_keyframe_file
 
     f = tmp_path / "head.toml"
-    f.write_text(HEAD)
-    for command, why in [
-        ("excite", "its multisine excites pan, tilt and roll"),
-        ("follow", "its keyframe lines give pan, tilt, roll"),
-    ]:
-        assert main([command, str(f), "--virtual", "--telemetry", str(tmp_path / "t.csv")]) == 2
-        err = capsys.readouterr().err
-        assert err == (
-            f"trajgen {command}: error: {f}: [gimbal] axes = 'zy', joints = ['yaw', 'pitch']: "
-            f"{command} takes pan-tilt-roll gimbals only so far ({why}); plan, sim, sweep, "
-            "identify and stream take any axes\n"
-        )
+    f.write_text(HEAD.replace("yaw = -190.0", f"yaw = {yaws[0]}").replace(
+        "yaw = -160.0", f"yaw = {yaws[1]}"
+    ))  # fmt: skip
+    with pytest.raises(KeyframeFileError, match="^" + re.escape(f"{f}: {message}")):
+        load_keyframe_file(f)
 
 
 def test_an_explicit_default_gimbal_is_todays(tmp_path):

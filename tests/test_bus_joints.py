@@ -262,28 +262,52 @@ def test_stream_refuses_ids_that_are_not_one_per_joint(capsys):
     assert err == "trajgen stream: error: --ids 1,2,3: expected 2 ids, one per joint (pan, tilt)\n"
 
 
-def test_follow_refuses_a_gimbal_that_is_not_pan_tilt_roll(capsys):
-    assert _cli(["follow", "examples/flex_roll_wrist.toml", "--virtual"]) == 2
-    err = capsys.readouterr().err
-    assert "follow takes pan-tilt-roll gimbals only so far" in err
-    assert err.count("\n") == 1
+@pytest.mark.parametrize(
+    ("gimbal", "joints", "servos"),
+    [
+        ({}, ("pan", "tilt", "roll"), ("XM430-W350",) * 3),
+        ({"servo": " xl330-m288 "}, ("pan", "tilt"), ("XL330-M288",) * 2),
+        (
+            {"servo": {"tilt": "XC330-M288"}},
+            ("pan", "tilt", "roll"),
+            ("XM430-W350", "XC330-M288", "XM430-W350"),
+        ),
+        (
+            {"servo": "XM430-W350", "tilt": {"servo": "XL330-M077"}},
+            ("pan", "tilt", "roll"),
+            ("XM430-W350", "XL330-M077", "XM430-W350"),
+        ),
+        (
+            {"servo": {"flex": "XL330-M288"}, "roll": {"servo": "XL330-M077"}},
+            ("flex", "roll"),
+            ("XL330-M288", "XL330-M077"),
+        ),
+    ],
+)
+def test_the_servo_of_each_joint_is_chosen_in_one_place(gimbal, joints, servos):
+    """[gimbal.<joint>] servo, else [gimbal] servo (a name or a table by joint), else the
+    default: trajgen.gimbal_servos, which the bus's default models and the simulated
+    gimbal both are."""
+    from trajgen.gimbal_servos import joint_servos
+
+    assert joint_servos(gimbal, joints, "f.toml") == servos
+    tables = {"gimbal": {**gimbal, "joints": list(joints), "axes": "zyx"[: len(joints)]}}
+    assert bus_config_from_tables(tables, "f.toml").models == servos
 
 
 @pytest.mark.parametrize(
-    "gimbal",
+    ("gimbal", "message"),
     [
-        {},
-        {"servo": "XL330-M288"},
-        {"servo": {"tilt": "XC330-M288"}},
-        {"servo": "XM430-W350", "tilt": {"servo": "XL330-M077"}},
-        {"axes": "yx", "joints": ["flex", "roll"], "roll": {"servo": "XL330-M077"}},
+        ({"servo": "XM999"}, "f.toml: [gimbal] servo: unknown model 'XM999' (known: XM430-W350"),
+        ({"servo": 3}, "f.toml: [gimbal] servo: expected a model name or a table per joint, got 3"),
+        ({"servo": {"yaw": "XM430-W350"}}, "f.toml: [gimbal] servo: unknown joint 'yaw'"),
+        ({"servo": {"tilt": "XM9"}}, "f.toml: [gimbal] servo.tilt: unknown model 'XM9'"),
+        ({"tilt": {"servo": 5}}, "f.toml: [gimbal.tilt] servo: expected a model name, got 5"),
     ],
 )
-def test_the_bus_expects_the_servos_the_simulator_simulates(gimbal):
-    """The [bus] models default and the simulated gimbal's servos are read from the same
-    keys by the drivers and the simulator (which the drivers may not import)."""
-    sim_model = pytest.importorskip("trajgen.sim.model")
-    tables = {"gimbal": gimbal}
-    simulated = sim_model.gimbal_config_from_tables(tables, "f.toml", any_axes=True)
-    expected = bus_config_from_tables(tables, "f.toml").models
-    assert expected == tuple(s.name for s in simulated.servos)
+def test_a_bad_servo_choice_is_refused_naming_the_key(gimbal, message):
+    from trajgen.errors import KeyframeFileError
+    from trajgen.gimbal_servos import joint_servos
+
+    with pytest.raises(KeyframeFileError, match="^" + re.escape(message)):
+        joint_servos(gimbal, ("pan", "tilt", "roll"), "f.toml")

@@ -99,14 +99,16 @@ def test_stream_virtual_end_to_end(tmp_path, capsys):
     )
     out = capsys.readouterr().out
     assert status == 0, out
-    assert out.startswith("frames sent: 81/81 (+0 approach) at 100 Hz planned")
+    # 33 lift frames first (the tilt's static gravity term, 0.33 s: trajgen.lift)
+    assert out.startswith("frames sent: 81/81 (+0 approach, +33 lift, 0.330 s) at 100 Hz planned")
     assert "torque check: OK" in out
     result = json.loads((tmp_path / "r.json").read_text())
-    assert result["stream"]["frames_sent"] == 81
+    assert result["stream"]["frames_sent"] == 81 and result["stream"]["lift_frames"] == 33
     assert result["stream"]["fault"] == ""
-    assert result["torque"]["ok"] is True
+    assert result["torque"]["ok"] is True and result["torque"]["lift_s"] == pytest.approx(0.33)
     with open(tmp_path / "t.csv", newline="") as f:
-        assert len(list(csv.DictReader(f))) == 81
+        phases = [r["phase"] for r in csv.DictReader(f)]
+    assert phases == ["lift"] * 33 + ["stream"] * 81
 
 
 def test_stream_virtual_from_a_pose_away_from_zero_and_across_180_deg(tmp_path, capsys):
@@ -251,7 +253,8 @@ def test_stop_signal_stops_safely_and_keeps_every_record(
     assert result["on_stop"] == ("torque_off" if torque_off else "hold")
     # Each servo's state as read back after the safe stop.
     assert result["servos"] == dict.fromkeys("123", "released" if torque_off else "holding")
-    assert result["stream"]["frames_sent"] == received
+    # stopped after the lift (trajgen.lift: the tilt's static term brought in first)
+    assert result["stream"]["frames_sent"] + result["stream"]["lift_frames"] == received
     assert len(np.load(tmp_path / "t.npz")["frame"]) == received
 
 

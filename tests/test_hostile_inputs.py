@@ -56,6 +56,10 @@ def keys(*rows: str) -> str:
     return "".join("\n[[keyframes]]\n" + row.replace(";", "\n") + "\n" for row in rows)
 
 
+#: Two keyframes 1 s apart: 10 deg of pan.
+PAN_10 = keys("t = 0;pan = 0", "t = 1;pan = 10")
+
+
 def closed(local: str = "auto") -> str:
     return f'[spline]\nboundary = "closed"\nlocal = "{local}"\n' + keys(
         "t = 0;pan = 0", "t = 1;pan = 30", "t = 2;pan = 0;tilt = 20", "t = 3;pan = 0"
@@ -1517,6 +1521,394 @@ CASES = [
         r"\[limits\] speed_rad_s",
         "ok",
     ),
+    # --- issue 20, the last walk through every command and flag ------------------
+    # "-" where no command reads standard input or writes standard output
+    (
+        "plan --out - (a file named '-' was written before)",
+        ["plan", "--out", "-"],
+        None,
+        2,
+        r"--out '-': standard output is not written here; give a file name",
+        "silent",
+    ),
+    (
+        "plan - (standard input as the keyframe file)",
+        ["plan", "-"],
+        None,
+        2,
+        r"-: no such file \(standard input is not read: give a file name\)",
+        "ok",
+    ),
+    ("sim --json -", ["sim", "--json", "-"], None, 2, r"--json '-': standard output", "ok"),
+    # a loop of symbolic links, as input and as output
+    (
+        "plan: the keyframe file a loop of links",
+        ["plan", "{loop}"],
+        None,
+        2,
+        r"loop.toml: cannot read: Too many levels of symbolic links",
+        "ok",
+    ),
+    (
+        "plan --out a loop of links (the link was replaced by the CSV before)",
+        ["plan", "--out", "{loop}"],
+        None,
+        2,
+        r"--out '.*loop.toml': is a loop of symbolic links",
+        "silent",
+    ),
+    (
+        "sim --json a loop of links",
+        ["sim", "--json", "{loop}"],
+        None,
+        2,
+        r"is a loop of symbolic links",
+        "silent",
+    ),
+    # the input file as every other output
+    (
+        "sim --plot the input file",
+        ["sim", "{file}", "--plot", "{file}"],
+        GOOD,
+        2,
+        r"--plot '.*keys.toml': is the input file",
+        "ok",
+    ),
+    (
+        "stream --telemetry the input file",
+        ["stream", "{file}", "--virtual", "--telemetry", "{file}"],
+        GOOD,
+        2,
+        r"--telemetry '.*keys.toml': is the input file",
+        "ok",
+    ),
+    (
+        "stream --json the input file",
+        ["stream", "{file}", "--virtual", "--json", "{file}"],
+        GOOD,
+        2,
+        r"--json '.*keys.toml': is the input file",
+        "ok",
+    ),
+    (
+        "sweep --json the input file",
+        ["sweep", "{file}", "--json", "{file}"],
+        GOOD,
+        2,
+        r"--json '.*keys.toml': is the input file",
+        "ok",
+    ),
+    (
+        "excite --telemetry the input file",
+        ["excite", "{file}", "--virtual", "--telemetry", "{file}"],
+        GOOD,
+        2,
+        r"--telemetry '.*keys.toml': is the input file",
+        "ok",
+    ),
+    (
+        "identify --out the log",
+        ["identify", "{file}", "{empty}", "--out", "{empty}"],
+        GOOD,
+        2,
+        r"--out '.*empty.csv': is the input file",
+        "ok",
+    ),
+    # folders where a file goes
+    (
+        "stream --json a folder",
+        ["stream", "--virtual", "--json", "{tmp}"],
+        None,
+        2,
+        r"--json '.*empty': is a directory",
+        "ok",
+    ),
+    (
+        "follow --json a folder",
+        ["follow", "--virtual", "--json", "{tmp}"],
+        None,
+        2,
+        r"--json '.*empty': is a directory",
+        "ok",
+    ),
+    (
+        "stream --telemetry a folder",
+        ["stream", "--virtual", "--telemetry", "{tmp}"],
+        None,
+        2,
+        r"--telemetry '.*empty': is a directory",
+        "ok",
+    ),
+    (
+        "fit --out a folder",
+        ["fit", "--out", "{tmp}"],
+        None,
+        2,
+        r"--out '.*empty': is a directory",
+        "ok",
+    ),
+    (
+        "scan --port a folder",
+        ["scan", "--port", "{tmp}"],
+        None,
+        2,
+        r"cannot open at 1000000 baud",
+        "ok",
+    ),
+    # NaN, inf, 1e300 in numeric flags
+    (
+        "sweep --payload-kg nan",
+        ["sweep", "--payload-kg", "nan"],
+        None,
+        2,
+        r"argument --payload-kg: expected a number > 0, got 'nan'",
+        "ok",
+    ),
+    (
+        "sweep --time-scale inf",
+        ["sweep", "--time-scale", "inf"],
+        None,
+        2,
+        r"argument --time-scale: expected a number > 0, got 'inf'",
+        "ok",
+    ),
+    (
+        "sweep --time-scale 1e300 (said after the cost line before)",
+        ["sweep", "--time-scale", "1e300"],
+        None,
+        2,
+        r"--time-scale 1e\+300: 8e\+300 s at 200 Hz is .* samples, over the limit",
+        "unclear",
+    ),
+    (
+        "sweep --time-scale 1e-300 (numpy warnings before)",
+        ["sweep", "--time-scale", "1e-300"],
+        None,
+        2,
+        r"--time-scale 1e-300: puts keyframes 1.5e-300 s apart, less than one sample period",
+        "unclear",
+    ),
+    (
+        "sweep --offset-m 1e300,0,0",
+        ["sweep", "--offset-m", "1e300,0,0"],
+        None,
+        2,
+        r"--offset-m 1e\+300,0,0: Expected `payload_offset_m\[0\]` to be a finite number in -1..1",
+        "crash",
+    ),
+    (
+        "stream --max-delay inf",
+        ["stream", "--virtual", "--max-delay", "inf"],
+        None,
+        2,
+        r"argument --max-delay: expected a number > 0, got 'inf'",
+        "ok",
+    ),
+    (
+        "stream --set-limits 1e300 (numpy's warning and wrapped ticks before)",
+        ["stream", "--virtual", "--set-limits", "pan=-1e300:1e300"],
+        None,
+        2,
+        r"argument --set-limits: expected MIN and MAX within -360..360",
+        "unclear",
+    ),
+    (
+        "stream --set-limits pan=nan:1",
+        ["stream", "--virtual", "--set-limits", "pan=nan:1"],
+        None,
+        2,
+        r"argument --set-limits: expected finite MIN < MAX",
+        "ok",
+    ),
+    (
+        "stream --set-limits of a joint the gimbal lacks",
+        ["stream", "--virtual", "--set-limits", "yaw=0:10"],
+        None,
+        2,
+        r"limits for 'yaw': not a joint of this gimbal \(one of pan, tilt, roll\)",
+        "ok",
+    ),
+    (
+        "excite --amplitude 1e300 (numpy's overflow warnings before)",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--amplitude", "1e300"],
+        None,
+        2,
+        r"--amplitude 1e\+300: more than 180 deg, half a turn",
+        "unclear",
+    ),
+    (
+        "excite --amplitude nan",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--amplitude", "nan"],
+        None,
+        2,
+        r"argument --amplitude: expected a number > 0, got 'nan'",
+        "ok",
+    ),
+    (
+        "excite --seconds nan",
+        ["excite", "--virtual", "--telemetry", "{tmp}/t.csv", "--seconds", "nan"],
+        None,
+        2,
+        r"argument --seconds: expected a number > 0, got 'nan'",
+        "ok",
+    ),
+    (
+        "identify --delay-ms nan",
+        ["identify", "{file}", "{empty}", "--out", "{tmp}/f.toml", "--delay-ms", "nan"],
+        GOOD,
+        2,
+        r"--delay-ms: expected 0 <= ms < 1000, got nan",
+        "ok",
+    ),
+    (
+        "plan --max-samples inf",
+        ["plan", "--max-samples", "inf"],
+        None,
+        2,
+        r"argument --max-samples: expected a whole number >= 2, got 'inf'",
+        "ok",
+    ),
+    (
+        "stream --rate 1e-300",
+        ["stream", "--virtual", "--rate", "1e-300"],
+        None,
+        2,
+        r"less than one sample period \(1e\+300 s at 1e-300 Hz\)",
+        "ok",
+    ),
+    # ids out of 0..252, too many
+    (
+        "stream --ids 253,1,2",
+        ["stream", "--virtual", "--ids", "253,1,2"],
+        None,
+        2,
+        r"argument --ids: expected distinct ids in 0..252, got '253,1,2'",
+        "ok",
+    ),
+    (
+        "stream --ids four",
+        ["stream", "--virtual", "--ids", "1,2,3,4"],
+        None,
+        2,
+        r"--ids 1,2,3,4: expected 3 ids, one per joint \(pan, tilt, roll\)",
+        "ok",
+    ),
+    (
+        "virtual-bus --ids 253",
+        ["virtual-bus", "--ids", "253"],
+        None,
+        2,
+        r"argument --ids: expected distinct ids in 0..252",
+        "ok",
+    ),
+    (
+        "virtual-bus --ids fewer than the joints",
+        ["virtual-bus", "--ids", "1,2"],
+        None,
+        2,
+        r"--ids 1,2: expected at least 3 ids, one per joint of the gimbal",
+        "ok",
+    ),
+    # NaN, inf and 1e300 in the file's keys; unknown axes letters
+    (
+        "rate_hz nan",
+        ["plan", "{file}"],
+        "[stream]\nrate_hz = nan\n" + PAN_10,
+        2,
+        r"\[stream\] rate_hz: expected a finite number > 0, got nan",
+        "ok",
+    ),
+    (
+        "run_in_s 1e300",
+        ["plan", "{file}"],
+        "[stream]\nrun_in_s = 1e300\n" + PAN_10,
+        2,
+        r"\[stream\] run_in_s: Expected `run_in_s` at most the path's 1 s",
+        "ok",
+    ),
+    (
+        "[gimbal] payload_kg nan",
+        ["sim", "{file}"],
+        "[gimbal]\npayload_kg = nan\n" + PAN_10,
+        2,
+        r"\[gimbal\] payload_kg: expected a finite number >= 0, got nan",
+        "ok",
+    ),
+    (
+        "[gimbal] payload_offset_m 1e300 (MuJoCo's traceback before)",
+        ["sim", "{file}"],
+        "[gimbal]\npayload_offset_m = [1e300, 0, 0]\n" + PAN_10,
+        2,
+        r"\[gimbal\] payload_offset_m: expected a finite number in -1..1, got 1e\+300",
+        "crash",
+    ),
+    (
+        "[gimbal.pan] position_p_gain 1e300",
+        ["sim", "{file}"],
+        "[gimbal.pan]\nposition_p_gain = 1e300\n" + PAN_10,
+        2,
+        r"\[gimbal.pan\] position_p_gain: expected an integer in 0..16383",
+        "ok",
+    ),
+    (
+        "[gimbal] axes with a letter that is no axis",
+        ["plan", "{file}"],
+        '[gimbal]\naxes = "zqx"\n' + PAN_10,
+        2,
+        r"\[gimbal\] axes: Expected `axes` to be 2 or 3 letters",
+        "ok",
+    ),
+    (
+        "[gimbal] axes turning twice about z",
+        ["plan", "{file}"],
+        '[gimbal]\naxes = "zz"\n' + PAN_10,
+        2,
+        r"to turn about different axes in neighbouring joints",
+        "ok",
+    ),
+    (
+        "[bus] zeros nan",
+        ["plan", "{file}"],
+        "[bus]\nzeros = [nan, 2048, 2048]\n" + PAN_10,
+        2,
+        r"\[bus\] zeros: expected an integer in 0..4095, got nan",
+        "ok",
+    ),
+    (
+        "[bus] baud 1e300",
+        ["plan", "{file}"],
+        "[bus]\nbaud = 1e300\n" + PAN_10,
+        2,
+        r"\[bus\] baud: expected an integer, got 1e\+300",
+        "ok",
+    ),
+    (
+        "[spline] k nan",
+        ["plan", "{file}"],
+        "[spline]\nk = nan\n" + PAN_10,
+        2,
+        r"\[spline\] k: expected an integer in 1..6, got nan",
+        "ok",
+    ),
+    (
+        "quat of 1e300 is the direction it names (a zero norm before)",
+        ["plan", "{file}"],
+        "[[keyframes]]\nt = 0\nquat = [1e300, 1e300, 0, 0]\n[[keyframes]]\nt = 1\npan = 10\n",
+        0,
+        r"planned keys.toml: 201 samples",
+        "wrong",
+    ),
+    # very long lines
+    (
+        "a keyframe field with a name of a million letters",
+        ["plan", "{file}"],
+        "[[keyframes]]\nt = 0\npan = 0\n"
+        + "x" * 1_000_000
+        + " = 1\n[[keyframes]]\nt = 1\npan = 10\n",
+        2,
+        r"keyframe 1: unknown field 'x{20,}\.\.\.' \(known: t, pan, tilt, roll, quat\)$",
+        "unclear",
+    ),
 ]
 
 
@@ -1531,8 +1923,8 @@ def run_case(argv, file, tmp_path, capsys) -> tuple[int, str, str]:
     """Run one row through ``trajgen.cli.main``; returns (status, stdout, stderr).
 
     Besides ``{file}`` and ``{tmp}``, ``argv`` may name ``{link}`` (a symbolic link
-    to the keyframe file), ``{hardlink}`` (a hard link to it) and ``{empty}`` (an
-    empty file).
+    to the keyframe file), ``{hardlink}`` (a hard link to it), ``{empty}`` (an
+    empty file) and ``{loop}`` (a symbolic link to itself).
     """
     folder = tmp_path / "empty"
     folder.mkdir()
@@ -1541,11 +1933,14 @@ def run_case(argv, file, tmp_path, capsys) -> tuple[int, str, str]:
         _write(path, file)
     link, hardlink, empty = tmp_path / "link.csv", tmp_path / "hard.csv", tmp_path / "empty.csv"
     empty.touch()
+    loop = tmp_path / "loop.toml"
+    loop.symlink_to(loop)
     if file is not None:
         link.symlink_to(path)
         os.link(path, hardlink)
     argv = [
-        a.format(file=path, tmp=folder, link=link, hardlink=hardlink, empty=empty) for a in argv
+        a.format(file=path, tmp=folder, link=link, hardlink=hardlink, empty=empty, loop=loop)
+        for a in argv
     ]
     try:
         status = main(argv)
@@ -1640,7 +2035,7 @@ def test_ctrl_c_while_plan_writes_leaves_no_half_csv(tmp_path, monkeypatch, caps
         written.append(out.name)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(plan, "_write_csv", interrupted)
+    monkeypatch.setattr(plan, "write_plan_csv", interrupted)
     out = tmp_path / "p.csv"
     assert main(["plan", "--out", str(out)]) == 130
     assert "trajgen plan: interrupted" in capsys.readouterr().err

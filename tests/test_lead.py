@@ -142,14 +142,17 @@ def test_ramp_in_for_a_plan_that_starts_moving_and_out_to_the_end():
     tr = linear(v=0.5, duration=1.0)
     goals = led_goals(tr, "model", params(), torque=torque)
     full = (DAMP + K2R) * 0.5 / KP
-    lead = goals.goal - tr.q - 0.5 * H  # the ramped lead, gravity included
-    # first frame: no lead at all, only the half-period (the servo is there already)
-    np.testing.assert_allclose(goals.goal[0], tr.q[0] + 0.5 * H, atol=1e-15)
+    lead = goals.goal - tr.q - 0.5 * H - GRAV / KP  # the ramped dynamic lead
+    # first frame: no dynamic lead, only the half-period and the static term in full
+    # (the lift before it brought that in: trajgen.lift)
+    np.testing.assert_allclose(goals.goal[0], tr.q[0] + 0.5 * H + GRAV / KP, atol=1e-15)
+    assert goals.lift is not None
+    np.testing.assert_allclose(goals.lift.goal[-1], tr.q[0] + GRAV / KP, atol=1e-15)
     n_ramp = int(TAU * RATE)  # frames within tau of the start
     w = ramp(np.arange(n_ramp + 1) / n_ramp)
-    np.testing.assert_allclose(lead[: n_ramp + 1, 0], (full + GRAV / KP) * w)
+    np.testing.assert_allclose(lead[: n_ramp + 1, 0], full * w, atol=1e-15)
     assert np.all(np.diff(lead[: n_ramp + 1, 0]) > 0)
-    np.testing.assert_allclose(lead[n_ramp:-n_ramp, 0], full + GRAV / KP)
+    np.testing.assert_allclose(lead[n_ramp:-n_ramp, 0], full)
     # the ramp out takes the dynamic part only; this plan ends moving, so the range
     # (the plan's end + the static offset) clips the last goals
     end = slice(-n_ramp - 1, None)

@@ -13,7 +13,7 @@ from trajgen.keyframes import BUILTIN_EXAMPLE, load_keyframe_file
 from trajgen.sim.check import check_torque, lag_time_s
 from trajgen.sim.lead import lead_params, lead_trajectory
 from trajgen.sim.model import GimbalConfig, gimbal_config_from_tables
-from trajgen.sim.run import goal_ticks_rad, planned_path, step_frames
+from trajgen.sim.run import goal_ticks_rad, planned_path, simulation_model, step_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,9 +36,11 @@ def test_sim_runs_the_goals_sent_and_judges_the_plan():
     report = check_torque(kf, config=config)
     assert report.lead == "model" and report.ok
     traj, rec = report.trajectory, report.record
-    # The setpoints are the led goals in whole ticks, held per frame ...
+    # The setpoints are the led goals in whole ticks, the lift's first, held per frame ...
     _, frame = step_frames(traj, config.timestep_s)
-    np.testing.assert_array_equal(rec.setpoint, goal_ticks_rad(traj.goal)[frame])
+    sent = np.vstack([traj.lift.goal, traj.goal])
+    np.testing.assert_array_equal(rec.with_lift().setpoint, goal_ticks_rad(sent)[frame])
+    assert len(rec.lift.t) == round(traj.lift.duration_s / config.timestep_s)
     assert np.abs(traj.goal - traj.q).max() > 0.02
     # ... the same goals a stream sends (one function) ...
     sent, _, _ = lead_trajectory(traj, config, "model")
@@ -149,3 +151,30 @@ def test_bus_u2d2_pan_goals_are_previewed_inside_the_plans_range():
     assert np.abs(moved[:, None] - clipped[None, :]).min(axis=1).max() <= reach
     assert len(moved) < 0.8 * len(pan)
     np.testing.assert_array_equal(goals.goal[:, 1:], plain.goal[:, 1:])  # tilt, roll unclipped
+
+
+def test_the_lead_takes_each_joints_own_table():
+    """[gimbal.<joint>] (as `trajgen identify` writes it) sets that joint's lead only."""
+    tables = {
+        "gimbal": {
+            "tilt": {
+                "position_p_gain": 1600,
+                "p_divisor": 256.0,
+                "frictionloss": 0.05,
+                "damping": 0.1,
+                "armature": 0.06,
+            }
+        }
+    }
+    config = gimbal_config_from_tables(tables, "k.toml")
+    base, p = lead_params(GimbalConfig()), lead_params(config, simulation_model(config))
+    # P 1600 / 256 is P 800 / 128: the same stiffness; the rest is the tilt's own
+    np.testing.assert_allclose(p.kp_nm_rad, base.kp_nm_rad)
+    np.testing.assert_allclose(p.lag_s[1], (base.back_emf_nm_s_rad[1] + 0.1) / p.kp_nm_rad[1])
+    np.testing.assert_allclose(
+        p.frictionloss_nm, [base.frictionloss_nm[0], 0.05, base.frictionloss_nm[2]]
+    )
+    np.testing.assert_allclose(p.lag_s[[0, 2]], base.lag_s[[0, 2]])
+    default = lead_params(GimbalConfig(), simulation_model(GimbalConfig()))
+    assert p.inertia_kg_m2[1] > default.inertia_kg_m2[1] + 0.01  # the armature
+    np.testing.assert_allclose(p.inertia_kg_m2[[0, 2]], default.inertia_kg_m2[[0, 2]])

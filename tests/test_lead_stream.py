@@ -77,15 +77,27 @@ def test_the_streamer_sends_the_led_goals_and_logs_the_plan(tmp_path):
         )
         stats = streamer.run(led)
         goal_log = list(virtual.goal_log)
-    received = joints.to_rad(np.array(goal_log[-len(led) :]))
-    np.testing.assert_allclose(received, led.goal, atol=TICK_RAD / 2 + 1e-12)
+    lift = led.lift  # the tilt's static gravity term, brought in before the plan
+    sent = np.vstack([lift.goal, led.goal])
+    received = joints.to_rad(np.array(goal_log[-len(sent) :]))
+    np.testing.assert_allclose(received, sent, atol=TICK_RAD / 2 + 1e-12)
     assert stats.frames_sent == len(led)
+    assert stats.lift_frames == len(lift) and stats.lift_s == lift.duration_s > 0.2
+    assert stats.to_json_dict()["lift_s"] == lift.duration_s
+    assert f"+{len(lift)} lift, {lift.duration_s:.3f} s" in stats.format()
     with open(log, newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r["phase"] == "stream"]
-    plan = np.array([[float(r[f"plan_rad_{j}"]) for j in JOINTS] for r in rows])
-    goal = np.array([[float(r[f"goal_rad_{j}"]) for j in JOINTS] for r in rows])
-    np.testing.assert_array_equal(plan, led.q)
-    np.testing.assert_array_equal(goal, led.goal)
+        rows = list(csv.DictReader(f))
+    for phase, q, goals in (
+        ("lift", np.tile(lift.q, (len(lift), 1)), lift.goal),
+        ("stream", led.q, led.goal),
+    ):
+        chosen = [r for r in rows if r["phase"] == phase]
+        plan = np.array([[float(r[f"plan_rad_{j}"]) for j in JOINTS] for r in chosen])
+        goal = np.array([[float(r[f"goal_rad_{j}"]) for j in JOINTS] for r in chosen])
+        np.testing.assert_array_equal(plan, q)  # during the lift the plan holds its first point
+        np.testing.assert_array_equal(goal, goals)
+    t = np.array([float(r["t_s"]) for r in rows if r["phase"] != "approach"])
+    np.testing.assert_allclose(np.diff(t), 1 / RATE_HZ, atol=1e-9)  # one stream, lift first
 
 
 def test_bring_up_checks_the_goals_not_only_the_plan():
@@ -101,6 +113,23 @@ def test_bring_up_checks_the_goals_not_only_the_plan():
     with _servos(registers={2: limits}) as (virtual, bus):
         with pytest.raises(BringUpError, match=r"tilt leaves its position limits at t = 0\.4\d+ s"):
             bring_up(bus, JointMap(), MODELS, dataclasses.replace(plan, goal=goal))
+        assert not any(s.torque_on for s in virtual.servos.values())
+
+
+def test_bring_up_checks_the_lifts_goals_too():
+    # The plan and its goals fit the tilt's limits; a lift goal past them is refused.
+    high = (2300 - 2048) * TICK_RAD
+    plan = _move([0.0, high - 0.05, 0.0])
+    led, _, _ = lead_trajectory(plan, GimbalConfig())
+    goal = led.lift.goal.copy()
+    goal[5, 1] = high + 0.01
+    limits = {Register.MIN_POSITION_LIMIT: 1800, Register.MAX_POSITION_LIMIT: 2300}
+    with _servos(registers={2: limits}) as (_, bus):
+        bring_up(bus, JointMap(), MODELS, led)
+    lifted = dataclasses.replace(led, lift=dataclasses.replace(led.lift, goal=goal))
+    with _servos(registers={2: limits}) as (virtual, bus):
+        with pytest.raises(BringUpError, match=r"tilt leaves its position limits at t = -0\.\d+ s"):
+            bring_up(bus, JointMap(), MODELS, lifted)
         assert not any(s.torque_on for s in virtual.servos.values())
 
 
@@ -122,26 +151,31 @@ def test_follow_sends_goals_led_from_the_live_plan(monkeypatch, tmp_path):
     assert main(argv) == 0
     traj = seen["follower"].trajectory()
     with open(log, newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r["phase"] == "stream"]
+        every = list(csv.DictReader(f))
+    rows = [r for r in every if r["phase"] == "stream"]
     plan = np.array([[float(r[f"plan_rad_{j}"]) for j in JOINTS] for r in rows])
     goal = np.array([[float(r[f"goal_rad_{j}"]) for j in JOINTS] for r in rows])
     np.testing.assert_array_equal(plan, traj.q)
     # The goals are the live plan's own led goals (same q, qd, qdd, same function).
     kf = load_keyframe_file(keys)
     config = gimbal_config_from_tables(kf.tables, kf.path)
-    params = lead_params(config)
+    model = simulation_model(config)
+    params = lead_params(config, model)
     cap = lead_cap(np.array([[s.no_load_speed_rad_s for s in config.servos]]), params)
-    expected = [
-        f.goal
-        for f in LedFrames(
-            iter(traj),
-            RATE_HZ,
-            "model",
-            params,
-            np.array(GimbalKinematics().limits_rad),
-            cap,
-            torque_function(simulation_model(config)),
-        )
-    ]
+    live = LedFrames(
+        iter(traj),
+        RATE_HZ,
+        "model",
+        params,
+        np.array(GimbalKinematics().limits_rad),
+        cap,
+        torque_function(model),
+    )
+    expected = [f.goal for f in live]
     np.testing.assert_allclose(goal, expected, atol=1e-12)
     assert np.abs(goal - plan).max() > 0.01  # led: ahead of the plan while it moves
+    # ... after the lift, drawn from the live plan's first frame
+    lifted = [r for r in every if r["phase"] == "lift"]
+    assert len(lifted) == len(live.lift) > 0
+    lift_goal = np.array([[float(r[f"goal_rad_{j}"]) for j in JOINTS] for r in lifted])
+    np.testing.assert_allclose(lift_goal, live.lift.goal, atol=1e-12)

@@ -262,6 +262,26 @@ def test_plan_mcap_is_the_exact_plan(tmp_path):
     np.testing.assert_allclose([s.position for s in states], plan.q, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["pan_tilt_head.toml", "flex_roll_wrist.toml"])
+def test_plan_mcap_of_other_axes_names_the_files_joints(tmp_path, name):
+    from trajgen.jobs.stream_job import kinematics_of
+
+    toml = Path(__file__).parents[1] / "examples" / name
+    out = tmp_path / "plan.mcap"
+    assert main(["plan", str(toml), "--out", str(out), "--rate", "50"]) == 0
+    kf = load_keyframe_file(toml)
+    kin = kinematics_of(kf)
+    plan = plan_joint_trajectory(kf.spline(), 50.0, kin)
+    messages = _decoded(out)
+    (trajectory,) = [ros for t, _, ros in messages if t == "/trajgen/joint_trajectory"]
+    assert trajectory.joint_names == list(kin.joints)
+    got = np.array([p.positions for p in trajectory.points])
+    np.testing.assert_allclose(got, plan.q, rtol=0, atol=1e-12)
+    states = [ros for t, _, ros in messages if t == PLAN]
+    assert states[0].name == list(kin.joints)
+    np.testing.assert_allclose([s.velocity for s in states], plan.qd, rtol=0, atol=1e-12)
+
+
 def _writer_children(pid):
     """Process ids of the MCAP writer processes started by ``pid``."""
     found = []
@@ -336,7 +356,7 @@ def test_a_run_killed_mid_stream_leaves_a_readable_log(tmp_path, writer_too):
     n = len(got["frame"])
     assert n > 50
     assert got["frame"].tolist() == list(range(n))
-    assert set(got["phase"].tolist()) <= {"approach", "stream"}
+    assert set(got["phase"].tolist()) <= {"approach", "lift", "stream"}
     assert np.all(np.diff(got["clock_s"]) > 0)
 
 

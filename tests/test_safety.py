@@ -6,7 +6,6 @@ to the limit registers, torque) and what the caller was told.
 
 import csv
 import math
-import time
 
 import numpy as np
 import pytest
@@ -27,6 +26,7 @@ from trajgen.drivers.outcome import servo_outcomes
 from trajgen.drivers.streamer import RunningQuantiles, Streamer
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import Fault, VirtualBus
+from trajgen.drivers.virtual.clocked import ClockedBus
 from trajgen.drivers.virtual.plant import FirstOrderPlant
 from trajgen.stream import JointTrajectory
 
@@ -50,13 +50,18 @@ def _ramp(q_end, duration_s=0.3, q_start=(0.0, 0.0, 0.0)):
 
 @pytest.fixture
 def rig():
-    """make(**VirtualBus options) -> (virtual bus, open ServoBus), closed after the test."""
+    """make(plant, clock, **VirtualBus options) -> (virtual bus, open ServoBus), closed after
+    the test: lock-step, or with a ``clock`` a ``ClockedBus`` on it."""
     made = []
 
-    def make(plant=None, **kwargs):
-        kwargs.setdefault("lockstep_dt_s", 1 / RATE_HZ)
-        virtual = VirtualBus(plant or FirstOrderPlant(time_constant_s=0.01), **kwargs).start()
-        bus = virtual.connect().open()  # lock-step: answered in this thread
+    def make(plant=None, clock=None, **kwargs):
+        plant = plant or FirstOrderPlant(time_constant_s=0.01)
+        if clock is None:
+            kwargs.setdefault("lockstep_dt_s", 1 / RATE_HZ)
+            virtual = VirtualBus(plant, **kwargs).start()
+        else:  # the host's simulated clock is the servos' time too
+            virtual = ClockedBus(plant, clock=clock, **kwargs).start()
+        bus = virtual.connect().open()  # answered in this thread
         made.append((virtual, bus))
         return virtual, bus
 
@@ -323,13 +328,14 @@ def test_multi_turn_joint_with_installed_limits_is_refused(rig):
 # -- 3. stalls ----------------------------------------------------------------
 
 
-def _stalling(trajectory, stalls):
-    """The trajectory's frames, the host pausing ``stalls[k]`` s before frame k.
+def _stalling(trajectory, clock, stalls):
+    """The trajectory's frames, the host stalling ``stalls[k]`` s before frame k.
 
-    On a real-time virtual bus: in lock-step the servos live on simulated time and
-    never see the host pause (``drivers.virtual.bus``)."""
+    A stall is simulated time: ``clock`` (the streamer's, and the ``ClockedBus``'s)
+    moves on with no packet sent, so the servos see the silence and the streamer
+    finds the frame late, whatever the machine's load."""
     for frame in trajectory:
-        time.sleep(stalls.get(frame.index, 0.0))
+        clock.time_s += stalls.get(frame.index, 0.0)
         yield frame
 
 
@@ -341,18 +347,21 @@ def _sent_intervals(path):
 
 def test_stall_shifts_the_stream_instead_of_replaying_it(rig, tmp_path):
     trajectory = _ramp((0.3, 0.2, 0.1), duration_s=0.5)
-    virtual, bus = rig(lockstep_dt_s=None)  # host stalls are wall-clock events
+    clock = SimulatedClock()
+    virtual, bus = rig(clock=clock)
     bring_up(bus, JointMap(), MODELS, trajectory)
-    streamer = Streamer(bus, JointMap(), telemetry=tmp_path / "t.csv")
-    stats = streamer.run(_stalling(trajectory, {30: 0.08}), rate_hz=RATE_HZ)
+    streamer = Streamer(bus, JointMap(), telemetry=tmp_path / "t.csv", clock=clock)
+    stats = streamer.run(_stalling(trajectory, clock, {30: 0.08}), rate_hz=RATE_HZ)
     assert stats.frames_sent == len(trajectory)
-    # The pause began after frame 29 went out and was read back (< one period).
-    assert stats.stalls >= 1 and stats.stall_max_s >= 0.08 - 1 / RATE_HZ
-    assert stats.delay_s >= 0.08 - 1 / RATE_HZ
-    # Never two goals closer than half a period: no burst after the stall.
+    # The pause began after frame 29 went out at its deadline: frame 30 is 75 ms late,
+    # the only stall, and the rest of the stream is shifted by it.
+    assert stats.stalls == 1
+    assert stats.stall_max_s == pytest.approx(0.08 - 1 / RATE_HZ)
+    assert stats.delay_s == pytest.approx(0.08 - 1 / RATE_HZ)
+    # No burst after the stall: every goal a period after the last but the one 80 ms on.
     intervals = _sent_intervals(tmp_path / "t.csv")
-    assert intervals.min() >= 0.5 / RATE_HZ
-    assert intervals.max() >= 0.08 - 1 / RATE_HZ
+    assert np.sum(np.abs(intervals - 1 / RATE_HZ) > 1e-9) == 1
+    assert intervals[29] == pytest.approx(0.08)
     goals = JointMap().to_rad(np.array(list(virtual.goal_log)))
     np.testing.assert_allclose(goals, trajectory.q, atol=2 * math.pi / 4096)
     assert "stalls: " in stats.format() and "behind its plan" in stats.format()
@@ -360,29 +369,46 @@ def test_stall_shifts_the_stream_instead_of_replaying_it(rig, tmp_path):
 
 def test_stall_longer_than_the_watchdog_stops_before_the_next_goal(rig):
     trajectory = _ramp((0.3, 0.2, 0.1), duration_s=0.5)
-    virtual, bus = rig(lockstep_dt_s=None)  # host stalls are wall-clock events
+    clock = SimulatedClock()
+    virtual, bus = rig(clock=clock)
     bring_up(bus, JointMap(), MODELS, trajectory, watchdog_s=0.1)
-    streamer = Streamer(bus, JointMap())
+    streamer = Streamer(bus, JointMap(), clock=clock)
     with pytest.raises(
-        WatchdogTripped, match=r"tripped .* after a \d+\.\d ms stall, before frame 30"
+        WatchdogTripped, match=r"tripped .* after a 195\.0 ms stall, before frame 30"
     ):
-        streamer.run(_stalling(trajectory, {30: 0.2}), rate_hz=RATE_HZ)
+        streamer.run(_stalling(trajectory, clock, {30: 0.2}), rate_hz=RATE_HZ)
     assert virtual.frames_received == 30
-    assert streamer.stats.stalls >= 1 and streamer.stats.stall_max_s >= 0.2 - 1 / RATE_HZ
+    assert streamer.stats.stalls == 1
+    assert streamer.stats.stall_max_s == pytest.approx(0.2 - 1 / RATE_HZ)
+
+
+def test_a_stall_shorter_than_the_watchdog_trips_nothing(rig):
+    trajectory = _ramp((0.3, 0.2, 0.1), duration_s=0.5)
+    clock = SimulatedClock()
+    virtual, bus = rig(clock=clock)
+    bring_up(bus, JointMap(), MODELS, trajectory, watchdog_s=0.1)
+    stats = Streamer(bus, JointMap(), clock=clock).run(
+        _stalling(trajectory, clock, {30: 0.09}), rate_hz=RATE_HZ
+    )
+    assert stats.frames_sent == len(trajectory) and stats.stalls == 1
+    # The safe stop at the end cleared the watchdogs (0), which had not tripped (-1).
+    assert all(s.get(Register.BUS_WATCHDOG) == 0 for s in virtual.servos.values())
 
 
 def test_lateness_past_the_bound_fails_the_stream(rig):
     trajectory = _ramp((0.3, 0.2, 0.1), duration_s=1.0)
-    virtual, bus = rig(lockstep_dt_s=None)  # host stalls are wall-clock events
+    clock = SimulatedClock()
+    virtual, bus = rig(clock=clock)
     bring_up(bus, JointMap(), MODELS, trajectory)
-    streamer = Streamer(bus, JointMap(), max_delay_s=0.1, on_stop="torque_off")
+    streamer = Streamer(bus, JointMap(), max_delay_s=0.1, on_stop="torque_off", clock=clock)
     stalls = {k: 0.03 for k in range(10, len(trajectory), 10)}
+    # Each stall puts the stream 25 ms behind; the fifth passes the bound.
     with pytest.raises(
-        StreamLagging, match=r"the stream fell 0\.1\d\d s behind its plan \(bound 0\.1 s\)"
+        StreamLagging, match=r"the stream fell 0\.125 s behind its plan \(bound 0\.1 s\) after 5 "
     ):
-        streamer.run(_stalling(trajectory, stalls), rate_hz=RATE_HZ)
-    assert streamer.stats.stalls >= 4
-    assert virtual.frames_received < len(trajectory)
+        streamer.run(_stalling(trajectory, clock, stalls), rate_hz=RATE_HZ)
+    assert streamer.stats.stalls == 5
+    assert virtual.frames_received == 50 < len(trajectory)
     assert not any(_torque(virtual))
 
 
@@ -882,16 +908,19 @@ def test_bus_table_configure_and_restore():
         bus_config_from_tables({"bus": {"restore": 1}}, "f.toml")
 
 
-def test_the_session_reads_back_each_servo_after_a_reboot():
+def test_the_session_reads_back_each_servo_after_a_reboot(monkeypatch):
     from trajgen.drivers.config import BusConfig
     from trajgen.drivers.session import HOLDING, OFF_BY_ITSELF, Session
 
     faults = [Fault("reboot", servo_id=2, at_frame=60)]
     plant = FirstOrderPlant(time_constant_s=0.01)
-    with VirtualBus(plant, lockstep_dt_s=1 / RATE_HZ, faults=faults) as virtual:
-        session = Session(BusConfig(port=virtual.port))
-        path = _ramp((0.2, 0.1, 0.0), duration_s=1.0)
-        outcome = session.run(lambda present: path, RATE_HZ, clock=SimulatedClock())
+    virtual = VirtualBus(plant, lockstep_dt_s=1 / RATE_HZ, faults=faults)
+    # The session's own virtual bus, with the fault: answered in the stream's thread, so no
+    # reply waits for a serving thread on a busy host.
+    monkeypatch.setattr(Session, "_open_virtual", lambda self, rate_hz: virtual.start())
+    session = Session(BusConfig(), plant=plant)
+    path = _ramp((0.2, 0.1, 0.0), duration_s=1.0)
+    outcome = session.run(lambda present: path, RATE_HZ, clock=SimulatedClock())
     assert "servo 2 (tilt) reset itself" in outcome.stopped_by
     assert outcome.servo_states == {1: HOLDING, 2: OFF_BY_ITSELF, 3: HOLDING}
     lines = [o.format() for o in outcome.servos]

@@ -181,8 +181,13 @@ def test_gimbal_table_errors_name_the_joint(table, message):
     assert str(e.value).startswith("h.toml: " + message)
 
 
-def test_the_drivers_path_still_refuses_other_axes():
-    with pytest.raises(KeyframeFileError, match=r"h\.toml: \[gimbal\] axes = 'zy': 2-axis"):
+def test_a_caller_for_pan_tilt_roll_only_refuses_other_axes():
+    with pytest.raises(
+        KeyframeFileError,
+        match=r"^h\.toml: \[gimbal\] axes = 'zy': 2-axis gimbals: this caller takes pan-tilt-roll "
+        r"\(axes = 'zyx'\) only \(any_axes=False\); pass any_axes=True for a caller that takes "
+        r"any axes, as every trajgen command does$",
+    ):
         gimbal_config_from_tables({"gimbal": {"axes": "zy"}}, "h.toml")
 
 
@@ -231,12 +236,15 @@ def test_the_plant_report_matches_simulate_on_two_joints(tmp_path):
     f = tmp_path / "head.toml"
     f.write_text(HEAD)
     from trajgen.keyframes import load_keyframe_file
-    from trajgen.sim.run import simulate
+    from trajgen.sim.lead import sagged_start
+    from trajgen.sim.run import simulate, simulation_model
 
     kf = load_keyframe_file(f)
     config = gimbal_config_from_tables(kf.tables, f, any_axes=True)
     trajectory = plan_joint_trajectory(kf.spline(), 100.0, config.kinematics())
-    plant = GimbalPlant(config, initial_rad=trajectory.q[0])
+    # where `simulate` starts: sagged under the first goal (the XL330 tilt by 37 mrad)
+    start = sagged_start(trajectory, config, simulation_model(config))
+    plant = GimbalPlant(config, initial_rad=start)
     for j in range(2):
         plant.set_torque_enabled(j, True)
     for goal in trajectory.q:
@@ -351,3 +359,33 @@ def test_trajgen_sweep_takes_a_two_axis_file_by_joint_name(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "servos (yaw/pitch)" in out
     assert "XL330-M288/XM430-W350" in out and "2 of 2 variants pass" in out
+
+
+@pytest.mark.parametrize(
+    ("axes", "center"),
+    [
+        ("zy", (0.3, -0.2)),
+        ("yx", (-0.4, 0.5)),
+        ("xyz", (0.2, -0.3, 0.4)),
+        ("zxz", (0.3, 1.2, -0.2)),  # proper Euler: away from its lock at 0
+        ("zyx", (0.4, 0.1, -0.2)),
+    ],
+)
+def test_a_multisine_on_any_axes_plans_back_to_its_own_joints(axes, center):
+    """The excitation's orientation path and its angular rates (the general dJ/dt qd term)
+    give its joint motion back through the gimbal's inverse kinematics: each joint moves
+    by its own sines, none is lost to the look axis of a two-axis gimbal."""
+    from trajgen.gimbal import GimbalKinematics
+    from trajgen.sim.excite import Multisine, default_amplitude_rad
+
+    kin = GimbalKinematics(axes=axes)
+    motion = Multisine(center_rad=center, seconds=4.0, kinematics=kin)
+    assert motion.amplitude_rad == default_amplitude_rad(kin.n_joints)
+    assert motion.frequencies_hz.shape == (kin.n_joints, 5)
+    trajectory = plan_joint_trajectory(motion, 200.0, kin)
+    q, qd, qdd = motion.joints(trajectory.t)
+    np.testing.assert_allclose(trajectory.q, q, atol=1e-12)
+    np.testing.assert_allclose(trajectory.qd, qd, atol=1e-11)
+    np.testing.assert_allclose(trajectory.qdd, qdd, atol=1e-9)
+    with pytest.raises(ValueError, match=rf"`center_rad` to be {kin.n_joints} finite numbers"):
+        Multisine(center_rad=(0.0,) * (5 - kin.n_joints), kinematics=kin)

@@ -14,7 +14,8 @@ from trajgen.sim.firmware import (
     UnsupportedServoSetting,
     loop_from_registers,
 )
-from trajgen.sim.model import GimbalConfig, gimbal_mjcf
+from trajgen.sim.lead import sagged_start
+from trajgen.sim.model import GimbalConfig, build_model, gimbal_mjcf
 from trajgen.sim.plant import GimbalPlant
 from trajgen.sim.run import goal_ticks_rad, simulate
 from trajgen.sim.servos import XM430_W350
@@ -145,7 +146,8 @@ def test_plant_and_sim_run_the_same_servo():
     trajectory = quintic_trajectory([0.9, -0.4, 0.3], 1.0, start_rad=(0.2, 0.1, 0.0))
     config = GimbalConfig(joints=({"position_p_gain": 1200, "armature": 0.03}, {}, {}))
     record = simulate(trajectory, config)
-    plant = GimbalPlant(config, initial_rad=trajectory.q[0])
+    # where `simulate` starts: sagged under the first goal
+    plant = GimbalPlant(config, initial_rad=sagged_start(trajectory, config, build_model(config)))
     for joint in range(3):
         plant.set_torque_enabled(joint, True)
     for frame in trajectory:

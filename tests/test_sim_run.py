@@ -37,10 +37,20 @@ def test_setpoints_are_held_for_one_stream_period():
     np.testing.assert_allclose(np.diff(record.t), 0.001, atol=1e-12)
 
 
-def test_run_starts_at_rest_at_the_first_frame():
+def test_run_starts_at_rest_where_servos_holding_the_first_goal_sag():
+    from trajgen.sim.lead import lead_params
+
     trajectory = quintic_trajectory([0.5, -0.3, 0.2], 0.5, start_rad=(1.0, 0.2, -0.4))
     record = simulate(trajectory)
-    np.testing.assert_array_equal(record.q[0], [1.0, 0.2, -0.4])
+    config = GimbalConfig()
+    held = goal_ticks_rad(trajectory.q[0])
+    zero = np.zeros((1, 3))
+    gravity = inverse_dynamics(build_model(), record.q[:1], zero, zero)[0]
+    # the loop's torque holds gravity: kp (goal - q) = g(q), a sag of about 1 mrad on the tilt
+    np.testing.assert_allclose(
+        lead_params(config).kp_nm_rad * (held - record.q[0]), gravity, atol=1e-12
+    )
+    assert 5e-4 < np.abs(record.q[0] - held).max() < 2e-3
     np.testing.assert_array_equal(record.qd[0], 0.0)
 
 
@@ -137,11 +147,13 @@ def _per_step_loop(trajectory, config):
     """The per-frame ``mj_step`` loop ``simulate`` ran before it used ``run_batch``."""
     import mujoco
 
+    from trajgen.sim.lead import sagged_start
+
     model = build_model(config)  # with MuJoCo's collision stage, as it was
     data = mujoco.MjData(model)
     step_t, frame = step_frames(trajectory, config.timestep_s)
     goals = goal_ticks_rad(trajectory.q)
-    data.qpos[:] = trajectory.q[0]
+    data.qpos[:] = sagged_start(trajectory, config, model)
     data.time = step_t[0]
     mujoco.mj_forward(model, data)
     q, qd, torque = (np.empty((len(step_t), 3)) for _ in range(3))

@@ -1,6 +1,7 @@
 """The user's own gimbal model (MJCF, URDF) with trajgen's servos attached."""
 
 import dataclasses
+import json
 import re
 from pathlib import Path
 
@@ -176,6 +177,23 @@ MOMENTS = "body 'pan_link': inertia with principal moments"
             ("tilt", "pan"),
             "joints ['tilt', 'pan'] must be named base out, as the model has them: ['pan', 'tilt']",
         ),
+        (
+            {"tilt_axis": "0 0 1"},
+            PAN_TILT,
+            "joint 'tilt' turns about (0, 0, 1) in the gimbal's base frame, 90.0 deg from +y, its "
+            "axis in [gimbal] axes = 'zy' (at most 15 deg, the same way round): fix the model's "
+            "axis or the axes",
+        ),
+        (
+            {"tilt_axis": "0 -1 0"},
+            PAN_TILT,
+            "joint 'tilt' turns about (0, -1, 0) in the gimbal's base frame, 180.0 deg from +y",
+        ),
+        (
+            {"tilt_axis": "0 0.94 0.342"},  # 20 deg off
+            PAN_TILT,
+            "joint 'tilt' turns about (0, 0.94, 0.342) in the gimbal's base frame, 20.0 deg from",
+        ),
     ],
 )
 def test_a_model_that_cannot_carry_the_servos_is_refused_in_one_line(
@@ -186,29 +204,62 @@ def test_a_model_that_cannot_carry_the_servos_is_refused_in_one_line(
     f = _file(tmp_path, _head(tmp_path, **fields).name, joints=joints)
     with pytest.raises(KeyframeFileError) as e:
         _config(f)
-    assert str(e.value) == f"{f}: [gimbal] model: head.xml: {message}"
+    assert str(e.value).startswith(f"{f}: [gimbal] model: head.xml: {message}")
     assert main(["sim", str(f)]) == 2
     err = capsys.readouterr().err
-    assert err == f"trajgen sim: error: {f}: [gimbal] model: head.xml: {message}\n"
+    assert err.startswith(f"trajgen sim: error: {f}: [gimbal] model: head.xml: {message}")
+    assert err.count("\n") == 1
 
 
-def test_zero_mass_and_a_joint_the_gimbal_does_not_name_are_refused(tmp_path):
+def test_zero_mass_is_refused(tmp_path):
     text = _head(tmp_path).read_text().replace('mass="0.1"', 'mass="0"')
     (tmp_path / "zero.xml").write_text(text)
     with pytest.raises(KeyframeFileError, match=re.escape(
         "zero.xml: body 'pan_link': mass 0 kg; a moving link needs mass > 0"
     )):  # fmt: skip
         _config(_file(tmp_path, "zero.xml"))
-    text = (
-        _head(tmp_path)
-        .read_text()
-        .replace('<geom name="camera"', '<joint name="focus" type="slide"/><geom name="camera"')
+
+
+def test_a_joint_the_gimbal_does_not_name_is_held_at_its_reference_pose(tmp_path, capsys):
+    """A gripper finger on the tilt link, on a slide joint drawn 2 cm out (ref 0): welded
+    where the file draws it, its mass carried by the tilt servo, and said by trajgen sim."""
+    from trajgen.cli import main
+    from trajgen.sim.user_model import held_joints
+
+    finger = (
+        '<body name="finger" pos="0.05 0 0.02"><joint name="gripper" type="slide" axis="1 0 0"/>'
+        '<geom type="box" size="0.01 0.01 0.01" mass="0.08"/></body>'
     )
-    (tmp_path / "extra.xml").write_text(text)
-    with pytest.raises(KeyframeFileError, match=re.escape(
-        "extra.xml: joint 'focus' is not one of the gimbal's joints (pan, tilt)"
-    )):  # fmt: skip
-        _config(_file(tmp_path, "extra.xml"))
+    camera = '<geom name="camera"'
+    text = _head(tmp_path).read_text().replace(camera, finger + camera)
+    (tmp_path / "gripper.xml").write_text(text)
+    config = _config(_file(tmp_path, "gripper.xml"))
+    assert held_joints(config) == ("gripper",)
+    built = build_model(config)
+    assert built.njnt == 2 and built.nq == 2  # the gimbal's own hinges only
+    data = mujoco.MjData(built)
+    mujoco.mj_kinematics(built, data)
+    # the finger stays where the file draws it, on the tilt link
+    np.testing.assert_allclose(data.xpos[built.body("finger").id], [0.05, 0, 0.13], atol=1e-12)
+    plain = check_torque(_file(tmp_path, _head(tmp_path).name, name="plain.toml"))
+    held = check_torque(_file(tmp_path, "gripper.xml", name="held.toml"))
+    assert held.joints["tilt"].peak_planned_torque_nm > plain.joints["tilt"].peak_planned_torque_nm
+    assert main(["sim", str(tmp_path / "held.toml"), "--json", str(tmp_path / "r.json")]) == 0
+    out = capsys.readouterr().out
+    assert "held: joint 'gripper' (not in [gimbal] joints) is welded at its reference pose" in out
+    assert json.loads((tmp_path / "r.json").read_text())["held_joints"] == ["gripper"]
+
+
+def test_a_gimbal_mounted_turned_in_the_world_checks_its_axes_from_its_base(tmp_path):
+    """The base body turned 90 deg about x (a head on a wall): the hinge axes are the
+    declared ones seen from the base, so the model loads; gravity acts as mounted."""
+    text = _head(tmp_path).read_text()
+    text = text.replace(
+        '<body name="pan_link" pos="0 0 0.05">',
+        '<body name="mount" euler="90 0 0"><body name="pan_link" pos="0 0 0.05">',
+    ).replace("</worldbody>", "</body></worldbody>")
+    (tmp_path / "wall.xml").write_text(text)
+    assert _config(_file(tmp_path, "wall.xml")).names == ("pan", "tilt")
 
 
 @pytest.mark.parametrize(

@@ -89,3 +89,14 @@ def test_the_entry_point_gives_the_handlers_back_when_it_returns(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", interrupted)
     assert trajgen_launch.main() == 130
     assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_the_entry_point_imports_nothing_before_its_handlers():
+    # Its first statement needs no module beyond the interpreter's built-in `_signal`:
+    # loading `signal` (and `enum`) before the handlers would lengthen Python's window.
+    code = (
+        "import sys; before = set(sys.modules); import trajgen_launch; "
+        "print(' '.join(sorted(set(sys.modules) - before)))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["trajgen_launch"]

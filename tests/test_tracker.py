@@ -59,17 +59,21 @@ def test_look_at_target_is_reached():
     np.testing.assert_allclose(abs(q_end @ forward([D(45), 0, 0])), 1.0, atol=1e-12)
 
 
-def test_earliest_arrival_keeps_the_limits_and_is_tight():
+def test_earliest_arrival_keeps_the_limits_and_is_the_double_s_time():
     tr = tracker()
     r = tr.set_target(angles=[D(30), D(-10), 0], at=0.0)
     assert r.changed and (r.peaks <= LIMITS).all()
-    # 5 % earlier breaks a limit
-    h = 0.95 * (r.arrival - r.at)
-    sp = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
-    early = sp.prepare("retarget", forward([[D(30), D(-10), 0]]), [h], at=0.0)
-    _, qd, qdd, jerk = tr.joint_motion(early.path, 0.0, h, np.zeros(3))
-    peaks = np.array([np.abs(x).max(axis=0) for x in (qd, qdd, jerk)])
-    assert (peaks > LIMITS).any()
+    # Pan 30 deg from rest, worked by hand: 3 rad/s is not reached; the peak speed vp
+    # with the acceleration at 20 rad/s^2 for a while covers the distance when
+    # vp (vp / A + A / J) = d, and the motion takes 2 (vp / A + A / J).
+    v, a, j = LIMITS[:, 0]
+    d = D(30)
+    vp = (-a / j + math.sqrt((a / j) ** 2 + 4 * d / a)) / (2 / a)
+    assert vp > a * a / j  # the acceleration does reach its limit
+    assert r.arrival == pytest.approx(2 * (vp / a + a / j), abs=1e-9)
+    np.testing.assert_allclose(r.peaks[:, 0], [vp, a, j], rtol=1e-8)
+    q = tr.spline(np.array([r.arrival]))[0]
+    np.testing.assert_allclose(abs(q @ forward([D(30), D(-10), 0])), 1.0, atol=1e-14)
 
 
 def test_max_speed_caps_the_motion():
@@ -132,17 +136,20 @@ def test_pan_limit_clamps():
     assert r.goal[0] == pytest.approx(D(90))
 
 
-def test_path_through_the_lock_goes_around_it():
+@pytest.mark.parametrize("k", [2, 3])
+def test_path_through_the_lock_goes_around_it(k):
     # (0, 70, 0) to (180, 70, 180): the direct rotation is about y, over the nadir.
     start, goal = [0, D(70), 0], [D(180), D(70), D(180)]
-    sp = OnlineSpline(forward(start), 0.0, k=2)
+    sp = OnlineSpline(forward(start), 0.0, k=k)
     direct = sp.prepare("retarget", forward([goal]), [2.0], at=0.0)
     tr = Tracker(sp, LIMITS)
     w, x, y, z = direct.path.evaluate(np.linspace(0, 2, 201), max_order=0).q.T
     tilt = angles_of(w, x, y, z, np.arctan2, np.hypot)[1]
     assert np.abs(tilt).max() > D(89)  # the direct path passes the lock
     r = tr.set_target(angles=goal, at=0.0)
-    assert r.vias >= 1
+    # k = 2: each joint's own motion, which keeps the tilt between its ends; k = 3:
+    # orientation splices through via points
+    assert r.vias == 0 if k == 2 else r.vias >= 1
     q, *_ = tr.joint_motion(tr.spline, 0.0, r.arrival + 0.1, np.array(start))
     assert np.abs(q[:, 1]).max() < D(80)
     np.testing.assert_allclose(np.abs(q[-1]), [D(180), D(70), D(180)], atol=1e-9)
@@ -226,31 +233,44 @@ def test_a_30_hz_stream_keeps_the_limits_at_every_frame_and_each_change_is_c2():
             near = tr._unwrapped(after(np.array([r.at]))[0], r.goal)
             peaks = frame_peaks(tr, after, r.at, r.arrival, near)
             assert (peaks <= LIMITS).all(), peaks
-            np.testing.assert_allclose(peaks, r.peaks, rtol=1e-6, atol=1e-9)
+            # r.peaks holds between frames too (the frames' jerk: differences over 2 us)
+            assert (peaks <= r.peaks * (1 + 1e-6) + 1e-6).all()
         at += 1 / 30
     assert changed == 45
 
 
-def test_a_reversal_that_no_lead_can_take_now_is_deferred():
+def test_a_reversal_just_after_a_start_is_taken_at_once_and_is_c2():
+    # 10 ms into a 1 rad move its jerk is at the limit: a splice that kept the jerk
+    # (C3) could not turn back within the limits; the joints' own motion is C2 only.
     tr = tracker()
-    tr.set_target(angles=[1.0, 0, 0], at=0.0)  # starts with a jerk at its limit
-    goal = forward([[-1.0, 0, 0]])
-    near = tr._unwrapped(tr.spline(np.array([0.01]))[0], tr.goal)
-    for h in np.geomspace(0.2, 4.0, 25):  # from 0.01, every lead breaks a limit
-        change = tr.spline.prepare("retarget", goal, [0.01 + h], at=0.01)
-        try:
-            tr.kinematics.check(tr.joint_motion(change.path, 0.01, 0.01 + h, near)[0])
-        except KinematicsError:
-            continue
-        assert (frame_peaks(tr, change.path, 0.01, 0.01 + h, near) > LIMITS).any()
+    tr.set_target(angles=[1.0, 0, 0], at=0.0)
     before = tr.spline.snapshot()[1]
     r = tr.set_target(angles=[-1.0, 0, 0], at=0.01)
-    assert r.changed and r.at > 0.01 and (r.peaks <= LIMITS).all()
+    assert r.changed and r.at == 0.01 and (r.peaks <= LIMITS).all()
+    (q0, w0, a0), (q1, w1, a1) = one_sided(before, tr.spline.snapshot()[1], r.at)
+    np.testing.assert_allclose(q1, q0, atol=1e-12)
+    np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
+    np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
+    np.testing.assert_allclose(a0[2], 200.0 * 0.01, rtol=1e-6)  # braking starts from here
+    near = tr._unwrapped(tr.spline(np.array([r.at]))[0], r.goal)
+    assert (frame_peaks(tr, tr.spline, r.at, r.arrival, near) <= LIMITS * (1 + 1e-9)).all()
+
+
+def test_a_target_the_motion_in_progress_cannot_keep_to_is_deferred():
+    # A timed retarget moves pan at up to about 2 rad/s; a target capped at 0.5 rad/s
+    # cannot start while pan moves faster: the old path is followed until it can.
+    tr = tracker()
+    tr.spline.retarget(forward([[1.0, 0, 0]]), [1.0], at=0.0)
+    before = tr.spline.snapshot()[1]
+    r = tr.set_target(angles=[-0.5, 0, 0], at=0.3, max_speed=0.5)
+    assert r.changed and r.at > 0.3 and r.peaks[0, 0] <= 0.5
+    speed = np.abs(tr.spline.evaluate(np.array([0.3, r.at]), max_order=1).omega[:, 2])
+    assert speed[0] > 0.5 >= speed[1]
     (q0, w0, a0), (q1, w1, a1) = one_sided(before, tr.spline.snapshot()[1], r.at)
     np.testing.assert_allclose(w1, w0, atol=1e-9 * max(1.0, np.abs(w0).max()))
     np.testing.assert_allclose(a1, a0, atol=1e-9 * max(1.0, np.abs(a0).max()))
     # a target asked for before the deferred change starts from it
-    assert tr.set_target(angles=[0.3, 0, 0], at=0.02).at >= r.at
+    assert tr.set_target(angles=[0.3, 0, 0], at=r.at - 0.1).at >= r.at
 
 
 def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_limits():
@@ -259,6 +279,7 @@ def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_l
     change built in steps between frames): no frame beyond the limits (a change that
     were not C2 would give an unbounded jerk), and it settles on the last report."""
     import json
+    import queue
     import threading
 
     from trajgen.follower import Follower
@@ -270,22 +291,25 @@ def test_a_noisy_30_hz_target_stream_through_the_follower_keeps_every_frame_in_l
     reports = face + rng.normal(0.0, 0.01, face.shape)
     spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
     f = Follower(spline, 1000.0, limits=LIMITS)
-    last, i, errors = None, 0, []
+    lines, i, errors = queue.Queue(), 0, []
+
+    def reader():  # one thread feeds the lines in order, as `trajgen follow` reads them
+        while (item := lines.get()) is not None:
+            try:
+                f.feed(*item)
+            except ValueError as e:  # pragma: no cover - reported below
+                errors.append(str(e))
+
+    feeder = threading.Thread(target=reader)
+    feeder.start()
     for frame in f.frames():
         if i < len(t_lines) and frame.t >= t_lines[i]:
-            line = json.dumps({"look_at": reports[i].tolist()})
-
-            def feed(line=line, n=i + 1):
-                try:
-                    f.feed(line, n)
-                except ValueError as e:  # pragma: no cover - reported below
-                    errors.append(str(e))
-
-            last = threading.Thread(target=feed)
-            last.start()
+            lines.put((json.dumps({"look_at": reports[i].tolist()}), i + 1))
             i += 1
-        if not spline.closed and i == len(t_lines) and not last.is_alive():
-            spline.close()
+            if i == len(t_lines):
+                lines.put(None)
+        if not spline.closed and i == len(t_lines) and not feeder.is_alive():
+            spline.close()  # every line's change made
     assert errors == [] and len(f.keyframes) >= len(t_lines) - 5
     traj = f.trajectory()
     assert (np.abs(traj.qd) <= LIMITS[0]).all() and (np.abs(traj.qdd) <= LIMITS[1]).all()

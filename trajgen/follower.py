@@ -40,9 +40,9 @@ from .tracker import Tracker
 CHANGE_MARGIN_S = 0.05
 
 #: Steps (one a frame) an untimed target's change is given before its ``at``: the
-#: tracker's search takes about 8 (prepare, coarse checks, refinement, the chosen
-#: lead's build and frame check); doubled on each new attempt.
-TARGET_STEPS = 12
+#: tracker's search takes 13-18 (the motion in progress, an iteration of the joint
+#: motion's root search each, the frame check); doubled on each new attempt.
+TARGET_STEPS = 20
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
 #: how long the streaming thread may wait for the thread that parses the lines.
@@ -214,7 +214,7 @@ class Follower:
         """
         arrival = time.monotonic()
         where = f"line {number}"
-        mode, q, t, relative = parse_line(text, self._where(number))
+        mode, q, t, relative = parse_line(text, self._where(number), self.kinematics.sequence)
         now = self._now()
         if mode == TRACK:
             job = _Job(self._target_steps(q, where, arrival, now, number), where)
@@ -403,12 +403,12 @@ class Follower:
 
     def trajectory(self) -> JointTrajectory:
         """What :meth:`frames` yielded, as arrays."""
-        f = self._frames
+        f, n = self._frames, self.kinematics.n_joints
         return JointTrajectory(
             np.array([x.t for x in f]),
-            np.array([x.q for x in f]).reshape(-1, 3),
-            np.array([x.qd for x in f]).reshape(-1, 3),
-            np.array([x.qdd for x in f]).reshape(-1, 3),
+            np.array([x.q for x in f]).reshape(-1, n),
+            np.array([x.qd for x in f]).reshape(-1, n),
+            np.array([x.qdd for x in f]).reshape(-1, n),
             self.rate_hz,
         )
 

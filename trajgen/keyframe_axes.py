@@ -32,7 +32,7 @@ import numpy as np
 
 from .axes import AxisSequence, direction_angles
 from .errors import BadArgument, KeyframeFileError
-from .validate import check_number
+from .validate import check_keys, check_number
 
 #: The ``[gimbal]`` keys read here (the simulator reads the rest of the table).
 AXES_KEYS = ("axes", "joints")
@@ -106,11 +106,7 @@ def axis_keyframes(entries, seq: AxisSequence, path: Path):
                 f"{where}: field 'quat': a 2-axis gimbal ({seq.sequence}) cannot hold every "
                 f"orientation; give 'look' = [x, y, z] or {'/'.join(seq.joints)} (degrees)"
             )
-        for key in kf:
-            if key not in known:
-                raise KeyframeFileError(
-                    f"{where}: unknown field '{key}' (known: {', '.join(known)})"
-                )
+        check_keys(kf, known, error=lambda m, w=where: KeyframeFileError(f"{w}: {m}"), kind="field")
         angles = [k for k in seq.joints if k in kf]
         if angles and orientation in kf:
             raise KeyframeFileError(
@@ -130,6 +126,25 @@ def axis_keyframes(entries, seq: AxisSequence, path: Path):
             entry["quat"] = seq.forward(np.radians(deg)).tolist()
         out.append(entry)
     return out
+
+
+def written_angles(entries: list, seq: AxisSequence) -> tuple[np.ndarray, np.ndarray]:
+    """The joint angles keyframes (checked by :func:`axis_keyframes`) give by name.
+
+    Returns
+    -------
+    written : ndarray, shape (N, n)
+        Degrees as written, 0 for a joint not given and for a keyframe by ``look`` or
+        ``quat``.
+    has_angle : ndarray of bool, shape (N,)
+        Keyframes given by joint angles.
+    """
+    has_angle = np.array([any(k in kf for k in seq.joints) for kf in entries], dtype=bool)
+    written = np.array(
+        [[float(kf.get(k, 0.0)) if has else 0.0 for k in seq.joints]
+         for kf, has in zip(entries, has_angle, strict=True)]
+    )  # fmt: skip
+    return written.reshape(len(entries), seq.n), has_angle
 
 
 def _field(where: str, key: str):

@@ -8,6 +8,11 @@ One keyframe per line, as a tracker writes them to ``trajgen follow``::
     {"pan": 20, "tilt": 5, "max_speed": 90}    as early as the limits allow (untimed)
     {"look_at": [2.0, 0.5, -0.3]}              point the camera there (m), untimed
 
+A gimbal of other axes (``[gimbal] axes``, :mod:`trajgen.keyframe_axes`) takes its
+own joint names (``{"in": 1, "wrist_flex": 30}``); a two-axis one also ``"look"`` (a
+direction) and ``"quat"``, of which only the look direction is kept (exactly: the
+orientation planned through is the one the gimbal has pointing there).
+
 :func:`capped_lines` reads lines as bytes and never holds more than
 ``MAX_LINE_BYTES`` of one (a 50 MB line or binary noise costs memory and time
 in bounded pieces); :func:`parse_line` refuses, with a message naming the line
@@ -20,7 +25,12 @@ import json
 import math
 from collections.abc import Iterator
 
+import numpy as np
+
+from . import quat as Q
+from .axes import AxisSequence, direction_angles
 from .errors import KeyframeFileError
+from .keyframe_axes import axis_keyframes, is_default
 from .keyframes import check_keyframes
 from .online import MODES
 from .validate import check_keys, check_number
@@ -34,6 +44,16 @@ MAX_MESSAGE_CHARS = 200
 
 #: The fields a line may have.
 LINE_KEYS = ("t", "in", "mode", "pan", "tilt", "roll", "quat", "look_at", "max_speed")
+
+
+def line_keys(axes: AxisSequence | None = None) -> tuple[str, ...]:
+    """The fields a line may have for a gimbal of ``axes`` (default pan-tilt-roll):
+    :data:`LINE_KEYS` with the gimbal's joint names, and ``look`` for two axes."""
+    if axes is None or is_default(axes):
+        return LINE_KEYS
+    look = ("look",) if axes.n == 2 else ()
+    return ("t", "in", "mode", *axes.joints, "quat", *look, "look_at", "max_speed")
+
 
 #: Fields only an untimed target (no ``t``, no ``in``) may have.
 TARGET_KEYS = ("look_at", "max_speed")
@@ -91,7 +111,7 @@ def decode_line(line: bytes | str, where: str, max_bytes: int = MAX_LINE_BYTES) 
         ) from None
 
 
-def parse_line(text: str, where: str):
+def parse_line(text: str, where: str, axes: AxisSequence | None = None):
     """One JSON line as a checked keyframe.
 
     Parameters
@@ -100,6 +120,8 @@ def parse_line(text: str, where: str):
         The line.
     where : str
         What messages start with, e.g. ``"stdin: line 7"``.
+    axes : AxisSequence, optional
+        The gimbal's axes and joint names (default pan-tilt-roll): the angle fields.
 
     Returns
     -------
@@ -120,7 +142,7 @@ def parse_line(text: str, where: str):
     """
 
     try:
-        return _parse(text, where)
+        return _parse(text, where, AxisSequence() if axes is None else axes)
     except KeyframeFileError as e:
         # One keyframe a line: "keyframe 1" says nothing; a value 60 KB long is cut.
         message = str(e).replace(f"{where}: keyframe 1: ", f"{where}: ", 1)
@@ -129,7 +151,7 @@ def parse_line(text: str, where: str):
         raise KeyframeFileError(message) from None
 
 
-def _parse(text: str, where: str):
+def _parse(text: str, where: str, axes: AxisSequence):
     def error(problem: str) -> KeyframeFileError:
         return KeyframeFileError(f"{where}: {problem}")
 
@@ -143,9 +165,9 @@ def _parse(text: str, where: str):
         raise error(f"invalid JSON: {e}") from None
     if not isinstance(entry, dict):
         raise error(f"expected a JSON object, got {text.strip()[:80]!r}")
-    check_keys(entry, LINE_KEYS, error=error, kind="field")
+    check_keys(entry, line_keys(axes), error=error, kind="field")
     if "t" not in entry and "in" not in entry:
-        return _target(entry, where, error)
+        return _target(entry, where, error, axes)
     for key in TARGET_KEYS:
         if key in entry:
             raise error(f"field '{key}': only for a target without 't' or 'in'")
@@ -158,11 +180,26 @@ def _parse(text: str, where: str):
     t = check_number(name, entry[name], error=lambda p: error(f"field '{name}': {p} (seconds)"))
     keyframe = {k: v for k, v in entry.items() if k not in ("mode", "in")}
     keyframe["t"] = t
+    return mode, _orientation(keyframe, where, axes), t, name == "in"
+
+
+def _orientation(keyframe: dict, where: str, axes: AxisSequence):
+    """The checked orientation (4,) a line's ``keyframe`` fields (``t`` among them) give:
+    for a two-axis gimbal's ``quat``, the orientation pointing its look axis where the
+    quaternion's points (:func:`trajgen.axes.direction_angles`, exact)."""
+    two_axis_quat = axes.n == 2 and "quat" in keyframe
+    if two_axis_quat and len(keyframe) > 2:
+        raise KeyframeFileError(f"{where}: give either 'quat' or {'/'.join(axes.joints)}, not both")
+    if not is_default(axes) and not two_axis_quat:
+        keyframe = axis_keyframes([keyframe], axes, where)[0]
     _, q = check_keyframes([keyframe], where, minimum=1)
-    return mode, q[0], t, name == "in"
+    if two_axis_quat:
+        look = Q.rotate(q[0], axes.look)
+        return axes.forward(direction_angles(axes.indices, look / np.linalg.norm(look)))
+    return q[0]
 
 
-def _target(entry: dict, where: str, error):
+def _target(entry: dict, where: str, error, axes: AxisSequence):
     """An untimed target line: ("track", {quat, look_at, max_speed}, None, False)."""
     if "mode" in entry:
         raise error("field 'mode': a target without 't' or 'in' is always tracked")
@@ -178,6 +215,12 @@ def _target(entry: dict, where: str, error):
         target["max_speed"] = math.radians(speed)
     orientation = {k: v for k, v in entry.items() if k not in TARGET_KEYS}
     if "look_at" in entry:
+        if axes.n == 3 and not is_default(axes):
+            raise error(
+                f"field 'look_at': a camera's look axis is defined for pan-tilt-roll and "
+                f"two-axis gimbals, not axes {axes.sequence!r}; give 'quat' or "
+                f"{'/'.join(axes.joints)}"
+            )
         if orientation:
             raise error(f"field 'look_at': give it or {sorted(orientation)[0]!r}, not both")
         p = entry["look_at"]
@@ -191,7 +234,7 @@ def _target(entry: dict, where: str, error):
             raise error("field 'look_at': the gimbal's origin has no direction")
         return TRACK, target, None, False
     if not orientation:
-        raise error("give 't' or 'in' (s), or a target: 'pan'/'tilt'/'roll', 'quat' or 'look_at'")
-    _, q = check_keyframes([{**orientation, "t": 0.0}], where, minimum=1)
-    target["quat"] = q[0]
+        angles = "'" + "'/'".join(axes.joints) + "'"
+        raise error(f"give 't' or 'in' (s), or a target: {angles}, 'quat' or 'look_at'")
+    target["quat"] = _orientation({**orientation, "t": 0.0}, where, axes)
     return TRACK, target, None, False

@@ -71,7 +71,7 @@ from . import quat as Q
 from .axes import AxisSequence
 from .errors import KeyframeFileError
 from .gimbal import JOINT_NAMES, GimbalKinematics, angles_of
-from .keyframe_axes import axes_from_table, axis_keyframes, is_default
+from .keyframe_axes import axes_from_table, axis_keyframes, is_default, written_angles
 from .smooth import KNOTS, SmoothSpline
 from .spline import BOUNDARIES, LOCALS, MAX_K, REPARAMS, BlendingSpline
 from .timelaw import RetimedPath, TimeLaw
@@ -268,6 +268,8 @@ def load_keyframe_file(path) -> KeyframeFile:
     stream = data.get("stream", {})
     rate_hz = _stream_rate(stream, path)
     times, quats = _keyframes(columns, path)
+    if not is_default(axes):  # the angles written are the angles reached, as for pan-tilt-roll
+        check_honoured(*written_angles(entries, axes), quats, path, axes)
     timing = _timing(data["timing"], times, path) if "timing" in data else None
     tables = {k: v for k, v in data.items() if TABLES[k] != "trajgen"}
     lead = _stream_lead(stream, path)
@@ -302,7 +304,8 @@ def read_text(path) -> str:
         with open(path, "rb") as f:
             data = f.read(MAX_FILE_BYTES + 1)
     except FileNotFoundError:
-        raise KeyframeFileError(f"{path}: no such file") from None
+        stdin = " (standard input is not read: give a file name)" if str(path) == "-" else ""
+        raise KeyframeFileError(f"{path}: no such file{stdin}") from None
     except IsADirectoryError:
         raise KeyframeFileError(f"{path}: is a directory, not a keyframe file") from None
     except OSError as e:
@@ -617,7 +620,7 @@ def _keyframes(columns: dict, path: Path, minimum: int = 2) -> tuple[np.ndarray,
             f"{path}: keyframe {i + 1}: field 't': {t[i]:g} s is not after keyframe {i}'s "
             f"{t[i - 1]:g} s"
         )
-    zero = has_quat & (np.linalg.norm(np.nan_to_num(quat), axis=1) < 1e-12)
+    zero = has_quat & (np.hypot.reduce(np.nan_to_num(quat), axis=1) < 1e-12)  # no overflow
     if zero.any():
         raise KeyframeFileError(
             f"{path}: keyframe {_first(zero) + 1}: field 'quat': zero quaternion"
@@ -669,7 +672,9 @@ def check_angles(written: np.ndarray, has_angle: np.ndarray, path) -> None:
             )
 
 
-def check_honoured(written: np.ndarray, has_angle: np.ndarray, quats: np.ndarray, path) -> None:
+def check_honoured(
+    written: np.ndarray, has_angle: np.ndarray, quats: np.ndarray, path, axes=None
+) -> None:
     """Refuse keyframe angles the path would not move through as written.
 
     The path joins orientations: between two keyframes it turns the shorter way,
@@ -681,35 +686,48 @@ def check_honoured(written: np.ndarray, has_angle: np.ndarray, quats: np.ndarray
     pan of 300 that the stream reaches as -60), the keyframe is refused rather
     than moved through differently.
 
+    The same rule holds for every gimbal (``axes``): its wrapped joints
+    (:attr:`trajgen.axes.AxisSequence.wrapped`) are unwrapped keyframe to keyframe,
+    and a two-axis gimbal's angles are those pointing its look axis as each keyframe
+    does (a pan-tilt head's pan of 150 deg after a look at pan -45 deg is reached
+    as -210 deg, the shorter way round: refused).
+
     Parameters
     ----------
-    written : ndarray, shape (N, 3)
-        Pan, tilt, roll as written (degrees).
+    written : ndarray, shape (N, n)
+        Joint angles as written (degrees): pan, tilt, roll, or the joints of ``axes``.
     has_angle : ndarray of bool, shape (N,)
         Keyframes given by angles (only those are compared).
     quats : ndarray, shape (N, 4)
         The keyframe orientations.
     path : str or Path
         Named in the message.
+    axes : trajgen.axes.AxisSequence, optional
+        The gimbal's axes and joint names; default pan-tilt-roll.
 
     Raises
     ------
     KeyframeFileError
         Naming the keyframe, the joint, what was written and what the path reaches.
     """
-    reached = np.degrees(np.stack(angles_of(*quats.T, np.arctan2, np.hypot), axis=-1))
-    wraps = reached[:, [0, 2]]
+    seq = AxisSequence() if axes is None else axes
+    if is_default(seq):
+        reached = np.degrees(np.stack(angles_of(*quats.T, np.arctan2, np.hypot), axis=-1))
+    else:
+        reached = np.degrees(seq.angles(quats))
+    cols = list(seq.wrapped)
+    wraps = reached[:, cols]
     turns = np.zeros_like(wraps)
     turns[1:] = np.round((wraps[:-1] - wraps[1:]) / 360.0)
     # The first keyframe's pan or roll of +-180 is either end of the stream's range.
-    edge = has_angle[0] & (np.abs(written[0, [0, 2]]) <= 180.0 + _HONOURED_DEG)
-    turns[0] = np.where(edge, np.round((written[0, [0, 2]] - wraps[0]) / 360.0), 0.0)
-    reached[:, [0, 2]] = wraps + 360.0 * np.cumsum(turns, axis=0)
+    edge = has_angle[0] & (np.abs(written[0, cols]) <= 180.0 + _HONOURED_DEG)
+    turns[0] = np.where(edge, np.round((written[0, cols] - wraps[0]) / 360.0), 0.0)
+    reached[:, cols] = wraps + 360.0 * np.cumsum(turns, axis=0)
     off = has_angle[:, None] & (np.abs(reached - written) > _HONOURED_DEG)
     if not off.any():
         return
     i, j = np.argwhere(off)[0]
-    name, value, there = ANGLE_KEYS[j], written[i, j], reached[i, j]
+    name, value, there = seq.joints[j], written[i, j], reached[i, j]
     if i > 0 and abs(value - written[i - 1, j]) >= 180.0:
         why = (
             f"{abs(value - written[i - 1, j]):g} deg from keyframe {i}'s {written[i - 1, j]:g}: "

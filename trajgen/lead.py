@@ -20,9 +20,11 @@ Bounded, because a goal is what moves a servo:
   ``LEAD_CAP x tau max|qd|`` plus the Coulomb term, per joint;
 - it is ramped in over ``tau`` from the first frame and out over ``tau``
   before the last (a quintic smoothstep), so a plan that starts moving does not
-  get a goal step; the static gravity term ``tau_id(q, 0, 0) / kp`` is ramped in
-  with it (the first goal is the plan's, where the servo already is) but not
-  out, so the last goal is ``q_end`` plus the static gravity term;
+  get a goal step; the static gravity term ``tau_id(q, 0, 0) / kp`` is in full
+  from the first frame and to the last (the last goal is ``q_end`` plus it):
+  the model lead's goals come with a lift (:mod:`trajgen.lift`), frames sent
+  before the plan's first while it holds still, which bring the static term in
+  from the goal the servo holds (the plan's first point);
 - every goal is clipped to the plan's own range of that joint widened by at
   most the static gravity/friction offset, and to the position limits given;
   with the joints' inertia (``LeadParams.inertia_kg_m2``) the model lead's goals
@@ -136,6 +138,9 @@ class LedGoals:
     wanted : ndarray, shape (N, n), optional
         The goals the lead asked for before the cap, the range and the limits
         (the ramps applied; rad), for diagnostics such as ``bench/lead_tracking.py``.
+    lift : trajgen.lift.Lift, optional
+        The frames to send before the first (the model lead's static term brought
+        in while the plan holds still); None: none.
     """
 
     goal: np.ndarray
@@ -143,6 +148,7 @@ class LedGoals:
     clipped: np.ndarray
     bounds: np.ndarray
     wanted: np.ndarray | None = None
+    lift: object = None
 
 
 def check_lead(lead) -> str:
@@ -239,8 +245,8 @@ def _weights(t, t_start, t_end, lag_s) -> tuple[np.ndarray, np.ndarray]:
 
 def _band(plan_at_s, static, w_in, w_out, cap, bounds):
     """Each frame's lowest and highest goal, (N, n) each: the range intersected with
-    the cap around the plan (``plan + w_in static +- w_in w_out cap``)."""
-    centre, half = plan_at_s + w_in * static, w_in * w_out * cap
+    the cap around the plan (``plan + static +- w_in w_out cap``)."""
+    centre, half = plan_at_s + static, w_in * w_out * cap
     lo = np.clip(centre - half, bounds[:, 0], bounds[:, 1])
     hi = np.clip(centre + half, bounds[:, 0], bounds[:, 1])
     return lo, hi
@@ -249,12 +255,12 @@ def _band(plan_at_s, static, w_in, w_out, cap, bounds):
 def _bound(plan_at_s, lead, static, w_in, w_out, cap, bounds, enabled, q):
     """Apply the cap, the ramps, the range and the enabled mask; return (goal, clipped).
 
-    The dynamic lead is ramped in and out; the static gravity term only in (the
-    servo holds its start against gravity already; it ends on ``q_end`` + gravity).
-    The cap and the ramps clip ``w_in (w_out lead + static)`` to the band
-    ``w_in (static +- w_out cap)`` (the same as capping the lead, then ramping).
+    The dynamic lead is ramped in and out; the static gravity term is in full (the
+    lift brought it in; it ends on ``q_end`` + gravity). The cap and the ramps clip
+    ``w_in w_out lead`` to ``+- w_in w_out cap`` around ``static`` (the same as
+    capping the lead, then ramping).
     """
-    unbounded = plan_at_s + w_in * (w_out * lead + static)
+    unbounded = plan_at_s + w_in * w_out * lead + static
     lo, hi = _band(plan_at_s, static, w_in, w_out, cap, bounds)
     bounded = np.clip(unbounded, lo, hi)
     goal = np.where(enabled[None, :], bounded, q)
@@ -309,18 +315,24 @@ def led_goals(
         return LedGoals(q.copy(), lead, np.zeros(q.shape[1], dtype=int), bounds, q.copy())
     w_in, w_out = _weights(t, t[0], t[-1], params.lag_s)
     cap = lead_cap(qd, params)
+    lift = None
+    if lead == "model":
+        from trajgen.lift import plan_lift
+
+        lift = plan_lift(q[0], t[0], trajectory.rate_hz, params, torque, bounds)
     if lead == "model" and params.inertia_kg_m2 is not None:
-        return _previewed(plan_at_s, raw, static, w_in, w_out, cap, bounds, params, q, period)
+        goals = _previewed(plan_at_s, raw, static, w_in, w_out, cap, bounds, params, q, period)
+        return replace(goals, lift=lift)
     goal, clipped = _bound(plan_at_s, raw, static, w_in, w_out, cap, bounds, params.enabled, q)
-    wanted = np.where(params.enabled[None, :], plan_at_s + w_in * (w_out * raw + static), q)
-    return LedGoals(goal, lead, clipped, bounds, wanted)
+    wanted = np.where(params.enabled[None, :], plan_at_s + w_in * w_out * raw + static, q)
+    return LedGoals(goal, lead, clipped, bounds, wanted, lift)
 
 
 def _previewed(plan_at_s, lead, static, w_in, w_out, cap, bounds, params, q, period):
     """The model lead's goals with their clips anticipated (``trajgen.lead_preview``)."""
     from trajgen.lead_preview import preview_goals
 
-    unbounded = plan_at_s + w_in * (w_out * lead + static)
+    unbounded = plan_at_s + w_in * w_out * lead + static
     lo, hi = _band(plan_at_s, static, w_in, w_out, cap, bounds)
     c = params.kp_nm_rad * params.lag_s
     goal, changed = preview_goals(
@@ -333,8 +345,9 @@ def _previewed(plan_at_s, lead, static, w_in, w_out, cap, bounds, params, q, per
 
 
 def led_trajectory(trajectory, goals: LedGoals):
-    """``trajectory`` with its goals attached (``JointTrajectory.goal``)."""
-    return replace(trajectory, goal=goals.goal)
+    """``trajectory`` with its goals and its lift attached (``JointTrajectory.goal``,
+    ``JointTrajectory.lift``)."""
+    return replace(trajectory, goal=goals.goal, lift=goals.lift)
 
 
 class LedFrames:
@@ -345,7 +358,10 @@ class LedFrames:
     ``t + tau + T/2``), ramped in over ``tau`` from the first frame, capped at
     ``cap_rad`` and clipped to ``bounds_rad`` (the range the live plan may use).
     No ramp out: a live plan's end is not known ahead; it ends at rest, where
-    the lead is the static gravity term.
+    the lead is the static gravity term. The model lead's static term is in
+    full from the first frame: once the first frame is drawn, :attr:`lift`
+    holds the lift to send before it (:func:`trajgen.lift.plan_lift` from the
+    first frame's ``q``, inside ``bounds_rad``), as for a planned trajectory.
 
     Parameters
     ----------
@@ -365,6 +381,11 @@ class LedFrames:
     ------
     JointFrame
         The frame with ``goal`` set.
+
+    Attributes
+    ----------
+    lift : trajgen.lift.Lift or None
+        Set when the first frame is drawn (None before, and without a static term).
     """
 
     def __init__(self, frames: Iterable, rate_hz, lead, params, bounds_rad, cap_rad, torque=None):
@@ -377,11 +398,19 @@ class LedFrames:
         self.bounds = np.asarray(bounds_rad, dtype=float)
         self.cap = np.asarray(cap_rad, dtype=float)
         self.torque = torque
+        self.lift = None
 
     def __iter__(self) -> Iterator:
         t_start = None
         for frame in self._frames:
-            t_start = frame.t if t_start is None else t_start
+            if t_start is None:
+                t_start = frame.t
+                if self.lead == "model":
+                    from trajgen.lift import plan_lift
+
+                    self.lift = plan_lift(
+                        frame.q, frame.t, 1.0 / self.period_s, self.params, self.torque, self.bounds
+                    )
             yield replace(frame, goal=self.goal(frame, t_start))
 
     def goal(self, frame, t_start: float) -> np.ndarray:

@@ -366,13 +366,7 @@ class OnlineSpline:
         q = Q.as_quats(quats, "quats")
         t = check_times(times, len(q))
         at = check_number("at", at)
-        with self._swap:
-            version, plan = self._version, self._plan
-        if self._closed:
-            raise BadArgument("The spline is closed: no more changes.")
-        if at < self._last_at:
-            raise BadArgument(f"`at` = {at} s is before the previous change at {self._last_at} s.")
-        self._check_not_streamed(at)
+        version, plan = self._open_change(at)
         lead = t[0] - at
         if lead < self.min_lead_s - 1e-9:
             raise BadArgument(
@@ -380,9 +374,48 @@ class OnlineSpline:
                 f"it must be at least {self.min_lead_s} s after it."
             )
         piece = yield from self._new_piece(plan, mode, q, t, at)
+        return self._change_to(version, plan, piece, at)
+
+    def prepare_segment(self, segment, *, at) -> Change:
+        """A change that follows ``segment`` from ``at``, then rests at its end.
+
+        For a caller that builds its own segment, such as
+        :class:`~trajgen.tracker.Tracker`'s jerk-limited joint motion
+        (:class:`~trajgen.tracker_profile.JointSplice`): an ``OrientationPath`` on
+        ``[at, t1]`` with the methods of a splice (``frame``, ``rates``, ``taylor``,
+        ``q_a``, ``q_end``). Its continuity with the path before ``at`` is the
+        caller's to keep; no minimum lead applies. Make it with :meth:`apply`.
+
+        Raises
+        ------
+        ValueError
+            If ``segment`` does not start at ``at``; ``at`` before the previous change,
+            or after :meth:`close`.
+        ChangeTooLate
+            If a stream has already committed a time after ``at``.
+        """
+        at = check_number("at", at)
+        if abs(segment.t_start - at) > 1e-12 * max(1.0, abs(at)):
+            raise BadArgument(f"The segment starts at {segment.t_start} s, not at `at` = {at} s.")
+        version, plan = self._open_change(at)
+        return self._change_to(version, plan, Piece(at, None, segment, segment.q_end), at)
+
+    def _open_change(self, at: float) -> tuple[int, Plan]:
+        """The version and plan a change at ``at`` starts from, if one may be made there."""
+        with self._swap:
+            version, plan = self._version, self._plan
+        if self._closed:
+            raise BadArgument("The spline is closed: no more changes.")
+        if at < self._last_at:
+            raise BadArgument(f"`at` = {at} s is before the previous change at {self._last_at} s.")
+        self._check_not_streamed(at)
+        return version, plan
+
+    def _change_to(self, version: int, plan: Plan, piece: Piece, at: float) -> Change:
+        """The change that appends ``piece`` to ``plan``, dropping what lies wholly
+        before ``at`` (before the streamed time, if earlier: a stream still needs the
+        path from there)."""
         kept = [p for p in plan.pieces if p.start < piece.start]
-        # Drop what lies wholly before `at` (before the streamed time, if earlier: a
-        # stream still needs the path from there).
         drop = min(at, self._committed) if self._committed > -np.inf else at
         first = max(0, int(np.searchsorted([p.start for p in kept], drop, side="left")) - 1)
         return Change(version, at, Plan((*kept[first:], piece)))

@@ -60,7 +60,8 @@ def write_plan_mcap(
     progress : callable, optional
         Called with the fraction written (0..1) every 1000 samples and at the end.
     **plan_options
-        ``kinematics``, ``start``: as for ``plan_joint_trajectory``.
+        ``kinematics``, ``start``: as for ``plan_joint_trajectory``; the messages name
+        the joints of ``kinematics`` (default pan, tilt, roll).
 
     Returns
     -------
@@ -78,7 +79,8 @@ def write_plan_mcap(
     """
     plan = plan_joint_trajectory(spline, rate_hz, **plan_options)
     quats = np.asarray(spline.evaluate(plan.t, max_order=0).q, float)
-    names = list(JOINT_NAMES)
+    kinematics = plan_options.get("kinematics")
+    names = list(JOINT_NAMES if kinematics is None else kinematics.joints)
     t0 = float(plan.t[0])
     with open(path, "wb") as f:
         writer = mcap_writer(f)

@@ -50,7 +50,7 @@ def as_quats(quats, name: str = "quats") -> np.ndarray:
     bad = ~np.isfinite(q).all(axis=1)
     if bad.any():
         raise BadArgument(f"`{name}` row {int(np.argmax(bad))} is not finite: {q[bad][0]}.")
-    norm = np.linalg.norm(q, axis=1)
+    norm = np.hypot.reduce(q, axis=1)  # no overflow for rows of 1e300 (as their squares would)
     if (norm < 1e-12).any():
         raise BadArgument(f"`{name}` row {int(np.argmax(norm < 1e-12))} has zero norm.")
     return q / norm[:, None]

@@ -79,8 +79,26 @@ HARDWARE_ERROR_BITS = MappingProxyType(
     }
 )
 #: Operating Mode (11) values ("Operating Mode(11)").
+CURRENT_MODE = 0
+VELOCITY_MODE = 1
 POSITION_MODE = 3
 EXTENDED_POSITION_MODE = 4
+CURRENT_BASED_POSITION_MODE = 5
+PWM_MODE = 16
+#: The modes of a model with current control (XM, XH, XL330, XC330 pages: "Operating
+#: Mode(11)" lists current, velocity, position, extended position, current-based
+#: position and PWM control).
+_MODES_WITH_CURRENT = (
+    CURRENT_MODE,
+    VELOCITY_MODE,
+    POSITION_MODE,
+    EXTENDED_POSITION_MODE,
+    CURRENT_BASED_POSITION_MODE,
+    PWM_MODE,
+)
+#: The modes of the XL430-W250 and 2XL430-W250 (no current sensing: velocity,
+#: position, extended position and PWM control only, their pages' "Operating Mode(11)").
+_MODES_WITHOUT_CURRENT = (VELOCITY_MODE, POSITION_MODE, EXTENDED_POSITION_MODE, PWM_MODE)
 #: Addresses below this are EEPROM: writable only while Torque Enable is 0.
 EEPROM_END = 64
 
@@ -213,6 +231,9 @@ class ServoSpec:
         (first Indirect Address, first Indirect Data, count) per block.
     indirect_targets : (int, int)
         Range an Indirect Address may point in.
+    operating_modes : tuple of int
+        The Operating Mode (11) values the model accepts (its page's "Operating
+        Mode(11)" table); any other write is refused with a data range error.
     axes : int
         Motors in the case: 2 for the 2XL430-W250 (each axis answers on its own
         id with its own control table), else 1.
@@ -241,6 +262,7 @@ class ServoSpec:
     armature: float
     damping: float
     frictionloss: float
+    operating_modes: tuple[int, ...]
     axes: int = 1
     note: str = field(default="", compare=False)
 
@@ -312,6 +334,7 @@ def _spec(
     current_unit_a,
     defaults,
     ranges,
+    modes,
     axes=1,
     note="",
 ):
@@ -339,6 +362,7 @@ def _spec(
         armature=_armature_by_motor(gear, stall_nm) if x330 else _armature_by_gear(gear),
         damping=_DAMPING * stall_nm / _REF_STALL_NM if x330 else _DAMPING,
         frictionloss=_friction_by_stall(stall_nm),
+        operating_modes=modes,
         axes=axes,
         note=note,
     )
@@ -359,39 +383,48 @@ _MA1 = 0.001  # Present Current unit 1 mA (330 series)
 _ENTRIES = (
     _spec("XM430-W350", 1020, "430", volts=12.0, stall_nm=4.1, stall_a=2.3, rpm=46.0, kt=None,
           mass_kg=0.082, size_mm=_W430, gear=353.5, current_unit_a=_MA269, ranges=_X12V_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 80, 160, 95, 885, 1193, 350, 10, 52, 1920, 100, 0, 0, 800),
           note="armature and frictionloss: Menagerie's ROBOTIS OP3 values"),
     _spec("XL430-W250", 1060, "430", volts=12.0, stall_nm=1.5, stall_a=1.4, rpm=61.0, kt=None,
           mass_kg=0.0572, size_mm=_W430, gear=258.5, current_unit_a=None, ranges=_XL430_RANGES,
+          modes=_MODES_WITHOUT_CURRENT,
           defaults=_defaults(250, 72, 140, 60, 885, None, 265, 10, 52, 1000, 100, 4000, 0, 640),
           note="recommended 11.1 V (1.4 N m, 57 rpm); the 12 V figures are used. No Current "
                "Limit or Goal Current; register 126 is Present Load"),
     _spec("XH430-W350", 1000, "430", volts=12.0, stall_nm=3.4, stall_a=1.3, rpm=30.0, kt=None,
           mass_kg=0.082, size_mm=_W430, gear=353.5, current_unit_a=_MA269, ranges=_X12V_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 80, 160, 95, 885, 648, 130, 10, 52, 1920, 100, 0, 0, 900),
           note="Position P Gain default 900 (its control table), not the XM430-W350's 800"),
     _spec("XM540-W270", 1120, "540", volts=12.0, stall_nm=10.6, stall_a=4.4, rpm=30.0, kt=2.409,
           mass_kg=0.165, size_mm=_W540, gear=272.5, current_unit_a=_MA269, ranges=_X12V_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 80, 160, 95, 885, 2047, 128, 10, 52, 1920, 100, 0, 0, 800)),
     _spec("XH540-W270", 1100, "540", volts=12.0, stall_nm=9.9, stall_a=4.9, rpm=39.0, kt=None,
           mass_kg=0.165, size_mm=_W540, gear=272.5, current_unit_a=_MA269, ranges=_X12V_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 80, 160, 95, 885, 2047, 167, 10, 52, 1920, 100, 0, 0, 800)),
     _spec("XL330-M288", 1200, "330", volts=5.0, stall_nm=0.52, stall_a=1.47, rpm=103.0, kt=None,
           mass_kg=0.018, size_mm=_W330, gear=288.4, current_unit_a=_MA1, ranges=_X330_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 70, 70, 35, 885, 1750, 445, 10, 53, 1600, 180, 0, 0, 400),
           note="recommended 5 V (3.7 ~ 6 V); no performance graph on its page"),
     _spec("XL330-M077", 1190, "330", volts=5.0, stall_nm=0.215, stall_a=1.47, rpm=383.0, kt=None,
           mass_kg=0.018, size_mm=_W330, gear=77.5, current_unit_a=_MA1, ranges=_X330_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 70, 70, 35, 885, 1750, 1620, 10, 53, 400, 40, 0, 400, 400),
           note="recommended 5 V (3.7 ~ 6 V); Position I Gain default 400; no performance "
                "graph on its page"),
     _spec("XC330-M288", 1240, "330", volts=5.0, stall_nm=0.93, stall_a=1.80, rpm=81.0, kt=None,
           mass_kg=0.023, size_mm=_W330, gear=288.35, current_unit_a=_MA1, ranges=_X330_RANGES,
+          modes=_MODES_WITH_CURRENT,
           defaults=_defaults(250, 70, 70, 35, 885, 2352, 350, 10, 52, 1600, 50, 500, 0, 1100),
           note="recommended 5 V (3.7 ~ 6 V); no performance graph on its page"),
     _spec("2XL430-W250", 1090, "430", volts=12.0, stall_nm=1.5, stall_a=1.4, rpm=61.0, kt=None,
           mass_kg=0.0982, size_mm=(36.0, 46.5, 36.0), gear=257.4, current_unit_a=None,
           ranges=_XL430_RANGES, axes=2,
+          modes=_MODES_WITHOUT_CURRENT,
           defaults=_defaults(250, 72, 140, 60, 885, None, 250, 10, 52, 1800, 100, 2000, 0, 640),
           note="two axes in one case (mass and size of the whole case, ratings per axis): each "
                "axis answers on its own id with its own control table; the two ids must differ "

@@ -64,6 +64,10 @@ class JointTrajectory:
     goal : ndarray, shape (N, 3), or None
         The goals to send (rad), led ahead of ``q`` (``trajgen.lead``); None:
         send ``q``.
+    lift : trajgen.lift.Lift or None
+        Frames to send before the first while ``q[0]`` is held (the model
+        lead's static term brought in, ``trajgen.lift``); None: none. Iterating
+        the trajectory yields its own frames only.
     """
 
     t: np.ndarray
@@ -72,6 +76,7 @@ class JointTrajectory:
     qdd: np.ndarray
     rate_hz: float
     goal: np.ndarray | None = None
+    lift: object = None
 
     def __len__(self) -> int:
         return len(self.t)

@@ -4,24 +4,37 @@ A vision loop reports where to look many times a second, without saying when to 
 there. :class:`Tracker` turns each such target into a retarget of an
 :class:`~trajgen.online.OnlineSpline` at the time ``at`` it is given, arriving at the
 earliest time that keeps per-joint speed, acceleration and jerk limits (and, if given,
-a torque-speed envelope). Every change is a retarget, so the path stays C^k (the
-spline's k) across it and a new target replaces the old one in mid-motion without a jump.
+a torque-speed envelope). The path stays C^k (the spline's k: C2 for the default
+k = 2) across every change, so a new target replaces the old one in mid-motion without
+a jump.
 
-The search: the retarget through one keyframe at lead ``h`` is one splice
+The motion (k <= 2, finite limits): each joint goes from its present angle, speed and
+acceleration (read off the path at ``at``: exact joint rates of its angular motion) to
+rest at its goal in the least time its own limits allow, a seven-phase jerk-limited
+profile (:func:`trajgen.tracker_profile.fastest`: jerk ``+-J`` or 0 in each phase, the
+time-optimal motion that Ruckig also computes). The path is the joints' motion through
+the gimbal's axes, ``forward(x(t))`` (:class:`~trajgen.tracker_profile.JointSplice`),
+played by the spline as a splice (:meth:`OnlineSpline.prepare_segment
+<trajgen.online.OnlineSpline.prepare_segment>`). It is C2 across the change (angle,
+speed and acceleration of every joint continuous, so orientation, angular velocity and
+acceleration are), not C3: the jerk jumps there, as between the profile's phases. The
+limits hold between frames as on them (the profile's peaks are exact); its frames are
+checked against the lock margin, the joint limits and the envelope (where the envelope
+refuses one, the speed and acceleration limits are scaled by ``ENVELOPE_SCALES`` in
+turn). Where the motion in progress cannot keep the limits from ``at`` (faster than a
+``max_speed`` asked, or decelerating too late to stay within the speed limit), the
+change is tried again ``DEFER_S`` later, and at the old path's end (at rest), the old
+path being followed meanwhile.
+
+For ``k = 3`` (C3 asked; a jerk-limited profile is only C2) or a limit left infinite,
+the older search applies: the retarget through one keyframe at lead ``h`` is one splice
 ``exp(r(u)) q_a``, ``u = (t - at) / h``, whose polynomial ``r`` is known in closed
 form for every ``h`` once one retarget is built (:meth:`Tracker._family`). Candidate
 leads on a geometric grid (``GRID_RATIO``) are checked together, ``GRID_CHUNK`` at a
 time, at ``COARSE_SAMPLES`` points each; between the first that passes and the one
 before it, leads ``ARRIVAL_TOLERANCE`` apart are checked together; the lead chosen is
-built and checked at every frame of the stream (a little later, if a frame between
-the coarse points breaks a limit). The grid is scanned, not bisected: in motion the
-peaks are not monotone in ``h`` (a long lead carries the present speed further before
-turning back). Joint speed and acceleration are exact (:func:`trajgen.gimbal.joint_rates`
-of the path's closed-form angular rates); joint jerk is the central difference of those
-exact accelerations over +-``JERK_STEP_S`` (error of order ``JERK_STEP_S^2``). When no
-lead from ``at`` keeps the limits (in motion the splice starts with the old path's rates
-to order k + 1, e.g. a jerk at its limit), the change is tried again ``DEFER_S`` later,
-and at the old path's end (at rest), the old path being followed meanwhile.
+built and checked at every frame of the stream. Joint jerk there is the central
+difference of exact accelerations over +-``JERK_STEP_S``.
 
 Noise: a target whose joint angles differ from the current goal's by less than the dead
 band (default one encoder tick, :data:`trajgen.servo_table.RAD_PER_TICK`) changes
@@ -37,10 +50,11 @@ head (e.g. ``axes="zy"``) looks at ``p`` with its look axis along it, exactly
 
 Limits: a target outside the joint limits or within the gimbal-lock margin is clamped,
 joint by joint, to the nearest angle inside them (and reported in
-:attr:`TargetResult.clamped`). A direct path that would pass through the lock region
-(its tilt beyond the margin between two reachable ends, e.g. over the zenith) is
-replaced by one through via points on the straight joint-space line between the two
-ends, which stays as far from the lock as its ends.
+:attr:`TargetResult.clamped`). A joint motion from rest keeps every joint between its
+two ends, so it never comes nearer the lock than they are (a path that the orientation
+splice would take over the zenith goes around it). For the orientation splices, a
+direct path that would pass through the lock region is replaced by one through via
+points on the straight joint-space line between the two ends.
 """
 
 from __future__ import annotations
@@ -57,6 +71,7 @@ from .gimbal import GimbalKinematics, angles_of
 from .online_splice import exp_rates, hermite_matrix
 from .path import run_steps
 from .servo_table import RAD_PER_TICK
+from .tracker_profile import JointProfile, JointSplice, fastest_steps
 from .validate import check_number
 
 __all__ = ["JERK_STEP_S", "TargetResult", "Tracker", "look_at_angles"]
@@ -91,6 +106,10 @@ GRID_CHUNK = 8
 #: keeps the limits (in motion, the path must start with the old path's rates to order
 #: k + 1, e.g. a jerk at its limit); the old path, which keeps them, is followed meanwhile.
 DEFER_S = (0.02, 0.05, 0.1, 0.2, 0.4, 0.8)
+
+#: Factors on the speed and acceleration limits tried, in order, when a joint motion
+#: keeps the limits but not the envelope (the torque it needs at speed).
+ENVELOPE_SCALES = (1.0, 0.8, 0.64, 0.5, 0.35, 0.25, 0.15)
 
 #: How far (rad) inside the lock margin a clamped tilt is put: room for the path between
 #: via points, which cuts a little towards the lock.
@@ -211,11 +230,11 @@ class Tracker:
 
     Notes
     -----
-    Cost: two ``OnlineSpline.prepare`` (one to learn the family of splices, one of the
-    lead chosen), two or three coarse checks of up to ``GRID_CHUNK`` (or 1 /
-    ``ARRIVAL_TOLERANCE`` times the grid step) candidates at once, and one check on the
-    frame grid; ``bench/tracker_cost.py`` measures it. :meth:`set_target_steps` yields
-    between them, for a caller that runs the work in steps between frames.
+    Cost: the joints' state at ``at``, a root search on every joint's profile at once
+    (a handful of iterations of a few dozen numpy calls), one check of its frames
+    (lock margin, joint limits, envelope); ``bench/tracker_cost.py`` measures it.
+    :meth:`set_target_steps` yields between them and between the root search's
+    iterations, for a caller that runs the work in steps between frames.
     """
 
     def __init__(
@@ -346,6 +365,10 @@ class Tracker:
         tries = [at, *(at + d for d in DEFER_S if at + d < t_end)]
         if t_end > at:
             tries.append(t_end)
+        if self.spline.k <= 2 and np.isfinite(limits).all():
+            found = yield from self._joint_search(goal, tries, limits)
+            if found != "orientation":
+                return found
         for a in tries:
             now = self._unwrapped(self.spline(np.array([a]))[0], self.goal)
             found, blocked = yield from self._direct(goal, now, a, limits)
@@ -359,6 +382,87 @@ class Tracker:
                     if found is not None:
                         return (found[0], a, found[1], vias, found[2])
         return None
+
+    def _joint_search(self, goal, tries, limits):
+        """``(change, at, h, 0, peaks)`` of each joint's fastest motion to ``goal`` (n,)
+        (:func:`~trajgen.tracker_profile.fastest`) from the first time of ``tries`` where
+        it keeps ``limits`` (the old path's speed and acceleration there may force it
+        past them), the lock margin, the joint limits and the envelope (the speed and
+        acceleration limits scaled by ``ENVELOPE_SCALES`` until it does); None if none
+        does; ``"orientation"`` where the path at a time tried is not the joints' own
+        orientation (a two-axis head after a twist about its look axis): the
+        orientation splices apply."""
+        kin = self.kinematics
+        for a in tries:
+            yield
+            state = self._joint_state(a)
+            if state is None:
+                return "orientation"
+            q_a, now, qd, qdd = state
+            if kin.sequence.lock_distance(now) <= kin.lock_margin_rad:
+                continue  # no joint rates at the lock; the old path leaves it
+            for scale in ENVELOPE_SCALES:
+                # a hair inside, so that rounding stays within the limits themselves
+                scaled = limits * np.array([[scale], [scale], [1.0]]) * (1.0 - 1e-9)
+                phases = yield from fastest_steps(now, qd, qdd, goal, scaled)
+                yield
+                profile = JointProfile(now, qd, qdd, *phases, goal)
+                peaks = profile.peaks()
+                if profile.duration > MAX_ARRIVAL_S:
+                    return None
+                if (peaks > limits).any():
+                    break  # the motion in progress cannot stop within them from here
+                yield
+                verdict = self._check_joints(profile, a)
+                if verdict == "path":
+                    break
+                if verdict == "ok":
+                    yield
+                    segment = JointSplice(a, profile, kin.sequence.indices, q_a)
+                    change = self.spline.prepare_segment(segment, at=a)
+                    return change, a, profile.duration, 0, peaks
+        return None
+
+    def _joint_state(self, t: float):
+        """``(q, angles, speeds, accelerations)`` of the path at ``t`` (s): the orientation
+        (4,) and the joints' (n,) motion, read off a joint motion in progress, else by
+        the exact joint rates of the path's angular motion; None where the path's
+        orientation is not one of the joints' (a two-axis head twisted about its look
+        axis)."""
+        _, plan = self.spline.snapshot()
+        segment = plan.pieces[int(plan._segment(np.array([t]))[0][0])].splice
+        if isinstance(segment, JointSplice) and segment.s <= t < segment.t_end:
+            x, v, a, _ = np.array(segment.profile.state_at(t - segment.s)).T
+            return segment.rates(t)[0], x, v, a
+        if t >= plan.t_end:  # at rest
+            q = plan.pieces[-1].q_end
+            now = self._unwrapped(q, self.goal)
+            return q, now, np.zeros_like(now), np.zeros_like(now)
+        s = plan.evaluate(np.array([t]), max_order=2)
+        now = self._unwrapped(s.q[0], self.goal)
+        if abs(float(self.kinematics.forward(now) @ s.q[0])) < 1.0 - 1e-12:
+            return None
+        if self.kinematics.sequence.lock_distance(now) <= self.kinematics.lock_margin_rad:
+            return s.q[0], now, np.zeros_like(now), np.zeros_like(now)  # refused by the caller
+        qd, qdd = self.kinematics.joint_rates(now, s.omega[0], s.alpha[0])
+        return s.q[0], now, qd, qdd
+
+    def _check_joints(self, profile, at: float) -> str:
+        """``"ok"``, ``"path"`` (a frame near the lock or past a joint limit) or
+        ``"envelope"`` (a frame the envelope refuses) for the joint motion ``profile``
+        from ``at``, at the stream's frames after ``at`` up to the first after its end."""
+        base = self.frame_base
+        n0 = math.floor((at - base) * self.rate_hz) + 1
+        n1 = math.ceil((at + profile.duration - base) * self.rate_hz) + 1
+        t = base + np.arange(n0, n1 + 1) / self.rate_hz
+        q, qd, qdd, _ = profile.state(t - at)
+        try:
+            self.kinematics.check(q)
+        except KinematicsError:
+            return "path"
+        if self.envelope is not None and not np.all(self.envelope(q, qd, qdd)):
+            return "envelope"
+        return "ok"
 
     def _direct(self, goal, now, at, limits):
         """The earliest lead ``h`` (s) of the direct path from ``now`` (3,) at ``at`` to

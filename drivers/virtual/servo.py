@@ -7,7 +7,8 @@ SDK's model files, access, initial values and ranges from the e-Manual, see
 - a write must cover whole registers (data length error), of registers that
   exist and are writable (access error); EEPROM (address < 64) refuses writes
   while torque is on (access error);
-- a value outside its register's range is refused (data range error), a goal
+- a value outside its register's range is refused (data range error), an
+  Operating Mode the model does not have too (:func:`accepts_mode`), a goal
   outside the limit register that bounds it (Goal Position within the position
   limits in Position Mode, Goal PWM / Current / Velocity within PWM / Current /
   Velocity Limit) too (data limit error);
@@ -329,6 +330,8 @@ class VirtualServo:
             return StatusError.DATA_RANGE
         if rule.low is not None and not rule.low <= value <= rule.high:
             return StatusError.DATA_RANGE
+        if name == "Operating Mode" and not accepts_mode(self.model, value):
+            return StatusError.DATA_RANGE
         limits = LIMITED_BY.get(name)
         if limits is not None and all(n in self.items for n in limits):
             bounds = [self._new_value(n, bytes_) for n in limits]
@@ -395,3 +398,10 @@ class VirtualServo:
         kept = {n: self.get(n) for n in FACTORY_RESET_KEEPS[option]}
         self._load(self.items, kept)
         self.reboot(plant_ticks)
+
+
+def accepts_mode(model, mode: int) -> bool:
+    """Whether servo ``model`` (a servo-table entry) takes Operating Mode ``mode``: one of
+    its page's modes (``ServoSpec.operating_modes``; an XL430-W250 has no current-based
+    modes). A real servo answers any other with a data range error."""
+    return mode in model.operating_modes

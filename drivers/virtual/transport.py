@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 from trajgen.drivers.clock import sleep_until
 
+from ..defaults import DEFAULT_BAUD
+
 # How long ``answer`` waits for bytes a client wrote to come through the pty (s):
 # the kernel passes them on at once; this only bounds a lost write.
 _ARRIVAL_WAIT_S = 5.0
@@ -38,7 +40,7 @@ class WireTiming:
         Servo processing time (s) before its Return Delay Time starts.
     """
 
-    baud: int = 1_000_000
+    baud: int = DEFAULT_BAUD
     adapter_latency_s: float = 0.0
     turnaround_s: float = 20e-6
 

@@ -53,7 +53,7 @@ def add_lead_argument(parser: argparse.ArgumentParser) -> None:
         "--lead",
         choices=LEADS,
         help="send each goal ahead of the plan by the servo's lag: model (inverse dynamics "
-        "of the plan), advance (the plan tau later) or none; default the file's "
+        "of the plan), advance (the plan tau later) or none; default: the file's "
         "[stream] lead, else model (docs/lead.md)",
     )
 

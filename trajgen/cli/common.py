@@ -77,7 +77,6 @@ __all__ = [
     "fastest_servo_rad_s",
     "load_checked",
     "open_bus",
-    "refuse_other_axes",
     "output_file",
     "output_path",
     "positive_float",
@@ -115,27 +114,6 @@ def speed_warning(peak_rad_s: float) -> str | None:
     return (
         f"peak |omega| {peak_rad_s:.3g} rad/s is beyond the no-load speed of every supported "
         f"servo (fastest: {name}, {top:.2f} rad/s); `trajgen sim` will fail this motion"
-    )
-
-
-def refuse_other_axes(kf, command: str, why: str) -> None:
-    """Refuse a keyframe file whose gimbal is not pan-tilt-roll, in one line: the
-    ``command`` (``"follow"``, ``"excite"``) does not take it yet, because ``why``.
-
-    Raises
-    ------
-    BadInput
-        ``"{path}: [gimbal] axes = 'zy', joints = [...]: {command} takes pan-tilt-roll
-        gimbals only so far ({why}); plan, sim, sweep, identify and stream take any axes"``.
-    """
-    from trajgen.keyframe_axes import is_default
-
-    if is_default(kf.axes):
-        return
-    raise BadInput(
-        f"{kf.path}: [gimbal] axes = {kf.axes.sequence!r}, joints = {list(kf.axes.joints)}: "
-        f"{command} takes pan-tilt-roll gimbals only so far "
-        f"({why}); plan, sim, sweep, identify and stream take any axes"
     )
 
 

@@ -23,17 +23,17 @@ from trajgen.cli.common import (
     exit_status_text,
     load_checked,
     positive_float,
-    refuse_other_axes,
 )
 
 DESCRIPTION = """\
 Stream a multi-sine excitation to the gimbal with telemetry every frame, for
-`trajgen identify`: each joint a sum of five sines between 0.3 and 2 Hz (its
-own frequencies), faded in and out so it starts and ends at rest, about the
-file's first keyframe. Planned like any stream (joint limits, the gimbal-lock
-guard) and checked against the torque envelope (torque_margin x the rated-voltage
-torque-speed line) before anything moves; then streamed exactly as `trajgen
-stream` does (bring-up, approach, telemetry, safe stop).
+`trajgen identify`: each joint of the file's gimbal (any [gimbal] axes, 2 or 3
+joints) a sum of five sines between 0.3 and 2 Hz (its own frequencies), faded
+in and out so it starts and ends at rest, about the file's first keyframe.
+Planned like any stream (joint limits, the gimbal-lock guard) and checked
+against the torque envelope (torque_margin x the rated-voltage torque-speed
+line) before anything moves; then streamed exactly as `trajgen stream` does
+(bring-up, approach, telemetry, safe stop).
 
 With --virtual the excitation runs on the simulated gimbal of the file's
 [gimbal] tables and the torque report is printed (judged on torque only: an
@@ -69,13 +69,14 @@ def register(subparsers) -> None:
         type=positive_float,
         default=8.0,
         metavar="S",
-        help=f"duration (s), 3 to {MAX_SECONDS:g}; default 8",
+        help=f"duration (s), 3 to {MAX_SECONDS:g} (default %(default)g)",
     )
     p.add_argument(
         "--amplitude",
         type=positive_float,
         metavar="DEG",
-        help="largest excursion of every joint (deg); default pan 25, tilt 15, roll 20",
+        help="largest excursion of every joint (deg) (default 25 for the first joint, "
+        "15 for the second, 20 for a third: pan 25, tilt 15, roll 20)",
     )
     p.set_defaults(func=run_excite)
 
@@ -94,12 +95,16 @@ class ExcitationFile:
         Stream rate (Hz).
     motion : sim.excite.Multisine
         The excitation.
+    axes : trajgen.axes.AxisSequence
+        The gimbal's axes and joint names (``[gimbal] axes``, ``joints``), whose
+        kinematics the stream plans with.
     """
 
     path: Path
     tables: dict
     rate_hz: float | None
     motion: object = field(repr=False)
+    axes: object = None
 
     def spline(self):
         """The excitation, an orientation path (the spline protocol)."""
@@ -117,30 +122,38 @@ def excitation_file(args) -> ExcitationFile:
     """
     from trajgen.errors import KinematicsError
     from trajgen.gimbal import GimbalKinematics
+    from trajgen.jobs.stream_job import kinematics_of
     from trajgen.sim.check import check_planned_torque
-    from trajgen.sim.excite import DEFAULT_AMPLITUDE_RAD, Multisine
+    from trajgen.sim.excite import Multisine
     from trajgen.stream import plan_joint_trajectory
 
     stream.check_stream_outputs(args)
     checked = load_checked(args.file, any_axes=True)  # every table of the file
     kf, config = checked.keyframes, checked.gimbal
-    refuse_other_axes(kf, "excite", "its multisine excites pan, tilt and roll")
-    center = GimbalKinematics().inverse(kf.quats[:1])[0]
+    kinematics = kinematics_of(kf) or GimbalKinematics()
+    center = kinematics.inverse(kf.quats[:1])[0]
     amplitude = (
-        DEFAULT_AMPLITUDE_RAD if args.amplitude is None else (math.radians(args.amplitude),) * 3
+        None if args.amplitude is None else (math.radians(args.amplitude),) * kinematics.n_joints
     )
+    if args.amplitude is not None and args.amplitude > 180:
+        raise BadInput(f"--amplitude {args.amplitude:g}: more than 180 deg, half a turn")
     if args.seconds > MAX_SECONDS:
         raise BadInput(
             f"--seconds {args.seconds:g}: longer than {MAX_SECONDS:g} s, the longest excitation "
             "(identification needs tens of seconds)"
         )
     try:
-        motion = Multisine(center_rad=center, seconds=args.seconds, amplitude_rad=amplitude)
+        motion = Multisine(
+            center_rad=center,
+            seconds=args.seconds,
+            amplitude_rad=amplitude,
+            kinematics=kinematics,
+        )
     except ValueError as e:
         raise BadInput(f"--seconds: {e}") from e
     rate = kf.stream_rate(args.rate)
     try:
-        trajectory = plan_joint_trajectory(motion, rate)  # limits and the lock guard
+        trajectory = plan_joint_trajectory(motion, rate, kinematics)  # limits, lock guard
     except KinematicsError as e:
         raise BadInput(f"the excitation: {e}; lower --amplitude") from None
     reasons = check_planned_torque(trajectory, config)
@@ -154,7 +167,7 @@ def excitation_file(args) -> ExcitationFile:
             **tables.get("gimbal", {}),
             "max_tracking_error_rad": _NO_TRACKING_BUDGET,
         }
-    return ExcitationFile(kf.path, tables, rate, motion)
+    return ExcitationFile(kf.path, tables, rate, motion, kf.axes)
 
 
 def run_excite(args) -> int:

@@ -7,12 +7,10 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
-    BadInput,
     add_file_argument,
     add_rate_argument,
     bad_input,
@@ -23,6 +21,7 @@ from trajgen.cli.common import (
     output_file,
     tell,
 )
+from trajgen.cli.outputs import check_model_beside
 from trajgen.errors import TrajgenError
 
 _PROGRESS_AFTER_S = 1.0
@@ -87,19 +86,6 @@ class _Progress:
             self.stream.flush()
 
 
-def _refuse_moved_model(args, model: str) -> None:
-    """Refuse an --out in another folder than the file whose [gimbal] model it names
-    relatively (the fitted file keeps the name, which would no longer lead to it)."""
-    if (
-        Path(args.out).resolve().parent != Path(args.file).resolve().parent
-        and not Path(model).is_absolute()
-    ):
-        raise BadInput(
-            f"--out {args.out}: the file's [gimbal] model = {model!r} is relative to its "
-            "folder; write the fitted file there"
-        )
-
-
 def run_fit(args) -> int:
     """Run ``trajgen fit``; returns the exit status (0 fitted, 1 refused, 2 bad input)."""
     from trajgen.sim.errors import SimError
@@ -109,8 +95,7 @@ def run_fit(args) -> int:
         check_output_path("--out", args.out, (".toml",), [args.file])
         check_module("fit", "scipy", "scipy")  # HiGHS solves the time law's LPs
         checked = load_checked(args.file, any_axes=True)  # every table, [bus] included
-        if checked.gimbal.model is not None:
-            _refuse_moved_model(args, checked.keyframes.tables["gimbal"]["model"])
+        check_model_beside("--out", args.out, args.file, checked.keyframes.tables)
         result = fit_timing(
             checked.keyframes,
             config=checked.gimbal,

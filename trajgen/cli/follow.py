@@ -13,7 +13,7 @@ import itertools
 import sys
 
 from trajgen.cli import stream as stream_command
-from trajgen.cli.common import exit_status_text, refuse_other_axes, tell
+from trajgen.cli.common import exit_status_text, tell
 from trajgen.follower import CHANGE_MARGIN_S, Follower, load_compiled_kernel, online_spline
 from trajgen.keyframe_lines import capped_lines
 
@@ -34,6 +34,11 @@ progress; a target within one encoder tick of the current goal changes nothing:
   {{"look_at": [2.0, 0.5, -0.3]}}             a point to look at (m, base frame)
   {{"pan": -10, "max_speed": 90}}             this motion's joints at most 90 deg/s
 
+A gimbal of other [gimbal] axes takes angles by its own joint names
+({{"in": 1, "wrist_flex": 30}}); a two-axis head also "look": [x, y, z] (a
+direction), and of a "quat" it keeps where it points (exactly: the head cannot
+turn about its look axis). "look_at" is for pan-tilt-roll and two-axis gimbals.
+
 "mode": "retarget" (the default) drops the keyframes still ahead and goes
 through the new one instead; "extend" keeps them and adds the new one after
 them. A change is built and checked in steps, one between two frames of the
@@ -48,8 +53,10 @@ stdin the stream ends once the last keyframe is reached.
 
 Bring-up, stop signals, safe stop and report are those of `trajgen stream`;
 bring-up checks the whole range the joint limits allow against the servos'
-installed limits. --virtual streams in real time (the lines do), unlike
-`trajgen stream --virtual`, and ends with the torque report of what was streamed.
+installed limits. --virtual streams on simulated time paced by the wall clock:
+in real time beside the lines where the host keeps up, slower (never late, and
+said at the end) where it does not; unlike `trajgen stream --virtual`, which
+runs as fast as it can. It ends with the torque report of what was streamed.
 On a signal the servos hold their last goal, or are released with --torque-off."""
 
 
@@ -104,14 +111,15 @@ def follow(args, lines) -> int:
     made = {}
 
     def make_job(args):
+        from trajgen.jobs.stream_job import kinematics_of
         from trajgen.sim.check import envelope_check
         from trajgen.sim.limits import limits_from_tables
 
         job = stream_command.plan(args)
-        refuse_other_axes(job.source, "follow", "its keyframe lines give pan, tilt, roll")
         made["follower"] = Follower(
             online_spline(job.source),
             job.rate_hz,
+            kinematics_of(job.source),
             on_skip=_skipped(),
             limits=limits_from_tables(job.source.tables, job.source.path),
             envelope=envelope_check(job.gimbal),
@@ -128,11 +136,20 @@ def follow(args, lines) -> int:
 
     def go(session, job):
         try:
-            return session.follow(made["follower"], lines)
+            outcome = session.follow(made["follower"], lines)
         finally:
             print(made["follower"].format())
+        if outcome.clock is not None:  # --virtual: simulated time, paced by the wall clock
+            made["clock"] = outcome.clock
+            print(f"follow: {outcome.clock.format()}")
+        return outcome
 
     def extra():
-        return {"follow": made["follower"].summary()} if "follower" in made else {}
+        if "follower" not in made:
+            return {}
+        summary = made["follower"].summary()
+        if "clock" in made:
+            summary["simulated_time"] = made["clock"].summary()
+        return {"follow": summary}
 
     return stream_command.run_plan(args, make_job, go, extra)

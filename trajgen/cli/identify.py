@@ -22,6 +22,7 @@ from trajgen.cli.common import (
     positive_int,
     tell,
 )
+from trajgen.cli.outputs import check_model_beside
 from trajgen.errors import TrajgenError
 
 DESCRIPTION = """\
@@ -31,9 +32,9 @@ telemetry logged by `trajgen excite` (or `trajgen stream --telemetry`), with
 mujoco.sysid (install the extra: pip install 'trajgen[sysid]'). FILE gives the
 gimbal (its [gimbal] table: servos, payload) and the starting values. Prints
 fit, 95 % interval and residual per joint and names every parameter the logs
-do not excite enough; writes FITTED.toml: FILE with its [gimbal.pan],
+do not excite enough; writes OUT.toml: FILE with its [gimbal.pan],
 [gimbal.tilt], [gimbal.roll] tables replaced by the fit (intervals in
-comments), ready for `trajgen sim FITTED.toml` (written whole or not at all;
+comments), ready for `trajgen sim OUT.toml` (written whole or not at all;
 never over FILE or a log).
 
 Each row's present values are taken --delay-ms after its goal (default 0: what
@@ -47,7 +48,6 @@ real servo's reading needs one; it widens the intervals, as only the motor's
 back-EMF then fixes the overall scale), --no-current fits positions and
 velocities only."""
 
-_JOINT_HEADER = re.compile(r"^\s*\[\s*gimbal\s*\.\s*(pan|tilt|roll)\s*\]")
 _ANY_HEADER = re.compile(r"^\s*\[")
 
 
@@ -68,7 +68,7 @@ def register(subparsers) -> None:
         help="telemetry logs (.csv, .npz or .mcap) of trajgen excite",
     )
     p.add_argument(
-        "--out", metavar="FITTED.toml", required=True, help="write the fitted file to FITTED.toml"
+        "--out", metavar="OUT.toml", required=True, help="write the fitted file to OUT.toml"
     )
     p.add_argument("--no-current", action="store_true", help="do not fit the logged current")
     p.add_argument(
@@ -83,7 +83,7 @@ def register(subparsers) -> None:
         type=float,
         default=0.0,
         metavar="MS",
-        help="time from a goal to its row's present values (ms); default 0",
+        help="time from a goal to its row's present values (ms) (default %(default)g)",
     )
     p.add_argument("--fit-delay", action="store_true", help="fit that delay too")
     p.add_argument(
@@ -96,12 +96,12 @@ def register(subparsers) -> None:
         type=positive_int,
         default=30,
         metavar="N",
-        help="Gauss-Newton iterations (default 30)",
+        help="Gauss-Newton iterations (default %(default)d)",
     )
     p.set_defaults(func=run_identify)
 
 
-def fitted_file_text(source_text: str, tables: str) -> str:
+def fitted_file_text(source_text: str, tables: str, joints) -> str:
     """``source_text`` without its ``[gimbal.<joint>]`` tables, then ``tables``.
 
     Parameters
@@ -110,10 +110,14 @@ def fitted_file_text(source_text: str, tables: str) -> str:
         A keyframe file's text.
     tables : str
         The fitted ``[gimbal.<joint>]`` tables (``Fit.toml``).
+    joints : sequence of str
+        The gimbal's joint names (``[gimbal] joints``).
     """
+    names = "|".join(re.escape(j) for j in joints)
+    header = re.compile(rf"^\s*\[\s*gimbal\s*\.\s*[\"']?({names})[\"']?\s*\]")
     kept, skipping = [], False
     for line in source_text.splitlines():
-        if _JOINT_HEADER.match(line):
+        if header.match(line):
             skipping = True
         elif _ANY_HEADER.match(line):
             skipping = False
@@ -137,6 +141,7 @@ def run_identify(args) -> int:
             raise BadInput("--fit-current-scale needs the current: drop --no-current")
         # every table, as every command checks them
         checked = load_checked(args.file, spline=False, any_axes=True)
+        check_model_beside("--out", args.out, args.file, checked.keyframes.tables)
         config = checked.gimbal
         logs = [_load_log(path, config.names) for path in args.logs]
         source_text = read_text(args.file)
@@ -157,7 +162,7 @@ def run_identify(args) -> int:
         return EXIT_FAILED
     print(fit.format())
     sources = ", ".join(Path(p).name for p in args.logs)
-    text = fitted_file_text(source_text, fit.toml(sources, p_scale=args.p_scale))
+    text = fitted_file_text(source_text, fit.toml(sources, p_scale=args.p_scale), config.names)
     try:
         with output_path("--out", args.out) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")

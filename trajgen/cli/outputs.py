@@ -4,6 +4,7 @@ atomically (a temporary file beside the target, renamed when whole)."""
 
 from __future__ import annotations
 
+import errno
 import importlib.util
 import os
 import stat
@@ -43,17 +44,22 @@ def check_output_path(
     Raises
     ------
     BadInput
-        The name is empty, the folder is missing or not writable, the path is a directory, a
-        kernel interface (``/proc``, ``/sys``), an input, an existing file that
-        cannot be written, or the extension is not one of ``suffixes``.
+        The name is empty or ``-``, the folder is missing or not writable, the path is a
+        directory, a loop of symbolic links, a kernel interface (``/proc``, ``/sys``), an
+        input, an existing file that cannot be written, or the extension is not one of
+        ``suffixes``.
     """
     if path is None:
         return
     p = Path(path)
     if not path:
         raise BadInput(f"{option} '': an empty name; give a file name")
+    if path == "-":
+        raise BadInput(f"{option} '-': standard output is not written here; give a file name")
     if p.is_dir():
         raise BadInput(f"{option} {path!r}: is a directory; give a file name")
+    if _link_loop(p):
+        raise BadInput(f"{option} {path!r}: is a loop of symbolic links; give a file name")
     # /dev/stdout leads into /proc/self/fd: devices are written in place, not refused.
     names = {os.path.abspath(p)} if _in_place(p) else {os.path.abspath(p), os.path.realpath(p)}
     for kernel in _KERNEL_FOLDERS:
@@ -82,6 +88,39 @@ def check_output_path(
     if not os.access(folder, os.W_OK | os.X_OK):
         # Every output is written to a temporary file in its folder, then renamed.
         raise BadInput(f"{option} {path!r}: folder {str(folder)!r} is not writable")
+
+
+def check_model_beside(option: str, out, source, tables: dict) -> None:
+    """Refuse an output keyframe file in another folder than ``source`` when the source's
+    ``[gimbal] model`` is a relative name (the written file keeps the name, which would
+    no longer lead to the model).
+
+    Raises
+    ------
+    BadInput
+        ``"--out X: the file's [gimbal] model = 'm.xml' is relative to its folder; write
+        the fitted file there"``.
+    """
+    gimbal = tables.get("gimbal", {})
+    model = gimbal.get("model") if isinstance(gimbal, dict) else None
+    if (
+        isinstance(model, str)
+        and not Path(model).is_absolute()
+        and Path(out).resolve().parent != Path(source).resolve().parent
+    ):
+        raise BadInput(
+            f"{option} {out}: the file's [gimbal] model = {model!r} is relative to its "
+            "folder; write the fitted file there"
+        )
+
+
+def _link_loop(path: Path) -> bool:
+    """Whether ``path`` is a symbolic link that never ends in a file or a missing name."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        return e.errno == errno.ELOOP
+    return False
 
 
 def _same_file(a: Path, b: Path) -> bool:
@@ -180,3 +219,24 @@ def check_plot_path(path: str | None, inputs=()) -> None:
     check_output_path("--plot", path, PLOT_SUFFIXES, inputs)
     if path is not None:
         check_module("--plot", "matplotlib", "matplotlib")
+
+
+def check_telemetry_path(path: str | None, suffixes: tuple[str, ...], inputs=()) -> None:
+    """Refuse ``--telemetry PATH`` up front: writable, a known suffix, not one of
+    ``inputs``, and for ``.mcap`` the ``mcap`` extra installed."""
+    check_output_path("--telemetry", path, suffixes, inputs)
+    suffix = Path(path or "").suffix
+    if suffix not in suffixes and suffix.lower() in suffixes:
+        # The writers and `trajgen identify` tell the formats apart by the suffix as written.
+        raise BadInput(f"--telemetry {path!r}: write the suffix in lower case ({suffix.lower()})")
+    if path and path.lower().endswith(".mcap"):
+        check_module("--telemetry", "mcap_ros2", "'trajgen[mcap]'")
+
+
+def check_stream_outputs(args) -> None:
+    """Refuse unusable --telemetry, --json and --plot paths before any work (an output
+    that is the keyframe file among them)."""
+    inputs = [args.file]
+    check_telemetry_path(args.telemetry, TELEMETRY_SUFFIXES, inputs)
+    check_output_path("--json", args.json, (".json",), inputs)
+    check_plot_path(args.plot, inputs)

@@ -128,6 +128,15 @@ def _write_json(path: str, data: dict) -> None:
     print(f"json: {path}")
 
 
+def _held_joints(config) -> tuple[str, ...]:
+    """The joints of a user's model the gimbal does not name (``sim.user_model``)."""
+    if config.model is None:
+        return ()
+    from trajgen.sim.user_model import held_joints
+
+    return held_joints(config)
+
+
 def _run(args, progress: Progress, done: dict) -> int:
     from trajgen.sim.check import check_torque
     from trajgen.sim.errors import SimError
@@ -155,8 +164,16 @@ def _run(args, progress: Progress, done: dict) -> int:
     limit_reasons = check_limits(report.trajectory, checked.limits)
     summary = {**report.to_json_dict(), "limits_ok": not limit_reasons}
     summary["limit_reasons"] = list(limit_reasons)
+    held = _held_joints(checked.gimbal)
+    if held:
+        summary["held_joints"] = list(held)
     done.update(stage="writing outputs", report=summary)
     print(report.format())
+    for joint in held:
+        print(
+            f"held: joint '{joint}' (not in [gimbal] joints) is welded at its reference pose, "
+            "where the model draws it"
+        )
     if "limits" in kf.tables:
         print(f"[limits]: {'FAILED' if limit_reasons else 'OK'}")
         print("\n".join(f"  - {r}" for r in limit_reasons), end="\n" if limit_reasons else "")

@@ -6,14 +6,11 @@ This module imports quickly: MuJoCo, matplotlib and Dask load inside :func:`run_
 from __future__ import annotations
 
 import argparse
-import itertools
-import math
 from dataclasses import asdict
 
 from trajgen.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
-    BadInput,
     Progress,
     add_file_argument,
     add_json_argument,
@@ -24,62 +21,21 @@ from trajgen.cli.common import (
     exit_status_text,
     load_checked,
     output_path,
-    positive_float,
     positive_int,
     prefix,
     tell,
     write_json,
 )
+from trajgen.cli.help_texts import SWEEP_DESCRIPTION
+from trajgen.cli.sweep_options import (
+    MAX_VARIANTS,
+    masses,
+    offset,
+    scales,
+    servo_choice,
+    sweep_variants,
+)
 from trajgen.errors import TrajgenError
-
-DESCRIPTION = """\
-Run `trajgen sim`'s torque check on every combination of payload mass, payload
-offset, servo model per joint and time scale, on MuJoCo batch threads (or on a
-Dask cluster with --dask), and print pass/fail with the worst planned margin
-(margin x envelope - |planned torque|, N m) per variant. Unset axes keep the file's
-[gimbal] values; the time scale multiplies the keyframe times (0.5 = twice as fast).
-
-examples:
-  trajgen sweep shot.toml --payload-kg 0.1,0.3,0.6 --time-scale 0.5,1
-  trajgen sweep shot.toml --servo pan=XM430-W350,XM540-W270 --offset-m 0.03,0,0 \\
-      --offset-m 0.06,0,0.02 --plot sweep.png
-
-The number of variants and the motion they simulate are printed before the
-first one starts; more than --max-variants is refused before any work.
-
-A failed variant is a row of the table, not a failure of the command."""
-
-#: Variants a sweep runs without --max-variants (each a whole simulation).
-MAX_VARIANTS = 1_000
-
-
-def _masses(text: str) -> list[float]:
-    """argparse type: comma-separated masses (kg), each > 0 or a bare 0 (no payload)."""
-    return [0.0 if v.strip() == "0" else positive_float(v) for v in text.split(",")]
-
-
-def _scales(text: str) -> list[float]:
-    """argparse type: comma-separated time multipliers, each > 0."""
-    return [positive_float(v) for v in text.split(",")]
-
-
-def _offset(text: str) -> tuple[float, float, float]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected x,y,z in m, got {text!r}") from None
-    if len(values) != 3 or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected 3 finite numbers x,y,z in m, got {text!r}")
-    return values
-
-
-def _servo(text: str) -> tuple[str, list[str]]:
-    joint, sep, models = text.partition("=")
-    if not sep or not joint or not models:
-        raise argparse.ArgumentTypeError(
-            f"expected JOINT=MODEL[,MODEL...] with JOINT a joint of the file's gimbal, got {text!r}"
-        )
-    return joint, models.split(",")
 
 
 def register(subparsers) -> None:
@@ -87,38 +43,42 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "sweep",
         help="torque check over payloads, servos and speeds",
-        description=DESCRIPTION,
+        description=SWEEP_DESCRIPTION,
         epilog=exit_status_text("a simulation failed (the table says which variants pass)"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     add_file_argument(p)
     p.add_argument(
-        "--payload-kg", type=_masses, metavar="M,M,...", help="payload masses (kg; 0: none)"
+        "--payload-kg", type=masses, metavar="M,M,...", help="payload masses (kg; 0: none)"
     )
     p.add_argument(
         "--offset-m",
-        type=_offset,
+        type=offset,
         action="append",
         metavar="X,Y,Z",
         help="payload centre of mass in the roll link frame (m); repeat for several",
     )
     p.add_argument(
         "--servo",
-        type=_servo,
+        type=servo_choice,
         action="append",
         metavar="JOINT=MODEL[,MODEL...]",
         help="servo models to try on a joint (by the file's joint names); repeat per joint",
     )
     p.add_argument(
         "--time-scale",
-        type=_scales,
+        type=scales,
         default=[0.5, 0.75, 1.0, 1.5],
         metavar="S,S,...",
         help="keyframe time multipliers (default 0.5,0.75,1,1.5)",
     )
     add_rate_argument(p)
     p.add_argument(
-        "--threads", type=positive_int, default=2, metavar="N", help="rollout threads (default 2)"
+        "--threads",
+        type=positive_int,
+        default=2,
+        metavar="N",
+        help="rollout threads (default %(default)d)",
     )
     p.add_argument(
         "--max-variants",
@@ -154,35 +114,7 @@ def run_sweep(args) -> int:
         check_output_path("--json", args.json, (".json",), [args.file])
         checked = load_checked(args.file, any_axes=True)  # every table of the file
         source, base = checked.keyframes, checked.gimbal
-        per_joint = {j: [s.name] for j, s in zip(base.names, base.servos, strict=True)}
-        for joint, models in args.servo or []:
-            if joint not in per_joint:
-                raise BadInput(
-                    f"--servo {joint}=...: no joint {joint!r} (the file's gimbal has "
-                    f"{', '.join(base.names)})"
-                )
-            per_joint[joint] = models
-        servo_sets = list(itertools.product(*(per_joint[j] for j in base.names)))
-        if base.model is not None and (args.payload_kg or args.offset_m):
-            raise BadInput(
-                f"--{'payload-kg' if args.payload_kg else 'offset-m'}: the payload of your own "
-                f"model ([gimbal] model = {base.model.name!r}) is in that file, not a parameter"
-            )
-        payloads = args.payload_kg or [base.payload_kg]
-        offsets = args.offset_m or [base.payload_offset_m]
-        count = len(payloads) * len(offsets) * len(servo_sets) * len(args.time_scale)
-        if count > args.max_variants:
-            raise BadInput(
-                f"{count:,} variants ({len(payloads)} payloads x {len(offsets)} offsets x "
-                f"{len(servo_sets)} servo sets x {len(args.time_scale)} time scales), over the "
-                f"limit of {args.max_variants:,}; --max-variants N raises it"
-            )
-        variants = sweep.variants(payloads, offsets, servo_sets, args.time_scale)
-        for v in variants:  # unknown servo names fail here, before any work
-            try:
-                v.config(base)
-            except ValueError as e:
-                raise BadInput(f"--servo: {e}") from None
+        variants = sweep_variants(args, source, base)
     except (ValueError, TypeError, OSError, ModuleNotFoundError) as e:
         return bad_input(e)  # every option and table, checked before any simulation
     seconds = float(source.times[-1] - source.times[0]) * sum(v.time_scale for v in variants)
@@ -203,6 +135,8 @@ def run_sweep(args) -> int:
         tell(f"simulation failed: {e}")
         return EXIT_FAILED
     except OSError as e:  # a Dask scheduler that cannot be reached
+        if not args.dask:
+            raise
         return bad_input(f"--dask {args.dask}: {e}")
     print(format_results(results, base.names))
     try:
@@ -221,17 +155,16 @@ def run_sweep(args) -> int:
 
 
 def _on_dask(address, sweep, source, variants, base, rate):
+    from contextlib import nullcontext
+
     from distributed import Client, LocalCluster
 
-    if address == "local":
-        with LocalCluster(n_workers=2, threads_per_worker=1) as cluster, Client(cluster) as c:
+    local = address == "local"
+    with LocalCluster(n_workers=2, threads_per_worker=1) if local else nullcontext() as cluster:
+        with Client(cluster if local else address) as c:
             return sweep.sweep_on_dask(
                 source, variants, c, config=base, rate_hz=rate, progress=_progress()
             )
-    with Client(address) as c:
-        return sweep.sweep_on_dask(
-            source, variants, c, config=base, rate_hz=rate, progress=_progress()
-        )
 
 
 def format_results(results, joints=("pan", "tilt", "roll")) -> str:

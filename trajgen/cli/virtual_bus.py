@@ -21,35 +21,9 @@ from trajgen.cli.common import (
     servo_ids,
     tell,
 )
+from trajgen.cli.help_texts import VIRTUAL_BUS_DESCRIPTION
 from trajgen.errors import TrajgenError
 from trajgen.servo_table import DEFAULT_SERVO
-
-VIRTUAL_BUS_DESCRIPTION = """\
-Serve the simulated gimbal of a keyframe file (its [gimbal] table; the built-in
-one by default) as Dynamixel X-series servos on a pseudo-terminal, for
-any Protocol 2.0 tool: the official dynamixel-sdk, LeRobot's motor bus, a ROS 2
-hardware interface, your own scripts. Prints the port path as its first line,
-then serves until SIGINT (Ctrl-C) or SIGTERM.
-
-The servos start at rest at 0 rad (tick 2048) with torque off and their
-factory registers, but for the position gains of the file's [gimbal.<joint>]
-tables (the file's [bus] ids and models apply; any [gimbal] axes, 2 or 3
-joints). --ids puts more servos on the chain (say 11,12,13,14,15,16 for an arm
-with a gripper): those that are not the gimbal's joints idle as servos do,
-answering, holding torque and following their goals in any Operating Mode they
-accept (a gripper in Current-based Position, mode 5). Real time by default: the
-simulation runs on the wall clock whether packets arrive or not. --lockstep
-advances it only with the traffic: one period of the file's [stream] rate (200
-Hz by default) per packet that writes Goal Position, and per poll of the present
-values with no goal written since the previous one.
-
-The gimbal's simulated servos run the firmware's position loop in Position and
-Extended Position Mode with no profile. A write to them that asks for anything
-else (another Operating Mode, a non-zero Profile Velocity or Acceleration) is
-refused with Result Fail, and the reason is printed on stderr.
-
-It serves until stopped, so a signal is how it ends: exit status 128 + the
-signal number (130 Ctrl-C, 143 SIGTERM), as for every other command."""
 
 
 def model_names(text: str) -> tuple[str, ...]:

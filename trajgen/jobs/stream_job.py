@@ -246,16 +246,16 @@ class StreamJob:
             A simulated gimbal that cannot be built from the file.
         """
         from trajgen.drivers.session import Session
-        from trajgen.lead import sent_q
+        from trajgen.lift import sent_goals
         from trajgen.sim.lead import Leader
 
         plant = registers = None
         if self.virtual:
             from trajgen.sim.plant import GimbalPlant
 
-            # Parked at the first goal (the plan's first angles; the lead's static gravity
-            # term ramps in from there), so the stream needs no approach.
-            plant = GimbalPlant(self.gimbal, initial_rad=sent_q(self.trajectory)[0])
+            # Parked at the first goal sent (the plan's first angles; the lift brings the
+            # lead's static gravity term in from there), so the stream needs no approach.
+            plant = GimbalPlant(self.gimbal, initial_rad=sent_goals(self.trajectory)[1][0])
             # The servos power up with the gains the file states ([gimbal.<joint>]).
             registers = plant.initial_registers()
         options = dict(self.options)
