@@ -210,9 +210,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
     sim_time_s : float
         Simulated time (s) the bus has advanced the plant by.
     stale_replies, stale_max_s : int, float
-        Real time: packets answered before the simulation had caught up with
-        their arrival (a busy host; the reply did not wait), and the furthest
-        behind such a reply's state was (s).
+        Real time: packets answered more than 5 ms before the simulation had
+        caught up with their arrival (a busy host; the reply did not wait), and
+        the furthest behind any reply's state was, beyond its 1 ms step (s).
     lock : threading.Lock
         Held around every plant call and while a packet is handled: hold it to
         look at ``servos`` or the plant from another thread while the bus runs.

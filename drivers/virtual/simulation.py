@@ -99,12 +99,14 @@ class SimulatedTime:
 
         The reply never waits for the simulation: it carries the latest step's
         state. ``stale_replies`` counts those further behind and ``stale_max_s``
-        keeps the furthest (s).
+        keeps how far behind any reply's state was beyond its step (s; the first
+        read after an idle spell may be up to ``_IDLE_WAKE_S`` behind).
         """
         behind = (arrival_s - self._started_s) - self._steps_done * self.sim_step_s
+        if behind > self.sim_step_s:
+            self.stale_max_s = max(self.stale_max_s, behind)
         if behind > _STALE_S + self.sim_step_s:
             self.stale_replies += 1
-            self.stale_max_s = max(self.stale_max_s, behind)
 
     def _simulate(self) -> None:
         """Real time: keep the plant on the wall clock, whatever the traffic.
@@ -137,8 +139,8 @@ class SimulatedTime:
             due_s = self._started_s + (self._steps_done + 1) * self.sim_step_s
             credit_s = self._credit_at_s + (self.sim_step_s - self._credit_s) / _CATCH_UP_RATE
             now = time.monotonic()
-            if now - self._read_at_s > _IDLE_AFTER_S:  # nobody reads the motion: wake less
-                due_s = max(due_s, now + _IDLE_WAKE_S)
+            if due_s > now and now - self._read_at_s > _IDLE_AFTER_S:  # caught up, unread
+                due_s = now + _IDLE_WAKE_S  # wake less (steps due meanwhile run at once)
             time.sleep(max(0.0, max(due_s, credit_s) - now))
 
     def _commit_goals(self) -> None:
