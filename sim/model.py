@@ -142,9 +142,6 @@ _JOINT_BOUNDS = {
     **{f"position_{g}_gain": {"low": 0, "high": GAIN_MAX, "integer": True} for g in "pid"},
     "p_divisor": {"low": 0.0, "low_open": True},
 }
-#: Range of each coordinate of ``payload_offset_m`` (m): a payload beyond a metre from the
-#: roll axis is a slip of the keyboard (1e300 overflows MuJoCo's inertia), not a gimbal.
-_OFFSET_BOUNDS = {"low": -1.0, "high": 1.0}
 
 
 @dataclass(frozen=True)
@@ -272,7 +269,8 @@ class GimbalConfig:
 
 #: Ranges of GimbalConfig's number fields, shared by the class and the [gimbal] table.
 _FIELD_BOUNDS = {
-    "payload_kg": {"low": 0.0},
+    # a payload over 100 kg is a slip of the keyboard (1e300 overflows MuJoCo's inertia)
+    "payload_kg": {"low": 0.0, "high": 100.0},
     "torque_margin": {"low": 0.0, "high": 1.0, "low_open": True},
     "max_tracking_error_rad": {"low": 0.0, "low_open": True},
     "timestep_s": {"low": 0.0, "high": 0.001, "low_open": True},

@@ -605,7 +605,7 @@ CASES = [
         ["plan", "{file}"],
         "[gimbal]\npayload_kg = -1\n" + KEYS,
         2,
-        r"\[gimbal\] payload_kg: expected a finite number >= 0, got -1",
+        r"\[gimbal\] payload_kg: expected a finite number in 0..100, got -1",
         "silent",
     ),
     (
@@ -1697,6 +1697,14 @@ CASES = [
         "crash",
     ),
     (
+        "sweep --payload-kg 1e300 (a failed torque check, exit 1, before)",
+        ["sweep", "--payload-kg", "1e300"],
+        None,
+        2,
+        r"--payload-kg 1e\+300: Expected `payload_kg` to be a finite number in 0..100",
+        "wrong",
+    ),
+    (
         "stream --max-delay inf",
         ["stream", "--virtual", "--max-delay", "inf"],
         None,
@@ -1831,8 +1839,16 @@ CASES = [
         ["sim", "{file}"],
         "[gimbal]\npayload_kg = nan\n" + PAN_10,
         2,
-        r"\[gimbal\] payload_kg: expected a finite number >= 0, got nan",
+        r"\[gimbal\] payload_kg: expected a finite number in 0..100, got nan",
         "ok",
+    ),
+    (
+        "[gimbal] payload_kg 1e300 (a failed torque check before)",
+        ["sim", "{file}"],
+        "[gimbal]\npayload_kg = 1e300\n" + PAN_10,
+        2,
+        r"\[gimbal\] payload_kg: expected a finite number in 0..100, got 1e\+300",
+        "wrong",
     ),
     (
         "[gimbal] payload_offset_m 1e300 (MuJoCo's traceback before)",

@@ -138,8 +138,11 @@ def test_gimbal_table_parses_every_field():
         ({"servo": {"yaw": "XM430-W350"}}, "[gimbal] servo: unknown joint 'yaw' (known: pan, "),
         ({"servo": {"tilt": 3}}, "[gimbal] servo.tilt: expected a model name, got 3"),
         ({"servo": 3}, "[gimbal] servo: expected a model name or a table per joint, got 3"),
-        ({"payload_kg": "abc"}, "[gimbal] payload_kg: expected a finite number >= 0, got 'abc'"),
-        ({"payload_kg": -1}, "[gimbal] payload_kg: expected a finite number >= 0, got -1"),
+        (
+            {"payload_kg": "abc"},
+            "[gimbal] payload_kg: expected a finite number in 0..100, got 'abc'",
+        ),
+        ({"payload_kg": -1}, "[gimbal] payload_kg: expected a finite number in 0..100, got -1"),
         ({"torque_margin": 2}, "[gimbal] torque_margin: expected a finite number in (0, 1], got 2"),
         (
             {"torque_margin": float("nan")},

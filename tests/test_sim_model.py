@@ -107,8 +107,8 @@ def test_timestep_comes_from_the_config():
         ({"servos": ("XM430-W350",) * 2}, ValueError, r"`servos` to hold 3 servos"),
         ({"servos": "XM999"}, ValueError, r"unknown model 'XM999' \(known: XM430-W350"),
         ({"servos": (1, 2, 3)}, TypeError, r"Expected a servo model name, got 1"),
-        ({"payload_kg": -0.1}, ValueError, r"`payload_kg` .* >= 0, got -0.1"),
-        ({"payload_kg": "heavy"}, TypeError, r"`payload_kg` .* >= 0, got 'heavy'"),
+        ({"payload_kg": -0.1}, ValueError, r"`payload_kg` .* in 0..100, got -0.1"),
+        ({"payload_kg": "heavy"}, TypeError, r"`payload_kg` .* in 0..100, got 'heavy'"),
         (
             {"payload_offset_m": (0.0, 0.0)},
             ValueError,

@@ -502,8 +502,11 @@ def _trajgen(*args):
 
 
 @pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGINT"])
-def test_virtual_bus_command_serves_until_a_signal(signal_name):
+def test_virtual_bus_command_serves_until_a_signal(signal_name, monkeypatch):
     import signal
+
+    # What the command serves, not how fast: 10x the SDK's reply timeout, for a busy host.
+    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 160)
 
     proc = _trajgen("virtual-bus", "--ids", "4,5,6", "--models", "XL430-W250")
     try:
@@ -525,8 +528,10 @@ def test_virtual_bus_command_serves_until_a_signal(signal_name):
     assert f"stopped by {signal_name} after" in err
 
 
-def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_path):
+def test_virtual_bus_command_takes_the_files_bus_gains_and_rate_in_lockstep(tmp_path, monkeypatch):
     import signal
+
+    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 160)  # a busy host
 
     path = tmp_path / "k.toml"
     path.write_text(
