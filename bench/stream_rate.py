@@ -100,7 +100,7 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
         "frames": stats.frames_sent,
         "comm": stats.comm_errors,
         "bytes": wire / stats.frames_sent,
-        "minimum": SYNC_WRITE_B + (READ_REQUEST_B + FAST_REPLY_B) / read_every,
+        "minimum": SYNC_WRITE_B + (READ_REQUEST_B + FAST_REPLY_B) / stats.read_every,
     }
 
 

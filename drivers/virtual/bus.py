@@ -210,9 +210,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
     sim_time_s : float
         Simulated time (s) the bus has advanced the plant by.
     stale_replies, stale_max_s : int, float
-        Real time: packets answered before the simulation had caught up with
-        their arrival (a busy host; the reply did not wait), and the furthest
-        behind such a reply's state was (s).
+        Real time: packets answered more than 5 ms before the simulation had
+        caught up with their arrival (a busy host; the reply did not wait), and
+        the furthest behind any reply's state was, beyond its 1 ms step (s).
     lock : threading.Lock
         Held around every plant call and while a packet is handled: hold it to
         look at ``servos`` or the plant from another thread while the bus runs.
@@ -279,6 +279,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self.lock = threading.Lock()
         self._io_lock = threading.Lock()  # around reading the master and answering
         self._lock_wanted = False  # a packet waits for ``lock`` (the simulation yields)
+        self._serving_idle = True  # the serving thread waits for bytes (nothing unread)
+        self._read_at_s = -float("inf")  # real time: when present values were last read
         self._client_answers = False
         self._reader = PacketReader()
         self._goal_rad = np.asarray(plant.read()[0], dtype=float).copy()
@@ -453,9 +455,6 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
             self._note_staleness(arrival_s)
-            # A silence longer than a watchdog's period has tripped it, whether or not
-            # the simulation thread has run since.
-            self._check_watchdogs(arrival_s)
         for servo_id in self._addressed(packet.servo_id, acting=True):
             self._last_packet_s[servo_id] = self._now()
         handler = self._HANDLERS.get(packet.instruction, InstructionHandlers._unknown)

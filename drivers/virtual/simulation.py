@@ -27,6 +27,14 @@ _MAX_STEPS_PER_HOLD = 2
 # stall's length instead of at once: the servos never seem to move faster than
 # their simulation lets them (a jump would read as an encoder glitch).
 _CATCH_UP_RATE = 1.5
+# Real time: while no present value was read for ``_IDLE_AFTER_S``, the simulation
+# thread wakes every ``_IDLE_WAKE_S`` (and steps what is due) instead of every step:
+# fewer turns taken from the other threads of the process (the GIL).
+_IDLE_AFTER_S, _IDLE_WAKE_S = 0.05, 0.005
+# Real time: the most simulated time (s) run at once after a pause, unless due. Above
+# a normal-priority thread's wake-up latency on a busy host (a few ms), which the
+# simulation must make up for at each wake-up to keep real time.
+_CATCH_UP_BURST_S = 0.01
 # Real time: a reply carries the state of the simulation's latest step; when that
 # is further behind the packet's arrival than this (s), the simulation thread
 # could not keep real time (a busy host): counted in ``stale_replies``.
@@ -53,25 +61,29 @@ class SimulatedTime:
         """Real time: advance the plant by whole steps toward ``now_s`` (lock held).
 
         At most ``_MAX_STEPS_PER_HOLD`` steps, and never faster than
-        ``_CATCH_UP_RATE`` times real time: the steps come out of a credit of
-        simulated time that grows at that rate with the wall clock, capped at
-        one hold's worth.
+        ``_CATCH_UP_RATE`` times real time over more than ``_CATCH_UP_BURST_S``:
+        the steps come out of a credit of simulated time that grows at that
+        rate with the wall clock, capped at ``_CATCH_UP_BURST_S`` (so replies
+        never show more motion than that at once).
         """
-        cap = _MAX_STEPS_PER_HOLD * self.sim_step_s
+        cap = max(_MAX_STEPS_PER_HOLD * self.sim_step_s, _CATCH_UP_BURST_S)
         self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
         self._credit_at_s = now_s
         due = int((now_s - self._started_s) / self.sim_step_s)
-        steps = min(due - self._steps_done, int(self._credit_s / self.sim_step_s + 1e-9))
+        credit = int(self._credit_s / self.sim_step_s + 1e-9)
+        steps = min(due - self._steps_done, credit, _MAX_STEPS_PER_HOLD)
         if steps > 0:
             self._advance(steps * self.sim_step_s)
             self._steps_done += steps
             self._credit_s -= steps * self.sim_step_s
 
     def _publish(self) -> None:
-        """Real time: the state replies carry from now on (lock held; after each step).
+        """Real time: read the plant's latest step for replies (lock held; never steps it).
 
-        One tuple, swapped in whole: (simulated time (s), position (rad), velocity
-        (rad/s), current (A), drive output), the arrays as lists.
+        One tuple, swapped in whole: (simulated time (s), position (ticks),
+        velocity (rad/s), current (A), drive output), the arrays as lists. Done
+        once per step at most, by the first reply that needs present values
+        after it (``_refresh_present``): the simulation thread only steps.
         """
         position, velocity, current = self.plant.read()
         self._snapshot = (
@@ -87,19 +99,21 @@ class SimulatedTime:
 
         The reply never waits for the simulation: it carries the latest step's
         state. ``stale_replies`` counts those further behind and ``stale_max_s``
-        keeps the furthest (s).
+        keeps how far behind any reply's state was beyond its step (s; the first
+        read after an idle spell may be up to ``_IDLE_WAKE_S`` behind).
         """
-        behind = (arrival_s - self._started_s) - self._snapshot[0]
+        behind = (arrival_s - self._started_s) - self._steps_done * self.sim_step_s
+        if behind > self.sim_step_s:
+            self.stale_max_s = max(self.stale_max_s, behind)
         if behind > _STALE_S + self.sim_step_s:
             self.stale_replies += 1
-            self.stale_max_s = max(self.stale_max_s, behind)
 
     def _simulate(self) -> None:
         """Real time: keep the plant on the wall clock, whatever the traffic.
 
         Steps once per ``sim_step_s`` of wall time, sleeping until the next step
-        is due, and publishes the present values after each (``_publish``): the
-        serving thread answers from them and never steps the plant itself. It
+        is due; the serving thread answers from the latest step (``_publish``)
+        and never steps the plant itself. It
         holds the lock for at most ``_MAX_STEPS_PER_HOLD`` steps at a time, lets
         a packet that is waiting go first, and after a stall catches up at
         ``_CATCH_UP_RATE`` times real time (``_catch_up``).
@@ -115,18 +129,19 @@ class SimulatedTime:
             try:
                 with self.lock:
                     now = time.monotonic()
-                    done = self._steps_done
                     self._catch_up(now)
-                    self._check_watchdogs(now)
-                    if self._steps_done != done:
-                        self._publish()
+                    if self._serving_idle:  # else a packet may be on its way in: not silent
+                        self._check_watchdogs(now)
             except Exception as e:  # the plant failed: the port goes away
                 self._fail(e)
                 return
             # Until the next step is due and there is credit for it (never a spin).
             due_s = self._started_s + (self._steps_done + 1) * self.sim_step_s
             credit_s = self._credit_at_s + (self.sim_step_s - self._credit_s) / _CATCH_UP_RATE
-            time.sleep(max(0.0, max(due_s, credit_s) - time.monotonic()))
+            now = time.monotonic()
+            if due_s > now and now - self._read_at_s > _IDLE_AFTER_S:  # caught up, unread
+                due_s = now + _IDLE_WAKE_S  # wake less (steps due meanwhile run at once)
+            time.sleep(max(0.0, max(due_s, credit_s) - now))
 
     def _commit_goals(self) -> None:
         """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
@@ -142,10 +157,13 @@ class SimulatedTime:
         """Fill every servo's present-value registers (120..143).
 
         Real time: from the simulation's latest step (``_publish``); the plant
-        is not called. Lock-step: from the plant, and a poll with no goal
+        is read, never stepped. Lock-step: from the plant, and a poll with no goal
         written since the previous poll ends a period first.
         """
         if self.lockstep_dt_s is None:
+            self._read_at_s = time.monotonic()
+            if self._snapshot[0] != self._steps_done * self.sim_step_s:  # a step since
+                self._publish()
             sim_s, ticks, velocity, current, pwm = self._snapshot
         else:
             if poll:

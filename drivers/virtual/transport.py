@@ -72,7 +72,9 @@ class PtyTransport:
                 self._stop.wait(wait_s)
                 continue
             try:
+                self._serving_idle = True  # waiting for the host (see _simulate)
                 ready, _, _ = select.select([self._master], [], [], wait_s)
+                self._serving_idle = False
             except (OSError, ValueError):
                 return  # master closed
             if not ready:
