@@ -289,22 +289,35 @@ def envelope_check(config: GimbalConfig, *, model=None) -> Callable:
     (``mj_inverse``, with Coulomb friction) is within ``torque_margin x`` its
     servo's torque-speed envelope at that speed, as :func:`check_planned_torque`.
 
+    The verdict is ``mj_inverse``'s on every sample, computed in two passes: the
+    torque without Coulomb friction of every sample in numpy
+    (:class:`~trajgen.sim.dynamics.ChainDynamics`), which with the friction's bound
+    and a rounding bound added passes most samples (then ``mj_inverse`` would pass
+    them too); ``mj_inverse`` itself on the others only.
+
     Parameters
     ----------
     config : GimbalConfig
     model : mujoco.MjModel, optional
         ``sim.run.simulation_model(config)`` if the caller has built it already.
     """
-    from trajgen.sim.dynamics import inverse_dynamics
+    from trajgen.sim.dynamics import ChainDynamics, inverse_dynamics
 
     model = simulation_model(config) if model is None else model
+    chain = ChainDynamics(model)
     servos, margin = config.servos, config.torque_margin
 
     def within(q, qd, qdd):
-        tau = inverse_dynamics(model, q, qd, qdd)
-        qd = np.asarray(qd, dtype=float)
+        q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
         usable = np.stack([margin * s.tau_max(qd[:, j]) for j, s in enumerate(servos)], axis=1)
-        return (np.abs(tau) <= usable).all(axis=1)
+        slack = chain.ROUNDING_NM * (1.0 + (qd * qd).sum(axis=1) + np.abs(qdd).sum(axis=1))
+        bound = np.abs(chain.smooth(q, qd, qdd)) + chain.friction + slack[:, None]
+        ok = (bound <= usable).all(axis=1)
+        doubt = np.flatnonzero(~ok)
+        if len(doubt):
+            tau = inverse_dynamics(model, q[doubt], qd[doubt], qdd[doubt])
+            ok[doubt] = (np.abs(tau) <= usable[doubt]).all(axis=1)
+        return ok
 
     return within
 

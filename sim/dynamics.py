@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -108,3 +109,216 @@ def _without_coulomb(model):
     model = copy.copy(model)
     model.dof_frictionloss[:] = 0.0
     return model
+
+
+class ChainDynamics:
+    """Inverse dynamics of a gimbal's hinge chain in numpy, every sample at once.
+
+    The recursive Newton-Euler algorithm in each body's own frame (constant inertia,
+    centre of mass and joint axis there), vectorised over the samples: equal to
+    ``inverse_dynamics(model, q, qd, qdd, coulomb=False)`` to rounding (rigid bodies,
+    gravity, armature, joint springs and dampers; tested against ``mj_inverse``), at
+    about a tenth of its cost for a few hundred samples. MuJoCo's Coulomb friction (a
+    ``frictionloss`` constraint) adds to each joint a torque of magnitude at most its
+    ``frictionloss`` (:attr:`friction`), so ``|smooth(...)| + friction`` bounds
+    ``|inverse_dynamics(...)|`` to rounding (:attr:`ROUNDING_NM`).
+
+    Parameters
+    ----------
+    model : mujoco.MjModel
+        A tree of bodies, each with at most one hinge joint (the gimbal of
+        ``sim.model.build_model``), without joint limits, tendons, equality
+        constraints, fluid forces or gravity compensation.
+
+    Raises
+    ------
+    SimulationError
+        If the model has any of those (``mj_inverse`` would include them).
+    """
+
+    #: Bound (N m) on ``|smooth(...) - inverse_dynamics(..., coulomb=False)|`` per unit of
+    #: ``1 + |qd|^2 + |qdd|`` (the sample's sums over joints): the two evaluate the same
+    #: terms in another order (measured: below 1e-15 N m per unit on the gimbals here).
+    ROUNDING_NM = 1e-9
+
+    def __init__(self, model):
+        import mujoco
+
+        off, on = mujoco.mjtDisableBit, mujoco.mjtEnableBit
+        flags = model.opt.disableflags
+        unsupported = [
+            name
+            for name, bad in (
+                (
+                    "a joint that is not a hinge",
+                    (model.jnt_type != mujoco.mjtJoint.mjJNT_HINGE).any(),
+                ),
+                ("a body with two joints", (model.body_jntnum > 1).any()),
+                ("joint limits", model.jnt_limited.any() and not flags & off.mjDSBL_LIMIT),
+                ("tendons", model.ntendon > 0),
+                ("equality constraints", model.neq > 0),
+                ("fluid forces", model.opt.density > 0 or model.opt.viscosity > 0),
+                ("gravity compensation", model.body_gravcomp.any()),
+                ("discrete-time inverse dynamics", model.opt.enableflags & on.mjENBL_INVDISCRETE),
+            )
+            if bad
+        ]
+        if unsupported:
+            raise SimulationError(
+                "ChainDynamics takes a tree of hinge joints only; the model has "
+                + ", ".join(unsupported)
+            )
+        gravity = np.zeros(3) if flags & off.mjDSBL_GRAVITY else np.array(model.opt.gravity)
+        self._base_acc = -gravity[:, None]  # the world's acceleration that stands for gravity
+        self._bodies = []
+        moving, ref = [False] * model.nbody, [np.zeros(3)] * model.nbody
+        for b in range(1, model.nbody):
+            p = int(model.body_parentid[b])
+            joint = int(model.body_jntadr[b]) if model.body_jntnum[b] else -1
+            moving[b] = moving[p] or joint >= 0
+            anchor = np.array(model.jnt_pos[joint]) if joint >= 0 else np.zeros(3)
+            ref[b] = anchor  # the body's reference point, in its own frame
+            if not moving[b]:
+                continue  # fixed to the world: it puts no torque on any joint
+            frame = _matrix(model.body_quat[b])
+            principal = _matrix(model.body_iquat[b])
+            self._bodies.append(
+                _Body(
+                    index=b,
+                    parent=p if moving[p] else 0,
+                    dof=int(model.jnt_dofadr[joint]) if joint >= 0 else -1,
+                    qpos0=float(model.qpos0[model.jnt_qposadr[joint]]) if joint >= 0 else 0.0,
+                    axis=np.array(model.jnt_axis[joint]) if joint >= 0 else np.zeros(3),
+                    frame=frame,
+                    r=np.array(model.body_pos[b]) + frame @ anchor - ref[p],
+                    com=np.array(model.body_ipos[b]) - anchor,
+                    mass=float(model.body_mass[b]),
+                    inertia=principal @ np.diag(model.body_inertia[b]) @ principal.T,
+                )
+            )
+        self.nv = int(model.nv)
+        self._armature = np.array(model.dof_armature)
+        self._damping = np.zeros(self.nv)
+        if not flags & off.mjDSBL_DAMPER:
+            self._damping = np.array(model.dof_damping)
+        self._stiffness, self._spring = np.zeros(self.nv), np.zeros(self.nv)
+        if not flags & off.mjDSBL_SPRING:
+            dofs, adrs = model.jnt_dofadr, model.jnt_qposadr
+            self._stiffness[dofs] = model.jnt_stiffness
+            self._spring[dofs] = model.qpos_spring[adrs]
+        no_friction = flags & (off.mjDSBL_FRICTIONLOSS | off.mjDSBL_CONSTRAINT)
+        #: Coulomb friction per joint (N m): the bound on the torque it adds.
+        self.friction = np.zeros(self.nv) if no_friction else np.array(model.dof_frictionloss)
+
+    def smooth(self, q, qd, qdd) -> np.ndarray:
+        """Joint torques (N, nv) (N m) without Coulomb friction at joint angles,
+        velocities and accelerations ``q, qd, qdd`` (N, nv) (rad, rad/s, rad/s^2)."""
+        q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        qt, qdt, qddt = q.T, qd.T, qdd.T  # (nv, N): each body's vectors are (3, N)
+        # per body: angular velocity, acceleration, acceleration of its reference point,
+        # in its own frame (None: zero, the world's rates)
+        state = {0: (None, None, self._base_acc)}
+        parts = []
+        for body in self._bodies:
+            w, al, acc = state[body.parent]
+            if w is not None:  # the parent's motion at this body's reference point
+                acc = acc - body.r_x @ al + _cross(w, -body.r_x @ w)
+            turn = None
+            if body.dof >= 0:
+                angle = qt[body.dof] - body.qpos0
+                turn = (body.axis_x, np.cos(angle), np.sin(angle), body.axis)
+            w, al, acc = (_into(body.frame, turn, x) for x in (w, al, acc))
+            if body.dof >= 0:
+                spin = body.axis[:, None] * qdt[body.dof]
+                al = body.axis[:, None] * qddt[body.dof] + (
+                    0.0 if w is None else al + _cross(w, spin)
+                )
+                w = spin if w is None else w + spin
+            state[body.index] = (w, al, acc)
+            force = body.mass * (acc - body.com_x @ al + _cross(w, -body.com_x @ w))
+            moment = body.inertia @ al + _cross(w, body.inertia @ w) + body.com_x @ force
+            parts.append((body, turn, force, moment))  # about the reference point
+        tau = np.empty((self.nv, len(q)))
+        wrench: dict = {}
+        for body, turn, force, moment in reversed(parts):
+            for f, m in wrench.pop(body.index, ()):
+                force, moment = force + f, moment + m
+            if body.dof >= 0:
+                tau[body.dof] = body.axis @ moment
+            force, moment = (_out_of(body.frame, turn, x) for x in (force, moment))
+            wrench.setdefault(body.parent, []).append((force, moment + body.r_x @ force))
+        return (
+            tau.T + self._armature * qdd + self._damping * qd + self._stiffness * (q - self._spring)
+        )
+
+
+@dataclass(frozen=True)
+class _Body:
+    """A moving body of :class:`ChainDynamics`, in its own frame: ``frame`` its rotation
+    from the parent's before the joint turns it about ``axis`` (3,); ``r`` (m) from the
+    parent's reference point to its own (the joint's anchor, else its origin), in the
+    parent's frame; ``com`` (m) from its reference point; ``inertia`` (kg m^2) about
+    the centre of mass; ``dof`` -1 for a body welded to its parent."""
+
+    index: int
+    parent: int
+    dof: int
+    qpos0: float
+    axis: np.ndarray
+    frame: np.ndarray
+    r: np.ndarray
+    com: np.ndarray
+    mass: float
+    inertia: np.ndarray
+    r_x: np.ndarray = field(init=False)  # the matrices of r x, com x, axis x
+    com_x: np.ndarray = field(init=False)
+    axis_x: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        for name in ("r", "com", "axis"):
+            object.__setattr__(self, name + "_x", _skew(getattr(self, name)))
+
+
+def _matrix(quat) -> np.ndarray:
+    """Rotation matrix (3, 3) of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = quat
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _skew(v) -> np.ndarray:
+    """The matrix (3, 3) of ``u -> v x u``."""
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _into(frame, turn, v):
+    """Vectors ``v`` (3, N) (None: zero) of the parent's frame in the child's:
+    ``Rot(axis, angle)^T frame^T v``; ``turn`` is ``(skew(axis), cos, sin, axis)``
+    (cos, sin (N,)), None for no joint."""
+    if v is None:
+        return None
+    u = frame.T @ v
+    if turn is None:
+        return u
+    k_x, c, s, k = turn
+    return u * c - (k_x @ u) * s + np.outer(k, (k @ u) * (1.0 - c))
+
+
+def _out_of(frame, turn, v):
+    """:func:`_into` inverted: vectors (3, N) of the child's frame in the parent's."""
+    if turn is not None:
+        k_x, c, s, k = turn
+        v = v * c + (k_x @ v) * s + np.outer(k, (k @ v) * (1.0 - c))
+    return frame @ v
+
+
+def _cross(a, b):
+    """Cross products of vectors (3, N)."""
+    return np.stack(
+        [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+    )

@@ -1,0 +1,95 @@
+"""The numpy inverse dynamics of the gimbal chain against MuJoCo's, and the envelope
+check built on it."""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mujoco")
+
+from trajgen.sim.check import envelope_check  # noqa: E402
+from trajgen.sim.dynamics import ChainDynamics, inverse_dynamics  # noqa: E402
+from trajgen.sim.errors import SimulationError  # noqa: E402
+from trajgen.sim.model import GimbalConfig  # noqa: E402
+from trajgen.sim.run import simulation_model  # noqa: E402
+
+CONFIGS = [
+    {},
+    {"payload_kg": 0.4, "payload_offset_m": (0.02, 0.01, -0.03)},
+    {"axes": "zy", "servos": ("XM430-W350", "XL330-M288")},
+    {"axes": "zxy"},
+    {"axes": "zyz"},
+]
+
+
+def states(rng, n, nv, speed=6.0, acc=80.0):
+    q = rng.uniform(-np.pi, np.pi, (n, nv))
+    qd = rng.uniform(-speed, speed, (n, nv))
+    qdd = rng.uniform(-acc, acc, (n, nv))
+    qd[: n // 4] *= 1e-4  # near rest, where MuJoCo's friction is in its soft zone
+    return q, qd, qdd
+
+
+@pytest.mark.parametrize("kwargs", CONFIGS)
+def test_smooth_torque_is_mujocos_without_coulomb(kwargs):
+    model = simulation_model(GimbalConfig(**kwargs))
+    chain = ChainDynamics(model)
+    q, qd, qdd = states(np.random.default_rng(3), 300, model.nv)
+    ours = chain.smooth(q, qd, qdd)
+    theirs = inverse_dynamics(model, q, qd, qdd, coulomb=False)
+    assert np.abs(theirs).max() > 0.1  # not a trivially small motion
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs", CONFIGS[:3])
+def test_coulomb_friction_is_bounded_by_frictionloss(kwargs):
+    model = simulation_model(GimbalConfig(**kwargs))
+    chain = ChainDynamics(model)
+    q, qd, qdd = states(np.random.default_rng(4), 300, model.nv)
+    friction = inverse_dynamics(model, q, qd, qdd) - inverse_dynamics(
+        model, q, qd, qdd, coulomb=False
+    )
+    assert (np.abs(friction) <= chain.friction * (1 + 1e-12)).all()
+    # and it reaches the bound when moving, so the bound is not loose there
+    moving = np.abs(qd) > 1.0
+    np.testing.assert_allclose(
+        np.abs(friction[moving]), np.broadcast_to(chain.friction, qd.shape)[moving], rtol=1e-9
+    )
+
+
+def test_envelope_check_is_mujocos_verdict_on_every_sample():
+    config = GimbalConfig()
+    model = simulation_model(config)
+    within = envelope_check(config, model=model)
+    rng = np.random.default_rng(5)
+    q, qd, qdd = states(rng, 400, 3, speed=5.0, acc=40.0)  # many beyond the envelope
+    tau = inverse_dynamics(model, q, qd, qdd)
+    usable = np.stack(
+        [config.torque_margin * s.tau_max(qd[:, j]) for j, s in enumerate(config.servos)], axis=1
+    )
+    direct = (np.abs(tau) <= usable).all(axis=1)
+    assert 0.2 < direct.mean() < 0.9  # both verdicts occur
+    np.testing.assert_array_equal(within(q, qd, qdd), direct)
+    # on the edge: torques within the friction bound of the envelope, decided by MuJoCo
+    edge = np.abs(usable - np.abs(tau)) < chain_friction(model)
+    assert edge.any(axis=1).sum() >= 5
+
+
+def chain_friction(model):
+    return ChainDynamics(model).friction
+
+
+def test_chain_dynamics_refuses_what_it_does_not_model():
+    import mujoco
+
+    slide = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint type="slide"/><geom size="0.1"/></body>'
+        "</worldbody></mujoco>"
+    )
+    with pytest.raises(SimulationError, match="hinge"):
+        ChainDynamics(slide)
+    limited = mujoco.MjModel.from_xml_string(
+        '<mujoco><worldbody><body><joint type="hinge" range="-1 1" limited="true"/>'
+        '<geom size="0.1"/></body></worldbody></mujoco>'
+    )
+    with pytest.raises(SimulationError, match="joint limits"):
+        ChainDynamics(limited)
