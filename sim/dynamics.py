@@ -180,7 +180,7 @@ class ChainDynamics:
             ref[b] = anchor  # the body's reference point, in its own frame
             if not moving[b]:
                 continue  # fixed to the world: it puts no torque on any joint
-            frame = _matrix(model.body_quat[b])
+            frame = _matrix(model.body_quat[b])  # None below where it is the identity
             principal = _matrix(model.body_iquat[b])
             self._bodies.append(
                 _Body(
@@ -189,7 +189,7 @@ class ChainDynamics:
                     dof=int(model.jnt_dofadr[joint]) if joint >= 0 else -1,
                     qpos0=float(model.qpos0[model.jnt_qposadr[joint]]) if joint >= 0 else 0.0,
                     axis=np.array(model.jnt_axis[joint]) if joint >= 0 else np.zeros(3),
-                    frame=frame,
+                    frame=None if (frame == np.eye(3)).all() else frame,
                     r=np.array(model.body_pos[b]) + frame @ anchor - ref[p],
                     com=np.array(model.body_ipos[b]) - anchor,
                     mass=float(model.body_mass[b]),
@@ -216,28 +216,35 @@ class ChainDynamics:
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
         qt, qdt, qddt = q.T, qd.T, qdd.T  # (nv, N): each body's vectors are (3, N)
         # per body: angular velocity, acceleration, acceleration of its reference point,
-        # in its own frame (None: zero, the world's rates)
+        # in its own frame (w and alpha None: zero, the world's)
         state = {0: (None, None, self._base_acc)}
         parts = []
         for body in self._bodies:
             w, al, acc = state[body.parent]
-            if w is not None:  # the parent's motion at this body's reference point
-                acc = acc - body.r_x @ al + _cross(w, -body.r_x @ w)
             turn = None
             if body.dof >= 0:
                 angle = qt[body.dof] - body.qpos0
-                turn = (body.axis_x, np.cos(angle), np.sin(angle), body.axis)
-            w, al, acc = (_into(body.frame, turn, x) for x in (w, al, acc))
+                turn = (body, np.cos(angle), np.sin(angle))
+            if w is None:  # the parent is the world
+                acc = _into(body, turn, acc[:, None])[:, 0]
+            else:  # the parent's motion at this body's reference point, in its frame
+                acc = acc - body.r_x @ al + _centripetal(w, body.r)
+                w, al, acc = _into(body, turn, np.stack([w, al, acc], axis=1)).transpose(1, 0, 2)
             if body.dof >= 0:
-                spin = body.axis[:, None] * qdt[body.dof]
-                al = body.axis[:, None] * qddt[body.dof] + (
-                    0.0 if w is None else al + _cross(w, spin)
-                )
-                w = spin if w is None else w + spin
+                spin, rate = body.axis[:, None] * qdt[body.dof], qdt[body.dof]
+                if w is None:
+                    w, al = spin, body.axis[:, None] * qddt[body.dof]
+                    gyro = np.outer(body.gyro, rate * rate)  # w x (I w), w along the axis
+                else:  # alpha + axis qdd + w x (axis qd)
+                    al = al + body.axis[:, None] * qddt[body.dof] - (body.axis_x @ w) * rate
+                    w = w + spin
+                    gyro = None
+            if gyro is None:
+                gyro = _cross(w, body.inertia @ w)
             state[body.index] = (w, al, acc)
-            force = body.mass * (acc - body.com_x @ al + _cross(w, -body.com_x @ w))
-            moment = body.inertia @ al + _cross(w, body.inertia @ w) + body.com_x @ force
-            parts.append((body, turn, force, moment))  # about the reference point
+            force = body.mass * (acc - body.com_x @ al + _centripetal(w, body.com))
+            moment = body.inertia @ al + gyro + body.com_x @ force  # about the reference point
+            parts.append((body, turn, force, moment))
         tau = np.empty((self.nv, len(q)))
         wrench: dict = {}
         for body, turn, force, moment in reversed(parts):
@@ -245,7 +252,9 @@ class ChainDynamics:
                 force, moment = force + f, moment + m
             if body.dof >= 0:
                 tau[body.dof] = body.axis @ moment
-            force, moment = (_out_of(body.frame, turn, x) for x in (force, moment))
+            force, moment = _out_of(body, turn, np.stack([force, moment], axis=1)).transpose(
+                1, 0, 2
+            )
             wrench.setdefault(body.parent, []).append((force, moment + body.r_x @ force))
         return (
             tau.T + self._armature * qdd + self._damping * qd + self._stiffness * (q - self._spring)
@@ -265,7 +274,7 @@ class _Body:
     dof: int
     qpos0: float
     axis: np.ndarray
-    frame: np.ndarray
+    frame: np.ndarray | None
     r: np.ndarray
     com: np.ndarray
     mass: float
@@ -273,10 +282,12 @@ class _Body:
     r_x: np.ndarray = field(init=False)  # the matrices of r x, com x, axis x
     com_x: np.ndarray = field(init=False)
     axis_x: np.ndarray = field(init=False)
+    gyro: np.ndarray = field(init=False)  # axis x (inertia axis)
 
     def __post_init__(self):
         for name in ("r", "com", "axis"):
             object.__setattr__(self, name + "_x", _skew(getattr(self, name)))
+        object.__setattr__(self, "gyro", np.cross(self.axis, self.inertia @ self.axis))
 
 
 def _matrix(quat) -> np.ndarray:
@@ -296,25 +307,38 @@ def _skew(v) -> np.ndarray:
     return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
-def _into(frame, turn, v):
-    """Vectors ``v`` (3, N) (None: zero) of the parent's frame in the child's:
-    ``Rot(axis, angle)^T frame^T v``; ``turn`` is ``(skew(axis), cos, sin, axis)``
-    (cos, sin (N,)), None for no joint."""
-    if v is None:
-        return None
-    u = frame.T @ v
+def _centripetal(w, r) -> np.ndarray:
+    """``w x (w x r)`` (3, N) for angular velocities ``w`` (3, N) and a vector ``r`` (3,)."""
+    return w * (r @ w) - np.outer(r, (w * w).sum(axis=0))
+
+
+def _into(body, turn, v) -> np.ndarray:
+    """Vectors ``v`` (3, M, N) of the parent's frame in ``body``'s:
+    ``Rot(axis, angle)^T frame^T v``; ``turn`` is ``(body, cos, sin)`` of the joint's
+    angle (each (N,)), None for a body without a joint."""
+    u = v if body.frame is None else _mat(body.frame.T, v)
     if turn is None:
         return u
-    k_x, c, s, k = turn
-    return u * c - (k_x @ u) * s + np.outer(k, (k @ u) * (1.0 - c))
+    _, c, s = turn
+    return u * c - _mat(body.axis_x, u) * s + _along(body.axis, u, 1.0 - c)
 
 
-def _out_of(frame, turn, v):
-    """:func:`_into` inverted: vectors (3, N) of the child's frame in the parent's."""
+def _out_of(body, turn, v) -> np.ndarray:
+    """:func:`_into` inverted: vectors (3, M, N) of ``body``'s frame in its parent's."""
     if turn is not None:
-        k_x, c, s, k = turn
-        v = v * c + (k_x @ v) * s + np.outer(k, (k @ v) * (1.0 - c))
-    return frame @ v
+        _, c, s = turn
+        v = v * c + _mat(body.axis_x, v) * s + _along(body.axis, v, 1.0 - c)
+    return v if body.frame is None else _mat(body.frame, v)
+
+
+def _mat(m, v) -> np.ndarray:
+    """A matrix (3, 3) times vectors (3, M, N)."""
+    return (m @ v.reshape(3, -1)).reshape(v.shape)
+
+
+def _along(k, u, scale) -> np.ndarray:
+    """``k (k . u) scale``: the parts (3, M, N) of vectors ``u`` along the unit ``k`` (3,)."""
+    return k[:, None, None] * ((k @ u.reshape(3, -1)).reshape(u.shape[1:]) * scale)
 
 
 def _cross(a, b):
