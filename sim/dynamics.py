@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from trajgen.path import run_steps
 from trajgen.sim.errors import SimulationError
 
 from .errors import BadArgument
@@ -213,6 +214,12 @@ class ChainDynamics:
     def smooth(self, q, qd, qdd) -> np.ndarray:
         """Joint torques (N, nv) (N m) without Coulomb friction at joint angles,
         velocities and accelerations ``q, qd, qdd`` (N, nv) (rad, rad/s, rad/s^2)."""
+        return run_steps(self.smooth_steps(q, qd, qdd))
+
+    def smooth_steps(self, q, qd, qdd):
+        """:meth:`smooth` as a generator of steps (a body each, out along the chain and
+        back), for a caller that runs the work between frames of a stream; its value
+        is the torques."""
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
         qt, qdt, qddt = q.T, qd.T, qdd.T  # (nv, N): each body's vectors are (3, N)
         # per body: angular velocity, acceleration, acceleration of its reference point,
@@ -245,6 +252,7 @@ class ChainDynamics:
             force = body.mass * (acc - body.com_x @ al + _centripetal(w, body.com))
             moment = body.inertia @ al + gyro + body.com_x @ force  # about the reference point
             parts.append((body, turn, force, moment))
+            yield
         tau = np.empty((self.nv, len(q)))
         wrench: dict = {}
         for body, turn, force, moment in reversed(parts):
@@ -256,6 +264,7 @@ class ChainDynamics:
                 1, 0, 2
             )
             wrench.setdefault(body.parent, []).append((force, moment + body.r_x @ force))
+            yield
         return (
             tau.T + self._armature * qdd + self._damping * qd + self._stiffness * (q - self._spring)
         )

@@ -40,9 +40,10 @@ from .tracker import Tracker
 CHANGE_MARGIN_S = 0.05
 
 #: Steps (one a frame) an untimed target's change is given before its ``at``: the
-#: tracker's search takes 13-18 (the motion in progress, an iteration of the joint
-#: motion's root search each, the frame check); doubled on each new attempt.
-TARGET_STEPS = 20
+#: tracker's search takes about 20 (bench/tracker_cost.py: the target, the motion in
+#: progress, the candidates' grid, a joint each, the profile, its frames, the envelope's
+#: inverse dynamics a body a step, the change); doubled on each new attempt.
+TARGET_STEPS = 30
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
 #: how long the streaming thread may wait for the thread that parses the lines.

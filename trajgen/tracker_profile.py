@@ -72,21 +72,6 @@ def _speed_change(vs, a_s, ve, acc, jerk):
     return [t1, t2, t3], [sg * jerk, 0.0, -sg * jerk]
 
 
-def _integrate(x, v, a, durations, jerks):
-    """States (x, v, a), each (..., P + 1), at the knots of phases of constant jerk
-    (durations and jerks (..., P)) from ``(x, v, a)`` (...)."""
-    xs, vs, as_ = [x], [v], [a]
-    for k in range(durations.shape[-1]):
-        d, j = durations[..., k], jerks[..., k]
-        x = x + d * (v + d * (a / 2.0 + d * j / 6.0))
-        v = v + d * (a + d * j / 2.0)
-        a = a + d * j
-        xs.append(x)
-        vs.append(v)
-        as_.append(a)
-    return np.stack(xs, axis=-1), np.stack(vs, axis=-1), np.stack(as_, axis=-1)
-
-
 def _phases(v0, a0, j0, hold, vp, cruise, acc, jerk):
     """Durations and jerks (8 each, floats) of the profile that first runs jerk ``j0``
     for ``hold`` (s), then changes the speed to ``vp``, cruises for ``cruise`` (s) and
@@ -153,7 +138,7 @@ def fastest(x0, v0, a0, goal, limits):
 
 def fastest_steps(x0, v0, a0, goal, limits):
     """Each joint's fastest motion to rest at its goal within the limits, as a generator
-    of steps (the candidates' grid, then one joint a step; each well under a
+    of steps (the candidates' grid in two, then one joint a step; each well under a
     millisecond); its value is the motion.
 
     Parameters
@@ -195,6 +180,7 @@ def fastest_steps(x0, v0, a0, goal, limits):
     grid = spans * ((unit + 1.0) / 2.0) + np.array([-1.0, 0.0, 0.0])[:, None] * vmax
     is_peak = np.array([1.0, 0.0, 0.0])[:, None]
     j0 = np.concatenate([0.0 * a, 0.0 * a, -np.sign(a) * jerk], axis=1)
+    yield
     f = dist - _distance(v, a, j0, grid * (1.0 - is_peak), grid * is_peak, acc, jerk)
     grid, f, j0 = grid.tolist(), f.tolist(), j0[:, :, 0].tolist()
     durations, jerks = [], []
@@ -283,38 +269,50 @@ class JointProfile:
     """
 
     def __init__(self, x0, v0, a0, durations, jerks, goal):
-        x, v, a = _integrate(x0, v0, a0, durations, jerks)
-        x[:, -1], v[:, -1], a[:, -1] = goal, 0.0, 0.0  # rest exactly at the goal
-        #: Knot times (n, P + 1) (s, from the start), states there, jerk after (n, P + 1).
-        self.knots = np.concatenate([np.zeros((len(x0), 1)), np.cumsum(durations, axis=1)], 1)
-        self.x, self.v, self.a = x, v, a
-        self.j = np.concatenate([jerks, np.zeros((len(x0), 1))], axis=1)
+        n = len(goal)
         self.goal = np.asarray(goal, dtype=float)
+        #: Per joint, in floats: knot times (s, from the start), angle, speed,
+        #: acceleration there, and the jerk after each knot (0 after the last).
+        self._rows = []
+        starts = (np.asarray(s, dtype=float).tolist() for s in (x0, v0, a0))
+        for i, (x, v, a) in enumerate(zip(*starts, strict=True)):
+            ts, xs, vs, as_ = [0.0], [x], [v], [a]
+            js = [*np.asarray(jerks[i]).tolist(), 0.0]
+            for d, j in zip(np.asarray(durations[i]).tolist(), js[:-1], strict=True):
+                x = x + d * (v + d * (a / 2.0 + d * j / 6.0))
+                v = v + d * (a + d * j / 2.0)
+                a = a + d * j
+                ts.append(ts[-1] + d)
+                xs.append(x)
+                vs.append(v)
+                as_.append(a)
+            xs[-1], vs[-1], as_[-1] = float(self.goal[i]), 0.0, 0.0  # rest exactly at the goal
+            self._rows.append((ts, xs, vs, as_, js))
+        #: Knot times (n, P + 1) (s, from the start), states there, jerk after (n, P + 1).
+        self.knots, self.x, self.v, self.a, self.j = (
+            np.array([row[k] for row in self._rows]).reshape(n, -1) for k in range(5)
+        )
         self.duration = float(self.knots[:, -1].max())
-        self._rows = [
-            (
-                self.knots[i].tolist(),
-                x[i].tolist(),
-                v[i].tolist(),
-                a[i].tolist(),
-                self.j[i].tolist(),
-            )
-            for i in range(len(x0))
-        ]
+        self._flat = [a.ravel() for a in (self.knots, self.x, self.v, self.a, self.j)]
 
     def state(self, tau: np.ndarray):
         """Angles, speeds, accelerations, jerks (each (M, n)) at times ``tau`` (M,) (s
         from the start; rest at the goal after each joint's last phase)."""
-        out = np.empty((4, len(tau), len(self.goal)))
-        for i in range(len(self.goal)):
-            k = np.clip(np.searchsorted(self.knots[i], tau, side="right") - 1, 0, None)
-            d = np.where(k == self.knots.shape[1] - 1, 0.0, tau - self.knots[i, k])
-            x, v, a, j = self.x[i, k], self.v[i, k], self.a[i, k], self.j[i, k]
-            out[0, :, i] = x + d * (v + d * (a / 2.0 + d * j / 6.0))
-            out[1, :, i] = v + d * (a + d * j / 2.0)
-            out[2, :, i] = a + d * j
-            out[3, :, i] = j
-        return out
+        tau = np.asarray(tau, dtype=float)
+        n, p = self.knots.shape
+        # (M, n): the phase, that of the last knot at or before tau (0 before the start)
+        k = np.stack([np.searchsorted(kn[1:], tau, side="right") for kn in self.knots], axis=1)
+        at = k + p * np.arange(n)
+        knot, x, v, a, j = (np.take(f, at) for f in self._flat)
+        d = np.where(k == p - 1, 0.0, tau[:, None] - knot)
+        return np.stack(
+            [
+                x + d * (v + d * (a / 2.0 + d * j / 6.0)),
+                v + d * (a + d * j / 2.0),
+                a + d * j,
+                j,
+            ]
+        )
 
     def state_at(self, tau: float) -> list[tuple[float, float, float, float]]:
         """:meth:`state` at one time, in floats: ``(x, v, a, j)`` per joint."""
