@@ -20,20 +20,34 @@ retarget 0.5 s ahead and the joint-limit / lock-margin check ``Follower`` makes
 on its frames (``GimbalKinematics.inverse`` of the new path at 1 kHz). Load
 average printed beside the figures.
 
-``--envelope`` adds the default gimbal's torque-speed envelope check (MuJoCo's
-inverse dynamics on the new motion's frames), as ``trajgen follow`` passes it.
+``--envelope`` adds the default gimbal's torque-speed envelope check
+(``trajgen.sim.check.envelope_check``: the numpy inverse dynamics of every frame of
+the new motion, MuJoCo's on the frames it cannot decide), as ``trajgen follow``
+passes it.
+
+``--realtime SECONDS`` also streams ``trajgen follow``'s ``Follower`` at 1 kHz on
+the monotonic clock, from a moving plan, twice: with a second thread feeding it an
+untimed target every 1/30 s (as the lines of a vision loop), and without (the peer,
+the same plan streamed unchanged); it prints each frame's lateness (how long after
+its deadline it was ready), the frames more than a period late, and the targets'
+change costs and longest steps (wall time, as ``trajgen follow`` reports them).
 
 Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1] [--envelope]
+     [--realtime 10]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import threading
 import time
 
 import numpy as np
 
+from trajgen.drivers.clock import sleep_until
+from trajgen.follower import Follower
 from trajgen.gimbal import GimbalKinematics, forward
 from trajgen.online import OnlineSpline
 from trajgen.path import sample_times
@@ -96,6 +110,58 @@ def run(period_s: float, n: int, seed: int, envelope=None) -> dict:
     }
 
 
+def paced(seconds: float, targets: bool, seed: int, envelope=None):
+    """``Follower.frames()`` at 1 kHz on the monotonic clock for ``seconds``, from a plan
+    through random keyframes every 0.6 s; with ``targets``, a second thread feeds an
+    untimed target (random pan and tilt) every 1/30 s. Returns each frame's lateness
+    (s) and the follower."""
+    rng = np.random.default_rng(seed)
+    spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
+    times = np.arange(0.6, seconds + 1.0, 0.6)
+    angles = np.column_stack([rng.uniform(-0.6, 0.6, (len(times), 2)), np.zeros(len(times))])
+    spline.extend(forward(angles), times, at=0.0)
+    follower = Follower(spline, RATE_HZ, limits=LIMITS, envelope=envelope)
+    stop = threading.Event()
+
+    def feeder():
+        while not stop.wait(1 / 30):
+            pan, tilt = np.degrees(rng.uniform(-0.6, 0.6, 2))
+            try:
+                follower.feed(json.dumps({"pan": pan, "tilt": tilt}))
+            except ValueError:  # the stream ended before its change was made
+                return
+
+    thread = threading.Thread(target=feeder, daemon=True)
+    if targets:
+        thread.start()
+    lateness = []
+    start = time.monotonic() + 0.01
+    for frame in follower.frames():
+        deadline = start + frame.t
+        sleep_until(deadline)
+        lateness.append(time.monotonic() - deadline)
+        if frame.t >= seconds:
+            break
+    stop.set()
+    if targets:
+        thread.join()
+    return np.array(lateness), follower
+
+
+def realtime(seconds: float, seed: int, envelope=None) -> None:
+    print(f"\nstreaming at 1 kHz in real time, {seconds:g} s per run")
+    for name, targets in (("peer: no targets", False), ("untimed targets at 30 Hz", True)):
+        late, follower = paced(seconds, targets, seed, envelope)
+        over = int((late > 1.0 / RATE_HZ).sum())
+        print(f"  {name}: {len(late)} frames, {over} more than 1 ms late")
+        print(f"    lateness                {ms(late)}")
+        if follower.change_costs_s:
+            n = len(follower.change_costs_s)
+            print(f"    change cost (wall)      {ms(np.array(follower.change_costs_s))}, n = {n}")
+            print(f"    longest step (wall)     {ms(np.array(follower.change_steps_s))}")
+        print(f"    load average {os.getloadavg()[0]:.2f} (1 min)")
+
+
 def ms(x) -> str:
     p50, p99, top = 1e3 * np.median(x), 1e3 * np.percentile(x, 99), 1e3 * x.max()
     return f"p50 {p50:6.2f}  p99 {p99:6.2f}  max {top:6.2f} ms"
@@ -109,6 +175,13 @@ def main() -> int:
         "--envelope",
         action="store_true",
         help="also check the default gimbal's torque-speed envelope (MuJoCo), as follow does",
+    )
+    parser.add_argument(
+        "--realtime",
+        type=float,
+        default=0.0,
+        metavar="SECONDS",
+        help="also stream at 1 kHz in real time for SECONDS, with targets and without",
     )
     args = parser.parse_args()
     envelope = None
@@ -133,6 +206,8 @@ def main() -> int:
             f"lead median {np.median(out['leads']):.3f} s"
         )
         print(f"  load average {os.getloadavg()[0]:.2f} (1 min)")
+    if args.realtime > 0:
+        realtime(args.realtime, args.seed, envelope)
     return 0
 
 
