@@ -74,6 +74,25 @@ def test_envelope_check_is_mujocos_verdict_on_every_sample():
     assert edge.any(axis=1).sum() >= 5
 
 
+def test_envelope_check_in_steps_is_the_same_verdict():
+    config = GimbalConfig()
+    within = envelope_check(config)
+    q, qd, qdd = states(np.random.default_rng(6), 200, 3, speed=5.0, acc=40.0)
+    steps, yields = within.steps(q, qd, qdd), 0
+    while True:
+        try:
+            next(steps)
+            yields += 1
+        except StopIteration as end:
+            verdict = end.value
+            break
+    np.testing.assert_array_equal(verdict, within(q, qd, qdd))
+    assert 0 < verdict.sum() < len(verdict)
+    # three bodies out along the chain and back, then MuJoCo on the undecided frames
+    # EXACT_CHUNK at a time (some of these are beyond the bounds' reach)
+    assert yields > 6
+
+
 def chain_friction(model):
     return ChainDynamics(model).friction
 
