@@ -29,7 +29,9 @@ passes it.
 the monotonic clock, from a moving plan, twice: with a second thread feeding it an
 untimed target every 1/30 s (as the lines of a vision loop), and without (the peer,
 the same plan streamed unchanged); it prints each frame's lateness (how long after
-its deadline it was ready), the frames more than a period late, and the targets'
+its deadline it was ready), the frames more than a period late, the streaming
+thread's CPU time per frame (``time.thread_time``: the frame and the changes' steps
+before it, what the host's other load does not inflate much), and the targets'
 change costs and longest steps (wall time, as ``trajgen follow`` reports them).
 
 Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1] [--envelope]
@@ -114,7 +116,8 @@ def paced(seconds: float, targets: bool, seed: int, envelope=None):
     """``Follower.frames()`` at 1 kHz on the monotonic clock for ``seconds``, from a plan
     through random keyframes every 0.6 s; with ``targets``, a second thread feeds an
     untimed target (random pan and tilt) every 1/30 s. Returns each frame's lateness
-    (s) and the follower."""
+    (s), the streaming thread's CPU time (s) for it (the frame and the changes' steps
+    before it) and the follower."""
     rng = np.random.default_rng(seed)
     spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
     times = np.arange(0.6, seconds + 1.0, 0.6)
@@ -134,27 +137,33 @@ def paced(seconds: float, targets: bool, seed: int, envelope=None):
     thread = threading.Thread(target=feeder, daemon=True)
     if targets:
         thread.start()
-    lateness = []
+    lateness, cpu = [], []
+    frames = follower.frames()
     start = time.monotonic() + 0.01
-    for frame in follower.frames():
+    while True:
+        c0 = time.thread_time()
+        frame = next(frames)  # the frame, and the steps of changes before it
+        cpu.append(time.thread_time() - c0)
         deadline = start + frame.t
         sleep_until(deadline)
         lateness.append(time.monotonic() - deadline)
         if frame.t >= seconds:
             break
+    frames.close()
     stop.set()
     if targets:
         thread.join()
-    return np.array(lateness), follower
+    return np.array(lateness), np.array(cpu), follower
 
 
 def realtime(seconds: float, seed: int, envelope=None) -> None:
     print(f"\nstreaming at 1 kHz in real time, {seconds:g} s per run")
     for name, targets in (("peer: no targets", False), ("untimed targets at 30 Hz", True)):
-        late, follower = paced(seconds, targets, seed, envelope)
+        late, cpu, follower = paced(seconds, targets, seed, envelope)
         over = int((late > 1.0 / RATE_HZ).sum())
         print(f"  {name}: {len(late)} frames, {over} more than 1 ms late")
         print(f"    lateness                {ms(late)}")
+        print(f"    thread CPU per frame    {ms(cpu)}")
         if follower.change_costs_s:
             n = len(follower.change_costs_s)
             print(f"    change cost (wall)      {ms(np.array(follower.change_costs_s))}, n = {n}")
