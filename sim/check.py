@@ -34,7 +34,7 @@ from trajgen.keyframes import DEFAULT_RATE_HZ
 from trajgen.lead import DEFAULT_LEAD, check_lead
 from trajgen.lift import sent_goals
 from trajgen.path import run_steps
-from trajgen.sim.errors import TorqueLimitExceeded
+from trajgen.sim.errors import SimulationError, TorqueLimitExceeded
 from trajgen.sim.model import GimbalConfig
 from trajgen.sim.run import SimRecord, check_trajectory, simulate, simulation_model
 from trajgen.sim.servos import servo_by_name
@@ -306,7 +306,9 @@ class EnvelopeCheck:
     torque without Coulomb friction of every sample in numpy
     (:class:`~trajgen.sim.dynamics.ChainDynamics`), which with the friction's bound
     and a rounding bound added passes most samples (``mj_inverse`` would pass them
-    too); ``mj_inverse`` itself on the others, ``EXACT_CHUNK`` samples a step.
+    too); ``mj_inverse`` itself on the others, ``EXACT_CHUNK`` samples a step. A
+    model that ``ChainDynamics`` does not take (a user's, with joint limits, say)
+    has every sample checked by ``mj_inverse``.
 
     Parameters
     ----------
@@ -322,7 +324,10 @@ class EnvelopeCheck:
         from trajgen.sim.dynamics import ChainDynamics
 
         self.model = simulation_model(config) if model is None else model
-        self.chain = ChainDynamics(self.model)
+        try:
+            self.chain = ChainDynamics(self.model)
+        except SimulationError:
+            self.chain = None  # mj_inverse decides every sample
         self.servos, self.margin = config.servos, config.torque_margin
 
     def __call__(self, q, qd, qdd) -> np.ndarray:
@@ -335,13 +340,15 @@ class EnvelopeCheck:
         from trajgen.sim.dynamics import inverse_dynamics
 
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
-        chain = self.chain
-        tau = yield from chain.smooth_steps(q, qd, qdd)
         usable = np.stack(
             [self.margin * s.tau_max(qd[:, j]) for j, s in enumerate(self.servos)], axis=1
         )
-        slack = chain.ROUNDING_NM * (1.0 + (qd * qd).sum(axis=1) + np.abs(qdd).sum(axis=1))
-        ok = (np.abs(tau) + chain.friction + slack[:, None] <= usable).all(axis=1)
+        ok = np.zeros(len(q), dtype=bool)
+        chain = self.chain
+        if chain is not None:
+            tau = yield from chain.smooth_steps(q, qd, qdd)
+            slack = chain.ROUNDING_NM * (1.0 + (qd * qd).sum(axis=1) + np.abs(qdd).sum(axis=1))
+            ok = (np.abs(tau) + chain.friction + slack[:, None] <= usable).all(axis=1)
         doubt = np.flatnonzero(~ok)
         for i in range(0, len(doubt), self.EXACT_CHUNK):
             yield

@@ -228,7 +228,7 @@ class ChainDynamics:
         parts = []
         for body in self._bodies:
             w, al, acc = state[body.parent]
-            turn = None
+            turn = gyro = None
             if body.dof >= 0:
                 angle = qt[body.dof] - body.qpos0
                 turn = (body, np.cos(angle), np.sin(angle))
@@ -245,7 +245,6 @@ class ChainDynamics:
                 else:  # alpha + axis qdd + w x (axis qd)
                     al = al + body.axis[:, None] * qddt[body.dof] - (body.axis_x @ w) * rate
                     w = w + spin
-                    gyro = None
             if gyro is None:
                 gyro = _cross(w, body.inertia @ w)
             state[body.index] = (w, al, acc)

@@ -40,6 +40,42 @@ def test_smooth_torque_is_mujocos_without_coulomb(kwargs):
     np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-12)
 
 
+TREE = """
+<mujoco>
+  <option gravity="0.3 -0.2 -9.81"/>
+  <worldbody>
+    <body name="a" pos="0.1 0 0.2" quat="0.9 0.1 0.3 0.2">
+      <joint type="hinge" axis="0.3 0.4 0.87" pos="0.02 -0.01 0.03" damping="0.02"
+             armature="0.01" frictionloss="0.05" stiffness="0.4" springref="0.2"/>
+      <geom type="box" size="0.05 0.02 0.01" pos="0.03 0.01 0" mass="0.3"/>
+      <body name="welded" pos="0.05 0.04 -0.02" quat="0.7 0 0.7 0">
+        <geom type="capsule" size="0.01 0.03" mass="0.1"/>
+        <body name="b" pos="0 0.06 0" quat="0.5 0.5 -0.5 0.5">
+          <joint type="hinge" axis="1 0 0" pos="0.01 0 0" ref="0.3"/>
+          <geom type="box" size="0.02 0.04 0.01" pos="0.02 0.02 0.01" mass="0.2"/>
+        </body>
+      </body>
+      <body name="c" pos="-0.04 0 0.05">
+        <joint type="hinge" axis="0 1 0"/>
+        <geom type="sphere" size="0.02" pos="0 0 0.03" mass="0.15"/>
+      </body>
+    </body>
+  </worldbody>
+</mujoco>
+"""
+
+
+def test_smooth_torque_on_a_tree_with_offsets_welds_and_springs():
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(TREE)
+    q, qd, qdd = states(np.random.default_rng(7), 300, model.nv)
+    ours = ChainDynamics(model).smooth(q, qd, qdd)
+    theirs = inverse_dynamics(model, q, qd, qdd, coulomb=False)
+    assert np.abs(theirs).max() > 0.1
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-12)
+
+
 @pytest.mark.parametrize("kwargs", CONFIGS[:3])
 def test_coulomb_friction_is_bounded_by_frictionloss(kwargs):
     model = simulation_model(GimbalConfig(**kwargs))
@@ -91,6 +127,31 @@ def test_envelope_check_in_steps_is_the_same_verdict():
     # three bodies out along the chain and back, then MuJoCo on the undecided frames
     # EXACT_CHUNK at a time (some of these are beyond the bounds' reach)
     assert yields > 6
+
+
+def test_envelope_check_of_a_model_chain_dynamics_does_not_take_is_mujocos():
+    import mujoco
+
+    from trajgen.sim.model import gimbal_mjcf
+
+    config = GimbalConfig()
+    spec = mujoco.MjSpec.from_string(gimbal_mjcf(config))
+    for joint in spec.joints:
+        joint.limited = mujoco.mjtLimited.mjLIMITED_TRUE
+        joint.range = [-3.0, 3.0]
+    model = spec.compile()
+    with pytest.raises(SimulationError, match="joint limits"):
+        ChainDynamics(model)
+    within = envelope_check(config, model=model)
+    q, qd, qdd = states(np.random.default_rng(8), 200, 3, speed=5.0, acc=40.0)
+    q = np.clip(q, -2.5, 2.5)
+    tau = inverse_dynamics(model, q, qd, qdd)
+    usable = np.stack(
+        [config.torque_margin * s.tau_max(qd[:, j]) for j, s in enumerate(config.servos)], axis=1
+    )
+    direct = (np.abs(tau) <= usable).all(axis=1)
+    assert 0 < direct.sum() < len(direct)
+    np.testing.assert_array_equal(within(q, qd, qdd), direct)
 
 
 def chain_friction(model):
