@@ -70,19 +70,7 @@ def _inverse(model, q, qd, qdd, coulomb: tuple[bool, ...]) -> list[np.ndarray]:
     """``mj_inverse`` at every sample, once per entry of ``coulomb`` (:func:`inverse_dynamics`)."""
     import mujoco
 
-    arrays = []
-    for name, value in (("q", q), ("qd", qd), ("qdd", qdd)):
-        a = np.asarray(value, dtype=float)
-        if a.ndim != 2 or a.shape[1] != model.nv:
-            raise BadArgument(f"Expected `{name}` to have shape (N, {model.nv}), got {a.shape}.")
-        if not np.all(np.isfinite(a)):
-            raise BadArgument(f"Expected `{name}` to be finite, got a NaN or inf.")
-        arrays.append(a)
-    q, qd, qdd = arrays
-    if not q.shape == qd.shape == qdd.shape:
-        raise BadArgument(
-            f"Expected `q`, `qd`, `qdd` of one shape, got {q.shape}, {qd.shape}, {qdd.shape}."
-        )
+    q, qd, qdd = _states(model.nv, q, qd, qdd)
     models = [model if with_coulomb else _without_coulomb(model) for with_coulomb in coulomb]
     taus = [np.empty_like(q) for _ in models]
     runs = list(zip(models, taus, strict=True))
@@ -103,6 +91,22 @@ def _inverse(model, q, qd, qdd, coulomb: tuple[bool, ...]) -> list[np.ndarray]:
                 )
             tau[i] = qfrc
     return taus
+
+
+def _states(nv: int, q, qd, qdd) -> list[np.ndarray]:
+    """``q, qd, qdd`` as float arrays (N, nv), checked (:func:`inverse_dynamics`)."""
+    arrays = []
+    for name, value in (("q", q), ("qd", qd), ("qdd", qdd)):
+        a = np.asarray(value, dtype=float)
+        if a.ndim != 2 or a.shape[1] != nv:
+            raise BadArgument(f"Expected `{name}` to have shape (N, {nv}), got {a.shape}.")
+        if not np.all(np.isfinite(a)):
+            raise BadArgument(f"Expected `{name}` to be finite, got a NaN or inf.")
+        arrays.append(a)
+    if not arrays[0].shape == arrays[1].shape == arrays[2].shape:
+        shapes = ", ".join(str(a.shape) for a in arrays)
+        raise BadArgument(f"Expected `q`, `qd`, `qdd` of one shape, got {shapes}.")
+    return arrays
 
 
 def _without_coulomb(model):
@@ -219,8 +223,14 @@ class ChainDynamics:
     def smooth_steps(self, q, qd, qdd):
         """:meth:`smooth` as a generator of steps (a body each, out along the chain and
         back), for a caller that runs the work between frames of a stream; its value
-        is the torques."""
-        q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        is the torques.
+
+        Raises
+        ------
+        ValueError
+            As :func:`inverse_dynamics`.
+        """
+        q, qd, qdd = _states(self.nv, q, qd, qdd)
         qt, qdt, qddt = q.T, qd.T, qdd.T  # (nv, N): each body's vectors are (3, N)
         # per body: angular velocity, acceleration, acceleration of its reference point,
         # in its own frame (w and alpha None: zero, the world's)

@@ -154,6 +154,17 @@ def test_envelope_check_of_a_model_chain_dynamics_does_not_take_is_mujocos():
     np.testing.assert_array_equal(within(q, qd, qdd), direct)
 
 
+def test_chain_dynamics_checks_its_arguments_as_mj_inverse_does():
+    chain = ChainDynamics(simulation_model(GimbalConfig()))
+    ok = np.zeros((4, 3))
+    with pytest.raises(ValueError, match=r"`qd` to have shape \(N, 3\)"):
+        chain.smooth(ok, np.zeros((4, 2)), ok)
+    with pytest.raises(ValueError, match="`qdd` to be finite"):
+        chain.smooth(ok, ok, np.full((4, 3), np.nan))
+    with pytest.raises(ValueError, match="of one shape"):
+        chain.smooth(ok, ok, np.zeros((5, 3)))
+
+
 def chain_friction(model):
     return ChainDynamics(model).friction
 

@@ -232,11 +232,11 @@ class Tracker:
 
     Notes
     -----
-    Cost: the joints' state at ``at``, a root search on every joint's profile at once
-    (a handful of iterations of a few dozen numpy calls), one check of its frames
+    Cost: the joints' state at ``at``, a grid of the profile's candidates for every
+    joint at once, each joint's roots and choice in floats, one check of its frames
     (lock margin, joint limits, envelope); ``bench/tracker_cost.py`` measures it.
-    :meth:`set_target_steps` yields between them and between the root search's
-    iterations, for a caller that runs the work in steps between frames.
+    :meth:`set_target_steps` yields between them (a joint a step; the envelope's own
+    steps, if it has them), for a caller that runs the work in steps between frames.
     """
 
     def __init__(

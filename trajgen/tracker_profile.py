@@ -196,9 +196,13 @@ def _joint_fastest(v, a, dist, vmax, acc, jerk, grid, short, j0):
     """One joint's fastest motion (durations, jerks: 8 floats each) from speed ``v`` and
     acceleration ``a`` over ``dist`` (rad), given each family's grid (3 lists of
     ``PEAK_GRID``), the distance short of ``dist`` there and its first jerk (3)."""
+    if dist == 0.0 and v == 0.0 and a == 0.0:  # at rest on its goal already
+        return [0.0] * PHASES, [0.0] * PHASES
     found = []  # (hold, first jerk, vp, cruise) of each candidate
     for fam in range(3):
         g, fv, jf = grid[fam], short[fam], j0[fam]
+        if fam and g[0] == g[-1]:  # no time to hold or turn: the first family's stop
+            continue
 
         def shortfall(p, jf=jf, fam=fam):
             hold, vp = (0.0, p) if fam == 0 else (p, 0.0)
