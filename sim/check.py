@@ -340,13 +340,15 @@ class EnvelopeCheck:
         from trajgen.sim.dynamics import inverse_dynamics
 
         q, qd, qdd = (np.asarray(x, dtype=float) for x in (q, qd, qdd))
+        chain = self.chain
+        if chain is not None:
+            tau = yield from chain.smooth_steps(q, qd, qdd)
+            yield
         usable = np.stack(
             [self.margin * s.tau_max(qd[:, j]) for j, s in enumerate(self.servos)], axis=1
         )
         ok = np.zeros(len(q), dtype=bool)
-        chain = self.chain
         if chain is not None:
-            tau = yield from chain.smooth_steps(q, qd, qdd)
             slack = chain.ROUNDING_NM * (1.0 + (qd * qd).sum(axis=1) + np.abs(qdd).sum(axis=1))
             ok = (np.abs(tau) + chain.friction + slack[:, None] <= usable).all(axis=1)
         doubt = np.flatnonzero(~ok)

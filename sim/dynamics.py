@@ -221,7 +221,7 @@ class ChainDynamics:
         return run_steps(self.smooth_steps(q, qd, qdd))
 
     def smooth_steps(self, q, qd, qdd):
-        """:meth:`smooth` as a generator of steps (a body each, out along the chain and
+        """:meth:`smooth` as a generator of steps (two a body out along the chain, one
         back), for a caller that runs the work between frames of a stream; its value
         is the torques.
 
@@ -247,6 +247,7 @@ class ChainDynamics:
             else:  # the parent's motion at this body's reference point, in its frame
                 acc = acc - body.r_x @ al + _centripetal(w, body.r)
                 w, al, acc = _into(body, turn, np.stack([w, al, acc], axis=1)).transpose(1, 0, 2)
+            yield
             if body.dof >= 0:
                 spin, rate = body.axis[:, None] * qdt[body.dof], qdt[body.dof]
                 if w is None:
@@ -264,7 +265,9 @@ class ChainDynamics:
             yield
         tau = np.empty((self.nv, len(q)))
         wrench: dict = {}
-        for body, turn, force, moment in reversed(parts):
+        for i, (body, turn, force, moment) in enumerate(reversed(parts)):
+            if i:
+                yield
             for f, m in wrench.pop(body.index, ()):
                 force, moment = force + f, moment + m
             if body.dof >= 0:
@@ -273,7 +276,6 @@ class ChainDynamics:
                 1, 0, 2
             )
             wrench.setdefault(body.parent, []).append((force, moment + body.r_x @ force))
-            yield
         return (
             tau.T + self._armature * qdd + self._damping * qd + self._stiffness * (q - self._spring)
         )

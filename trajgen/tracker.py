@@ -404,12 +404,12 @@ class Tracker:
             if state is None:
                 return "orientation"
             q_a, now, qd, qdd = state
+            yield
             if kin.sequence.lock_distance(now) <= kin.lock_margin_rad:
                 continue  # no joint rates at the lock; the old path leaves it
             for scale in ENVELOPE_SCALES:
                 # a hair inside, so that rounding stays within the limits themselves
                 scaled = limits * np.array([[scale], [scale], [1.0]]) * (1.0 - 1e-9)
-                yield
                 phases = yield from fastest_steps(now, qd, qdd, goal, scaled)
                 yield
                 profile = JointProfile(now, qd, qdd, *phases, goal)
