@@ -39,11 +39,11 @@ from .tracker import Tracker
 #: steps need it.
 CHANGE_MARGIN_S = 0.05
 
-#: Frames an untimed target's change is given before its ``at``: the tracker's search
-#: takes about 20 steps (bench/tracker_cost.py: the target, the motion in progress, the
-#: candidates' grid, a joint each, the profile, its frames, the envelope's inverse
-#: dynamics a body a step, the change), one a frame or more (``STEP_SHARE``); doubled on
-#: each new attempt.
+#: Frames an untimed target's change is given before its ``at`` (at least
+#: ``margin_s``): the tracker's search takes 16-26 steps (bench/tracker_cost.py: the
+#: target, the motion in progress, the candidates' grid, a joint each, the profile, its
+#: frames, the envelope's inverse dynamics a body at a time, the change), one a frame
+#: or more (``STEP_SHARE``); doubled on each new attempt.
 TARGET_STEPS = 20
 
 #: Share of a frame period the streaming thread spends on changes' steps between two
