@@ -26,13 +26,14 @@ the new motion, MuJoCo's on the frames it cannot decide), as ``trajgen follow``
 passes it.
 
 ``--realtime SECONDS`` also streams ``trajgen follow``'s ``Follower`` at 1 kHz on
-the monotonic clock, from a moving plan, twice: with a second thread feeding it an
-untimed target every 1/30 s (as the lines of a vision loop), and without (the peer,
-the same plan streamed unchanged); it prints each frame's lateness (how long after
-its deadline it was ready), the frames more than a period late, the streaming
-thread's CPU time per frame (``time.thread_time``: the frame and the changes' steps
-before it, what the host's other load does not inflate much), and the targets'
-change costs and longest steps (wall time, as ``trajgen follow`` reports them).
+the monotonic clock, from a moving plan: with a second thread feeding it an untimed
+target every 1/30 s (as the lines of a vision loop), and without (the peer, the same
+plan streamed unchanged), ``ROUNDS`` runs of each alternated over SECONDS. It prints
+each frame's lateness (how long after its deadline it was ready), the frames more
+than a period late, the streaming thread's CPU time per frame (``time.thread_time``:
+the frame and the changes' steps before it, which the host's other load inflates
+much less), and the targets' change costs and longest steps (wall time, as
+``trajgen follow`` reports them).
 
 Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1] [--envelope]
      [--realtime 10]
@@ -156,19 +157,31 @@ def paced(seconds: float, targets: bool, seed: int, envelope=None):
     return np.array(lateness), np.array(cpu), follower
 
 
+#: Runs of each kind in ``--realtime``, alternated (peer, targets, peer, ...), so that
+#: both see the same spells of the host's load.
+ROUNDS = 3
+
+
 def realtime(seconds: float, seed: int, envelope=None) -> None:
-    print(f"\nstreaming at 1 kHz in real time, {seconds:g} s per run")
+    each = seconds / ROUNDS
+    print(f"\nstreaming at 1 kHz in real time, {ROUNDS} x {each:.3g} s per kind, alternated")
+    runs = {False: [], True: []}
+    for r in range(ROUNDS):
+        for targets in (False, True):
+            runs[targets].append(paced(each, targets, seed + r, envelope))
     for name, targets in (("peer: no targets", False), ("untimed targets at 30 Hz", True)):
-        late, cpu, follower = paced(seconds, targets, seed, envelope)
+        late = np.concatenate([x[0] for x in runs[targets]])
+        cpu = np.concatenate([x[1] for x in runs[targets]])
+        costs = [c for x in runs[targets] for c in x[2].change_costs_s]
+        steps = [s for x in runs[targets] for s in x[2].change_steps_s]
         over = int((late > 1.0 / RATE_HZ).sum())
         print(f"  {name}: {len(late)} frames, {over} more than 1 ms late")
         print(f"    lateness                {ms(late)}")
         print(f"    thread CPU per frame    {ms(cpu)}")
-        if follower.change_costs_s:
-            n = len(follower.change_costs_s)
-            print(f"    change cost (wall)      {ms(np.array(follower.change_costs_s))}, n = {n}")
-            print(f"    longest step (wall)     {ms(np.array(follower.change_steps_s))}")
-        print(f"    load average {os.getloadavg()[0]:.2f} (1 min)")
+        if costs:
+            print(f"    change cost (wall)      {ms(np.array(costs))}, n = {len(costs)}")
+            print(f"    longest step (wall)     {ms(np.array(steps))}")
+    print(f"  load average {os.getloadavg()[0]:.2f} (1 min)")
 
 
 def ms(x) -> str:
