@@ -27,8 +27,9 @@ passes it.
 
 ``--realtime SECONDS`` also streams ``trajgen follow``'s ``Follower`` at 1 kHz on
 the monotonic clock, from a moving plan: with a second thread feeding it an untimed
-target every 1/30 s (as the lines of a vision loop), and without (the peer, the same
-plan streamed unchanged), ``ROUNDS`` runs of each alternated over SECONDS. It prints
+target every 1/30 s (as the lines of a vision loop); with that thread feeding lines
+within the dead band (the reading thread's own cost); and without (the peer, the same
+plan streamed unchanged); ``ROUNDS`` runs of each alternated over SECONDS. It prints
 each frame's lateness (how long after its deadline it was ready), the frames more
 than a period late, the streaming thread's CPU time per frame (``time.thread_time``:
 the frame and the changes' steps before it, which the host's other load inflates
@@ -42,6 +43,7 @@ Run: .venv/bin/python bench/tracker_cost.py [--targets 150] [--seed 1] [--envelo
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import threading
@@ -113,12 +115,21 @@ def run(period_s: float, n: int, seed: int, envelope=None) -> dict:
     }
 
 
-def paced(seconds: float, targets: bool, seed: int, envelope=None):
+#: The runs of ``--realtime``: what the second thread feeds the stream every 1/30 s.
+KINDS = {
+    "peer: no lines (no second thread)": None,
+    "the same target, within the dead band": "still",
+    "untimed targets at 30 Hz": "targets",
+}
+
+
+def paced(seconds: float, kind, seed: int, envelope=None):
     """``Follower.frames()`` at 1 kHz on the monotonic clock for ``seconds``, from a plan
-    through random keyframes every 0.6 s; with ``targets``, a second thread feeds an
-    untimed target (random pan and tilt) every 1/30 s. Returns each frame's lateness
-    (s), the streaming thread's CPU time (s) for it (the frame and the changes' steps
-    before it) and the follower."""
+    through random keyframes every 0.6 s; a second thread feeds an untimed line every
+    1/30 s (``kind`` ``"targets"``: random pan and tilt; ``"still"``: the plan's end,
+    within the dead band, so that only the lines' parsing and a dead-band check remain;
+    None: no thread). Returns each frame's lateness (s), the streaming thread's CPU
+    time (s) for it (the frame and the changes' steps before it) and the follower."""
     rng = np.random.default_rng(seed)
     spline = OnlineSpline(forward([0, 0, 0]), 0.0, k=2)
     times = np.arange(0.6, seconds + 1.0, 0.6)
@@ -129,14 +140,16 @@ def paced(seconds: float, targets: bool, seed: int, envelope=None):
 
     def feeder():
         while not stop.wait(1 / 30):
-            pan, tilt = np.degrees(rng.uniform(-0.6, 0.6, 2))
+            pan, tilt = np.degrees(
+                rng.uniform(-0.6, 0.6, 2) if kind == "targets" else angles[-1, :2]
+            )
             try:
                 follower.feed(json.dumps({"pan": pan, "tilt": tilt}))
             except ValueError:  # the stream ended before its change was made
                 return
 
     thread = threading.Thread(target=feeder, daemon=True)
-    if targets:
+    if kind is not None:
         thread.start()
     lateness, cpu = [], []
     frames = follower.frames()
@@ -152,28 +165,31 @@ def paced(seconds: float, targets: bool, seed: int, envelope=None):
             break
     frames.close()
     stop.set()
-    if targets:
+    if kind is not None:
         thread.join()
     return np.array(lateness), np.array(cpu), follower
 
 
-#: Runs of each kind in ``--realtime``, alternated (peer, targets, peer, ...), so that
-#: both see the same spells of the host's load.
+#: Runs of each kind in ``--realtime``, alternated, so that all see the same spells of
+#: the host's load.
 ROUNDS = 3
 
 
 def realtime(seconds: float, seed: int, envelope=None) -> None:
     each = seconds / ROUNDS
     print(f"\nstreaming at 1 kHz in real time, {ROUNDS} x {each:.3g} s per kind, alternated")
-    runs = {False: [], True: []}
+    runs = {name: [] for name in KINDS}
     for r in range(ROUNDS):
-        for targets in (False, True):
-            runs[targets].append(paced(each, targets, seed + r, envelope))
-    for name, targets in (("peer: no targets", False), ("untimed targets at 30 Hz", True)):
-        late = np.concatenate([x[0] for x in runs[targets]])
-        cpu = np.concatenate([x[1] for x in runs[targets]])
-        costs = [c for x in runs[targets] for c in x[2].change_costs_s]
-        steps = [s for x in runs[targets] for s in x[2].change_steps_s]
+        for name, kind in KINDS.items():
+            late, cpu, follower = paced(each, kind, seed + r, envelope)
+            runs[name].append((late, cpu, follower.change_costs_s, follower.change_steps_s))
+            del follower  # its frames: no run's garbage collections scan an earlier run's
+            gc.collect()
+    for name, parts in runs.items():
+        late = np.concatenate([x[0] for x in parts])
+        cpu = np.concatenate([x[1] for x in parts])
+        costs = [c for x in parts for c in x[2]]
+        steps = [s for x in parts for s in x[3]]
         over = int((late > 1.0 / RATE_HZ).sum())
         print(f"  {name}: {len(late)} frames, {over} more than 1 ms late")
         print(f"    lateness                {ms(late)}")
