@@ -9,7 +9,9 @@ per-joint limits 3 rad/s, 20 rad/s^2, 200 rad/s^3 and the torque-speed envelope
 of the default gimbal's servos, ``trajgen.sim.check.envelope_check``) while its
 1 kHz stream runs on the simulated clock: each line is handed over when the
 stream reaches its time, and the change is built in steps between frames, as
-``trajgen follow`` does.
+``trajgen follow`` does. After each frame the stream gives up the interpreter
+(``time.sleep(0)``), as a paced stream does while it waits for its next deadline,
+so that the thread that parses the lines keeps up with them.
 
 Printed: frames beyond the speed, acceleration, jerk (difference of the
 frames' exact accelerations) or envelope limits, counted on every frame
@@ -135,6 +137,10 @@ def run(seconds: float, seed: int, with_lines: bool, envelope):
         # every line handed over and its change made: the plan is complete
         if not spline.closed and i == len(t_lines) and not feeder.is_alive():
             spline.close()
+        # The interpreter to the lines' thread, as a paced stream gives it while it waits
+        # for the next frame's deadline: on a stream that never waits, that thread would
+        # get it only at the switch interval, and the lines would queue up behind.
+        time.sleep(0)
     cpu = {
         "process": time.process_time() - c0,
         "frames": time.thread_time() - t0 - steps_cpu[0],
