@@ -290,13 +290,14 @@ def show_realtime(runs: dict) -> None:
         "behind the plan at the end": lambda r: ms(r["stream"], "delay_s"),
         "read-back every": lambda r: f"{r['stream'].get('read_every', 'n/a')} frames",
         "lines accepted": lambda r: str(r["follow"].get("accepted", 0)),
-        "longest change step": lambda r: ms(r["follow"].get("change_step_s") or {}, "max"),
+        "longest step per change p50": lambda r: ms(r["follow"].get("change_step_s") or {}, "p50"),
+        "longest step per change max": lambda r: ms(r["follow"].get("change_step_s") or {}, "max"),
         "load (start, end)": lambda r: f"{r['load'][0]:.2f}, {r['load'][1]:.2f}",
     }
     names = list(runs)
-    print(f"  {'':28}" + "".join(f"{n:>22}" for n in names))
+    print(f"  {'':30}" + "".join(f"{n:>20}" for n in names))
     for label, cell in rows.items():
-        print(f"  {label:28}" + "".join(f"{cell(runs[n]):>22}" for n in names))
+        print(f"  {label:30}" + "".join(f"{cell(runs[n]):>20}" for n in names))
     for n in names:
         for what in ("why", "bus"):
             if runs[n][what]:
