@@ -243,7 +243,11 @@ def realtime(seconds: float, seed: int, rate_hz: float, lead: str, with_lines: b
             proc.wait()
         finally:
             bus.send_signal(signal.SIGINT)
-            bus_err = bus.communicate(timeout=30)[1]
+            try:
+                bus_err = bus.communicate(timeout=30)[1]
+            except subprocess.TimeoutExpired:
+                bus.kill()
+                bus_err = bus.communicate()[1]
         report = json.loads(out.read_text()) if out.exists() else {}
     why = report.get("stopped_by") or report.get("stream", {}).get("fault") or ""
     if proc.returncode and not why:
