@@ -30,12 +30,13 @@ run a ``trajgen virtual-bus`` of its own (real time, on a pty, a process of its
 own) and ``trajgen follow --port <pty> --baud 4000000 --rate RATE`` against it,
 with the face's lines written to its stdin at 30 Hz of wall time, then the same
 file without lines (the peer); each run's frames sent, rate achieved, period
-error, stalls and worst lateness side by side, with the load. ``--lead`` is
+error, stalls and worst lateness side by side, with the load; ``--repeat N``
+pairs, the run with lines first in every other pair. ``--lead`` is
 passed on (default ``advance``: the model lead's MuJoCo inverse dynamics per
 frame does not fit a 1 kHz period on this host, with or without lines).
 
 Run: .venv/bin/python bench/tracker_stream.py [--seconds 60] [--seed 3] [--realtime 1000]
-     [--lead advance]
+     [--lead advance] [--repeat 1]
 """
 
 from __future__ import annotations
@@ -327,6 +328,9 @@ def main() -> int:
     parser.add_argument(
         "--lead", default="advance", help="the --lead of those runs (default advance)"
     )
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="pairs of real-time runs, each first in turn"
+    )
     args = parser.parse_args()
     from trajgen.sim.check import envelope_check
     from trajgen.sim.model import GimbalConfig
@@ -375,10 +379,13 @@ def main() -> int:
             f"real time: trajgen follow --port <trajgen virtual-bus pty> --baud 4000000 "
             f"--rate {args.realtime:g} --lead {args.lead}, {args.seconds:g} s each:"
         )
-        runs = {}
-        for name, lines in (("with the lines", True), ("peer, no lines", False)):
-            runs[name] = realtime(args.seconds, args.seed, args.realtime, args.lead, lines)
-        show_realtime(runs)
+        for r in range(args.repeat):  # pairs, each run first in turn (the load drifts)
+            pair = (("with the lines", True), ("peer, no lines", False))[:: 1 if r % 2 == 0 else -1]
+            runs = {}
+            for name, lines in pair:
+                runs[name] = realtime(args.seconds, args.seed, args.realtime, args.lead, lines)
+            print(f" pair {r + 1} of {args.repeat}:")
+            show_realtime(runs)
     print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
     return 0
 
