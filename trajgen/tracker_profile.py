@@ -4,9 +4,10 @@ Part of :mod:`trajgen.tracker`. Each joint goes from its present angle, speed an
 acceleration to rest at its goal in the least time that keeps ``|speed| <= V``,
 ``|acceleration| <= A`` and ``|jerk| <= J`` (a double-S, or seven-phase, profile:
 jerk ``+-J`` or 0 in each phase), independently of the other joints;
-:class:`JointSplice` is the orientation path of the joints' motion, ``forward(x(t))``
-through the gimbal's axis sequence, played by :class:`~trajgen.online.OnlineSpline`
-as a splice (the same interface as :class:`~trajgen.online_splice.Splice`).
+:class:`~trajgen.joint_splice.JointSplice` is the orientation path of the joints'
+motion, ``forward(x(t))`` through the gimbal's axis sequence, played by
+:class:`~trajgen.online.OnlineSpline` as a splice (the same interface as
+:class:`~trajgen.online_splice.Splice`).
 
 The profile (:func:`fastest`): change the speed from ``(v0, a0)`` to a peak ``vp``
 with zero acceleration, cruise at ``vp``, change it from ``(vp, 0)`` to rest. Each
@@ -17,21 +18,17 @@ changes cover the distance to go with no cruise (a root, found by regula falsi).
 seven phases are piecewise cubic in time: angle, speed and acceleration are continuous
 (C2), the jerk is piecewise constant; the orientation path ``forward(x(t))`` is C2 in
 time wherever the joints' motion is, and its angular velocity, acceleration and jerk are
-exact (:func:`joint_frame`).
+exact (:func:`~trajgen.joint_splice.joint_frame`).
 """
 
 from __future__ import annotations
 
 import bisect
-import math
 
 import numpy as np
 
-from . import jet as J
-from . import quat as Q
-from .axes import _cross, matrix_entries
-from .path import OrientationPath, run_steps
-from .per_sample import hamilton
+from .joint_splice import JointSplice as JointSplice  # its home was here: imports kept
+from .path import run_steps
 
 #: Phases of a joint's profile: a hold of the acceleration, a speed change (3), a
 #: cruise, a speed change to rest (3).
@@ -341,133 +338,3 @@ class JointProfile:
         speed = _peak_speed(self.v, self.a, dt, self.j[:, :-1])
         jerk = np.where(dt > 0.0, np.abs(self.j[:, :-1]), 0.0).max(axis=1)
         return np.stack([speed, np.abs(self.a).max(axis=1), jerk])
-
-
-def joint_frame(indices, joints, sign: float = 1.0):
-    """Orientation and space-frame angular velocity, acceleration and jerk of the joint
-    motion ``joints`` through the axis sequence ``indices`` (0 = x, 1 = y, 2 = z).
-
-    ``q = R_1(x_1) R_2(x_2) ...``; joint ``i`` turns about ``e_i``, its axis carried by
-    the joints before it, so ``omega = sum v_i e_i`` with ``e_i' = w_i x e_i`` (``w_i``
-    the angular velocity of the joints before ``i``), and ``alpha``, ``jerk`` its
-    derivatives: ``alpha = sum a_i e_i + v_i e_i'``, ``jerk = sum j_i e_i + 2 a_i e_i' +
-    v_i e_i''``, ``e_i'' = alpha_i x e_i + w_i x e_i'``.
-
-    Parameters
-    ----------
-    indices : sequence of int
-        Axis of each joint, from the base out.
-    joints : sequence of (x, v, a, j)
-        Each joint's angle (rad), speed, acceleration and jerk: floats, or arrays (M,)
-        alike.
-    sign : float
-        +1 or -1: the quaternion's sign (the path's own, where it continues another).
-
-    Returns
-    -------
-    tuple
-        ``q`` (4 components), ``omega``, ``alpha``, ``jerk`` (3 components each).
-    """
-    zero = 0.0 * joints[0][0]
-    q = (1.0 + zero, zero, zero, zero)
-    w = al = je = (zero, zero, zero)
-    for axis, (x, v, a, j) in zip(indices, joints, strict=True):
-        r = matrix_entries(*q)
-        e = (r[0][axis], r[1][axis], r[2][axis])
-        de = _cross(w, e)
-        dde = _add(_cross(al, e), _cross(w, de))
-        w_new = _add(w, _scale(v, e))
-        al = _add(al, _scale(a, e), _scale(v, de))
-        je = _add(je, _scale(j, e), _scale(2.0 * a, de), _scale(v, dde))
-        w = w_new
-        c, s = _cos(x / 2.0), _sin(x / 2.0)
-        f = [zero, zero, zero]
-        f[axis] = s
-        q = hamilton(q, (c, *f))
-    return tuple(sign * c for c in q), w, al, je
-
-
-def _cos(x):
-    return math.cos(x) if isinstance(x, float) else np.cos(x)
-
-
-def _sin(x):
-    return math.sin(x) if isinstance(x, float) else np.sin(x)
-
-
-def _scale(c, v) -> tuple:
-    return (c * v[0], c * v[1], c * v[2])
-
-
-def _add(*vs) -> tuple:
-    return tuple(sum(parts) for parts in zip(*vs, strict=True))
-
-
-class JointSplice(OrientationPath):
-    """The orientation path of a :class:`JointProfile` from time ``s``: a segment an
-    :class:`~trajgen.online.OnlineSpline` plays as it plays a splice.
-
-    Parameters
-    ----------
-    s : float
-        Start time (s).
-    profile : JointProfile
-    indices : sequence of int
-        The gimbal's axis sequence (0 = x, 1 = y, 2 = z), from the base out.
-    near : ndarray, shape (4,)
-        The orientation the path continues (its quaternion's sign is taken).
-    """
-
-    def __init__(self, s: float, profile: JointProfile, indices, near):
-        self.s, self.profile, self.indices = float(s), profile, tuple(indices)
-        self.h = profile.duration
-        self.times = np.array([self.s, self.s + self.h])
-        q0 = self._orientation(profile.x[:, 0])
-        self.sign = 1.0 if q0 @ np.asarray(near, dtype=float) >= 0.0 else -1.0
-        self.q_a = self.sign * q0
-        self.q_end = self.sign * self._orientation(profile.goal)
-
-    def _orientation(self, angles) -> np.ndarray:
-        joints = [(float(x), 0.0, 0.0, 0.0) for x in angles]
-        return np.array(joint_frame(self.indices, joints)[0])
-
-    def _joints(self, t):
-        st = self.profile.state(np.asarray(t, dtype=float) - self.s)  # (4, M, n)
-        return [tuple(st[:, :, i]) for i in range(st.shape[2])]
-
-    def _space_rates(self, t, seg, max_order):
-        q, *rates = joint_frame(self.indices, self._joints(t), self.sign)
-        return np.stack(q, axis=1), [np.stack(r, axis=1) for r in rates[:max_order]]
-
-    def _jet(self, t, seg, order):
-        """The orientation as a jet: each joint's half-angle rotation ``exp`` of its
-        polynomial's Taylor series (exact within a phase), multiplied in order."""
-        st = self.profile.state(np.asarray(t, dtype=float) - self.s)
-        q = None
-        for i, axis in enumerate(self.indices):
-            c = np.zeros((order + 1, 3, st.shape[1]))
-            for m in range(min(order, 3) + 1):
-                c[m, axis] = st[m, :, i] / (2.0 * math.factorial(m))
-            e = J.qexp(J.Jet(c))
-            q = e if q is None else J.qmul(q, e)
-        return J.Jet(self.sign * q.c)
-
-    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``."""
-        jet = self._jet(np.array([t]), None, order)
-        q = jet.value[:, 0] / np.linalg.norm(jet.value[:, 0])
-        d = J.qmul(jet, Q.conj(q)).c[:, :, 0]
-        d[0] = (1.0, 0.0, 0.0, 0.0)
-        return q, d
-
-    def frame(self, t: float) -> tuple[tuple, tuple, tuple]:
-        """Orientation, angular velocity (rad/s) and acceleration (rad/s^2) at one time
-        ``t`` (s), in floats: the per-frame counterpart of :meth:`_space_rates`."""
-        q, w, al, _ = joint_frame(self.indices, self.profile.state_at(t - self.s), self.sign)
-        return q, w, al
-
-    def rates(self, t: float) -> tuple[np.ndarray, list[np.ndarray]]:
-        """``q`` (4,) and the space-frame angular velocity, acceleration and jerk (each
-        (3,)) at one time ``t`` (s)."""
-        q, *rates = joint_frame(self.indices, self.profile.state_at(t - self.s), self.sign)
-        return np.array(q), [np.array(r) for r in rates]
