@@ -22,6 +22,28 @@ RATE_HZ = 100.0
 OMX = (11, 12, 13, 14, 15, 16)  # an OMX-like arm: the wrist is 14 (flex), 15 (roll)
 
 
+@pytest.fixture
+def answered_here(monkeypatch):
+    """``answered_here(virtual)``: a ``ServoBus`` opened by name on the port of the
+    lock-step ``virtual`` (as the session and the command line open it) is answered in
+    this thread, as ``VirtualBus.connect`` makes it: the stream then runs on simulated
+    time, and no reply or deadline waits for another thread, whatever the host's load."""
+    from trajgen.drivers import bus as bus_module
+
+    real = bus_module.ServoBus
+
+    def answered(virtual):
+        def servo_bus(port, **kwargs):
+            if port == virtual.port:
+                kwargs.setdefault("responder", virtual)
+            return real(port, **kwargs)
+
+        monkeypatch.setattr(bus_module, "ServoBus", servo_bus)
+        return virtual
+
+    return answered
+
+
 def _path(kin: GimbalKinematics, seconds: float = 1.0) -> SmoothSpline:
     """Rest, a move of every joint, rest again."""
     a = np.zeros((3, kin.n_joints))
@@ -112,13 +134,14 @@ def _config(port, kin, ids, models="XL330-M288"):
         ("zxz", None, (4, 5, 6)),
     ],
 )
-def test_a_stream_of_any_axes_on_any_ids_sends_the_plan(tmp_path, axes, joints, ids):
+def test_a_stream_of_any_axes_on_any_ids_sends_the_plan(tmp_path, answered_here, axes, joints, ids):
     kin = GimbalKinematics(axes=axes, joints=joints)
     path = _path(kin)
     start = kin.inverse(path.quats[:1])[0]  # the first keyframe's angles
     plant = FirstOrderPlant(len(ids), initial_rad=start, time_constant_s=0.0)
     telemetry = tmp_path / "run.csv"
     with VirtualBus(plant, ids=ids, models="XL330-M288", lockstep_dt_s=1 / RATE_HZ) as virtual:
+        answered_here(virtual)
         session = Session(_config(virtual.port, kin, ids), telemetry=telemetry, max_delay_s=None)
         outcome = session.stream_path(path, RATE_HZ, kinematics=kin)
         goals = np.array(virtual.goal_log)
@@ -149,7 +172,7 @@ def test_bring_up_checks_each_servos_model_number_against_its_joints():
     )
 
 
-def test_a_wrist_streams_beside_an_arm_and_a_gripper_it_leaves_alone():
+def test_a_wrist_streams_beside_an_arm_and_a_gripper_it_leaves_alone(answered_here):
     """The OMX-like chain: the session drives the wrist (14, 15); the other servos of
     the chain, the gripper in Current-based Position (mode 5), are never written."""
     kin = GimbalKinematics(axes="yx", joints=("wrist_flex", "wrist_roll"))
@@ -163,6 +186,7 @@ def test_a_wrist_streams_beside_an_arm_and_a_gripper_it_leaves_alone():
         registers=registers,
         lockstep_dt_s=1 / RATE_HZ,
     ) as virtual:
+        answered_here(virtual)
         session = Session(_config(virtual.port, kin, (14, 15)), max_delay_s=None)
         outcome = session.stream_path(_path(kin), RATE_HZ, kinematics=kin)
         others = {i: virtual.servos[i] for i in OMX if i not in (14, 15)}
@@ -183,7 +207,7 @@ def test_a_session_that_cannot_open_leaves_every_servo_of_its_joints_untouched(t
     assert outcome.servo_states == {11: UNTOUCHED, 12: UNTOUCHED}
 
 
-def test_the_mcap_run_log_names_the_files_joints(tmp_path):
+def test_the_mcap_run_log_names_the_files_joints(tmp_path, answered_here):
     pytest.importorskip("mcap_ros2")
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -195,6 +219,7 @@ def test_the_mcap_run_log_names_the_files_joints(tmp_path):
     with VirtualBus(
         FirstOrderPlant(2), ids=(14, 15), models="XL330-M288", lockstep_dt_s=0.01
     ) as vb:
+        answered_here(vb)
         session = Session(_config(vb.port, kin, (14, 15)), telemetry=log, max_delay_s=None)
         assert session.stream_path(_path(kin), RATE_HZ, kinematics=kin).ok
     with open(log, "rb") as f:

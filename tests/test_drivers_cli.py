@@ -22,6 +22,28 @@ keyframes = pytest.importorskip("trajgen.keyframes")
 SHORT = [(0.0, 0, 0), (0.4, 10, 5), (0.8, 0, 0)]
 
 
+@pytest.fixture
+def answered_here(monkeypatch):
+    """``answered_here(virtual)``: a ``ServoBus`` opened by name on the port of the
+    lock-step ``virtual`` (as the session and the command line open it) is answered in
+    this thread, as ``VirtualBus.connect`` makes it: the stream then runs on simulated
+    time, and no reply or deadline waits for another thread, whatever the host's load."""
+    from trajgen.drivers import bus as bus_module
+
+    real = bus_module.ServoBus
+
+    def answered(virtual):
+        def servo_bus(port, **kwargs):
+            if port == virtual.port:
+                kwargs.setdefault("responder", virtual)
+            return real(port, **kwargs)
+
+        monkeypatch.setattr(bus_module, "ServoBus", servo_bus)
+        return virtual
+
+    return answered
+
+
 def _write(path, extra=""):
     lines = [extra, "[stream]", "rate_hz = 100", ""]
     for t, pan, tilt in SHORT:
@@ -134,8 +156,8 @@ def test_stream_virtual_from_a_pose_away_from_zero_and_across_180_deg(tmp_path, 
     assert result["torque"]["joints"]["pan"]["max_tracking_error_rad"] < 0.15
 
 
-def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
-    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+def test_stream_to_a_port_and_wrong_model(tmp_path, capsys, answered_here):
+    with answered_here(VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01)) as virtual:
         ok = _write(tmp_path / "ok.toml")
         assert _run(["stream", ok, "--port", virtual.port, "--torque-off"]) == 0
         assert "frames sent: 81/81" in capsys.readouterr().out
@@ -228,12 +250,12 @@ class _SignalAtFrame(FirstOrderPlant):
     ids=["SIGTERM", "SIGHUP", "SIGINT"],
 )
 def test_stop_signal_stops_safely_and_keeps_every_record(
-    tmp_path, capsys, signum, status, torque_off
+    tmp_path, capsys, answered_here, signum, status, torque_off
 ):
     path = _write(tmp_path / "k.toml")
     argv = ["stream", path, "--telemetry", tmp_path / "t.npz", "--json", tmp_path / "r.json"]
     argv += ["--torque-off"] if torque_off else []
-    with VirtualBus(_SignalAtFrame(150, signum), lockstep_dt_s=0.01) as virtual:
+    with answered_here(VirtualBus(_SignalAtFrame(150, signum), lockstep_dt_s=0.01)) as virtual:
         assert _run([*argv, "--port", virtual.port]) == status
         torque = [servo.torque_on for servo in virtual.servos.values()]
         watchdog = [servo.get(Register.BUS_WATCHDOG) for servo in virtual.servos.values()]
