@@ -180,6 +180,10 @@ class StreamStats:
     stalls : int
         Times the stream's clock was shifted because a frame was more than
         ``stall_s`` late (approach included).
+    reply_stalls : int
+        Stalls (of ``stalls``) of a frame that was on time when it woke and
+        was made late by waiting for the last frame's read reply (its goal
+        waits for the bus: the wire, the adapter, the servo), not by the host.
     stall_max_s : float
         Longest stall (s): the largest single shift.
     delay_s : float
@@ -187,6 +191,9 @@ class StreamStats:
         (each stall's lateness plus the Bus Watchdog poll that follows it).
     reads : int
         Telemetry group reads done.
+    reads_skipped : int
+        State reads due that a poll part took the place of, having found no
+        room beside them for ``read_every`` frames (``drivers.frame_reads``).
     position_glitches : int
         Present Position reads not trusted (a jump faster than the servo can move).
     warnings : list of str
@@ -224,9 +231,11 @@ class StreamStats:
     lateness_max_s: float = math.nan
     overruns: int = 0
     stalls: int = 0
+    reply_stalls: int = 0
     stall_max_s: float = 0.0
     delay_s: float = 0.0
     reads: int = 0
+    reads_skipped: int = 0
     position_glitches: int = 0
     warnings: list[str] = field(default_factory=list)
     comm_errors: int = 0
@@ -288,9 +297,12 @@ class StreamStats:
             f"max {ms(self.period_error_max_s)}; max lateness {ms(self.lateness_max_s)}; "
             f"overruns: {self.overruns}",
             f"stalls: {self.stalls} (longest {ms(self.stall_max_s)}; "
-            f"stream ended {ms(self.delay_s)} behind its plan)",
+            f"stream ended {ms(self.delay_s)} behind its plan)"
+            + (f"; {self.reply_stalls} waiting for a read's reply" if self.reply_stalls else ""),
             f"telemetry reads: {self.reads} ({self.read_method}, every {self.read_every} "
-            f"frames); comm errors: {self.comm_errors}",
+            f"frames"
+            + (f"; {self.reads_skipped} given to polls" if self.reads_skipped else "")
+            + f"); comm errors: {self.comm_errors}",
         ]
         if not math.isnan(self.probe_write_s):
             lines.append(
@@ -907,11 +919,13 @@ class Streamer:
                 t_first = t if t_first is None else t_first
                 planned = start + (t - t_first)
                 clock.sleep_until(planned + shift)
+                woke = clock.now() - (planned + shift)
                 if pending is not None:  # its reply is in, or the bus is still busy with it
                     pending, (waiting, read, row, asked) = None, pending
                     self._take(read, self.bus.collect(waiting), row, asked)
                 late = clock.now() - (planned + shift)
                 if late > stall_s:  # never catch up: shift the rest of the stream instead
+                    stats.reply_stalls += woke <= stall_s
                     self._stall(late)
                     stats.delay_s += clock.now() - planned - shift
                     shift = clock.now() - planned
@@ -944,6 +958,7 @@ class Streamer:
                 pending, (waiting, read, row, asked) = None, pending
                 self._take(read, self.bus.collect(waiting), row, asked)
         finally:
+            stats.reads_skipped += schedule.skipped
             self._write_rows(rows)
 
     def _take(self, read, block, row, asked: float) -> None:
