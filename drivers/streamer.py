@@ -82,6 +82,7 @@ from trajgen.drivers.health import PowerLimits, health_problem
 from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.probe import (
     BUDGET,
+    MAX_READ_EVERY,
     PROBE_FRAMES,
     max_rate_hz,
     probe_cycle,
@@ -632,18 +633,31 @@ class Streamer:
         cost = probe_cycle(read, write_s, self.probe_frames)
         stats.probe_write_s, stats.probe_read_s = cost.write_s, cost.read_s
         every = read_every_for(cost, period_s, self.telemetry_every)
+        n_late = cost.late(period_s)[0]
+        late = ""  # said where the reads too late for the next goal are what decided
+        by_median = read_every_for(cost.median_only(), period_s, self.telemetry_every)
+        if n_late and by_median is not None and (every is None or every > by_median):
+            late = (
+                f"; {n_late} of {cost.frames} probe reads took more than "
+                f"{1.5e3 * period_s - 1e3 * cost.write_s:.2f} ms, past the next goal's stall bound"
+            )
         if every is None:
+            most = (
+                f"even reading back every {MAX_READ_EVERY}. frame"
+                if late
+                else f"about {max_rate_hz(cost, self.telemetry_every):.0f} Hz at most, reading "
+                f"back every {self.telemetry_every}. frame"
+            )
             raise StreamLagging(
                 f"before the first goal: {cost.describe()}, and {stats.rate_hz:g} Hz leaves "
-                f"{1e3 * period_s:.2f} ms a frame: this host and bus cannot keep it (about "
-                f"{max_rate_hz(cost, self.telemetry_every):.0f} Hz at most, reading back every "
-                f"{self.telemetry_every}. frame); nothing was moved{self.bus.latency_advice()}"
+                f"{1e3 * period_s:.2f} ms a frame{late}: this host and bus cannot keep it "
+                f"({most}); nothing was moved{self.bus.latency_advice()}"
             )
         if every > self.telemetry_every:
             self._warn(
                 f"reading the servos back every {every} frames instead of every "
                 f"{self.telemetry_every}: {cost.describe()}, and {stats.rate_hz:g} Hz leaves "
-                f"{1e3 * period_s:.2f} ms a frame{self.bus.latency_advice()}"
+                f"{1e3 * period_s:.2f} ms a frame{late}{self.bus.latency_advice()}"
             )
             stats.read_every = every
 
