@@ -159,10 +159,11 @@ def test_a_stream_of_any_axes_on_any_ids_sends_the_plan(tmp_path, answered_here,
     assert not any(c.endswith("_roll") for c in header if axes == "zy")
 
 
-def test_bring_up_checks_each_servos_model_number_against_its_joints():
+def test_bring_up_checks_each_servos_model_number_against_its_joints(answered_here):
     kin = GimbalKinematics(axes="zy")
     models = ("XL330-M288", "XM430-W350")  # the tilt servo is not what the file says
     with VirtualBus(FirstOrderPlant(2), ids=(11, 12), models=models, lockstep_dt_s=0.01) as vb:
+        answered_here(vb)
         config = _config(vb.port, kin, (11, 12))
         outcome = Session(config, max_delay_s=None).stream_path(_path(kin), RATE_HZ, kinematics=kin)
         assert vb.frames_received == 0
