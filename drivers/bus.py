@@ -845,11 +845,14 @@ class ServoBus:
     def collect(self, pending: PendingRead) -> BlockRead:
         """The reply to ``request_block``'s request, checked; retried at once where it is not sound.
 
-        Waits for the reply until ``pending.deadline_s`` at most (what is
-        there already is read first, however late the caller comes). A reply
-        that is missing, late, corrupt, from another id or of another length
-        is never used: the try counts as failed, the bus is drained, and the
-        rest of the retry budget is spent on ``read_block`` tries.
+        Waits for the reply until ``pending.deadline_s`` at most. Bytes already
+        in when it is called are read first, however late the caller comes: no
+        packet went out since the request (see ``request_block``), so they can
+        only be its reply. A reply that is missing, later than the deadline,
+        corrupt, from another id or of another length is never used: the try
+        counts as failed, the bus is drained (a reply still on its way is
+        dropped), and the rest of the retry budget is spent on ``read_block``
+        tries.
 
         Raises
         ------
@@ -894,6 +897,25 @@ class ServoBus:
     def wire_s(self, n_bytes: int) -> float:
         """How long ``n_bytes`` take on the wire at ``baud`` (10 bits a byte), s."""
         return n_bytes * 10 / self.baud
+
+    def await_reply(self, pending: PendingRead, until_s: float) -> bool:
+        """Wait (the GIL and the core free) until ``pending``'s reply bytes are all in, or
+        until ``until_s`` (``time.monotonic``, s); returns whether they are in.
+
+        Nothing is read: ``collect`` reads and checks them. A stream waits here for its
+        next deadline, so that the reply is taken as soon as it is in, and the host's core
+        is free meanwhile for the kernel work that brings it (a pty's or a USB adapter's).
+        """
+        if pending.block is not None or self._pending is not pending:
+            return True
+        port = self._port
+        fd, wanted = port.ser.fileno(), pending.spec.reply_bytes
+        while port.ser.in_waiting < wanted:
+            left = until_s - time.monotonic()
+            if left <= 0:
+                return False
+            select.select([fd], [], [], left)
+        return True
 
     def _clear_pending(self) -> None:
         self._pending = None

@@ -182,9 +182,9 @@ class StreamStats:
         Times the stream's clock was shifted because a frame was more than
         ``stall_s`` late (approach included).
     reply_stalls : int
-        Stalls (of ``stalls``) of a frame that was on time when it woke and
-        was made late by waiting for the last frame's read reply (its goal
-        waits for the bus: the wire, the adapter, the servo), not by the host.
+        Stalls (of ``stalls``) of a frame whose wait for the last frame's read
+        reply ended later than a stall (its goal waits for the bus: the wire,
+        the adapter, the servo), rather than the host waking late.
     stall_max_s : float
         Longest stall (s): the largest single shift.
     delay_s : float
@@ -910,11 +910,12 @@ class Streamer:
     def _loop(self, frames, *, timed: bool) -> None:
         """Send ``frames``, ``(t, goal, plan, phase)`` each, one per period.
 
-        A frame: wait for its deadline; collect the reply of the last frame's
-        split-phase read (``_take``: checked before the next goal goes out);
-        shift the clock after a stall; send the goal; write the last frame's
-        telemetry row; then this frame's reads (``_frame_reads``), all but the
-        last at once, the last split-phase.
+        A frame: collect the reply of the last frame's split-phase read as soon
+        as it is in (``ServoBus.await_reply``, then ``_take``: checked before
+        the next goal goes out); wait for the frame's deadline; shift the clock
+        after a stall; send the goal; write the last frame's telemetry row;
+        then this frame's reads (``_frame_reads``), all but the last at once,
+        the last split-phase.
         """
         stats = self.stats
         ids = self.joints.ids
@@ -932,14 +933,18 @@ class Streamer:
             for k, (t, q, plan, phase) in enumerate(frames):
                 t_first = t if t_first is None else t_first
                 planned = start + (t - t_first)
-                clock.sleep_until(planned + shift)
-                woke = clock.now() - (planned + shift)
-                if pending is not None:  # its reply is in, or the bus is still busy with it
+                due = planned + shift
+                replied = -math.inf  # how late (s) the last read's reply was in, if one was due
+                if pending is not None:
                     pending, (waiting, read, row, asked) = None, pending
+                    if clock.real_time:  # taken as soon as it is in, the core free meanwhile
+                        self.bus.await_reply(waiting, due)
                     self._take(read, self.bus.collect(waiting), row, asked)
-                late = clock.now() - (planned + shift)
+                    replied = clock.now() - due
+                clock.sleep_until(due)
+                late = clock.now() - due
                 if late > stall_s:  # never catch up: shift the rest of the stream instead
-                    stats.reply_stalls += woke <= stall_s
+                    stats.reply_stalls += replied > stall_s
                     self._stall(late)
                     stats.delay_s += clock.now() - planned - shift
                     shift = clock.now() - planned

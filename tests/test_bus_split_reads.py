@@ -316,3 +316,16 @@ def test_with_room_every_read_due_goes_in_its_frame_in_the_order_it_always_had()
     assert [r.kind for r in frames[27]] == ["state", "health"]
     assert [r.kind for r in frames[0]] == ["state"]
     assert len(reads.status) == 1 and reads.status[0].ids == IDS  # one read, as before
+
+
+def test_await_reply_says_whether_the_reply_is_in_and_never_reads_it(rig):
+    import time
+
+    virtual, bus = rig(faults=[Fault("delay", delay_s=0.08, address=STATE_ADDRESS, count=1)])
+    pending = bus.request_block(IDS, STATE)
+    assert not bus.await_reply(pending, time.monotonic() + 0.002)  # 80 ms late: not yet
+    block = bus.collect(pending)  # past its timeout: a failed try, then a read at once
+    assert block.table == _truth(virtual) and bus.failed_tries == 1
+    pending = bus.request_block(IDS, STATE)  # lock-step: answered as it was sent
+    assert bus.await_reply(pending, time.monotonic())
+    assert bus.collect(pending).table == _truth(virtual) and bus.failed_tries == 1
