@@ -958,10 +958,12 @@ class Streamer:
                 if timed:
                     stats._sent(sent, planned, planned + shift, phase == "stream")
                 # The goal went out: its row is written even if a read fails.
-                head = [self._frame_no - 1, phase, t, sent - start, sent - planned - shift, sent]
-                row = (head + list(plan) + list(q) + ticks.tolist(), _nans(3, n), _nans(2, n))
-                self._write_rows(rows)
-                rows.append(row)
+                row = None  # (frame columns, state (3, n), power (2, n)), with a telemetry file
+                if self._writer is not None:
+                    head = [self._frame_no - 1, phase, t, sent - start, sent - planned - shift]
+                    row = (head + [sent, *plan, *q, *ticks.tolist()], _nans(3, n), _nans(2, n))
+                    self._write_rows(rows)
+                    rows.append(row)
                 reads = schedule.for_frame(k)
                 for j, read in enumerate(reads):
                     asked = clock.now()
@@ -981,14 +983,16 @@ class Streamer:
             self._write_rows(rows)
 
     def _take(self, read, block, row, asked: float) -> None:
-        """A frame's read, in: ERR bytes checked, then what it is for (into ``row``)."""
+        """A frame's read, in: ERR bytes checked, then what it is for (into ``row``, if any)."""
         self.bus.check_block(block, "streaming")
         if read.kind == "state":
-            row[1][:] = self._state_of(block, asked)
+            state = self._state_of(block, asked)
+            if row is not None:
+                row[1][:] = state
         elif read.kind == "status":
             self._status_of(block.values, "before")
         else:
-            self._health_of(block, row[2])
+            self._health_of(block, _nans(2, len(self.joints)) if row is None else row[2])
 
     def _write_rows(self, rows: list) -> None:
         """Write the telemetry rows (frame columns, state (3, n), power (2, n)) and forget them."""
