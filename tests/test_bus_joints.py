@@ -22,28 +22,6 @@ RATE_HZ = 100.0
 OMX = (11, 12, 13, 14, 15, 16)  # an OMX-like arm: the wrist is 14 (flex), 15 (roll)
 
 
-@pytest.fixture
-def answered_here(monkeypatch):
-    """``answered_here(virtual)``: a ``ServoBus`` opened by name on the port of the
-    lock-step ``virtual`` (as the session and the command line open it) is answered in
-    this thread, as ``VirtualBus.connect`` makes it: the stream then runs on simulated
-    time, and no reply or deadline waits for another thread, whatever the host's load."""
-    from trajgen.drivers import bus as bus_module
-
-    real = bus_module.ServoBus
-
-    def answered(virtual):
-        def servo_bus(port, **kwargs):
-            if port == virtual.port:
-                kwargs.setdefault("responder", virtual)
-            return real(port, **kwargs)
-
-        monkeypatch.setattr(bus_module, "ServoBus", servo_bus)
-        return virtual
-
-    return answered
-
-
 def _path(kin: GimbalKinematics, seconds: float = 1.0) -> SmoothSpline:
     """Rest, a move of every joint, rest again."""
     a = np.zeros((3, kin.n_joints))

@@ -22,28 +22,6 @@ keyframes = pytest.importorskip("trajgen.keyframes")
 SHORT = [(0.0, 0, 0), (0.4, 10, 5), (0.8, 0, 0)]
 
 
-@pytest.fixture
-def answered_here(monkeypatch):
-    """``answered_here(virtual)``: a ``ServoBus`` opened by name on the port of the
-    lock-step ``virtual`` (as the session and the command line open it) is answered in
-    this thread, as ``VirtualBus.connect`` makes it: the stream then runs on simulated
-    time, and no reply or deadline waits for another thread, whatever the host's load."""
-    from trajgen.drivers import bus as bus_module
-
-    real = bus_module.ServoBus
-
-    def answered(virtual):
-        def servo_bus(port, **kwargs):
-            if port == virtual.port:
-                kwargs.setdefault("responder", virtual)
-            return real(port, **kwargs)
-
-        monkeypatch.setattr(bus_module, "ServoBus", servo_bus)
-        return virtual
-
-    return answered
-
-
 def _write(path, extra=""):
     lines = [extra, "[stream]", "rate_hz = 100", ""]
     for t, pan, tilt in SHORT:
