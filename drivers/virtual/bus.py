@@ -79,8 +79,9 @@ from trajgen.drivers.virtual.chain import ChainPlant
 from trajgen.drivers.virtual.faults import Fault, FaultInjection
 from trajgen.drivers.virtual.handlers import SECONDARY_ID, InstructionHandlers
 from trajgen.drivers.virtual.plant import FirstOrderPlant, Plant
+from trajgen.drivers.virtual.process import PlantProcess
 from trajgen.drivers.virtual.servo import VirtualServo
-from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
+from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime, WallSteps
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
 from trajgen.servo_table import BAUD_RATES, CONTROL_REGISTERS
 
@@ -238,6 +239,7 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         unsupported: tuple[type[Exception], ...] = (),
         on_refusal: Callable[[int, str], None] | None = None,
         baud: int | None = None,
+        plant_process: bool = False,
     ) -> None:
         ids = tuple(ids)
         plant = _chain_plant(plant, ids, plant_ids)
@@ -249,6 +251,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             raise BadArgument(f"Expected `lockstep_dt_s` > 0 or None, got {lockstep_dt_s}.")
         if not sim_step_s > 0:
             raise BadArgument(f"Expected `sim_step_s` > 0, got {sim_step_s}.")
+        if plant_process and lockstep_dt_s is not None:
+            raise BadArgument("Expected `plant_process` only in real time (`lockstep_dt_s` None).")
         registers = {i: dict(r) for i, r in (registers or {}).items()}
         if baud is not None:
             if baud not in _BAUD_VALUE:
@@ -256,7 +260,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             for i in ids:
                 registers.setdefault(i, {})["Baud Rate"] = _BAUD_VALUE[baud]
         self.baud = baud
-        self.plant = plant
+        self.plant = self._own_plant = plant
+        self.plant_process = plant_process
+        self._process: PlantProcess | None = None
         self.ids = ids
         self.servos = {
             i: VirtualServo(i, m, registers=registers.get(i))
@@ -304,9 +310,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._late: list[tuple[float, int, bytes]] = []
         self._late_count = 0
         self._switch_interval_s = sys.getswitchinterval()
-        self._started_s = self._credit_at_s = time.monotonic()
+        self._started_s = time.monotonic()
+        self._wall = WallSteps(sim_step_s, self._started_s)
         self._steps_done = 0
-        self._credit_s = 0.0  # real time: simulated time the thread may run now (s)
         self.stale_replies = 0
         self.stale_max_s = 0.0
         self._publish()
@@ -331,12 +337,16 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._reader = PacketReader()
         self._client_answers = False
         with self.lock:
-            self._started_s = self._credit_at_s = time.monotonic()
+            self._started_s = time.monotonic()
+            self._wall = WallSteps(self.sim_step_s, self._started_s)
             self._steps_done = 0
-            self._credit_s = 0.0
+            if self.plant_process:
+                self._process = PlantProcess(self._own_plant, self.sim_step_s, self._started_s)
+                self.plant = self._process
             self._publish()
         self._last_packet_s = dict.fromkeys(self.ids, self._now())
-        targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
+        simulating = self.lockstep_dt_s is None and self._process is None
+        targets = [self._serve] + ([self._simulate] if simulating else [])
         self._threads = [
             threading.Thread(target=t, name=f"virtual-bus{t.__name__}", daemon=True)
             for t in targets
@@ -351,6 +361,10 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         for thread in self._threads:
             thread.join(timeout=2.0)
         self._threads = []
+        if self._process is not None:
+            self._process.stop()
+            self._publish()  # its last step: sim_time_s
+            self._process = None
         for fd in (self._master, self._slave):
             if fd >= 0:
                 try:
@@ -454,6 +468,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
+            if self._process is not None:
+                self._publish()  # the latest step, for what follows
             self._note_staleness(arrival_s)
         for servo_id in self._addressed(packet.servo_id, acting=True):
             self._last_packet_s[servo_id] = self._now()

@@ -124,6 +124,7 @@ class VirtualServo:
         for name, (address, size) in self.items.items():
             for a in range(address, address + size):
                 self._owner[a] = name
+        self._direct_layouts: dict[tuple[int, int], tuple[int, tuple[str, ...], bool]] = {}
         self._indirect: dict[int, str] = {}  # Indirect Data byte -> its Indirect Address name
         for name, (address, _) in self.items.items():
             if name.startswith("Indirect Data "):
@@ -267,64 +268,77 @@ class VirtualServo:
             return 0, bytes(self.memory[address : address + length])
         return 0, bytes(self.memory[self.target(a)] for a in range(address, address + length))
 
-    def _resolve(self, address: int, data: bytes) -> tuple[int, dict[int, int]]:
-        """(status error, {target byte: value}) for a write of ``data`` at ``address``."""
-        if not data:
-            return StatusError.DATA_LENGTH, {}
-        if address + len(data) > self.table_end:
-            return StatusError.ACCESS, {}
-        if self.direct(address, len(data)):
-            return 0, dict(zip(range(address, address + len(data)), data, strict=True))
-        return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
+    def _covers(self, targets: Sequence[int]) -> tuple[int, tuple[str, ...], bool]:
+        """What a write to the bytes ``targets`` covers: (status error, registers, EEPROM).
 
-    def _new_value(self, name: str, bytes_: dict[int, int]) -> int:
-        """A register's value once the target bytes ``bytes_`` are written."""
-        unpack, _, address = self._codec[name]
-        span = range(address, address + self._layout[name][1])
-        if bytes_.keys().isdisjoint(span):  # not written
-            return unpack(self.memory, address)[0]
-        raw = bytearray(self.memory[span.start : span.stop])
-        for a in span:
-            if a in bytes_:
-                raw[a - address] = bytes_[a]
-        return unpack(raw, 0)[0]
+        The error is for the layout alone: a byte of no register or of a read-only
+        one (access), part of a register (data length); 0 with the registers in
+        address order and whether one is in the EEPROM area.
+        """
+        names: list[str] = []
+        for a in targets:
+            name = self._owner.get(a)
+            if name is None:
+                return StatusError.ACCESS, (), False
+            if name not in names:
+                names.append(name)
+        covered = set(targets)
+        for name in names:
+            start, size = self.items[name]
+            if not covered.issuperset(range(start, start + size)):
+                return StatusError.DATA_LENGTH, (), False
+            if not self.rules[name].writable:
+                return StatusError.ACCESS, (), False
+        return 0, tuple(names), any(self.items[n][0] < EEPROM_END for n in names)
 
-    def check_write(self, address: int, data: bytes) -> tuple[int, dict[int, int], set[str]]:
+    def _direct_layout(self, address: int, length: int) -> tuple[int, tuple[str, ...], bool]:
+        """``_covers`` of a write of ``length`` bytes at ``address`` holding no Indirect
+        Data byte, worked out once per (address, length)."""
+        key = (address, length)
+        layout = self._direct_layouts.get(key)
+        if layout is None:
+            layout = self._direct_layouts[key] = self._covers(range(address, address + length))
+        return layout
+
+    def check_write(self, address: int, data: bytes) -> tuple[int, bytearray | None, set[str]]:
         """What a WRITE of ``data`` at ``address`` would do.
 
         Returns
         -------
         error : int
             The status error (0: allowed).
-        bytes_ : dict of int to int
-            Target byte address -> value (Indirect Data resolved).
+        after : bytearray or None
+            The control table as the write leaves it (Indirect Data resolved to
+            its targets); None if refused.
         names : set of str
             The registers written.
         """
-        error, bytes_ = self._resolve(address, data)
+        if not data:
+            return StatusError.DATA_LENGTH, None, set()
+        if address + len(data) > self.table_end:
+            return StatusError.ACCESS, None, set()
+        after = self.memory.copy()
+        if self.direct(address, len(data)):
+            error, names, eeprom = self._direct_layout(address, len(data))
+            after[address : address + len(data)] = data
+        else:
+            targets = [self.target(address + k) for k in range(len(data))]
+            error, names, eeprom = self._covers(targets)
+            for a, byte in zip(targets, data, strict=True):
+                after[a] = byte
         if error:
-            return error, {}, set()
-        names = set()
-        for a in bytes_:
-            name = self._owner.get(a)
-            if name is None:
-                return StatusError.ACCESS, {}, set()
-            names.add(name)
+            return error, None, set()
+        if eeprom and self.torque_on:
+            return StatusError.ACCESS, None, set()
         for name in names:
-            start, size = self.items[name]
-            if len(bytes_.keys() & range(start, start + size)) != size:
-                return StatusError.DATA_LENGTH, {}, set()
-            if not self.rules[name].writable:
-                return StatusError.ACCESS, {}, set()
-            if start < EEPROM_END and self.torque_on:
-                return StatusError.ACCESS, {}, set()
-        for name in names:
-            error = self._check_value(name, self._new_value(name, bytes_), bytes_)
+            unpack, _, at = self._codec[name]
+            error = self._check_value(name, unpack(after, at)[0], after)
             if error:
-                return error, {}, set()
-        return 0, bytes_, names
+                return error, None, set()
+        return 0, after, set(names)
 
-    def _check_value(self, name: str, value: int, bytes_: dict[int, int]) -> int:
+    def _check_value(self, name: str, value: int, after: bytearray) -> int:
+        """The status error of register ``name`` taking ``value``, the table then ``after``."""
         rule = self.rules[name]
         if name in _GOALS and self.watchdog_tripped:
             return StatusError.DATA_RANGE
@@ -334,7 +348,7 @@ class VirtualServo:
             return StatusError.DATA_RANGE
         limits = LIMITED_BY.get(name)
         if limits is not None and all(n in self.items for n in limits):
-            bounds = [self._new_value(n, bytes_) for n in limits]
+            bounds = [self._codec[n][0](after, self._codec[n][2])[0] for n in limits]
             if name == "Goal Position":
                 if self.get("Operating Mode") == POSITION_MODE and not (
                     bounds[0] <= value <= bounds[1]
@@ -349,12 +363,11 @@ class VirtualServo:
 
     def write(self, address: int, data: bytes) -> tuple[int, set[str]]:
         """WRITE if allowed: (status error, registers written); 0 means written."""
-        error, bytes_, names = self.check_write(address, data)
+        error, after, names = self.check_write(address, data)
         if error:
             return error, set()
         old_mode = self.get("Operating Mode")
-        for a, byte in bytes_.items():
-            self.memory[a] = byte
+        self.memory[:] = after
         if "Operating Mode" in names and self.get("Operating Mode") != old_mode:
             resets = [n for n in _MODE_RESETS if n in self.items]
             self._load(resets, {})

@@ -147,10 +147,15 @@ def run_virtual_bus(args) -> int:
         registers=dict(zip(plant_ids, plant.initial_registers(), strict=True)),  # the file's gains
         unsupported=(UnsupportedServoSetting,),
         on_refusal=_tell_refusal,
+        plant_process=period_s is None,  # real time: no GIL shared with the simulation
     ).start()
     try:
         print(virtual.port, flush=True)
-        clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
+        clock = (
+            "real time, the simulation in its own process"
+            if period_s is None
+            else f"lock-step, {1e3 * period_s:g} ms periods"
+        )
         idle = [i for i in ids if i not in plant_ids]
         # Its threads (serving, simulating) answer ahead of other programs where permitted.
         with stream_priority() as scheduling:

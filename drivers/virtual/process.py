@@ -1,0 +1,296 @@
+"""The real-time virtual bus's plant in a process of its own, its state in shared memory.
+
+In one process the serving thread and the simulation thread share one GIL:
+a packet that arrives while the plant steps waits for it. ``PlantProcess``
+forks the plant into a child process that steps it on the wall clock
+(``WallSteps``: the same steps and catch-up rules as the simulation thread)
+and publishes each step's present values to memory both processes map; the
+serving process never runs the plant. What goes across:
+
+- the present values of the latest step, written by the child after each step
+  into one of two slots in turn (a sequence count at the slot's start, odd
+  while it is written) and read by the parent without waiting: a slot being
+  rewritten is skipped for the other one, which is then the latest;
+- the goals (rad), written by the parent the same way and taken by the child
+  before each step and before each command;
+- when the present values were last read (the child's idle rule);
+- every other plant call (``set_control``, ``set_torque_enabled``) as a command
+  on a pipe, answered once the child has made it, with what the plant raised:
+  a write the plant refuses is refused on the bus, as in one process. A
+  failure of a step (the plant raised) is sent the same way and closes the bus.
+
+The child keeps the normal scheduling class (``SCHED_FIFO`` is reset on fork,
+``drivers.priority``): raised, it would hold a core against the kernel's
+normal-priority tty worker that moves the pty's bytes, and a 1 kHz client's
+replies would wait for it (measured in docs/realtime.md). It ignores SIGINT
+(the parent stops it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import mmap
+import os
+import multiprocessing
+import signal
+import struct
+import threading
+import time
+from collections.abc import Mapping
+
+import numpy as np
+
+from trajgen.drivers.units import rad_to_servo_ticks
+
+from ..errors import DriverError
+from .plant import Plant
+from .simulation import WallSteps
+
+# How long (s) the parent waits for the child to answer a command or to stop.
+_ANSWER_WAIT_S = 5.0
+_COUNT = struct.Struct("<q")
+
+
+class PlantProcessError(DriverError):
+    """The plant's process ended or stopped answering."""
+
+
+class _Slots:
+    """Two slots of one ``struct`` layout in shared memory, written by one process in turn.
+
+    Layout: the index of the latest slot (8 bytes), then each slot: a count
+    (odd while the slot is written), then the values.
+    """
+
+    def __init__(self, memory: mmap.mmap, offset: int, layout: struct.Struct) -> None:
+        self._memory = memory
+        self._offset = offset
+        self._layout = layout
+        self._slot_b = _COUNT.size + layout.size
+        self.size = _COUNT.size + 2 * self._slot_b
+        self._count = 0
+
+    def write(self, values) -> None:
+        """Store ``values`` in the slot not read last, then make it the latest."""
+        self._count += 1
+        slot = self._offset + _COUNT.size + (self._count % 2) * self._slot_b
+        _COUNT.pack_into(self._memory, slot, 2 * self._count - 1)
+        self._layout.pack_into(self._memory, slot + _COUNT.size, *values)
+        _COUNT.pack_into(self._memory, slot, 2 * self._count)
+        _COUNT.pack_into(self._memory, self._offset, self._count % 2)
+
+    def read(self) -> tuple[int, tuple] | None:
+        """(writes so far, the latest values), or None if both slots were being written
+        meanwhile (never waits for the writer)."""
+        for _ in range(3):
+            index = _COUNT.unpack_from(self._memory, self._offset)[0]
+            slot = self._offset + _COUNT.size + index * self._slot_b
+            before = _COUNT.unpack_from(self._memory, slot)[0]
+            values = self._layout.unpack_from(self._memory, slot + _COUNT.size)
+            if before % 2 == 0 and _COUNT.unpack_from(self._memory, slot)[0] == before:
+                return before // 2, values
+        return None
+
+
+class PlantProcess:
+    """A plant stepped on the wall clock in a child process; a ``Plant`` to the parent.
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant, as it is now (the child gets a copy of it; this process must
+        not use it after).
+    step_s : float
+        Its step (s): one per ``step_s`` of wall time (``WallSteps``).
+    started_s : float
+        ``time.monotonic()`` at simulated time 0.
+
+    Attributes
+    ----------
+    n_joints : int
+    """
+
+    def __init__(self, plant: Plant, step_s: float, started_s: float) -> None:
+        n = self.n_joints = plant.n_joints
+        self.step_s = step_s
+        # steps done, then per joint: ticks; velocity (rad/s), current (A), drive output
+        self._state = struct.Struct(f"<q{n}q{3 * n}d")
+        self._goal = struct.Struct(f"<{n}d")
+        memory = mmap.mmap(-1, mmap.PAGESIZE)  # shared with the child (MAP_SHARED)
+        self._states = _Slots(memory, 0, self._state)
+        self._goals = _Slots(memory, self._states.size, self._goal)
+        self._read_at = self._states.size + self._goals.size
+        self._memory = memory
+        self._latest = self._publish_of(plant, 0)
+        self._states.write(self._latest)
+        self._goals.write(np.asarray(plant.read()[0], dtype=float).tolist())
+        self.note_read(-float("inf"))
+        self._conn, child = multiprocessing.Pipe()
+        self._calling = threading.Lock()
+        self._process = multiprocessing.get_context("fork").Process(
+            target=_run,
+            args=(plant, step_s, started_s, self, child),
+            name="virtual-bus-plant",
+            daemon=True,
+        )
+        self._process.start()
+        child.close()
+
+    def _publish_of(self, plant: Plant, steps: int) -> tuple:
+        position, velocity, current = plant.read()
+        return (
+            steps,
+            *rad_to_servo_ticks(position).tolist(),
+            *np.asarray(velocity, dtype=float).tolist(),
+            *np.asarray(current, dtype=float).tolist(),
+            *np.asarray(plant.present_pwm(), dtype=float).tolist(),
+        )
+
+    # -- the parent's side: a Plant ---------------------------------------------
+
+    def fileno(self) -> int:
+        """The pipe the child reports a failure on (readable then): for ``select``."""
+        return self._conn.fileno()
+
+    def latest(self) -> tuple[int, list[int], list[float], list[float], list[float]]:
+        """The latest step's (steps done, ticks, velocity (rad/s), current (A), drive output)."""
+        read = self._states.read()
+        if read is not None:
+            self._latest = read[1]
+        n = self.n_joints
+        v = self._latest
+        return (
+            v[0],
+            list(v[1 : 1 + n]),
+            list(v[1 + n : 1 + 2 * n]),
+            list(v[1 + 2 * n : 1 + 3 * n]),
+            list(v[1 + 3 * n :]),
+        )
+
+    def note_read(self, now_s: float) -> None:
+        """The present values were read at ``now_s`` (the child's idle rule)."""
+        struct.pack_into("<d", self._memory, self._read_at, now_s)
+
+    def set_goal(self, positions_rad: np.ndarray) -> None:
+        """Goal angles (rad), shape (n_joints,): the child takes them before its next step."""
+        self._goals.write(np.asarray(positions_rad, dtype=float).tolist())
+
+    def set_torque_enabled(self, joint: int, enabled: bool) -> None:
+        """Torque on or off for one joint, once the child has it."""
+        self._call("set_torque_enabled", joint, bool(enabled))
+
+    def set_control(self, joint: int, registers: Mapping[str, int]) -> None:
+        """The position-loop registers of one joint's servo; raises what the plant raises."""
+        self._call("set_control", joint, dict(registers))
+
+    def advance(self, dt_s: float) -> None:
+        """Not here: the child steps the plant on the wall clock.
+
+        Raises
+        ------
+        PlantProcessError
+            Always.
+        """
+        raise PlantProcessError("the plant steps in its own process, on the wall clock")
+
+    def read(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The latest step's position (rad), velocity (rad/s), current (A), each (n_joints,)."""
+        from trajgen.drivers.units import servo_ticks_to_rad
+
+        _, ticks, velocity, current, _ = self.latest()
+        return servo_ticks_to_rad(np.array(ticks)), np.array(velocity), np.array(current)
+
+    def present_pwm(self) -> np.ndarray:
+        """The latest step's drive output as a fraction of the supply, shape (n_joints,)."""
+        return np.array(self.latest()[4])
+
+    def check(self) -> None:
+        """Raise what ended the child's steps, if it said so (the pipe is readable).
+
+        Raises
+        ------
+        Exception
+            What the plant raised in a step, or ``PlantProcessError`` if the child ended.
+        """
+        with self._calling:
+            if self._conn.poll():
+                self._answer()
+
+    def stop(self) -> None:
+        """Stop the child (it steps no more) and wait for it."""
+        with contextlib.suppress(OSError, ValueError):
+            self._conn.send(None)
+        self._process.join(_ANSWER_WAIT_S)
+        if self._process.is_alive():
+            self._process.kill()
+            self._process.join()
+        self._conn.close()
+        self.latest()
+
+    def _call(self, name: str, *args):
+        """Have the child make a plant call (``name``, ``args``); what it returned, or raise."""
+        with self._calling:  # one call at a time, its answer not read by ``check``
+            try:
+                self._conn.send((name, args))
+            except (OSError, ValueError) as e:
+                raise PlantProcessError("the plant's process has ended") from e
+            return self._answer()
+
+    def _answer(self):
+        """The child's next message: a call's result, or raise what it raised."""
+        try:
+            if not self._conn.poll(_ANSWER_WAIT_S):
+                raise PlantProcessError(
+                    f"the plant's process did not answer within {_ANSWER_WAIT_S:g} s"
+                )
+            ok, value = self._conn.recv()
+        except (EOFError, OSError) as e:
+            raise PlantProcessError("the plant's process has ended") from e
+        if not ok:
+            raise value
+        return value
+
+
+def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, conn) -> None:
+    """The child: step ``plant`` on the wall clock and publish each step; serve commands."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    with contextlib.suppress(AttributeError, OSError):  # the normal class, however forked
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    shared._conn.close()
+    wall = WallSteps(step_s, started_s)
+    goal_count = [shared._goals.read()[0]]  # the goals the plant has
+
+    def take_goals() -> None:
+        read = shared._goals.read()
+        if read is not None and read[0] != goal_count[0]:
+            goal_count[0] = read[0]
+            plant.set_goal(np.array(read[1]))
+
+    try:
+        while True:
+            take_goals()
+            now = time.monotonic()
+            steps = wall.take(now)
+            if steps:
+                plant.advance(steps * step_s)
+                shared._states.write(shared._publish_of(plant, wall.done))
+            read_at = struct.unpack_from("<d", shared._memory, shared._read_at)[0]
+            now = time.monotonic()
+            if not conn.poll(max(0.0, wall.wake_s(now, unread=now - read_at) - now)):
+                continue
+            command = conn.recv()
+            if command is None:
+                return
+            take_goals()  # the parent wrote them before this command
+            name, args = command
+            try:
+                result = getattr(plant, name)(*args)
+            except Exception as e:  # the parent raises it: a refused write
+                conn.send((False, e))
+            else:
+                conn.send((True, result))
+    except (EOFError, OSError):
+        return  # the parent has gone
+    except Exception as e:  # a step failed: the parent closes the bus
+        with contextlib.suppress(OSError):
+            conn.send((False, e))
