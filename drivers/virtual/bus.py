@@ -108,6 +108,8 @@ _GOAL_CLAMP = frozenset({"Min Position Limit", "Max Position Limit", "Operating 
 # Registers whose writes the plant hears at once (``_written``), and the id registers.
 _CONTROL = frozenset(CONTROL_REGISTERS)
 _IDS = frozenset({"ID", SECONDARY_ID})
+# Registers whose writes may bring a Bus Watchdog's trip closer.
+_WATCHDOG_ARMING = frozenset({"Bus Watchdog", "Torque Enable"})
 
 
 def _chain_plant(plant: Plant | None, ids: tuple[int, ...], plant_ids) -> Plant:
@@ -298,6 +300,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             self.plant.set_torque_enabled(self._joint[servo_id], servo.torque_on)
         self._index_ids()
         self._goal_written = False
+        self._goal_ticks: dict[int, int] = {}  # joint -> plant ticks of a goal just written
+        self._trip_at_s = -float("inf")  # no Bus Watchdog trips before (real time, process)
         self._polled = False
         self._last_packet_s = dict.fromkeys(ids, 0.0)
         self._wire_free_s = 0.0
@@ -423,12 +427,17 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
     def _control(servo: VirtualServo) -> dict[str, int]:
         return {name: servo.get(name) for name in CONTROL_REGISTERS}
 
-    def _goal_for_plant(self, servo: VirtualServo) -> float:
-        """The plant angle (rad) of a servo's Goal Position, clamped to its limits."""
+    @staticmethod
+    def _goal_plant_ticks(servo: VirtualServo) -> int:
+        """The plant position (ticks) of a servo's Goal Position, clamped to its limits."""
         goal = servo.get("Goal Position")
         if servo.position_mode:
             goal = min(max(goal, servo.get("Min Position Limit")), servo.get("Max Position Limit"))
-        return float(servo_ticks_to_rad(servo.plant_ticks(goal)))
+        return servo.plant_ticks(goal)
+
+    def _goal_for_plant(self, servo: VirtualServo) -> float:
+        """The plant angle (rad) of a servo's Goal Position, clamped to its limits."""
+        return float(servo_ticks_to_rad(self._goal_plant_ticks(servo)))
 
     def _written(self, servo_id: int, names: set[str]) -> None:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
@@ -440,9 +449,13 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
-        if "Goal Position" in names:
-            self._goal_rad[j] = self._goal_for_plant(servo)
+        if _WATCHDOG_ARMING & names:  # a Bus Watchdog may trip sooner: look again
+            self._trip_at_s = -float("inf")
+        if "Goal Position" in names:  # in radians once the packet is done (_commit_goals)
+            self._goal_ticks[j] = self._goal_plant_ticks(servo)
             self._goal_written = True
+        elif j in self._goal_ticks and names & _GOAL_CLAMP:  # a goal of this packet
+            self._goal_ticks[j] = self._goal_plant_ticks(servo)  # within the new limits
         elif names & _GOAL_CLAMP:  # the goal held, clamped to the new limits or mode
             goal = self._goal_for_plant(servo)
             if goal != self._goal_rad[j]:
@@ -471,8 +484,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             if self._process is not None:
                 self._publish()  # the latest step, for what follows
             self._note_staleness(arrival_s)
+        now = self._now()
         for servo_id in self._addressed(packet.servo_id, acting=True):
-            self._last_packet_s[servo_id] = self._now()
+            self._last_packet_s[servo_id] = now
         handler = self._HANDLERS.get(packet.instruction, InstructionHandlers._unknown)
         replies = handler(self, packet.servo_id, packet.params)
         self._commit_goals()

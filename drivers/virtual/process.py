@@ -30,8 +30,8 @@ from __future__ import annotations
 
 import contextlib
 import mmap
-import os
 import multiprocessing
+import os
 import signal
 import struct
 import threading

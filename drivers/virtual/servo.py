@@ -203,6 +203,11 @@ class VirtualServo:
             In ``PRESENT_REGISTERS`` order, register units; each is clamped to what
             its register can hold.
         """
+        try:  # ints that fit: as they are (the common case, one C call)
+            self._present_struct.pack_into(self.memory, self._present_start, *values)
+            return
+        except struct.error:
+            pass
         clamped = [
             min(max(int(v), low), high)
             for v, (low, high) in zip(values, self._present_spans, strict=True)
@@ -268,30 +273,35 @@ class VirtualServo:
             return 0, bytes(self.memory[address : address + length])
         return 0, bytes(self.memory[self.target(a)] for a in range(address, address + length))
 
-    def _covers(self, targets: Sequence[int]) -> tuple[int, tuple[str, ...], bool]:
-        """What a write to the bytes ``targets`` covers: (status error, registers, EEPROM).
+    def _covers(self, targets: Sequence[int]) -> tuple[int, tuple[str, ...], bool, bool]:
+        """What a write to the bytes ``targets`` covers: (status error, registers, EEPROM,
+        alone).
 
         The error is for the layout alone: a byte of no register or of a read-only
         one (access), part of a register (data length); 0 with the registers in
-        address order and whether one is in the EEPROM area.
+        address order, whether one is in the EEPROM area, and whether none of them
+        bounds another (``LIMITED_BY``: each is then checked against the table as it
+        is).
         """
         names: list[str] = []
         for a in targets:
             name = self._owner.get(a)
             if name is None:
-                return StatusError.ACCESS, (), False
+                return StatusError.ACCESS, (), False, False
             if name not in names:
                 names.append(name)
         covered = set(targets)
         for name in names:
             start, size = self.items[name]
             if not covered.issuperset(range(start, start + size)):
-                return StatusError.DATA_LENGTH, (), False
+                return StatusError.DATA_LENGTH, (), False, False
             if not self.rules[name].writable:
-                return StatusError.ACCESS, (), False
-        return 0, tuple(names), any(self.items[n][0] < EEPROM_END for n in names)
+                return StatusError.ACCESS, (), False, False
+        eeprom = any(self.items[n][0] < EEPROM_END for n in names)
+        alone = not any(set(LIMITED_BY.get(n, ())) & set(names) for n in names)
+        return 0, tuple(names), eeprom, alone
 
-    def _direct_layout(self, address: int, length: int) -> tuple[int, tuple[str, ...], bool]:
+    def _direct_layout(self, address: int, length: int) -> tuple[int, tuple[str, ...], bool, bool]:
         """``_covers`` of a write of ``length`` bytes at ``address`` holding no Indirect
         Data byte, worked out once per (address, length)."""
         key = (address, length)
@@ -313,17 +323,29 @@ class VirtualServo:
         names : set of str
             The registers written.
         """
-        if not data:
-            return StatusError.DATA_LENGTH, None, set()
-        if address + len(data) > self.table_end:
-            return StatusError.ACCESS, None, set()
-        after = self.memory.copy()
-        if self.direct(address, len(data)):
-            error, names, eeprom = self._direct_layout(address, len(data))
+        error, after, names = self._check(address, data)
+        if not error and after is None:  # a direct write checked in place
+            after = self.memory.copy()
             after[address : address + len(data)] = data
+        return error, after, names
+
+    def _check(self, address: int, data: bytes) -> tuple[int, bytearray | None, set[str]]:
+        """``check_write``, but ``after`` None for an allowed direct write of registers
+        that bound none of each other (checked against the table as it is: no copy)."""
+        n = len(data)
+        if not n:
+            return StatusError.DATA_LENGTH, None, set()
+        if address + n > self.table_end:
+            return StatusError.ACCESS, None, set()
+        if self.direct(address, n):
+            error, names, eeprom, alone = self._direct_layout(address, n)
+            after = None if alone else self.memory.copy()
+            if after is not None:
+                after[address : address + n] = data
         else:
-            targets = [self.target(address + k) for k in range(len(data))]
-            error, names, eeprom = self._covers(targets)
+            targets = [self.target(address + k) for k in range(n)]
+            error, names, eeprom, _ = self._covers(targets)
+            after = self.memory.copy()
             for a, byte in zip(targets, data, strict=True):
                 after[a] = byte
         if error:
@@ -332,7 +354,10 @@ class VirtualServo:
             return StatusError.ACCESS, None, set()
         for name in names:
             unpack, _, at = self._codec[name]
-            error = self._check_value(name, unpack(after, at)[0], after)
+            if after is None:
+                error = self._check_value(name, unpack(data, at - address)[0], self.memory)
+            else:
+                error = self._check_value(name, unpack(after, at)[0], after)
             if error:
                 return error, None, set()
         return 0, after, set(names)
@@ -363,11 +388,14 @@ class VirtualServo:
 
     def write(self, address: int, data: bytes) -> tuple[int, set[str]]:
         """WRITE if allowed: (status error, registers written); 0 means written."""
-        error, after, names = self.check_write(address, data)
+        error, after, names = self._check(address, data)
         if error:
             return error, set()
         old_mode = self.get("Operating Mode")
-        self.memory[:] = after
+        if after is None:
+            self.memory[address : address + len(data)] = data
+        else:
+            self.memory[:] = after
         if "Operating Mode" in names and self.get("Operating Mode") != old_mode:
             resets = [n for n in _MODE_RESETS if n in self.items]
             self._load(resets, {})

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from trajgen.drivers.control_table import WATCHDOG_UNIT_S
-from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks
+from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
 from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.servo_table import PWM_FULL_SCALE
 
@@ -46,6 +46,9 @@ _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
 # Real time, the plant in its own process: how long (s) after a Bus Watchdog's period
 # ends the serving thread looks (the thread checked it every step, 1 ms).
 _WATCH_MARGIN_S = 1e-4
+# (model name, address, length) -> whether a read of them holding no Indirect Data
+# byte touches the motion registers (the layout decides: worked out once).
+_DIRECT_POLLS: dict[tuple[str, int, int], bool] = {}
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
 # the one ROBOTIS' examples use to decide a goal is reached (pulses).
 IN_POSITION_TICKS = 20
@@ -197,6 +200,10 @@ class SimulatedTime:
         if not self._goal_written:
             return
         self._goal_written = False
+        if self._goal_ticks:  # Goal Position writes: one conversion for all
+            joints = list(self._goal_ticks)
+            self._goal_rad[joints] = servo_ticks_to_rad(np.array(list(self._goal_ticks.values())))
+            self._goal_ticks.clear()
         if self.lockstep_dt_s is not None:
             self._advance(self.lockstep_dt_s)
             self._polled = False
@@ -261,10 +268,15 @@ class SimulatedTime:
 
     def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
         """Whether a read of ``address``.. touches the motion registers (a poll)."""
+        key = (servo.model.name, address, length)
+        polls = _DIRECT_POLLS.get(key)
+        if polls is not None:
+            return polls
         low = servo.items[_PRESENT_FIRST][0]
         high = sum(servo.items[_PRESENT_LAST])
-        if servo.direct(address, length):  # no Indirect Data byte: one overlap test
-            return address < high and low < address + length
+        if servo.direct(address, length):  # no Indirect Data byte: one overlap test, kept
+            polls = _DIRECT_POLLS[key] = address < high and low < address + length
+            return polls
         return any(low <= servo.target(a) < high for a in range(address, address + length))
 
     def _next_trip_s(self) -> float:
@@ -280,10 +292,11 @@ class SimulatedTime:
         """Real time, the plant in its own process: the serving thread trips the Bus
         Watchdogs that are due; returns how long (s) it may wait before the next."""
         now = time.monotonic()
-        if now > self._next_trip_s():
+        if now > self._trip_at_s:  # looked for again only then, or after a write arming one
             with self.lock:
                 self._check_watchdogs(now)
-        return max(0.0, self._next_trip_s() - now) + _WATCH_MARGIN_S
+                self._trip_at_s = self._next_trip_s()
+        return max(0.0, self._trip_at_s - now) + _WATCH_MARGIN_S
 
     def _check_watchdogs(self, now_s: float) -> None:
         for servo_id in self.ids:
