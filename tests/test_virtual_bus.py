@@ -506,19 +506,20 @@ def test_a_reply_later_than_its_timeout_is_never_read_as_the_next_ones():
 def test_a_step_failing_in_the_plants_process_closes_the_bus():
     class Failing(FirstOrderPlant):
         def advance(self, dt_s):
-            if self.time_s >= 0.02:
-                raise SimulationError("the plant failed at 20 ms")
+            if self._goal[0] != 0.0:
+                raise SimulationError("the plant failed on a goal")
             super().advance(dt_s)
 
     virtual = VirtualBus(Failing(), plant_process=True).start()
     try:
         with ServoBus(virtual.port, latency_ms=200.0, retries=0) as bus:
             bus.add_servo(1, XM430)
+            bus.write(1, Register.GOAL_POSITION, 2100)
             with pytest.raises(CommError):
                 for _ in range(100_000):  # until the bus goes away
                     bus.read(1, Register.PRESENT_POSITION)
         assert isinstance(virtual.error, SimulationError)
-        assert "failed at 20 ms" in str(virtual.error)
+        assert "failed on a goal" in str(virtual.error)
     finally:
         virtual.stop()
 

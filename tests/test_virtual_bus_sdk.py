@@ -135,7 +135,8 @@ def _every_instruction(s):
 
 
 def _plant_instructions(s):
-    """{name: call()} of the instructions that change what the plant simulates."""
+    """{name: call()} of the instructions that change what the plant simulates (its
+    settings: torque, the position loop)."""
     return {
         "WRITE Operating Mode": lambda: s.ph.write1ByteTxRx(s.port, 2, OPERATING_MODE, 4),
         "REBOOT": lambda: s.ph.reboot(s.port, 1),
@@ -167,7 +168,7 @@ def test_real_time_no_instruction_makes_the_serving_thread_step_the_plant(sdk):
 def test_real_time_replies_do_not_wait_for_a_simulation_held_back(sdk):
     # The plant in its own process, held inside a step (as by a host that does not run
     # it): every instruction is answered meanwhile, from the last step (the tick stands
-    # still); those that change what the plant simulates wait for it to take them.
+    # still), settings included (the plant takes them when it steps again).
     sim_plant = pytest.importorskip("trajgen.sim.plant")
     fork = multiprocessing.get_context("fork")
     held, release = fork.Event(), fork.Event()
@@ -183,14 +184,12 @@ def test_real_time_replies_do_not_wait_for_a_simulation_held_back(sdk):
     s.write(1, TORQUE, 1, 1)
     assert held.wait(timeout=60)  # a guard against a hang, not a time limit
     tick = s.read(1, TICK, 2)
-    for name, call in _every_instruction(s).items():
+    for name, call in {**_every_instruction(s), **_plant_instructions(s)}.items():
         assert call() == (COMM_SUCCESS, 0), name
+    assert s.read(1, LED, 1) == 0  # ACTION lit it, REBOOT put it out
     assert s.read(1, TICK, 2) == tick  # still held: the same step
     release.set()
     assert any(s.read(1, TICK, 2) != tick for _ in range(100_000))  # it steps again
-    for name, call in _plant_instructions(s).items():
-        assert call() == (COMM_SUCCESS, 0), name
-    assert s.read(1, LED, 1) == 0  # ACTION lit it, REBOOT put it out
     assert s.virtual.sim_time_s <= s.virtual.wall_time_s  # never ahead of the wall clock
     assert s.virtual.error is None
 

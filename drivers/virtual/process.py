@@ -15,9 +15,11 @@ serving process never runs the plant. What goes across:
   before each step and before each command;
 - when the present values were last read (the child's idle rule);
 - every other plant call (``set_control``, ``set_torque_enabled``) as a command
-  on a pipe, answered once the child has made it, with what the plant raised:
-  a write the plant refuses is refused on the bus, as in one process. A
-  failure of a step (the plant raised) is sent the same way and closes the bus.
+  on a pipe, which the child makes in order before its next step; no reply
+  waits for it. The parent first makes the same call on its own copy of the
+  plant (it is never stepped), so that a setting the plant does not simulate
+  is refused there and then, as in one process, and never sent. A failure in
+  the child (a step raised) comes back on the pipe and closes the bus.
 
 The child keeps the normal scheduling class (``SCHED_FIFO`` is reset on fork,
 ``drivers.priority``): raised, it would hold a core against the kernel's
@@ -34,7 +36,6 @@ import multiprocessing
 import os
 import signal
 import struct
-import threading
 import time
 from collections.abc import Mapping
 
@@ -46,8 +47,8 @@ from ..errors import DriverError
 from .plant import Plant
 from .simulation import WallSteps
 
-# How long (s) the parent waits for the child to answer a command or to stop.
-_ANSWER_WAIT_S = 5.0
+# How long (s) the parent waits for the child to stop before it kills it.
+_STOP_WAIT_S = 5.0
 _COUNT = struct.Struct("<q")
 
 
@@ -98,8 +99,9 @@ class PlantProcess:
     Parameters
     ----------
     plant : Plant
-        The plant, as it is now (the child gets a copy of it; this process must
-        not use it after).
+        The plant, as it is now: the child steps a copy of it; this one is never
+        stepped again, only told every setting first (its refusals are the
+        child's).
     step_s : float
         Its step (s): one per ``step_s`` of wall time (``WallSteps``).
     started_s : float
@@ -125,8 +127,8 @@ class PlantProcess:
         self._states.write(self._latest)
         self._goals.write(np.asarray(plant.read()[0], dtype=float).tolist())
         self.note_read(-float("inf"))
+        self._shadow = plant
         self._conn, child = multiprocessing.Pipe()
-        self._calling = threading.Lock()
         self._process = multiprocessing.get_context("fork").Process(
             target=_run,
             args=(plant, step_s, started_s, self, child),
@@ -176,12 +178,21 @@ class PlantProcess:
         self._goals.write(np.asarray(positions_rad, dtype=float).tolist())
 
     def set_torque_enabled(self, joint: int, enabled: bool) -> None:
-        """Torque on or off for one joint, once the child has it."""
-        self._call("set_torque_enabled", joint, bool(enabled))
+        """Torque on or off for one joint, from the child's next step on."""
+        self._shadow.set_torque_enabled(joint, enabled)
+        self._send("set_torque_enabled", joint, bool(enabled))
 
     def set_control(self, joint: int, registers: Mapping[str, int]) -> None:
-        """The position-loop registers of one joint's servo; raises what the plant raises."""
-        self._call("set_control", joint, dict(registers))
+        """The position-loop registers of one joint's servo, from the child's next step on.
+
+        Raises
+        ------
+        Exception
+            What the plant raises for them (its copy here is told first); then
+            nothing is sent.
+        """
+        self._shadow.set_control(joint, registers)
+        self._send("set_control", joint, dict(registers))
 
     def advance(self, dt_s: float) -> None:
         """Not here: the child steps the plant on the wall clock.
@@ -205,50 +216,45 @@ class PlantProcess:
         return np.array(self.latest()[4])
 
     def check(self) -> None:
-        """Raise what ended the child's steps, if it said so (the pipe is readable).
+        """Raise what ended the child, if it said so (the pipe is readable then).
 
         Raises
         ------
         Exception
-            What the plant raised in a step, or ``PlantProcessError`` if the child ended.
+            What the plant raised in the child, or ``PlantProcessError`` if the
+            child ended otherwise.
         """
-        with self._calling:
-            if self._conn.poll():
-                self._answer()
+        if not self._conn.poll():
+            return
+        try:
+            error = self._conn.recv()
+        except (EOFError, OSError) as e:
+            raise PlantProcessError("the plant's process has ended") from e
+        raise error
 
     def stop(self) -> None:
         """Stop the child (it steps no more) and wait for it."""
         with contextlib.suppress(OSError, ValueError):
             self._conn.send(None)
-        self._process.join(_ANSWER_WAIT_S)
+        self._process.join(_STOP_WAIT_S)
         if self._process.is_alive():
             self._process.kill()
             self._process.join()
         self._conn.close()
         self.latest()
 
-    def _call(self, name: str, *args):
-        """Have the child make a plant call (``name``, ``args``); what it returned, or raise."""
-        with self._calling:  # one call at a time, its answer not read by ``check``
-            try:
-                self._conn.send((name, args))
-            except (OSError, ValueError) as e:
-                raise PlantProcessError("the plant's process has ended") from e
-            return self._answer()
+    def _send(self, name: str, *args) -> None:
+        """Have the child make the plant call ``name(*args)`` before its next step.
 
-    def _answer(self):
-        """The child's next message: a call's result, or raise what it raised."""
+        Raises
+        ------
+        PlantProcessError
+            If the child has ended.
+        """
         try:
-            if not self._conn.poll(_ANSWER_WAIT_S):
-                raise PlantProcessError(
-                    f"the plant's process did not answer within {_ANSWER_WAIT_S:g} s"
-                )
-            ok, value = self._conn.recv()
-        except (EOFError, OSError) as e:
+            self._conn.send((name, args))
+        except (OSError, ValueError) as e:
             raise PlantProcessError("the plant's process has ended") from e
-        if not ok:
-            raise value
-        return value
 
 
 def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, conn) -> None:
@@ -283,14 +289,9 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
                 return
             take_goals()  # the parent wrote them before this command
             name, args = command
-            try:
-                result = getattr(plant, name)(*args)
-            except Exception as e:  # the parent raises it: a refused write
-                conn.send((False, e))
-            else:
-                conn.send((True, result))
+            getattr(plant, name)(*args)
     except (EOFError, OSError):
         return  # the parent has gone
-    except Exception as e:  # a step failed: the parent closes the bus
+    except Exception as e:  # the plant failed: the parent closes the bus
         with contextlib.suppress(OSError):
-            conn.send((False, e))
+            conn.send(e)
