@@ -69,16 +69,16 @@ class _Slots:
         self._layout = layout
         self._slot_b = _COUNT.size + layout.size
         self.size = _COUNT.size + 2 * self._slot_b
-        self._count = 0
+        self.writes = 0  # by this process
 
     def write(self, values) -> None:
         """Store ``values`` in the slot not read last, then make it the latest."""
-        self._count += 1
-        slot = self._offset + _COUNT.size + (self._count % 2) * self._slot_b
-        _COUNT.pack_into(self._memory, slot, 2 * self._count - 1)
+        self.writes += 1
+        slot = self._offset + _COUNT.size + (self.writes % 2) * self._slot_b
+        _COUNT.pack_into(self._memory, slot, 2 * self.writes - 1)
         self._layout.pack_into(self._memory, slot + _COUNT.size, *values)
-        _COUNT.pack_into(self._memory, slot, 2 * self._count)
-        _COUNT.pack_into(self._memory, self._offset, self._count % 2)
+        _COUNT.pack_into(self._memory, slot, 2 * self.writes)
+        _COUNT.pack_into(self._memory, self._offset, self.writes % 2)
 
     def read(self) -> tuple[int, tuple] | None:
         """(writes so far, the latest values), or None if both slots were being written
@@ -264,7 +264,7 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     shared._conn.close()
     wall = WallSteps(step_s, started_s)
-    goal_count = [shared._goals.read()[0]]  # the goals the plant has
+    goal_count = [shared._goals.writes]  # the goals the plant has: those before the fork
 
     def take_goals() -> None:
         read = shared._goals.read()
