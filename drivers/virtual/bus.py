@@ -481,8 +481,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
-            if self._process is not None:
-                self._publish()  # the latest step, for what follows
+            if self._process is not None:  # the latest step's, for what follows
+                self._steps_done = self._process.steps()
+                self.sim_time_s = self._steps_done * self.sim_step_s
             self._note_staleness(arrival_s)
         now = self._now()
         for servo_id in self._addressed(packet.servo_id, acting=True):

@@ -80,6 +80,13 @@ class _Slots:
         _COUNT.pack_into(self._memory, slot, 2 * self.writes)
         _COUNT.pack_into(self._memory, self._offset, self.writes % 2)
 
+    def first(self) -> int:
+        """The first value (an 8-byte int) of the latest slot: one read, never waits."""
+        index = _COUNT.unpack_from(self._memory, self._offset)[0]
+        return _COUNT.unpack_from(
+            self._memory, self._offset + 2 * _COUNT.size + index * self._slot_b
+        )[0]
+
     def read(self) -> tuple[int, tuple] | None:
         """(writes so far, the latest values), or None if both slots were being written
         meanwhile (never waits for the writer)."""
@@ -169,13 +176,17 @@ class PlantProcess:
             list(v[1 + 3 * n :]),
         )
 
+    def steps(self) -> int:
+        """Steps done by the latest step published (no more is read)."""
+        return self._states.first()
+
     def note_read(self, now_s: float) -> None:
         """The present values were read at ``now_s`` (the child's idle rule)."""
         struct.pack_into("<d", self._memory, self._read_at, now_s)
 
     def set_goal(self, positions_rad: np.ndarray) -> None:
         """Goal angles (rad), shape (n_joints,): the child takes them before its next step."""
-        self._goals.write(np.asarray(positions_rad, dtype=float).tolist())
+        self._goals.write([float(v) for v in positions_rad])
 
     def set_torque_enabled(self, joint: int, enabled: bool) -> None:
         """Torque on or off for one joint, from the child's next step on."""
