@@ -124,7 +124,7 @@ class VirtualServo:
         for name, (address, size) in self.items.items():
             for a in range(address, address + size):
                 self._owner[a] = name
-        self._direct_layouts: dict[tuple[int, int], tuple[int, tuple[str, ...], bool]] = {}
+        self._direct_layouts: dict[tuple[int, int], tuple | None] = {}
         self._indirect: dict[int, str] = {}  # Indirect Data byte -> its Indirect Address name
         for name, (address, _) in self.items.items():
             if name.startswith("Indirect Data "):
@@ -147,6 +147,13 @@ class VirtualServo:
             packing = struct.Struct("<" + _STRUCT_CODE[size, signed])
             self._codec[key] = (packing.unpack_from, packing.pack_into, address)
         self._present_start, self._present_struct, self._present_spans = self._present_layout()
+        # register -> (unpack_from, address) of each register bounding it (LIMITED_BY), where
+        # the model has them all
+        self._bounds = {
+            name: tuple((self._codec[n][0], self._codec[n][2]) for n in limits)
+            for name, limits in LIMITED_BY.items()
+            if name in self.items and all(n in self.items for n in limits)
+        }
         self.firmware = firmware
         self.turn_offset_ticks = 0
         self.pending: tuple[int, bytes] | None = None
@@ -301,14 +308,17 @@ class VirtualServo:
         alone = not any(set(LIMITED_BY.get(n, ())) & set(names) for n in names)
         return 0, tuple(names), eeprom, alone
 
-    def _direct_layout(self, address: int, length: int) -> tuple[int, tuple[str, ...], bool, bool]:
-        """``_covers`` of a write of ``length`` bytes at ``address`` holding no Indirect
-        Data byte, worked out once per (address, length)."""
+    def _direct_layout(
+        self, address: int, length: int
+    ) -> tuple[int, tuple[str, ...], bool, bool] | None:
+        """``_covers`` of a write of ``length`` bytes at ``address`` (within the table), or
+        None if they hold an Indirect Data byte; worked out once per (address, length)."""
         key = (address, length)
-        layout = self._direct_layouts.get(key)
-        if layout is None:
-            layout = self._direct_layouts[key] = self._covers(range(address, address + length))
-        return layout
+        if key not in self._direct_layouts:
+            direct = self.direct(address, length)
+            covers = self._covers(range(address, address + length)) if direct else None
+            self._direct_layouts[key] = covers
+        return self._direct_layouts[key]
 
     def check_write(self, address: int, data: bytes) -> tuple[int, bytearray | None, set[str]]:
         """What a WRITE of ``data`` at ``address`` would do.
@@ -337,8 +347,9 @@ class VirtualServo:
             return StatusError.DATA_LENGTH, None, set()
         if address + n > self.table_end:
             return StatusError.ACCESS, None, set()
-        if self.direct(address, n):
-            error, names, eeprom, alone = self._direct_layout(address, n)
+        layout = self._direct_layout(address, n)
+        if layout is not None:
+            error, names, eeprom, alone = layout
             after = None if alone else self.memory.copy()
             if after is not None:
                 after[address : address + n] = data
@@ -371,9 +382,9 @@ class VirtualServo:
             return StatusError.DATA_RANGE
         if name == "Operating Mode" and not accepts_mode(self.model, value):
             return StatusError.DATA_RANGE
-        limits = LIMITED_BY.get(name)
-        if limits is not None and all(n in self.items for n in limits):
-            bounds = [self._codec[n][0](after, self._codec[n][2])[0] for n in limits]
+        limits = self._bounds.get(name)
+        if limits is not None:
+            bounds = [unpack(after, at)[0] for unpack, at in limits]
             if name == "Goal Position":
                 if self.get("Operating Mode") == POSITION_MODE and not (
                     bounds[0] <= value <= bounds[1]
