@@ -9,9 +9,10 @@ import pytest
 from trajgen.drivers import bus as drivers_bus
 from trajgen.drivers.bus import ServoBus
 from trajgen.drivers.control_table import MODELS, Register
-from trajgen.drivers.errors import CommError, ServoError
+from trajgen.drivers.errors import BadArgument, CommError, ServoError
 from trajgen.drivers.virtual.bus import Fault, VirtualBus, WireTiming
 from trajgen.drivers.virtual.plant import FirstOrderPlant, Plant
+from trajgen.sim.errors import SimulationError
 
 XM430 = MODELS["XM430-W350"]
 STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
@@ -214,8 +215,9 @@ def test_bus_watchdog_trips_on_simulated_time_and_blocks_goals_until_cleared(pai
     assert virtual.servos[1].get(Register.GOAL_POSITION) == 2100
 
 
-def test_bus_watchdog_trips_on_the_wall_clock_in_real_time():
-    virtual = VirtualBus(FirstOrderPlant()).start()
+@pytest.mark.parametrize("plant_process", [False, True], ids=["thread", "process"])
+def test_bus_watchdog_trips_on_the_wall_clock_in_real_time(plant_process):
+    virtual = VirtualBus(FirstOrderPlant(), plant_process=plant_process).start()
     try:
         with ServoBus(virtual.port) as bus:
             bus.add_servo(1, XM430)
@@ -499,3 +501,43 @@ def test_a_reply_later_than_its_timeout_is_never_read_as_the_next_ones():
                     assert "failed after 2 tries" in str(e)
     finally:
         virtual.stop()
+
+
+def test_a_step_failing_in_the_plants_process_closes_the_bus():
+    class Failing(FirstOrderPlant):
+        def advance(self, dt_s):
+            if self._goal[0] != 0.0:
+                raise SimulationError("the plant failed on a goal")
+            super().advance(dt_s)
+
+    virtual = VirtualBus(Failing(), plant_process=True).start()
+    try:
+        with ServoBus(virtual.port, latency_ms=200.0, retries=0) as bus:
+            bus.add_servo(1, XM430)
+            bus.write(1, Register.GOAL_POSITION, 2100)
+            with pytest.raises(CommError):
+                for _ in range(100_000):  # until the bus goes away
+                    bus.read(1, Register.PRESENT_POSITION)
+        assert isinstance(virtual.error, SimulationError)
+        assert "failed on a goal" in str(virtual.error)
+    finally:
+        virtual.stop()
+
+
+def test_the_plants_process_takes_goals_and_settings_in_order():
+    virtual = VirtualBus(FirstOrderPlant(time_constant_s=0.0), plant_process=True).start()
+    try:
+        with ServoBus(virtual.port, latency_ms=200.0) as bus:
+            bus.add_servo(1, XM430)
+            bus.write(1, Register.GOAL_POSITION, 3000)  # before torque: goal kept
+            bus.write(1, Register.TORQUE_ENABLE, 1)  # then the plant moves there
+            assert any(bus.read(1, Register.PRESENT_POSITION) == 3000 for _ in range(100_000))
+            bus.write(1, Register.TORQUE_ENABLE, 0)
+            bus.write(1, Register.GOAL_POSITION, 1000)  # torque off: it stays
+            since_s = virtual.sim_time_s
+            while virtual.sim_time_s < since_s + 0.005:  # five steps and more
+                assert bus.read(1, Register.PRESENT_POSITION) == 3000
+    finally:
+        virtual.stop()
+    with pytest.raises(BadArgument, match="only in real time"):
+        VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, plant_process=True)

@@ -6,6 +6,8 @@ status ERR values: 1 result fail, 2 instruction, 4 data range, 5 data length,
 """
 
 import gc
+import multiprocessing
+import threading
 import time
 
 import pytest
@@ -114,45 +116,82 @@ def _raw(s, servo_id, instruction, params):
 # -- time ------------------------------------------------------------------------
 
 
-def test_real_time_bus_answers_within_the_sdk_timeout_after_a_pause(sdk, monkeypatch):
-    sim_plant = pytest.importorskip("trajgen.sim.plant")
-    s = sdk(sim_plant.GimbalPlant(), lockstep_dt_s=None)
-    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 16)  # the SDK's own
-    s.write(1, TORQUE, 1, 1)
-    s.position(1)
-    time.sleep(2.0)
-    start = time.monotonic()
-    value, result, error = s.ph.read4ByteTxRx(s.port, 1, PRESENT_POSITION)
-    took_s = time.monotonic() - start
-    assert result == COMM_SUCCESS and error == 0  # the SDK gives up at about 34 ms
-    assert took_s < 0.034  # no catch-up on arrival: the simulation ran during the pause
-    wall_s, sim_s = s.virtual.wall_time_s, s.virtual.sim_time_s
-    assert sim_s == pytest.approx(wall_s, rel=0.05, abs=0.02)  # simulated time tracks wall time
-
-
-def test_every_instruction_is_answered_in_time_after_a_pause(sdk, monkeypatch):
-    sim_plant = pytest.importorskip("trajgen.sim.plant")
-    s = sdk(sim_plant.GimbalPlant(record=False), lockstep_dt_s=None)
-    monkeypatch.setattr("dynamixel_sdk.port_handler.LATENCY_TIMER", 16)  # the SDK's own
+def _every_instruction(s):
+    """{name: call() -> (result, status error)} for every instruction but the ones that
+    reach the plant's own settings (``_plant_instructions``)."""
     bulk = GroupBulkRead(s.port, s.ph)
     assert bulk.addParam(1, PRESENT_POSITION, 4) and bulk.addParam(2, TICK, 2)
-    calls = {
+    return {
         "PING": lambda: s.ph.ping(s.port, 1)[1:],
         "READ": lambda: s.ph.read4ByteTxRx(s.port, 1, PRESENT_POSITION)[1:],
-        "WRITE": lambda: s.ph.write1ByteTxRx(s.port, 1, OPERATING_MODE, 4),
+        "WRITE": lambda: s.ph.write4ByteTxRx(s.port, 1, GOAL_POSITION, 2100),
         "REG_WRITE": lambda: s.ph.regWriteTxRx(s.port, 1, LED, 1, [1]),
         # ACTION is broadcast (no status): its check is that the LED it lit reads 1.
         "ACTION": lambda: (s.ph.action(s.port, BROADCAST_ID), s.read(1, LED, 1) - 1),
         "BULK_READ": lambda: (bulk.txRxPacket(), 0),
         "FAST_BULK_READ": lambda: (bulk.fastBulkRead(), 0),
-        "CLEAR": lambda: s.ph.clearMultiTurn(s.port, 1),
+        "CLEAR": lambda: s.ph.clearMultiTurn(s.port, 2),  # at rest (torque off)
+    }
+
+
+def _plant_instructions(s):
+    """{name: call()} of the instructions that change what the plant simulates (its
+    settings: torque, the position loop)."""
+    return {
+        "WRITE Operating Mode": lambda: s.ph.write1ByteTxRx(s.port, 2, OPERATING_MODE, 4),
         "REBOOT": lambda: s.ph.reboot(s.port, 1),
         "FACTORY_RESET": lambda: s.ph.factoryReset(s.port, 1, 0x02),
     }
-    for name, call in calls.items():
-        time.sleep(0.25)
+
+
+def test_real_time_no_instruction_makes_the_serving_thread_step_the_plant(sdk):
+    # The plant in a thread of this process: after a pause (steps fall due), every
+    # instruction is answered from the latest step; only the simulation thread steps.
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
+    stepped_by = set()
+
+    class Recording(sim_plant.GimbalPlant):
+        def advance(self, dt_s):
+            stepped_by.add(threading.current_thread().name)
+            super().advance(dt_s)
+
+    s = sdk(Recording(record=False), lockstep_dt_s=None)
+    s.write(1, TORQUE, 1, 1)
+    for name, call in {**_every_instruction(s), **_plant_instructions(s)}.items():
+        time.sleep(0.05)
         assert call() == (COMM_SUCCESS, 0), name
     assert s.read(1, LED, 1) == 0  # ACTION lit it, REBOOT put it out
+    assert stepped_by == {"virtual-bus_simulate"}
+    assert s.virtual.sim_time_s <= s.virtual.wall_time_s  # never ahead of the wall clock
+
+
+def test_real_time_replies_do_not_wait_for_a_simulation_held_back(sdk):
+    # The plant in its own process, held inside a step (as by a host that does not run
+    # it): every instruction is answered meanwhile, from the last step (the tick stands
+    # still), settings included (the plant takes them when it steps again).
+    sim_plant = pytest.importorskip("trajgen.sim.plant")
+    fork = multiprocessing.get_context("fork")
+    held, release = fork.Event(), fork.Event()
+
+    class Held(sim_plant.GimbalPlant):
+        def advance(self, dt_s):
+            if self.time_s >= 0.05 and not release.is_set():
+                held.set()
+                release.wait()
+            super().advance(dt_s)
+
+    s = sdk(Held(record=False), lockstep_dt_s=None, plant_process=True)
+    s.write(1, TORQUE, 1, 1)
+    assert held.wait(timeout=60)  # a guard against a hang, not a time limit
+    tick = s.read(1, TICK, 2)
+    for name, call in {**_every_instruction(s), **_plant_instructions(s)}.items():
+        assert call() == (COMM_SUCCESS, 0), name
+    assert s.read(1, LED, 1) == 0  # ACTION lit it, REBOOT put it out
+    assert s.read(1, TICK, 2) == tick  # still held: the same step
+    release.set()
+    assert any(s.read(1, TICK, 2) != tick for _ in range(100_000))  # it steps again
+    assert s.virtual.sim_time_s <= s.virtual.wall_time_s  # never ahead of the wall clock
+    assert s.virtual.error is None
 
 
 def test_realtime_tick_counts_milliseconds_in_real_time(sdk):
@@ -445,7 +484,10 @@ def test_changing_operating_mode_resets_goal_pwm_gains_and_profile(sdk):
     assert s.virtual.plant.control[0]["Operating Mode"] == 4
 
 
-def test_what_the_plant_does_not_simulate_is_refused_and_the_bus_lives_on(sdk):
+@pytest.mark.parametrize(
+    "clock", [{}, {"lockstep_dt_s": None, "plant_process": True}], ids=["lockstep", "process"]
+)
+def test_what_the_plant_does_not_simulate_is_refused_and_the_bus_lives_on(sdk, clock):
     sim_firmware = pytest.importorskip("trajgen.sim.firmware")
     sim_plant = pytest.importorskip("trajgen.sim.plant")
     told = []
@@ -453,6 +495,7 @@ def test_what_the_plant_does_not_simulate_is_refused_and_the_bus_lives_on(sdk):
         sim_plant.GimbalPlant(record=False),
         unsupported=(sim_firmware.UnsupportedServoSetting,),
         on_refusal=lambda servo_id, reason: told.append((servo_id, reason)),
+        **clock,
     )
     assert s.write(1, PROFILE_VELOCITY, 100, 4) == RESULT_FAIL
     assert s.read(1, PROFILE_VELOCITY, 4) == 0  # undone

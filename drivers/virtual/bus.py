@@ -79,8 +79,9 @@ from trajgen.drivers.virtual.chain import ChainPlant
 from trajgen.drivers.virtual.faults import Fault, FaultInjection
 from trajgen.drivers.virtual.handlers import SECONDARY_ID, InstructionHandlers
 from trajgen.drivers.virtual.plant import FirstOrderPlant, Plant
+from trajgen.drivers.virtual.process import PlantProcess
 from trajgen.drivers.virtual.servo import VirtualServo
-from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime
+from trajgen.drivers.virtual.simulation import IN_POSITION_TICKS, SimulatedTime, WallSteps
 from trajgen.drivers.virtual.transport import PtyTransport, WireTiming
 from trajgen.servo_table import BAUD_RATES, CONTROL_REGISTERS
 
@@ -107,6 +108,8 @@ _GOAL_CLAMP = frozenset({"Min Position Limit", "Max Position Limit", "Operating 
 # Registers whose writes the plant hears at once (``_written``), and the id registers.
 _CONTROL = frozenset(CONTROL_REGISTERS)
 _IDS = frozenset({"ID", SECONDARY_ID})
+# Registers whose writes may bring a Bus Watchdog's trip closer.
+_WATCHDOG_ARMING = frozenset({"Bus Watchdog", "Torque Enable"})
 
 
 def _chain_plant(plant: Plant | None, ids: tuple[int, ...], plant_ids) -> Plant:
@@ -238,6 +241,7 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         unsupported: tuple[type[Exception], ...] = (),
         on_refusal: Callable[[int, str], None] | None = None,
         baud: int | None = None,
+        plant_process: bool = False,
     ) -> None:
         ids = tuple(ids)
         plant = _chain_plant(plant, ids, plant_ids)
@@ -249,6 +253,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             raise BadArgument(f"Expected `lockstep_dt_s` > 0 or None, got {lockstep_dt_s}.")
         if not sim_step_s > 0:
             raise BadArgument(f"Expected `sim_step_s` > 0, got {sim_step_s}.")
+        if plant_process and lockstep_dt_s is not None:
+            raise BadArgument("Expected `plant_process` only in real time (`lockstep_dt_s` None).")
         registers = {i: dict(r) for i, r in (registers or {}).items()}
         if baud is not None:
             if baud not in _BAUD_VALUE:
@@ -256,7 +262,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             for i in ids:
                 registers.setdefault(i, {})["Baud Rate"] = _BAUD_VALUE[baud]
         self.baud = baud
-        self.plant = plant
+        self.plant = self._own_plant = plant
+        self.plant_process = plant_process
+        self._process: PlantProcess | None = None
         self.ids = ids
         self.servos = {
             i: VirtualServo(i, m, registers=registers.get(i))
@@ -292,6 +300,8 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             self.plant.set_torque_enabled(self._joint[servo_id], servo.torque_on)
         self._index_ids()
         self._goal_written = False
+        self._goal_ticks: dict[int, int] = {}  # joint -> plant ticks of a goal just written
+        self._trip_at_s = -float("inf")  # no Bus Watchdog trips before (real time, process)
         self._polled = False
         self._last_packet_s = dict.fromkeys(ids, 0.0)
         self._wire_free_s = 0.0
@@ -304,9 +314,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._late: list[tuple[float, int, bytes]] = []
         self._late_count = 0
         self._switch_interval_s = sys.getswitchinterval()
-        self._started_s = self._credit_at_s = time.monotonic()
+        self._started_s = time.monotonic()
+        self._wall = WallSteps(sim_step_s, self._started_s)
         self._steps_done = 0
-        self._credit_s = 0.0  # real time: simulated time the thread may run now (s)
         self.stale_replies = 0
         self.stale_max_s = 0.0
         self._publish()
@@ -331,12 +341,16 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._reader = PacketReader()
         self._client_answers = False
         with self.lock:
-            self._started_s = self._credit_at_s = time.monotonic()
+            self._started_s = time.monotonic()
+            self._wall = WallSteps(self.sim_step_s, self._started_s)
             self._steps_done = 0
-            self._credit_s = 0.0
+            if self.plant_process:
+                self._process = PlantProcess(self._own_plant, self.sim_step_s, self._started_s)
+                self.plant = self._process
             self._publish()
         self._last_packet_s = dict.fromkeys(self.ids, self._now())
-        targets = [self._serve] + ([self._simulate] if self.lockstep_dt_s is None else [])
+        simulating = self.lockstep_dt_s is None and self._process is None
+        targets = [self._serve] + ([self._simulate] if simulating else [])
         self._threads = [
             threading.Thread(target=t, name=f"virtual-bus{t.__name__}", daemon=True)
             for t in targets
@@ -351,6 +365,10 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         for thread in self._threads:
             thread.join(timeout=2.0)
         self._threads = []
+        if self._process is not None:
+            self._process.stop()
+            self._publish()  # its last step: sim_time_s
+            self._process = None
         for fd in (self._master, self._slave):
             if fd >= 0:
                 try:
@@ -409,12 +427,17 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
     def _control(servo: VirtualServo) -> dict[str, int]:
         return {name: servo.get(name) for name in CONTROL_REGISTERS}
 
-    def _goal_for_plant(self, servo: VirtualServo) -> float:
-        """The plant angle (rad) of a servo's Goal Position, clamped to its limits."""
+    @staticmethod
+    def _goal_plant_ticks(servo: VirtualServo) -> int:
+        """The plant position (ticks) of a servo's Goal Position, clamped to its limits."""
         goal = servo.get("Goal Position")
         if servo.position_mode:
             goal = min(max(goal, servo.get("Min Position Limit")), servo.get("Max Position Limit"))
-        return float(servo_ticks_to_rad(servo.plant_ticks(goal)))
+        return servo.plant_ticks(goal)
+
+    def _goal_for_plant(self, servo: VirtualServo) -> float:
+        """The plant angle (rad) of a servo's Goal Position, clamped to its limits."""
+        return float(servo_ticks_to_rad(self._goal_plant_ticks(servo)))
 
     def _written(self, servo_id: int, names: set[str]) -> None:
         """Pass what a write changed to the plant (goals wait for ``_commit_goals``)."""
@@ -426,9 +449,13 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             self._index_ids()
         if "Torque Enable" in names:
             self.plant.set_torque_enabled(j, servo.torque_on)
-        if "Goal Position" in names:
-            self._goal_rad[j] = self._goal_for_plant(servo)
+        if _WATCHDOG_ARMING & names:  # a Bus Watchdog may trip sooner: look again
+            self._trip_at_s = -float("inf")
+        if "Goal Position" in names:  # in radians once the packet is done (_commit_goals)
+            self._goal_ticks[j] = self._goal_plant_ticks(servo)
             self._goal_written = True
+        elif j in self._goal_ticks and names & _GOAL_CLAMP:  # a goal of this packet
+            self._goal_ticks[j] = self._goal_plant_ticks(servo)  # within the new limits
         elif names & _GOAL_CLAMP:  # the goal held, clamped to the new limits or mode
             goal = self._goal_for_plant(servo)
             if goal != self._goal_rad[j]:
@@ -454,9 +481,13 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         except PacketError:
             return []  # a real servo cannot trust the id of a corrupt packet
         if self.lockstep_dt_s is None:
+            if self._process is not None:  # the latest step's, for what follows
+                self._steps_done = self._process.steps()
+                self.sim_time_s = self._steps_done * self.sim_step_s
             self._note_staleness(arrival_s)
+        now = self._now()
         for servo_id in self._addressed(packet.servo_id, acting=True):
-            self._last_packet_s[servo_id] = self._now()
+            self._last_packet_s[servo_id] = now
         handler = self._HANDLERS.get(packet.instruction, InstructionHandlers._unknown)
         replies = handler(self, packet.servo_id, packet.params)
         self._commit_goals()

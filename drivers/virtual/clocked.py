@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import math
 
-from trajgen.drivers.control_table import WATCHDOG_UNIT_S
 from trajgen.drivers.virtual.bus import VirtualBus
+
+from ..errors import BadArgument
 
 # A real-time VirtualBus underneath (lockstep_dt_s None: no period per goal or poll,
 # replies from the state ``_publish`` stores), with these in place of the simulation
@@ -47,6 +48,8 @@ class ClockedBus(VirtualBus):
     """
 
     def __init__(self, plant=None, *, clock, **kwargs) -> None:
+        if kwargs.get("plant_process"):
+            raise BadArgument("Expected no `plant_process` on a ClockedBus (the clock moves it).")
         super().__init__(plant, **kwargs)
         self.clock = clock
         self._clock_start_s = clock.now()
@@ -107,12 +110,3 @@ class ClockedBus(VirtualBus):
             self._steps_done += steps
             self._check_watchdogs(self._clock_start_s + self.sim_time_s)
         self._publish()
-
-    def _next_trip_s(self) -> float:
-        """The clock time (s) after which the first armed Bus Watchdog trips (inf if none)."""
-        trips = [
-            self._last_packet_s[i] + WATCHDOG_UNIT_S * servo.get("Bus Watchdog")
-            for i, servo in self.servos.items()
-            if i in self._last_packet_s and servo.torque_on and servo.get("Bus Watchdog") > 0
-        ]
-        return min(trips, default=math.inf)

@@ -199,6 +199,7 @@ class InstructionHandlers:
         self._index_ids()
         self.plant.set_torque_enabled(j, False)
         self.plant.set_control(j, self._control(servo))
+        self._goal_ticks.pop(j, None)
         self._goal_rad[j] = self._goal_for_plant(servo)
         self._goal_written = True
 

@@ -124,6 +124,7 @@ class VirtualServo:
         for name, (address, size) in self.items.items():
             for a in range(address, address + size):
                 self._owner[a] = name
+        self._direct_layouts: dict[tuple[int, int], tuple | None] = {}
         self._indirect: dict[int, str] = {}  # Indirect Data byte -> its Indirect Address name
         for name, (address, _) in self.items.items():
             if name.startswith("Indirect Data "):
@@ -146,6 +147,13 @@ class VirtualServo:
             packing = struct.Struct("<" + _STRUCT_CODE[size, signed])
             self._codec[key] = (packing.unpack_from, packing.pack_into, address)
         self._present_start, self._present_struct, self._present_spans = self._present_layout()
+        # register -> (unpack_from, address) of each register bounding it (LIMITED_BY), where
+        # the model has them all
+        self._bounds = {
+            name: tuple((self._codec[n][0], self._codec[n][2]) for n in limits)
+            for name, limits in LIMITED_BY.items()
+            if name in self.items and all(n in self.items for n in limits)
+        }
         self.firmware = firmware
         self.turn_offset_ticks = 0
         self.pending: tuple[int, bytes] | None = None
@@ -202,6 +210,11 @@ class VirtualServo:
             In ``PRESENT_REGISTERS`` order, register units; each is clamped to what
             its register can hold.
         """
+        try:  # ints that fit: as they are (the common case, one C call)
+            self._present_struct.pack_into(self.memory, self._present_start, *values)
+            return
+        except struct.error:
+            pass
         clamped = [
             min(max(int(v), low), high)
             for v, (low, high) in zip(values, self._present_spans, strict=True)
@@ -267,64 +280,101 @@ class VirtualServo:
             return 0, bytes(self.memory[address : address + length])
         return 0, bytes(self.memory[self.target(a)] for a in range(address, address + length))
 
-    def _resolve(self, address: int, data: bytes) -> tuple[int, dict[int, int]]:
-        """(status error, {target byte: value}) for a write of ``data`` at ``address``."""
-        if not data:
-            return StatusError.DATA_LENGTH, {}
-        if address + len(data) > self.table_end:
-            return StatusError.ACCESS, {}
-        if self.direct(address, len(data)):
-            return 0, dict(zip(range(address, address + len(data)), data, strict=True))
-        return 0, {self.target(address + k): byte for k, byte in enumerate(data)}
+    def _covers(self, targets: Sequence[int]) -> tuple[int, tuple[str, ...], bool, bool]:
+        """What a write to the bytes ``targets`` covers: (status error, registers, EEPROM,
+        alone).
 
-    def _new_value(self, name: str, bytes_: dict[int, int]) -> int:
-        """A register's value once the target bytes ``bytes_`` are written."""
-        unpack, _, address = self._codec[name]
-        span = range(address, address + self._layout[name][1])
-        if bytes_.keys().isdisjoint(span):  # not written
-            return unpack(self.memory, address)[0]
-        raw = bytearray(self.memory[span.start : span.stop])
-        for a in span:
-            if a in bytes_:
-                raw[a - address] = bytes_[a]
-        return unpack(raw, 0)[0]
+        The error is for the layout alone: a byte of no register or of a read-only
+        one (access), part of a register (data length); 0 with the registers in
+        address order, whether one is in the EEPROM area, and whether none of them
+        bounds another (``LIMITED_BY``: each is then checked against the table as it
+        is).
+        """
+        names: list[str] = []
+        for a in targets:
+            name = self._owner.get(a)
+            if name is None:
+                return StatusError.ACCESS, (), False, False
+            if name not in names:
+                names.append(name)
+        covered = set(targets)
+        for name in names:
+            start, size = self.items[name]
+            if not covered.issuperset(range(start, start + size)):
+                return StatusError.DATA_LENGTH, (), False, False
+            if not self.rules[name].writable:
+                return StatusError.ACCESS, (), False, False
+        eeprom = any(self.items[n][0] < EEPROM_END for n in names)
+        alone = not any(set(LIMITED_BY.get(n, ())) & set(names) for n in names)
+        return 0, tuple(names), eeprom, alone
 
-    def check_write(self, address: int, data: bytes) -> tuple[int, dict[int, int], set[str]]:
+    def _direct_layout(
+        self, address: int, length: int
+    ) -> tuple[int, tuple[str, ...], bool, bool] | None:
+        """``_covers`` of a write of ``length`` bytes at ``address`` (within the table), or
+        None if they hold an Indirect Data byte; worked out once per (address, length)."""
+        key = (address, length)
+        if key not in self._direct_layouts:
+            direct = self.direct(address, length)
+            covers = self._covers(range(address, address + length)) if direct else None
+            self._direct_layouts[key] = covers
+        return self._direct_layouts[key]
+
+    def check_write(self, address: int, data: bytes) -> tuple[int, bytearray | None, set[str]]:
         """What a WRITE of ``data`` at ``address`` would do.
 
         Returns
         -------
         error : int
             The status error (0: allowed).
-        bytes_ : dict of int to int
-            Target byte address -> value (Indirect Data resolved).
+        after : bytearray or None
+            The control table as the write leaves it (Indirect Data resolved to
+            its targets); None if refused.
         names : set of str
             The registers written.
         """
-        error, bytes_ = self._resolve(address, data)
-        if error:
-            return error, {}, set()
-        names = set()
-        for a in bytes_:
-            name = self._owner.get(a)
-            if name is None:
-                return StatusError.ACCESS, {}, set()
-            names.add(name)
-        for name in names:
-            start, size = self.items[name]
-            if len(bytes_.keys() & range(start, start + size)) != size:
-                return StatusError.DATA_LENGTH, {}, set()
-            if not self.rules[name].writable:
-                return StatusError.ACCESS, {}, set()
-            if start < EEPROM_END and self.torque_on:
-                return StatusError.ACCESS, {}, set()
-        for name in names:
-            error = self._check_value(name, self._new_value(name, bytes_), bytes_)
-            if error:
-                return error, {}, set()
-        return 0, bytes_, names
+        error, after, names = self._check(address, data)
+        if not error and after is None:  # a direct write checked in place
+            after = self.memory.copy()
+            after[address : address + len(data)] = data
+        return error, after, names
 
-    def _check_value(self, name: str, value: int, bytes_: dict[int, int]) -> int:
+    def _check(self, address: int, data: bytes) -> tuple[int, bytearray | None, set[str]]:
+        """``check_write``, but ``after`` None for an allowed direct write of registers
+        that bound none of each other (checked against the table as it is: no copy)."""
+        n = len(data)
+        if not n:
+            return StatusError.DATA_LENGTH, None, set()
+        if address + n > self.table_end:
+            return StatusError.ACCESS, None, set()
+        layout = self._direct_layout(address, n)
+        if layout is not None:
+            error, names, eeprom, alone = layout
+            after = None if alone else self.memory.copy()
+            if after is not None:
+                after[address : address + n] = data
+        else:
+            targets = [self.target(address + k) for k in range(n)]
+            error, names, eeprom, _ = self._covers(targets)
+            after = self.memory.copy()
+            for a, byte in zip(targets, data, strict=True):
+                after[a] = byte
+        if error:
+            return error, None, set()
+        if eeprom and self.torque_on:
+            return StatusError.ACCESS, None, set()
+        for name in names:
+            unpack, _, at = self._codec[name]
+            if after is None:
+                error = self._check_value(name, unpack(data, at - address)[0], self.memory)
+            else:
+                error = self._check_value(name, unpack(after, at)[0], after)
+            if error:
+                return error, None, set()
+        return 0, after, set(names)
+
+    def _check_value(self, name: str, value: int, after: bytearray) -> int:
+        """The status error of register ``name`` taking ``value``, the table then ``after``."""
         rule = self.rules[name]
         if name in _GOALS and self.watchdog_tripped:
             return StatusError.DATA_RANGE
@@ -332,9 +382,9 @@ class VirtualServo:
             return StatusError.DATA_RANGE
         if name == "Operating Mode" and not accepts_mode(self.model, value):
             return StatusError.DATA_RANGE
-        limits = LIMITED_BY.get(name)
-        if limits is not None and all(n in self.items for n in limits):
-            bounds = [self._new_value(n, bytes_) for n in limits]
+        limits = self._bounds.get(name)
+        if limits is not None:
+            bounds = [unpack(after, at)[0] for unpack, at in limits]
             if name == "Goal Position":
                 if self.get("Operating Mode") == POSITION_MODE and not (
                     bounds[0] <= value <= bounds[1]
@@ -349,12 +399,14 @@ class VirtualServo:
 
     def write(self, address: int, data: bytes) -> tuple[int, set[str]]:
         """WRITE if allowed: (status error, registers written); 0 means written."""
-        error, bytes_, names = self.check_write(address, data)
+        error, after, names = self._check(address, data)
         if error:
             return error, set()
         old_mode = self.get("Operating Mode")
-        for a, byte in bytes_.items():
-            self.memory[a] = byte
+        if after is None:
+            self.memory[address : address + len(data)] = data
+        else:
+            self.memory[:] = after
         if "Operating Mode" in names and self.get("Operating Mode") != old_mode:
             resets = [n for n in _MODE_RESETS if n in self.items]
             self._load(resets, {})

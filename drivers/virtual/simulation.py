@@ -9,13 +9,14 @@ present-value registers from the plant, and runs each servo's Bus Watchdog
 
 from __future__ import annotations
 
+import math
 import select
 import time
 
 import numpy as np
 
 from trajgen.drivers.control_table import WATCHDOG_UNIT_S
-from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks
+from trajgen.drivers.units import VELOCITY_UNIT_RAD_S, rad_to_servo_ticks, servo_ticks_to_rad
 from trajgen.drivers.virtual.servo import VirtualServo
 from trajgen.servo_table import PWM_FULL_SCALE
 
@@ -42,9 +43,71 @@ _STALE_S = 0.005
 # The first and last of the motion registers the plant fills (addresses 120..143;
 # a read of them is a poll). Present Input Voltage and Temperature follow them.
 _PRESENT_FIRST, _PRESENT_LAST = "Realtime Tick", "Position Trajectory"
+# Real time, the plant in its own process: how long (s) after a Bus Watchdog's period
+# ends the serving thread looks (the thread checked it every step, 1 ms).
+_WATCH_MARGIN_S = 1e-4
+# (model name, address, length) -> whether a read of them holding no Indirect Data
+# byte touches the motion registers (the layout decides: worked out once).
+_DIRECT_POLLS: dict[tuple[str, int, int], bool] = {}
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
 # the one ROBOTIS' examples use to decide a goal is reached (pulses).
 IN_POSITION_TICKS = 20
+
+
+class WallSteps:
+    """Real time: the plant's steps due on the wall clock, and the catch-up rules.
+
+    Simulated time is the wall clock since ``started_s`` in whole steps of
+    ``step_s``. ``take`` hands out at most ``_MAX_STEPS_PER_HOLD`` steps at a
+    time, and never more than ``_CATCH_UP_RATE`` times real time over more
+    than ``_CATCH_UP_BURST_S``: the steps come out of a credit of simulated
+    time that grows at that rate with the wall clock, capped at
+    ``_CATCH_UP_BURST_S`` (so replies never show more motion than that at
+    once). Used by the simulation thread and by the plant's own process
+    (``drivers.virtual.process``).
+
+    Parameters
+    ----------
+    step_s : float
+        The plant's step (s).
+    started_s : float
+        ``time.monotonic()`` at simulated time 0.
+
+    Attributes
+    ----------
+    done : int
+        Steps handed out so far.
+    """
+
+    def __init__(self, step_s: float, started_s: float) -> None:
+        self.step_s = step_s
+        self.started_s = self._credit_at_s = started_s
+        self.done = 0
+        self._credit_s = 0.0  # simulated time the plant may run now (s)
+
+    def take(self, now_s: float) -> int:
+        """The steps to run at ``now_s`` (counted in ``done``); 0 when none is due."""
+        cap = max(_MAX_STEPS_PER_HOLD * self.step_s, _CATCH_UP_BURST_S)
+        self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
+        self._credit_at_s = now_s
+        due = int((now_s - self.started_s) / self.step_s)
+        credit = int(self._credit_s / self.step_s + 1e-9)
+        steps = max(0, min(due - self.done, credit, _MAX_STEPS_PER_HOLD))
+        self.done += steps
+        self._credit_s -= steps * self.step_s
+        return steps
+
+    def wake_s(self, now_s: float, *, unread: float) -> float:
+        """When (``time.monotonic()``) the next step is due and has credit: never a spin.
+
+        ``unread``: how long (s) nobody has read the present values; past
+        ``_IDLE_AFTER_S``, once caught up, every ``_IDLE_WAKE_S`` instead (the
+        steps due meanwhile run at once).
+        """
+        due_s = self.started_s + (self.done + 1) * self.step_s
+        if due_s > now_s and unread > _IDLE_AFTER_S:
+            due_s = now_s + _IDLE_WAKE_S
+        return max(due_s, self._credit_at_s + (self.step_s - self._credit_s) / _CATCH_UP_RATE)
 
 
 class SimulatedTime:
@@ -58,24 +121,12 @@ class SimulatedTime:
             self._check_watchdogs(self.sim_time_s)
 
     def _catch_up(self, now_s: float) -> None:
-        """Real time: advance the plant by whole steps toward ``now_s`` (lock held).
-
-        At most ``_MAX_STEPS_PER_HOLD`` steps, and never faster than
-        ``_CATCH_UP_RATE`` times real time over more than ``_CATCH_UP_BURST_S``:
-        the steps come out of a credit of simulated time that grows at that
-        rate with the wall clock, capped at ``_CATCH_UP_BURST_S`` (so replies
-        never show more motion than that at once).
-        """
-        cap = max(_MAX_STEPS_PER_HOLD * self.sim_step_s, _CATCH_UP_BURST_S)
-        self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
-        self._credit_at_s = now_s
-        due = int((now_s - self._started_s) / self.sim_step_s)
-        credit = int(self._credit_s / self.sim_step_s + 1e-9)
-        steps = min(due - self._steps_done, credit, _MAX_STEPS_PER_HOLD)
+        """Real time: advance the plant by the steps due at ``now_s`` (``WallSteps.take``;
+        lock held)."""
+        steps = self._wall.take(now_s)
         if steps > 0:
             self._advance(steps * self.sim_step_s)
-            self._steps_done += steps
-            self._credit_s -= steps * self.sim_step_s
+            self._steps_done = self._wall.done
 
     def _publish(self) -> None:
         """Real time: read the plant's latest step for replies (lock held; never steps it).
@@ -85,6 +136,12 @@ class SimulatedTime:
         once per step at most, by the first reply that needs present values
         after it (``_refresh_present``): the simulation thread only steps.
         """
+        if self._process is not None:  # the plant steps in its own process
+            steps, ticks, velocity, current, pwm = self._process.latest()
+            self._steps_done = steps
+            self.sim_time_s = steps * self.sim_step_s
+            self._snapshot = (self.sim_time_s, ticks, velocity, current, pwm)
+            return
         position, velocity, current = self.plant.read()
         self._snapshot = (
             self._steps_done * self.sim_step_s,
@@ -135,19 +192,18 @@ class SimulatedTime:
             except Exception as e:  # the plant failed: the port goes away
                 self._fail(e)
                 return
-            # Until the next step is due and there is credit for it (never a spin).
-            due_s = self._started_s + (self._steps_done + 1) * self.sim_step_s
-            credit_s = self._credit_at_s + (self.sim_step_s - self._credit_s) / _CATCH_UP_RATE
             now = time.monotonic()
-            if due_s > now and now - self._read_at_s > _IDLE_AFTER_S:  # caught up, unread
-                due_s = now + _IDLE_WAKE_S  # wake less (steps due meanwhile run at once)
-            time.sleep(max(0.0, max(due_s, credit_s) - now))
+            time.sleep(max(0.0, self._wall.wake_s(now, unread=now - self._read_at_s) - now))
 
     def _commit_goals(self) -> None:
         """After a packet: hand new goals to the plant (lock-step: a period ends first)."""
         if not self._goal_written:
             return
         self._goal_written = False
+        if self._goal_ticks:  # Goal Position writes: one conversion for all
+            joints = list(self._goal_ticks)
+            self._goal_rad[joints] = servo_ticks_to_rad(np.array(list(self._goal_ticks.values())))
+            self._goal_ticks.clear()
         if self.lockstep_dt_s is not None:
             self._advance(self.lockstep_dt_s)
             self._polled = False
@@ -162,6 +218,8 @@ class SimulatedTime:
         """
         if self.lockstep_dt_s is None:
             self._read_at_s = time.monotonic()
+            if self._process is not None:
+                self._process.note_read(self._read_at_s)
             if self._snapshot[0] != self._steps_done * self.sim_step_s:  # a step since
                 self._publish()
             sim_s, ticks, velocity, current, pwm = self._snapshot
@@ -210,11 +268,35 @@ class SimulatedTime:
 
     def _reads_present(self, servo: VirtualServo, address: int, length: int) -> bool:
         """Whether a read of ``address``.. touches the motion registers (a poll)."""
+        key = (servo.model.name, address, length)
+        polls = _DIRECT_POLLS.get(key)
+        if polls is not None:
+            return polls
         low = servo.items[_PRESENT_FIRST][0]
         high = sum(servo.items[_PRESENT_LAST])
-        if servo.direct(address, length):  # no Indirect Data byte: one overlap test
-            return address < high and low < address + length
+        if servo.direct(address, length):  # no Indirect Data byte: one overlap test, kept
+            polls = _DIRECT_POLLS[key] = address < high and low < address + length
+            return polls
         return any(low <= servo.target(a) < high for a in range(address, address + length))
+
+    def _next_trip_s(self) -> float:
+        """The time (s, ``_now``) after which the first armed Bus Watchdog trips (inf if none)."""
+        trips = [
+            self._last_packet_s[i] + WATCHDOG_UNIT_S * servo.get("Bus Watchdog")
+            for i, servo in self.servos.items()
+            if i in self._last_packet_s and servo.torque_on and servo.get("Bus Watchdog") > 0
+        ]
+        return min(trips, default=math.inf)
+
+    def _watch_watchdogs(self) -> float:
+        """Real time, the plant in its own process: the serving thread trips the Bus
+        Watchdogs that are due; returns how long (s) it may wait before the next."""
+        now = time.monotonic()
+        if now > self._trip_at_s:  # looked for again only then, or after a write arming one
+            with self.lock:
+                self._check_watchdogs(now)
+                self._trip_at_s = self._next_trip_s()
+        return max(0.0, self._trip_at_s - now) + _WATCH_MARGIN_S
 
     def _check_watchdogs(self, now_s: float) -> None:
         for servo_id in self.ids:

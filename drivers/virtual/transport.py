@@ -71,13 +71,23 @@ class PtyTransport:
             if self._client_answers:  # the client answers its own packets
                 self._stop.wait(wait_s)
                 continue
+            watched = [self._master]
+            if self._process is not None:  # the plant in its own process: it may fail
+                watched.append(self._process)
+                wait_s = min(wait_s, self._watch_watchdogs())
             try:
                 self._serving_idle = True  # waiting for the host (see _simulate)
-                ready, _, _ = select.select([self._master], [], [], wait_s)
+                ready, _, _ = select.select(watched, [], [], wait_s)
                 self._serving_idle = False
             except (OSError, ValueError):
                 return  # master closed
-            if not ready:
+            if self._process is not None and self._process in ready:
+                try:
+                    self._process.check()
+                except Exception as e:  # the plant failed: the port goes away
+                    self._fail(e)
+                    return
+            if self._master not in ready:
                 continue
             with self._io_lock:
                 if self._client_answers:

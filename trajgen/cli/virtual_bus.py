@@ -147,13 +147,19 @@ def run_virtual_bus(args) -> int:
         registers=dict(zip(plant_ids, plant.initial_registers(), strict=True)),  # the file's gains
         unsupported=(UnsupportedServoSetting,),
         on_refusal=_tell_refusal,
+        plant_process=period_s is None,  # real time: no GIL shared with the simulation
     ).start()
     try:
-        print(virtual.port, flush=True)
-        clock = "real time" if period_s is None else f"lock-step, {1e3 * period_s:g} ms periods"
+        clock = (
+            "real time, the simulation in its own process"
+            if period_s is None
+            else f"lock-step, {1e3 * period_s:g} ms periods"
+        )
         idle = [i for i in ids if i not in plant_ids]
-        # Its threads (serving, simulating) answer ahead of other programs where permitted.
+        # Its threads (serving, simulating) answer ahead of other programs where permitted,
+        # from the first packet on: the port is told once they are raised.
         with stream_priority() as scheduling:
+            print(virtual.port, flush=True)
             tell(
                 f"serving servos {', '.join(map(str, ids))} ({', '.join(models)}), {clock}; "
                 + (f"idle (not the gimbal's): {', '.join(map(str, idle))}; " if idle else "")
@@ -163,8 +169,8 @@ def run_virtual_bus(args) -> int:
                 if virtual.error is not None:
                     break
     finally:
-        wall_s = virtual.wall_time_s
         virtual.stop()
+        wall_s = virtual.wall_time_s  # once the simulation has stopped
         for s, handler in previous.items():
             signal.signal(s, handler)
     if virtual.error is not None:
