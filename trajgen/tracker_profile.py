@@ -24,6 +24,7 @@ exact (:func:`~trajgen.joint_splice.joint_frame`).
 from __future__ import annotations
 
 import bisect
+import math
 
 import numpy as np
 
