@@ -43,10 +43,10 @@ def rig():
     """make(**VirtualBus options) -> (virtual bus, open ServoBus, servos added), lock-step."""
     made = []
 
-    def make(**kwargs):
+    def make(latency_ms=None, **kwargs):
         kwargs.setdefault("lockstep_dt_s", 0.005)
         virtual = VirtualBus(FirstOrderPlant(time_constant_s=0.01), **kwargs).start()
-        bus = virtual.connect().open()
+        bus = virtual.connect(latency_ms=latency_ms).open()
         made.append((virtual, bus))
         for i in IDS:
             bus.add_servo(i, virtual.servos[i].model)
@@ -104,16 +104,34 @@ def test_one_unsound_split_reply_is_retried_and_the_true_value_used(rig, fault):
     assert bus.failed_tries == 1
 
 
+def _wait_for(condition):
+    """Until ``condition()`` (polled; a bound of 60 s only against a hang)."""
+    import time
+
+    give_up = time.monotonic() + 60.0
+    while not condition() and time.monotonic() < give_up:
+        time.sleep(0.005)
+
+
+# A reply 1 s late, against a reply timeout of about 4 ms (an adapter latency of 1 ms):
+# late on any host that does not stall the test for a second.
+LATE = {"faults": [Fault("delay", delay_s=1.0, address=STATE_ADDRESS, count=1)], "latency_ms": 1}
+
+
 def test_a_late_split_reply_is_never_taken_for_the_answer(rig):
-    # The reply comes 80 ms late, past its timeout (about 34 ms on a pty): the try
-    # fails, the bus is drained, the retry's own reply is used; the late bytes are
-    # read by no one (the next read is another register's, and is right).
-    virtual, bus = rig(faults=[Fault("delay", delay_s=0.08, address=STATE_ADDRESS, count=1)])
+    # The try fails, the bus is drained, the retry's own reply is used. Once the late
+    # bytes are in (the bus wrote them), the next reads are still answered right: they
+    # are dropped before each request, never read as a reply.
+    virtual, bus = rig(**LATE)
+    sent = virtual.bytes_sent
     block = bus.collect(bus.request_block(IDS, STATE))
     assert block.table == _truth(virtual)
     assert bus.failed_tries == 1
+    _wait_for(lambda: virtual.bytes_sent >= sent + 2 * 50)  # the retry's reply, the late one
+    assert virtual.bytes_sent == sent + 2 * 50
     assert bus.read(2, Register.BUS_WATCHDOG) == virtual.servos[2].get(Register.BUS_WATCHDOG)
     assert bus.read_block(IDS, (Register.TORQUE_ENABLE,)).table == [[0], [0], [0]]
+    assert bus.failed_tries == 1
 
 
 def test_a_packet_sent_while_a_reply_is_due_waits_it_out_and_drops_it(rig):
@@ -321,9 +339,9 @@ def test_with_room_every_read_due_goes_in_its_frame_in_the_order_it_always_had()
 def test_await_reply_says_whether_the_reply_is_in_and_never_reads_it(rig):
     import time
 
-    virtual, bus = rig(faults=[Fault("delay", delay_s=0.08, address=STATE_ADDRESS, count=1)])
+    virtual, bus = rig(**LATE)
     pending = bus.request_block(IDS, STATE)
-    assert not bus.await_reply(pending, time.monotonic() + 0.002)  # 80 ms late: not yet
+    assert not bus.await_reply(pending, time.monotonic() + 0.002)  # 1 s late: not yet
     block = bus.collect(pending)  # past its timeout: a failed try, then a read at once
     assert block.table == _truth(virtual) and bus.failed_tries == 1
     pending = bus.request_block(IDS, STATE)  # lock-step: answered as it was sent
