@@ -15,7 +15,9 @@ driver did before ``drivers.frame_packets``). Reference: the wire time of the
 96 bytes at 4 Mbps (10 bits a byte: 240 us; docs/dynamixel.md). Each pass
 runs with 0, then 1 CPU-bound process beside it (``--hogs``), the driver and
 the responder at the priority the streamer takes on the wall clock
-(``drivers.priority``; ``--normal``: without). Prints per-frame
+(``drivers.priority``; ``--normal``: without). The driver's cycle is timed
+twice: its read done at once, and split as the streamer does it (the request
+after the goal, ``collect`` for the reply). Prints per-frame
 wall and CPU time (p50, p90, p99), their ratio to the wire time, and the
 machine load.
 
@@ -82,8 +84,9 @@ def _telemetry(joints, models, table) -> None:
     joints.signed_joint(current)
 
 
-def driver_frames(port: str, frames: int) -> tuple[list[float], list[float]]:
-    """Per-frame (wall, CPU) seconds of the driver's cycle."""
+def driver_frames(port: str, frames: int, split: bool = False) -> tuple[list[float], list[float]]:
+    """Per-frame (wall, CPU) seconds of the driver's cycle (``split``: the read as the
+    streamer does it, ``request_block`` after the goal and ``collect``)."""
     joints = JointMap()
     model = model_named("XM430-W350")
     walls, cpus = [], []
@@ -95,7 +98,10 @@ def driver_frames(port: str, frames: int) -> tuple[list[float], list[float]]:
         for k in range(frames + 100):  # the first 100 warm up
             w0, c0 = time.perf_counter(), time.process_time()
             bus.sync_write(Register.GOAL_POSITION, goal)
-            block = bus.read_block(IDS, STATE, fast=True)
+            if split:
+                block = bus.collect(bus.request_block(IDS, STATE, fast=True))
+            else:
+                block = bus.read_block(IDS, STATE, fast=True)
             bus.check_block(block, "streaming")
             _telemetry(joints, models, block.table)
             w1, c1 = time.perf_counter(), time.process_time()
@@ -218,6 +224,10 @@ def main(argv=None) -> None:
         (
             "driver: ServoBus (frame_packets) + checks + telemetry",
             lambda fd, name: driver_frames(name, args.frames),
+        ),
+        (
+            "driver, split phase (request_block + collect)",
+            lambda fd, name: driver_frames(name, args.frames, split=True),
         ),
     )
     print(f"# driver cycle, 3 servos, {args.frames} frames; load before {os.getloadavg()}")

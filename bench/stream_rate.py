@@ -14,10 +14,21 @@ period (at 1 Mbps, 1 kHz: 29 + 17 + 50 bytes are 0.96 ms of wire a frame), or
 refuse a rate this host cannot keep: that row then holds its message.
 ``--telemetry csv`` also writes each stream's CSV telemetry (one row a frame).
 
+Each frame's read goes out split-phase (its request after the goal, its reply
+collected before the next goal) and the polls in parts that fit a frame
+(``drivers.frame_reads``). Peer, measured in the same run just before each
+stream, on the same pty and emulator: 200 state reads at once, paced 2 ms
+apart at the stream's priority, and what each took beyond its wire time
+(request and reply bytes, 20 us turnaround): what the pty, the emulator and
+the host add to every read (a frame whose reply comes more than half a period
+late stalls).
+
 Prints a markdown table: achieved rate, period error p50 / p99 / max, overruns,
-stalls, communication errors, and bytes per cycle on the wire against the
-minimum from docs/dynamixel.md (sync write 29 B + fast sync read 17 + 50 B
-every N frames), and the machine load beside each row.
+stalls (and of them, those of frames that woke on time and waited for the last
+read's reply), state reads given to polls, communication errors, bytes per
+cycle on the wire against the minimum from docs/dynamixel.md (sync write 29 B
++ fast sync read 17 + 50 B every N frames), the peer's figures, and the
+machine load beside each row.
 
 Run: .venv/bin/python bench/stream_rate.py [--seconds 3] [--rates 100 500 1000]
 """
@@ -29,12 +40,15 @@ import multiprocessing
 import os
 import platform
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from trajgen.drivers.bringup import bring_up
 from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.clock import sleep_until
+from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import StreamLagging
 from trajgen.drivers.priority import stream_priority
 from trajgen.drivers.streamer import Streamer
@@ -44,6 +58,8 @@ from trajgen.drivers.virtual.plant import FirstOrderPlant
 from trajgen.stream import JointTrajectory
 
 SYNC_WRITE_B, READ_REQUEST_B, FAST_REPLY_B = 29, 17, 50
+STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
+PEER_READS, PEER_GAP_S, TURNAROUND_S = 200, 2e-3, 20e-6
 
 
 def trajectory(rate_hz: float, seconds: float) -> JointTrajectory:
@@ -65,6 +81,22 @@ def serve(baud: int, conn) -> None:
             conn.send(virtual.bytes_received + virtual.bytes_sent)
 
 
+def read_beyond_wire(bus: ServoBus, ids, baud: int) -> tuple[float, float]:
+    """The peer: p50 and p99 (s) of what a state read takes beyond its wire time."""
+    wire_s = (READ_REQUEST_B + FAST_REPLY_B) * 10 / baud + TURNAROUND_S
+    extra = []
+    with stream_priority():
+        deadline = time.monotonic()
+        for _ in range(PEER_READS):
+            deadline += PEER_GAP_S
+            sleep_until(deadline)
+            t0 = time.perf_counter()
+            bus.read_block(ids, STATE)
+            extra.append(time.perf_counter() - t0 - wire_s)
+    p50, p99 = np.percentile(extra, [50, 99])
+    return float(p50), float(p99)
+
+
 def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: str | None) -> dict:
     """Stream once; returns the row of the table."""
     traj = trajectory(rate_hz, seconds)
@@ -76,6 +108,7 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
         port = conn.recv()
         with ServoBus(port, baud=baud) as bus, tempfile.TemporaryDirectory() as tmp:
             bring_up(bus, joints, ("XM430-W350",) * 3, traj, configure=True)  # Return Delay 0
+            peer = read_beyond_wire(bus, joints.ids, baud)
             path = None if telemetry is None else Path(tmp) / f"run.{telemetry}"
             streamer = Streamer(bus, joints, telemetry=path, telemetry_every=read_every)
             conn.send("count")
@@ -97,6 +130,9 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
         "max": stats.period_error_max_s,
         "overruns": stats.overruns,
         "stalls": stats.stalls,
+        "reply_stalls": stats.reply_stalls,
+        "skipped": stats.reads_skipped,
+        "peer": peer,
         "frames": stats.frames_sent,
         "comm": stats.comm_errors,
         "bytes": wire / stats.frames_sent,
@@ -121,9 +157,10 @@ def main() -> None:
     print()
     print(
         "| rate Hz | baud | read every | achieved Hz | p50 ms | p99 ms | max ms | overruns "
-        "| stalls | comm errors | bytes/cycle | minimum | load |"
+        "| stalls (waiting for a reply) | reads given to polls | comm errors | bytes/cycle "
+        "| minimum | peer: a read beyond its wire, p50 / p99 ms | load |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for rate in args.rates:
         for baud in (1_000_000, 4_000_000):
             for every in (1, 10):
@@ -131,13 +168,16 @@ def main() -> None:
                     r = run(rate, baud, every, args.seconds, args.telemetry)
                 except StreamLagging as e:  # the probe refused the rate, or it fell behind
                     load = os.getloadavg()[0]
-                    print(f"| {rate:g} | {baud / 1e6:g} M | {every} | {e} | {load:.1f} |")
+                    row = f"| {rate:g} | {baud / 1e6:g} M | {every} | {e} | {load:.1f} |"
+                    print(row, flush=True)
                     continue
                 print(
                     f"| {r['rate']:g} | {r['baud'] / 1e6:g} M | {r['every']} "
                     f"| {r['achieved']:.1f} | {1e3 * r['p50']:.3f} | {1e3 * r['p99']:.3f} "
-                    f"| {1e3 * r['max']:.3f} | {r['overruns']}/{r['frames']} | {r['stalls']} "
+                    f"| {1e3 * r['max']:.3f} | {r['overruns']}/{r['frames']} "
+                    f"| {r['stalls']} ({r['reply_stalls']}) | {r['skipped']} "
                     f"| {r['comm']} | {r['bytes']:.1f} | {r['minimum']:.1f} "
+                    f"| {1e3 * r['peer'][0]:.2f} / {1e3 * r['peer'][1]:.2f} "
                     f"| {os.getloadavg()[0]:.1f} |",
                     flush=True,
                 )

@@ -9,7 +9,9 @@ per-joint limits 3 rad/s, 20 rad/s^2, 200 rad/s^3 and the torque-speed envelope
 of the default gimbal's servos, ``trajgen.sim.check.envelope_check``) while its
 1 kHz stream runs on the simulated clock: each line is handed over when the
 stream reaches its time, and the change is built in steps between frames, as
-``trajgen follow`` does.
+``trajgen follow`` does. After each frame the stream gives up the interpreter
+(``time.sleep(0)``), as a paced stream does while it waits for its next deadline,
+so that the thread that parses the lines keeps up with them.
 
 Printed: frames beyond the speed, acceleration, jerk (difference of the
 frames' exact accelerations) or envelope limits, counted on every frame
@@ -17,15 +19,24 @@ streamed (a change that were not C2 would show as an unbounded jerk there); the
 lines taken, dead-banded, deferred; the tracking error (angle between the
 camera's look axis and the direction to the noise-free face) from the earliest
 arrival of the first target on, and while the face stands still; the per-target
-cost. The peer is the same stream without target lines
-(frames beyond limits, CPU per frame).
+cost. The peer is the same stream without target lines (frames beyond limits).
+CPU per frame of both, split on the streaming thread (``time.thread_time``)
+into the frames themselves (evaluation, kinematics, the stream's bookkeeping)
+and the changes' steps (``Follower._step``, timed by wrapping it: the tracker's
+search and checks, run between frames), and the whole process's.
 
-``--realtime RATE``: also run ``trajgen follow --virtual --rate RATE`` (wall
-clock) twice, the lines written to its stdin at 30 Hz of wall time, and the same
-file without lines (the peer), and print each run's frames sent, rate achieved,
-period error, stalls and worst lateness side by side (the late frames).
+``--realtime RATE``: also stream on the wall clock through a real bus: for each
+run a ``trajgen virtual-bus`` of its own (real time, on a pty, a process of its
+own) and ``trajgen follow --port <pty> --baud 4000000 --rate RATE`` against it,
+with the face's lines written to its stdin at 30 Hz of wall time, then the same
+file without lines (the peer); each run's frames sent, rate achieved, period
+error, stalls and worst lateness side by side, with the load; ``--repeat N``
+pairs, the run with lines first in every other pair. ``--lead`` is
+passed on (default ``advance``: the model lead's MuJoCo inverse dynamics per
+frame does not fit a 1 kHz period on this host, with or without lines).
 
 Run: .venv/bin/python bench/tracker_stream.py [--seconds 60] [--seed 3] [--realtime 1000]
+     [--lead advance] [--repeat 1]
 """
 
 from __future__ import annotations
@@ -35,6 +46,7 @@ import json
 import math
 import os
 import queue
+import signal
 import subprocess
 import sys
 import tempfile
@@ -107,7 +119,17 @@ def run(seconds: float, seed: int, with_lines: bool, envelope):
     feeder.start()
     if not len(t_lines):
         lines.put(None)
-    c0 = time.process_time()
+    steps_cpu = [0.0]
+    step = f._step
+
+    def timed_step():  # the streaming thread's CPU in the changes' steps
+        c = time.thread_time()
+        step()
+        steps_cpu[0] += time.thread_time() - c
+
+    f._step = timed_step
+    yielded = 0.0  # the streaming thread's CPU in time.sleep(0) (s)
+    c0, t0 = time.process_time(), time.thread_time()
     for frame in f.frames():
         if i < len(t_lines) and frame.t >= t_lines[i]:
             lines.put((json.dumps({"look_at": noisy[i].round(4).tolist()}), i + 1))
@@ -117,7 +139,18 @@ def run(seconds: float, seed: int, with_lines: bool, envelope):
         # every line handed over and its change made: the plan is complete
         if not spline.closed and i == len(t_lines) and not feeder.is_alive():
             spline.close()
-    cpu = time.process_time() - c0
+        # The interpreter to the lines' thread, as a paced stream gives it while it waits
+        # for the next frame's deadline: on a stream that never waits, that thread would
+        # get it only at the switch interval, and the lines would queue up behind. (Not
+        # counted in the frames' CPU: a paced stream sleeps there.)
+        c = time.thread_time()
+        time.sleep(0)
+        yielded += time.thread_time() - c
+    cpu = {
+        "process": time.process_time() - c0,
+        "frames": time.thread_time() - t0 - steps_cpu[0] - yielded,
+        "steps": steps_cpu[0],
+    }
     return f, cpu, errors, (t_lines, true, noisy)
 
 
@@ -173,60 +206,107 @@ t = {end}
 pan = 0.0
 """
 
+#: Wall time (s) from starting `trajgen follow` to its first line: its bring-up.
+BRING_UP_S = 3.0
 
-def realtime(seconds: float, seed: int, rate_hz: float, with_lines: bool) -> dict:
-    """``trajgen follow --virtual`` on the wall clock, with the face's lines written at
-    30 Hz (or none, the file's plan lasting as long): its JSON report's stream stats."""
+
+def realtime(seconds: float, seed: int, rate_hz: float, lead: str, with_lines: bool) -> dict:
+    """``trajgen follow --port`` on the wall clock against a ``trajgen virtual-bus`` of its
+    own, with the face's lines written at 30 Hz (or none, the file's plan lasting as
+    long): its JSON report's stream and follow figures, the load beside them."""
     t_lines, _, noisy = face_stream(seconds, seed)
-    with tempfile.TemporaryDirectory() as tmp:
+    bin_dir = Path(sys.executable).parent  # the venv's commands
+    with tempfile.TemporaryDirectory(prefix="tracker-stream-") as tmp:
         keys, out = Path(tmp) / "keys.toml", Path(tmp) / "out.json"
         keys.write_text(REALTIME_FILE.format(end=0.3 if with_lines else seconds))
-        command = str(Path(sys.executable).with_name("trajgen"))  # the venv's command
-        argv = [command, "follow", str(keys), "--virtual"]
-        argv += ["--configure", "--rate", f"{rate_hz:g}", "--max-delay", "60", "--json", str(out)]
-        proc = subprocess.Popen(
-            argv, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+        bus = subprocess.Popen(
+            [str(bin_dir / "trajgen"), "virtual-bus"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
         )
-        if with_lines:
-            start = time.monotonic() + 2.0  # bring-up first
-            for t, p in zip(t_lines, noisy, strict=True):
-                time.sleep(max(0.0, start + t - time.monotonic()))
-                try:
-                    proc.stdin.write((json.dumps({"look_at": p.round(4).tolist()}) + "\n").encode())
-                    proc.stdin.flush()
-                except BrokenPipeError:  # the stream stopped (its report says why)
-                    break
         try:
-            proc.stdin.close()
-        except BrokenPipeError:
-            pass
-        err = proc.stderr.read().decode()
-        proc.wait()
+            port = bus.stdout.readline().strip()
+            argv = [str(bin_dir / "trajgen"), "follow", str(keys), "--port", port]
+            argv += ["--baud", "4000000", "--rate", f"{rate_hz:g}", "--lead", lead]
+            argv += ["--configure", "--max-delay", "60", "--json", str(out)]
+            load = os.getloadavg()[0]
+            proc = subprocess.Popen(
+                argv, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+            )
+            if with_lines:
+                write_lines(proc, t_lines, noisy, time.monotonic() + BRING_UP_S)
+            try:
+                proc.stdin.close()
+            except BrokenPipeError:
+                pass
+            err = proc.stderr.read().decode()
+            proc.wait()
+        finally:
+            bus.send_signal(signal.SIGINT)
+            try:
+                bus_err = bus.communicate(timeout=30)[1]
+            except subprocess.TimeoutExpired:
+                bus.kill()
+                bus_err = bus.communicate()[1]
         report = json.loads(out.read_text()) if out.exists() else {}
-    why = report.get("stopped_by") or " ".join(err.strip().splitlines()[-1:])
+    why = report.get("stopped_by") or report.get("stream", {}).get("fault") or ""
+    if proc.returncode and not why:
+        why = " ".join(err.strip().splitlines()[-1:])
     return {
         "exit": proc.returncode,
         "stream": report.get("stream", {}),
         "follow": report.get("follow", {}),
         "why": why,
+        "load": (load, os.getloadavg()[0]),
+        "bus": " ".join(bus_err.strip().splitlines()[-1:]),
     }
 
 
-def show_realtime(name: str, r: dict) -> None:
-    s = r["stream"]
+def write_lines(proc, t_lines, noisy, start: float) -> None:
+    """The face's reports as JSON lines on ``proc``'s stdin, each at ``start`` plus its
+    time (s, wall clock)."""
+    for t, p in zip(t_lines, noisy, strict=True):
+        time.sleep(max(0.0, start + t - time.monotonic()))
+        try:
+            proc.stdin.write((json.dumps({"look_at": p.round(4).tolist()}) + "\n").encode())
+            proc.stdin.flush()
+        except BrokenPipeError:  # the stream stopped (its report says why)
+            return
 
-    def ms(key):
+
+def show_realtime(runs: dict) -> None:
+    """The runs' figures side by side, a column each."""
+
+    def ms(s, key):
         v = s.get(key)
         return "n/a" if v is None else f"{1e3 * v:.2f} ms"
 
-    print(
-        f"  {name}: exit {r['exit']}, frames {s.get('frames_sent', 'n/a')}, achieved "
-        f"{s.get('achieved_rate_hz') or float('nan'):.1f} Hz, period error p50 "
-        f"{ms('period_error_p50_s')} p99 {ms('period_error_p99_s')} "
-        f"max {ms('period_error_max_s')}, stalls {s.get('stalls', 'n/a')} "
-        f"(longest {ms('stall_max_s')}), lateness max {ms('lateness_max_s')}; "
-        f"lines accepted {r['follow'].get('accepted', 0)}{'; ' + r['why'] if r['why'] else ''}"
-    )
+    rows = {
+        "exit status": lambda r: str(r["exit"]),
+        "frames sent": lambda r: str(r["stream"].get("frames_sent", "n/a")),
+        "rate achieved": lambda r: f"{r['stream'].get('achieved_rate_hz') or math.nan:.1f} Hz",
+        "period error p50": lambda r: ms(r["stream"], "period_error_p50_s"),
+        "period error p99": lambda r: ms(r["stream"], "period_error_p99_s"),
+        "period error max": lambda r: ms(r["stream"], "period_error_max_s"),
+        "stalls": lambda r: str(r["stream"].get("stalls", "n/a")),
+        "longest stall": lambda r: ms(r["stream"], "stall_max_s"),
+        "worst lateness": lambda r: ms(r["stream"], "lateness_max_s"),
+        "behind the plan at the end": lambda r: ms(r["stream"], "delay_s"),
+        "read-back every": lambda r: f"{r['stream'].get('read_every', 'n/a')} frames",
+        "lines accepted": lambda r: str(r["follow"].get("accepted", 0)),
+        "longest step per change p50": lambda r: ms(r["follow"].get("change_step_s") or {}, "p50"),
+        "longest step per change max": lambda r: ms(r["follow"].get("change_step_s") or {}, "max"),
+        "load (start, end)": lambda r: f"{r['load'][0]:.2f}, {r['load'][1]:.2f}",
+    }
+    names = list(runs)
+    print(f"  {'':30}" + "".join(f"{n:>20}" for n in names))
+    for label, cell in rows.items():
+        print(f"  {label:30}" + "".join(f"{cell(runs[n]):>20}" for n in names))
+    for n in names:
+        for what in ("why", "bus"):
+            if runs[n][what]:
+                print(f"  {n}: {runs[n][what]}")
 
 
 def pct(x) -> str:
@@ -240,7 +320,16 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument(
-        "--realtime", type=float, default=None, help="also run trajgen follow --virtual at RATE Hz"
+        "--realtime",
+        type=float,
+        default=None,
+        help="also run trajgen follow --port against trajgen virtual-bus at RATE Hz",
+    )
+    parser.add_argument(
+        "--lead", default="advance", help="the --lead of those runs (default advance)"
+    )
+    parser.add_argument(
+        "--repeat", type=int, default=1, help="pairs of real-time runs, each first in turn"
     )
     args = parser.parse_args()
     from trajgen.sim.check import envelope_check
@@ -269,21 +358,34 @@ def main() -> int:
     print(
         f"per target (wall, on the streaming thread's steps): p50 {1e3 * np.median(costs):.2f} "
         f"p99 {1e3 * np.percentile(costs, 99):.2f} ms; longest step p99 "
-        f"{1e3 * np.percentile(f.change_steps_s, 99):.2f} ms; CPU of the run {cpu:.1f} s"
+        f"{1e3 * np.percentile(f.change_steps_s, 99):.2f} ms"
     )
     peer, cpu_peer, _, _ = run(args.seconds, args.seed, False, envelope)
     ptraj = peer.trajectory()
-    print(
-        f"peer, no targets: {len(ptraj.t)} frames, beyond the limits: "
-        f"{beyond(ptraj, envelope)}; CPU {1e6 * cpu_peer / len(ptraj.t):.1f} us per frame "
-        f"against {1e6 * cpu / len(traj.t):.1f} with targets"
-    )
+    print(f"peer, no targets: {len(ptraj.t)} frames, beyond the limits: {beyond(ptraj, envelope)}")
+    n, n_peer = len(traj.t), len(ptraj.t)
+    print(f"CPU per frame (us), load {os.getloadavg()[0]:.2f}:   with targets   peer   ratio")
+    for key, label in (
+        ("frames", "frames (streaming thread)"),
+        ("steps", "changes' steps (streaming)"),
+        ("process", "whole process"),
+    ):
+        a, b = 1e6 * cpu[key] / n, 1e6 * cpu_peer[key] / n_peer
+        print(f"  {label:30} {a:12.1f} {b:6.1f} {a / b if b else math.inf:7.2f}x")
     if args.realtime is None:
         print("late frames in real time: not measured (give --realtime RATE)")
     else:
-        print(f"real time, trajgen follow --virtual --rate {args.realtime:g}, {args.seconds:g} s:")
-        show_realtime("with the lines", realtime(args.seconds, args.seed, args.realtime, True))
-        show_realtime("peer, no lines", realtime(args.seconds, args.seed, args.realtime, False))
+        print(
+            f"real time: trajgen follow --port <trajgen virtual-bus pty> --baud 4000000 "
+            f"--rate {args.realtime:g} --lead {args.lead}, {args.seconds:g} s each:"
+        )
+        for r in range(args.repeat):  # pairs, each run first in turn (the load drifts)
+            pair = (("with the lines", True), ("peer, no lines", False))[:: 1 if r % 2 == 0 else -1]
+            runs = {}
+            for name, lines in pair:
+                runs[name] = realtime(args.seconds, args.seed, args.realtime, args.lead, lines)
+            print(f" pair {r + 1} of {args.repeat}:")
+            show_realtime(runs)
     print(f"load average {os.getloadavg()[0]:.2f} (1 min) at the end")
     return 0
 

@@ -21,7 +21,13 @@ What it adds to them (see docs/dynamixel.md for why):
 - the two packets of every stream frame, Sync Write and Fast Sync Read, built
   and checked by ``drivers.frame_packets`` (laid out once, one read of the
   reply, the same checks), not by the SDK's per-byte Python: the SDK does
-  everything else (pings, reads, writes, sync read, reboot).
+  everything else (pings, reads, writes, sync read, reboot);
+- split-phase group reads (``request_block``, then ``collect``): the request
+  goes out right after a frame's goal and its reply is read and checked
+  before the next frame's goal, so that a read-back's wire time overlaps the
+  wait for the next deadline instead of delaying it. Any other transaction
+  while a reply is outstanding first waits that reply out (or its timeout)
+  and drops it: it is never taken for the answer to another request.
 """
 
 from __future__ import annotations
@@ -62,6 +68,9 @@ _MAX_DRAINS = 10
 # Status packet layout (e-Manual, Protocol 2.0): ID at byte 4, LEN at 5..6.
 _PKT_ID, _PKT_LENGTH = 4, 5
 _STATUS_MIN_BYTES = 11  # header 4, ID, LEN 2, INST, ERR, CRC 2
+# A Sync Read request without its ids (header 4, ID, LEN 2, INST, address 2, size 2, CRC 2),
+# and a Sync Write's bytes besides its data (the same, and an id per servo).
+_SYNC_READ_REQUEST_BYTES = 14
 # LEN of a status packet without data: INST, ERR, CRC 2.
 _STATUS_LENGTH_NO_DATA = 4
 # The SDK's result codes (dynamixel_sdk.robotis_def), for the frame packets' own path.
@@ -82,6 +91,7 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
 
     class _Port(PortHandler):
         owed = 0  # reply bytes the responder wrote that have not been read yet
+        settle = None  # called before any packet is sent (ServoBus: an outstanding reply)
 
         def setupPort(self, cflag_baud):  # noqa: N802 (SDK name)
             # The SDK's own, with the port locked (flock) against a second program.
@@ -105,6 +115,8 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
             return baudrate if baudrate > 0 else -1
 
         def clearPort(self):  # noqa: N802 (SDK name)
+            if self.settle is not None:  # every packet sent (SDK or not) comes through here
+                self.settle()
             self._wait_owed(self.owed)  # so that a stale reply is really dropped
             super().clearPort()
             self.owed = 0
@@ -319,6 +331,40 @@ class BlockRead:
         return {i: dict(zip(self.registers, row, strict=True)) for i, row in rows}
 
 
+@dataclass
+class PendingRead:
+    """A group read whose request is on the wire and whose reply is not read yet.
+
+    Made by ``ServoBus.request_block``; ``ServoBus.collect`` reads and checks
+    the reply. A sync read (not split) holds its ``block`` at once.
+
+    Attributes
+    ----------
+    ids : tuple of int
+        Servos, answering in this order.
+    registers : tuple of Register
+        The registers asked, in the order asked.
+    sent_s : float
+        When the request was handed to the port (``time.monotonic``, s).
+    deadline_s : float
+        When its reply times out (s, same clock): the reply timeout of the
+        same read done at once, counted from ``sent_s``.
+    problem : str or None
+        Why the request could not be sent (collect then retries), or None.
+    block : BlockRead or None
+        The result, where it is known already (a sync read).
+    """
+
+    ids: tuple[int, ...]
+    registers: tuple[Register, ...]
+    sent_s: float
+    deadline_s: float
+    problem: str | None = None
+    block: BlockRead | None = None
+    spec: object = None
+    what: str = ""
+
+
 class ServoBus:
     """A Protocol 2.0 bus on one serial port.
 
@@ -398,6 +444,7 @@ class ServoBus:
         self._port = None
         self._ph = None
         self._frame_packets: dict[tuple, object] = {}  # laid-out packets, by servos and registers
+        self._pending: PendingRead | None = None  # a split-phase read whose reply is out
 
     # -- port ------------------------------------------------------------
 
@@ -436,6 +483,7 @@ class ServoBus:
 
     def close(self) -> None:
         """Close the port (no effect when closed)."""
+        self._pending = None
         if self._port is not None:
             try:
                 self._port.closePort()
@@ -524,18 +572,19 @@ class ServoBus:
             return self._result_text(result)
         return reply_problem(self._ph.last_rx, servo_id, length_field)
 
-    def _retry(self, who: str, what: str, attempt):
-        """Run ``attempt()`` up to ``retries + 1`` times; returns its value.
+    def _retry(self, who: str, what: str, attempt, *, done: int = 0, problem: str | None = None):
+        """Run ``attempt()`` up to ``retries + 1 - done`` times; returns its value.
 
         ``attempt`` returns ``(value, problem)``, ``problem`` None on success or
-        the reason the try failed (counted in ``failed_tries``).
+        the reason the try failed (counted in ``failed_tries``). ``done``: tries
+        of the budget already spent (and failed, the last for ``problem``).
 
         Raises
         ------
         CommError
             If every try failed, naming the last reason.
         """
-        for _ in range(self.retries + 1):
+        for _ in range(self.retries + 1 - done):
             value, problem = attempt()
             if problem is None:
                 return value
@@ -753,16 +802,154 @@ class ServoBus:
             than the block asked, after the retry budget.
         """
         ids, registers = tuple(ids), tuple(registers)
+        spec, what = self._laid_out(ids, registers, fast)
+        read = self._fast_group_read if fast else self._group_read
+        errors, table = self._retry(f"servos {list(ids)}", what, lambda: read(spec, what))
+        return BlockRead(registers, dict(zip(ids, errors, strict=True)), table)
+
+    def request_block(
+        self, ids: Sequence[int], registers: Sequence[Register], *, fast: bool = True
+    ) -> PendingRead:
+        """Send a group read's request and return without waiting for its reply.
+
+        The first half of ``read_block`` (split phase): ``collect`` reads the
+        reply and checks it exactly as ``read_block`` does. Meanwhile the
+        caller may wait, compute or send packets that have no reply... but
+        any packet sent through this bus first waits the reply out (up to its
+        timeout) and drops it (``collect`` then raises ``CommError``): on a
+        half-duplex bus a packet sent over a servo's reply garbles both, and a
+        reply read after another request would be taken for its answer. A Sync
+        Read (``fast=False``, one status packet per servo) is not split: it is
+        read at once, and ``collect`` returns its result.
+
+        Parameters and errors as ``read_block`` (a sync read raises here).
+        """
+        ids, registers = tuple(ids), tuple(registers)
+        now = time.monotonic()
+        if not fast:
+            block = self.read_block(ids, registers, fast=False)
+            return PendingRead(ids, registers, now, now, block=block)
+        spec, what = self._laid_out(ids, registers, fast)
+        port = self._port
+        problem = None
+        if self._sdk(what, port.send, spec.request) != len(spec.request):
+            problem = self._result_text(_COMM_TX_FAIL)
+        sent = time.monotonic()
+        deadline = sent + port.timeout_ms((11 + spec.length) * len(spec.ids)) / 1e3
+        pending = PendingRead(ids, registers, sent, deadline, problem, spec=spec, what=what)
+        if problem is None:
+            self._pending = pending
+            port.settle = self._drop_pending
+        return pending
+
+    def collect(self, pending: PendingRead) -> BlockRead:
+        """The reply to ``request_block``'s request, checked; retried at once where it is not sound.
+
+        Waits for the reply until ``pending.deadline_s`` at most. Bytes already
+        in when it is called are read first, however late the caller comes: no
+        packet went out since the request (see ``request_block``), so they can
+        only be its reply. A reply that is missing, later than the deadline,
+        corrupt, from another id or of another length is never used: the try
+        counts as failed, the bus is drained (a reply still on its way is
+        dropped), and the rest of the retry budget is spent on ``read_block``
+        tries.
+
+        Raises
+        ------
+        CommError
+            If no try got a sound reply, or the reply was dropped because
+            another packet was sent first.
+        """
+        if pending.block is not None:
+            return pending.block
+        who, what, spec = f"servos {list(pending.ids)}", pending.what, pending.spec
+        if pending.problem is None and self._pending is not pending:
+            raise CommError(
+                f"{who}: {what}: its reply was dropped (another packet was sent while it was due)"
+            )
+        problem = pending.problem
+        if problem is None:
+            self._clear_pending()
+            left_ms = max(0.0, pending.deadline_s - time.monotonic()) * 1e3
+            value, problem = self._fast_reply(spec, what, left_ms)
+            if problem is None:
+                errors, table = value
+                return BlockRead(
+                    pending.registers, dict(zip(pending.ids, errors, strict=True)), table
+                )
+        self.failed_tries += 1
+        self._drain()
+        # The split try was the first of the budget; the rest are tries of read_block.
+        errors, table = self._retry(
+            who, what, lambda: self._fast_group_read(spec, what), done=1, problem=problem
+        )
+        return BlockRead(pending.registers, dict(zip(pending.ids, errors, strict=True)), table)
+
+    def read_bytes(self, ids: Sequence[int], registers: Sequence[Register], *, fast: bool = True):
+        """Bytes a group read puts on the wire: its request and its reply (or replies)."""
+        ids, registers = tuple(ids), tuple(registers)
+        spec, _ = self._laid_out(ids, registers, fast)
+        if fast:
+            return len(spec.request) + spec.reply_bytes
+        length = spec[2]
+        return _SYNC_READ_REQUEST_BYTES + len(ids) * (1 + _STATUS_MIN_BYTES + length)
+
+    def wire_s(self, n_bytes: int) -> float:
+        """How long ``n_bytes`` take on the wire at ``baud`` (10 bits a byte), s."""
+        return n_bytes * 10 / self.baud
+
+    def await_reply(self, pending: PendingRead, until_s: float) -> bool:
+        """Wait (the GIL and the core free) until ``pending``'s reply bytes are all in, or
+        until ``until_s`` (``time.monotonic``, s); returns whether they are in.
+
+        Nothing is read: ``collect`` reads and checks them. A stream waits here for its
+        next deadline, so that the reply is taken as soon as it is in, and the host's core
+        is free meanwhile for the kernel work that brings it (a pty's or a USB adapter's).
+        """
+        if pending.block is not None or self._pending is not pending:
+            return True
+        port = self._port
+        fd, wanted = port.ser.fileno(), pending.spec.reply_bytes
+        while port.ser.in_waiting < wanted:
+            left = until_s - time.monotonic()
+            if left <= 0:
+                return False
+            select.select([fd], [], [], left)
+        return True
+
+    def _clear_pending(self) -> None:
+        self._pending = None
+        if self._port is not None:
+            self._port.settle = None
+
+    def _drop_pending(self) -> None:
+        """Another packet is about to go out while a split-phase reply is due: wait it out
+        (its bytes, up to its timeout), then drain the bus, and drop it unread."""
+        pending = self._pending
+        self._clear_pending()
+        if pending is None:
+            return
+        port = self._port
+        fd, wanted = port.ser.fileno(), pending.spec.reply_bytes
+        try:
+            while port.ser.in_waiting < wanted:
+                left = pending.deadline_s - time.monotonic()
+                if left <= 0:
+                    break
+                select.select([fd], [], [], left)
+        except OSError:
+            return  # the port failed: the packet about to go out says so
+        self._drain()
+
+    def _laid_out(self, ids: tuple, registers: tuple, fast: bool):
+        """A group read's packets or block (``_read_spec``) and its name, laid out once."""
         key = ("read", ids, registers, fast)
         laid_out = self._frame_packets.get(key)
         if laid_out is None:
             kind = "fast sync read" if fast else "sync read"
             what = f"{kind} of {', '.join(r.value for r in registers)}"
             laid_out = self._frame_packets[key] = (self._read_spec(ids, registers, fast), what)
-        spec, what = laid_out
-        read = self._fast_group_read if fast else self._group_read
-        errors, table = self._retry(f"servos {list(ids)}", what, lambda: read(spec, what))
-        return BlockRead(registers, dict(zip(ids, errors, strict=True)), table)
+        return laid_out
 
     def _read_spec(self, ids, registers, fast):
         """A fast sync read's packets (``FastSyncReadPacket``), or a sync read's block."""
@@ -784,8 +971,11 @@ class ServoBus:
         if self._sdk(what, port.send, spec.request) != len(spec.request):
             return None, self._result_text(_COMM_TX_FAIL)
         # The SDK's timeout for this reply: (11 + data) bytes per servo.
-        timeout_ms = port.timeout_ms((11 + spec.length) * len(spec.ids))
-        result, packet = self._sdk(what, port.receive_status, spec.reply_bytes, timeout_ms)
+        return self._fast_reply(spec, what, port.timeout_ms((11 + spec.length) * len(spec.ids)))
+
+    def _fast_reply(self, spec: FastSyncReadPacket, what: str, timeout_ms: float):
+        """A fast sync read's reply within ``timeout_ms``, checked: as ``_fast_group_read``."""
+        result, packet = self._sdk(what, self._port.receive_status, spec.reply_bytes, timeout_ms)
         if result != _COMM_SUCCESS:
             return None, self._result_text(result)
         problem, errors, table = spec.check(packet)

@@ -40,6 +40,12 @@ _UNSIGNED = {1: "B", 2: "H", 4: "I"}
 _SIGNED = {1: "b", 2: "h", 4: "i"}
 
 
+def sync_write_bytes(n_servos: int, size: int) -> int:
+    """Bytes of a Sync Write of one ``size``-byte register to ``n_servos`` (unstuffed):
+    header 4, ID, LEN 2, INST, address 2, size 2, CRC 2, and an id and the data per servo."""
+    return 14 + n_servos * (1 + size)
+
+
 class SyncWritePacket:
     """Sync Write of one register to fixed servos, laid out once.
 

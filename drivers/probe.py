@@ -6,9 +6,13 @@ nothing: a goal write has no reply, the host only builds it and hands it to the
 port, so its share is its wire time, given by the caller), and
 ``read_every_for`` decides from the median whether the rate can hold: the mean
 cost per frame must fit ``BUDGET`` of a period, and a frame with a read-back
-must end before the next frame counts as a stall (half a period late). A rate
-that cannot hold is refused before the first goal instead of tripping the
-lateness bound or the Bus Watchdog mid-motion.
+must end before the next frame counts as a stall (half a period late). From
+the tail too: a read-back whose reply comes later than that stalls the next
+goal (the stream waits for the bus before it), and the stream's clock shifts
+by the lateness; the interval is raised until the probe's reads would cost
+the stream at most ``LAG_SHARE`` of its rate that way. A rate that cannot
+hold is refused before the first goal instead of tripping the lateness bound
+or the Bus Watchdog mid-motion.
 """
 
 from __future__ import annotations
@@ -16,13 +20,15 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 #: Share of a period the mean cost of a frame may take (the rest: sleep overshoot,
 #: the periodic watchdog and health polls, the host's own jitter).
 BUDGET = 0.8
-#: Frames timed by the probe (at 1 kHz and 3 servos, about 20 ms of traffic).
-PROBE_FRAMES = 20
+#: Frames timed by the probe (at 1 kHz and 3 servos, about 50 ms of traffic).
+PROBE_FRAMES = 50
+#: Share of its rate a stream may lose to read-backs too late for the next goal.
+LAG_SHARE = 0.01
 #: Read-back less often than this many frames is refused instead (telemetry too sparse).
 MAX_READ_EVERY = 50
 
@@ -39,11 +45,26 @@ class CycleCost:
         One group read of the state block (request, replies, checks), median.
     frames : int
         Read-backs timed.
+    reads_s : tuple of float
+        Each read-back's time (s), as timed (empty: only the median is known).
     """
 
     write_s: float
     read_s: float
     frames: int
+    reads_s: tuple[float, ...] = ()
+
+    def median_only(self) -> CycleCost:
+        """The same cost without the single reads (what the median alone decides)."""
+        return replace(self, reads_s=())
+
+    def late(self, period_s: float) -> tuple[int, float]:
+        """How many probe reads would stall the next goal at ``period_s`` (its frame ends
+        more than 1.5 periods after it starts), and the mean shift (s) per read that costs."""
+        shifts = [
+            self.write_s + r - period_s for r in self.reads_s if self.write_s + r > 1.5 * period_s
+        ]
+        return len(shifts), sum(shifts) / len(self.reads_s) if self.reads_s else 0.0
 
     def describe(self) -> str:
         """One phrase with both figures in ms."""
@@ -78,7 +99,7 @@ def probe_cycle(
         t0 = clock()
         read()
         reads.append(clock() - t0)
-    return CycleCost(write_s, _median(reads), frames)
+    return CycleCost(write_s, _median(reads), frames, tuple(reads))
 
 
 def _median(values: Sequence[float]) -> float:
@@ -101,15 +122,23 @@ def read_every_for(cost: CycleCost, period_s: float, wanted: int = 1) -> int | N
     Returns
     -------
     int or None
-        ``k``: ``write + read / k <= BUDGET * period`` and a frame with a read
-        fits in 1.5 periods; None when no ``k`` up to ``MAX_READ_EVERY`` does
-        (the goal writes alone do not fit, or one read-back outlasts the next
-        deadline by more than half a period).
+        ``k``: ``write + read / k <= BUDGET * period``, a frame with the
+        median read fits in 1.5 periods, and the probe reads that would not
+        (``CycleCost.late``) shift the stream by at most ``LAG_SHARE`` of its
+        time at one read every ``k`` frames; None when no ``k`` up to
+        ``MAX_READ_EVERY`` does (the goal writes alone do not fit, one median
+        read-back outlasts the next deadline by more than half a period, or
+        too many come too late).
     """
     spare = BUDGET * period_s - cost.write_s
     if spare <= 0 or cost.write_s + cost.read_s > 1.5 * period_s:
         return None
-    k = max(wanted, math.ceil(cost.read_s / spare - 1e-12))
+    shift_s = cost.late(period_s)[1]
+    k = max(
+        wanted,
+        math.ceil(cost.read_s / spare - 1e-12),
+        math.ceil(shift_s / (LAG_SHARE * period_s) - 1e-12),
+    )
     return k if k <= MAX_READ_EVERY else None
 
 

@@ -76,9 +76,18 @@ from trajgen.drivers.errors import (
     StreamLagging,
     WatchdogTripped,
 )
+from trajgen.drivers.frame_packets import sync_write_bytes
+from trajgen.drivers.frame_reads import FrameReads, Read, parts
 from trajgen.drivers.health import PowerLimits, health_problem
 from trajgen.drivers.priority import stream_priority
-from trajgen.drivers.probe import PROBE_FRAMES, max_rate_hz, probe_cycle, read_every_for
+from trajgen.drivers.probe import (
+    BUDGET,
+    MAX_READ_EVERY,
+    PROBE_FRAMES,
+    max_rate_hz,
+    probe_cycle,
+    read_every_for,
+)
 from trajgen.drivers.telemetry import TelemetryWriter
 from trajgen.drivers.units import RAD_PER_TICK, JointMap
 from trajgen.lead import sent_q
@@ -172,6 +181,10 @@ class StreamStats:
     stalls : int
         Times the stream's clock was shifted because a frame was more than
         ``stall_s`` late (approach included).
+    reply_stalls : int
+        Stalls (of ``stalls``) of a frame whose wait for the last frame's read
+        reply ended later than a stall (its goal waits for the bus: the wire,
+        the adapter, the servo), rather than the host waking late.
     stall_max_s : float
         Longest stall (s): the largest single shift.
     delay_s : float
@@ -179,6 +192,9 @@ class StreamStats:
         (each stall's lateness plus the Bus Watchdog poll that follows it).
     reads : int
         Telemetry group reads done.
+    reads_skipped : int
+        State reads due that a poll part took the place of, having found no
+        room beside them for ``read_every`` frames (``drivers.frame_reads``).
     position_glitches : int
         Present Position reads not trusted (a jump faster than the servo can move).
     warnings : list of str
@@ -216,9 +232,11 @@ class StreamStats:
     lateness_max_s: float = math.nan
     overruns: int = 0
     stalls: int = 0
+    reply_stalls: int = 0
     stall_max_s: float = 0.0
     delay_s: float = 0.0
     reads: int = 0
+    reads_skipped: int = 0
     position_glitches: int = 0
     warnings: list[str] = field(default_factory=list)
     comm_errors: int = 0
@@ -280,9 +298,12 @@ class StreamStats:
             f"max {ms(self.period_error_max_s)}; max lateness {ms(self.lateness_max_s)}; "
             f"overruns: {self.overruns}",
             f"stalls: {self.stalls} (longest {ms(self.stall_max_s)}; "
-            f"stream ended {ms(self.delay_s)} behind its plan)",
+            f"stream ended {ms(self.delay_s)} behind its plan)"
+            + (f"; {self.reply_stalls} waiting for a read's reply" if self.reply_stalls else ""),
             f"telemetry reads: {self.reads} ({self.read_method}, every {self.read_every} "
-            f"frames); comm errors: {self.comm_errors}",
+            f"frames"
+            + (f"; {self.reads_skipped} given to polls" if self.reads_skipped else "")
+            + f"); comm errors: {self.comm_errors}",
         ]
         if not math.isnan(self.probe_write_s):
             lines.append(
@@ -603,8 +624,7 @@ class Streamer:
         """
         stats, ids = self.stats, self.joints.ids
         period_s = 1.0 / stats.rate_hz
-        # A Sync Write of Goal Position: 14 bytes and 5 per servo, 10 bits each.
-        write_s = (14 + 5 * len(ids)) * 10 / self.bus.baud
+        write_s = self.bus.wire_s(sync_write_bytes(len(ids), 4))  # Goal Position: 4 bytes
 
         def read():
             block = self.bus.read_block(ids, _STATE, fast=self._use_fast)
@@ -613,18 +633,31 @@ class Streamer:
         cost = probe_cycle(read, write_s, self.probe_frames)
         stats.probe_write_s, stats.probe_read_s = cost.write_s, cost.read_s
         every = read_every_for(cost, period_s, self.telemetry_every)
+        n_late = cost.late(period_s)[0]
+        late = ""  # said where the reads too late for the next goal are what decided
+        by_median = read_every_for(cost.median_only(), period_s, self.telemetry_every)
+        if n_late and by_median is not None and (every is None or every > by_median):
+            late = (
+                f"; {n_late} of {cost.frames} probe reads took more than "
+                f"{1.5e3 * period_s - 1e3 * cost.write_s:.2f} ms, past the next goal's stall bound"
+            )
         if every is None:
+            most = (
+                f"even reading back every {MAX_READ_EVERY}. frame"
+                if late
+                else f"about {max_rate_hz(cost, self.telemetry_every):.0f} Hz at most, reading "
+                f"back every {self.telemetry_every}. frame"
+            )
             raise StreamLagging(
                 f"before the first goal: {cost.describe()}, and {stats.rate_hz:g} Hz leaves "
-                f"{1e3 * period_s:.2f} ms a frame: this host and bus cannot keep it (about "
-                f"{max_rate_hz(cost, self.telemetry_every):.0f} Hz at most, reading back every "
-                f"{self.telemetry_every}. frame); nothing was moved{self.bus.latency_advice()}"
+                f"{1e3 * period_s:.2f} ms a frame{late}: this host and bus cannot keep it "
+                f"({most}); nothing was moved{self.bus.latency_advice()}"
             )
         if every > self.telemetry_every:
             self._warn(
                 f"reading the servos back every {every} frames instead of every "
                 f"{self.telemetry_every}: {cost.describe()}, and {stats.rate_hz:g} Hz leaves "
-                f"{1e3 * period_s:.2f} ms a frame{self.bus.latency_advice()}"
+                f"{1e3 * period_s:.2f} ms a frame{late}{self.bus.latency_advice()}"
             )
             stats.read_every = every
 
@@ -651,23 +684,23 @@ class Streamer:
     def _use_fast(self) -> bool:
         return self.stats.read_method == "fast sync read"
 
-    def _read_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Present joint position (rad), velocity (rad/s), current (A), each (n,)."""
-        block = self.bus.read_block(self.joints.ids, _STATE, fast=self._use_fast)
-        self.bus.check_block(block, "streaming")
+    def _state_of(self, block, read_at: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Present joint position (rad), velocity (rad/s), current (A), each (n,), of a
+        state read (ERR bytes checked) asked at ``read_at`` (the stream's clock, s)."""
         self.stats.reads += 1
         raw = np.array(block.table, dtype=float)
         models = [self.bus.models[i] for i in self.joints.ids]
         rows = zip(models, block.table, strict=True)
         current = np.array([m.current_a(row[0]) for m, row in rows])
         return (
-            self._plausible(raw[:, 2]),
+            self._plausible(raw[:, 2], read_at),
             self.joints.velocity_to_rad_s(raw[:, 1]),
             self.joints.signed_joint(current),
         )
 
-    def _plausible(self, ticks: np.ndarray) -> np.ndarray:
-        """Joint angles (rad) of a position read, NaN where it jumped implausibly far.
+    def _plausible(self, ticks: np.ndarray, now: float) -> np.ndarray:
+        """Joint angles (rad) of a position read asked at ``now`` (s), NaN where it jumped
+        implausibly far.
 
         A read is compared with the last plausible one: a servo cannot move
         faster than ``GLITCH_SPEED_FACTOR`` times its no-load speed.
@@ -677,7 +710,6 @@ class Streamer:
         ServoError
             After ``MAX_GLITCHES`` implausible reads in a row of one servo.
         """
-        now = self.clock.now()
         position = self.joints.to_rad(ticks)
         if self._last_position is None:
             self._last_position = (now, position)
@@ -764,30 +796,34 @@ class Streamer:
             for i in self.joints.ids
         )
 
-    def _poll_health(self) -> tuple[np.ndarray, np.ndarray]:
-        """Supply voltage (V) and temperature (deg C) per servo, checked against its limits.
+    def _health_of(self, block, power: tuple[np.ndarray, np.ndarray]) -> None:
+        """Supply voltage (V) and temperature (deg C) of the servos of a health read (ERR
+        bytes checked), checked against their limits and put into ``power`` (volts, temps).
 
         Raises
         ------
         ServoError
             If a servo is at its voltage or temperature stop margin.
         """
-        block = self.bus.read_block(self.joints.ids, _POWER, fast=self._use_fast)
-        self.bus.check_block(block, "streaming")
         ids = self.joints.ids
-        volts = np.array([block.values[i][_POWER[0]] * VOLTAGE_UNIT_V for i in ids])
-        temps = np.array([float(block.values[i][_POWER[1]]) for i in ids])
-        for j, limits in enumerate(self.power_limits):
-            who = f"servo {ids[j]} ({self.joint_names[j]})"
-            problem = health_problem(who, limits, volts[j], temps[j])
+        for servo_id, values in block.values.items():
+            j = ids.index(servo_id)
+            volts = power[0][j] = values[_POWER[0]] * VOLTAGE_UNIT_V
+            temps = power[1][j] = float(values[_POWER[1]])
+            who = f"servo {servo_id} ({self.joint_names[j]})"
+            problem = health_problem(who, self.power_limits[j], volts, temps)
             if problem is not None and problem[0] == "stop":
                 raise ServoError(f"{problem[1]} (frame {self._frame_no})")
             if problem is not None:
                 self._warn(f"{problem[1]} at frame {self._frame_no}")
-        return volts, temps
 
     def _poll_watchdog(self, when: str) -> None:
-        """Torque, hardware error and Bus Watchdog of every servo, against the start.
+        """Torque, hardware error and Bus Watchdog of every servo, against the start
+        (``_status_of``)."""
+        self._status_of(self._read_status(), when)
+
+    def _status_of(self, status: dict[int, dict[Register, int]], when: str) -> None:
+        """The registers of a status read (ERR bytes checked) against the start.
 
         Raises
         ------
@@ -799,9 +835,10 @@ class Streamer:
         ServoError
             If a servo reports a hardware error (Alert bit).
         """
-        status = self._read_status()
-        for j, servo_id in enumerate(self.joints.ids):
-            values, start = status[servo_id], self._status_at_start[servo_id]
+        for servo_id, read in status.items():
+            j = self.joints.ids.index(servo_id)
+            start = self._status_at_start[servo_id]
+            values = {**start, **read}  # a part of the poll: what it did not read is as it was
             who = f"servo {servo_id} ({self.joint_names[j]})"
             watchdog = values[Register.BUS_WATCHDOG]
             if watchdog == -1:
@@ -834,54 +871,135 @@ class Streamer:
                 "not sent"
             )
 
+    def _frame_reads(self, period_s: float) -> FrameReads:
+        """What each frame of a phase reads (``drivers.frame_reads``).
+
+        On the wall clock a frame's goal write and reads fit ``BUDGET`` of its
+        period: each read costs its wire time and what the probe found the
+        host and adapter add to a read (``stats.probe_read_s`` less the state
+        read's wire time); the polls go in parts where needed. On a simulated
+        clock time is not short: every read due goes in its frame.
+        """
+        ids, bus, fast, stats = self.joints.ids, self.bus, self._use_fast, self.stats
+        room_s = math.inf
+        extra_s = 0.0  # what a read costs besides its wire time (s)
+        if self.clock.real_time:
+            room_s = BUDGET * period_s - bus.wire_s(sync_write_bytes(len(ids), 4))
+            if not math.isnan(stats.probe_read_s):
+                wire_s = bus.wire_s(bus.read_bytes(ids, _STATE, fast=fast))
+                extra_s = max(0.0, stats.probe_read_s - wire_s)
+
+        def size(part_ids, registers):
+            return bus.read_bytes(part_ids, registers, fast=fast)
+
+        def cost(read):
+            return bus.wire_s(read.n_bytes) + extra_s
+
+        room_b = (room_s - extra_s) * bus.baud / 10  # bytes of one read that fit
+        return FrameReads(
+            Read("state", ids, _STATE, size(ids, _STATE)),  # never split: the probe's part
+            parts("status", ids, _STATUS, size, room_b),
+            parts("health", ids, _POWER, size, room_b, by_register=False),
+            cost,
+            room_s,
+            stats.read_every,
+            max(1, round(self.poll_s * stats.rate_hz)),
+            max(1, round(self.health_s * stats.rate_hz)),
+        )
+
     def _loop(self, frames, *, timed: bool) -> None:
-        """Send ``frames``, ``(t, goal, plan, phase)`` each, one per period."""
+        """Send ``frames``, ``(t, goal, plan, phase)`` each, one per period.
+
+        A frame: collect the reply of the last frame's split-phase read as soon
+        as it is in (``ServoBus.await_reply``, then ``_take``: checked before
+        the next goal goes out); wait for the frame's deadline; shift the clock
+        after a stall; send the goal; write the last frame's telemetry row;
+        then this frame's reads (``_frame_reads``), all but the last at once,
+        the last split-phase.
+        """
         stats = self.stats
         ids = self.joints.ids
+        n = len(ids)
         period = 1.0 / stats.rate_hz
         stall_s = 0.5 * period if self.stall_s is None else self.stall_s
-        poll_every = max(1, round(self.poll_s * stats.rate_hz))
-        health_every = max(1, round(self.health_s * stats.rate_hz))
+        schedule = self._frame_reads(period)
         clock = self.clock
         start = clock.now() + period
         shift = 0.0  # this phase's clock shift (s), from stalls
         t_first = None
-        nan = np.full(len(ids), math.nan)
-        for k, (t, q, plan, phase) in enumerate(frames):
-            t_first = t if t_first is None else t_first
-            planned = start + (t - t_first)
-            clock.sleep_until(planned + shift)
-            late = clock.now() - (planned + shift)
-            if late > stall_s:  # never catch up: shift the rest of the stream instead
-                self._stall(late)
-                stats.delay_s += clock.now() - planned - shift
-                shift = clock.now() - planned
-            sent = clock.now()
-            ticks = self.joints.to_ticks(q)
-            self._check_bounds(ticks, t)
-            self.bus.sync_write(Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True)))
-            self._frame_no += 1
-            if timed:
-                stats._sent(sent, planned, planned + shift, phase == "stream")
-            state = (nan, nan, nan)
-            power = (nan, nan)
-            try:
-                if k % stats.read_every == 0:
-                    state = self._read_state()
-                if k % poll_every == poll_every - 1:
-                    self._poll_watchdog("before")
-                if k % health_every == health_every // 2:
-                    power = self._poll_health()
-            finally:  # the goal went out: its row is written even if the read failed
+        pending = None  # (PendingRead, Read, its frame's row, asked at) of the last frame
+        rows = []  # telemetry rows not written yet (the last frame's waits for its read)
+        try:
+            for k, (t, q, plan, phase) in enumerate(frames):
+                t_first = t if t_first is None else t_first
+                planned = start + (t - t_first)
+                due = planned + shift
+                replied = -math.inf  # how late (s) the last read's reply was in, if one was due
+                if pending is not None:
+                    pending, (waiting, read, row, asked) = None, pending
+                    if clock.real_time:  # taken as soon as it is in, the core free meanwhile
+                        self.bus.await_reply(waiting, due)
+                    self._take(read, self.bus.collect(waiting), row, asked)
+                    replied = clock.now() - due
+                clock.sleep_until(due)
+                late = clock.now() - due
+                if late > stall_s:  # never catch up: shift the rest of the stream instead
+                    stats.reply_stalls += replied > stall_s
+                    self._stall(late)
+                    stats.delay_s += clock.now() - planned - shift
+                    shift = clock.now() - planned
+                sent = clock.now()
+                ticks = self.joints.to_ticks(q)
+                self._check_bounds(ticks, t)
+                self.bus.sync_write(
+                    Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True))
+                )
+                self._frame_no += 1
+                if timed:
+                    stats._sent(sent, planned, planned + shift, phase == "stream")
+                # The goal went out: its row is written even if a read fails.
+                row = None  # (frame columns, state (3, n), power (2, n)), with a telemetry file
                 if self._writer is not None:
-                    self._writer.write(
-                        [self._frame_no - 1, phase, t, sent - start, sent - planned - shift, sent]
-                        + list(plan)
-                        + list(q)
-                        + ticks.tolist()
-                        + [*state[0], *state[1], *state[2]]
-                        + [*power[0], *power[1]]
-                    )
+                    head = [self._frame_no - 1, phase, t, sent - start, sent - planned - shift]
+                    row = (head + [sent, *plan, *q, *ticks.tolist()], _nans(3, n), _nans(2, n))
+                    self._write_rows(rows)
+                    rows.append(row)
+                reads = schedule.for_frame(k)
+                for j, read in enumerate(reads):
+                    asked = clock.now()
+                    if j < len(reads) - 1:
+                        block = self.bus.read_block(read.ids, read.registers, fast=self._use_fast)
+                        self._take(read, block, row, asked)
+                    else:
+                        waiting = self.bus.request_block(
+                            read.ids, read.registers, fast=self._use_fast
+                        )
+                        pending = (waiting, read, row, asked)
+            if pending is not None:
+                pending, (waiting, read, row, asked) = None, pending
+                self._take(read, self.bus.collect(waiting), row, asked)
+        finally:
+            stats.reads_skipped += schedule.skipped
+            self._write_rows(rows)
+
+    def _take(self, read, block, row, asked: float) -> None:
+        """A frame's read, in: ERR bytes checked, then what it is for (into ``row``, if any)."""
+        self.bus.check_block(block, "streaming")
+        if read.kind == "state":
+            state = self._state_of(block, asked)
+            if row is not None:
+                row[1][:] = state
+        elif read.kind == "status":
+            self._status_of(block.values, "before")
+        else:
+            self._health_of(block, _nans(2, len(self.joints)) if row is None else row[2])
+
+    def _write_rows(self, rows: list) -> None:
+        """Write the telemetry rows (frame columns, state (3, n), power (2, n)) and forget them."""
+        if self._writer is not None:
+            for head, state, power in rows:
+                self._writer.write(head + state.ravel().tolist() + power.ravel().tolist())
+        rows.clear()
 
     def _stall(self, late_s: float) -> None:
         """A frame is ``late_s`` past its deadline: count it, check the servos, bound the delay."""
@@ -898,6 +1016,10 @@ class Streamer:
             )
         if late_s + 1.0 / stats.rate_hz >= self._watchdog_risk_s:  # the bus was that silent
             self._poll_watchdog(f"after a {1e3 * late_s:.1f} ms stall, before")
+
+
+def _nans(rows: int, n: int) -> np.ndarray:
+    return np.full((rows, n), math.nan)
 
 
 def safe_stop(bus: ServoBus, ids: Sequence[int], on_stop: str, restore: Sequence = ()) -> list[str]:

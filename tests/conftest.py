@@ -48,3 +48,25 @@ def random_walk_keyframes(seed, n, spread, boundary):
         q = np.vstack([q[: n - 1], q[:1]])
     t = np.concatenate([[0.0], np.cumsum(rng.uniform(0.1, 3.0, n - 1))])
     return q, t + rng.uniform(-5.0, 5.0)
+
+
+@pytest.fixture
+def answered_here(monkeypatch):
+    """``answered_here(virtual)``: a ``ServoBus`` opened by name on the port of the
+    lock-step ``virtual`` (as the session and the command line open it) is answered in
+    this thread, as ``VirtualBus.connect`` makes it: the stream then runs on simulated
+    time, and no reply or deadline waits for another thread, whatever the host's load."""
+    from trajgen.drivers import bus as bus_module
+
+    real = bus_module.ServoBus
+
+    def answered(virtual):
+        def servo_bus(port, **kwargs):
+            if port == virtual.port:
+                kwargs.setdefault("responder", virtual)
+            return real(port, **kwargs)
+
+        monkeypatch.setattr(bus_module, "ServoBus", servo_bus)
+        return virtual
+
+    return answered

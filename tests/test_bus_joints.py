@@ -112,13 +112,14 @@ def _config(port, kin, ids, models="XL330-M288"):
         ("zxz", None, (4, 5, 6)),
     ],
 )
-def test_a_stream_of_any_axes_on_any_ids_sends_the_plan(tmp_path, axes, joints, ids):
+def test_a_stream_of_any_axes_on_any_ids_sends_the_plan(tmp_path, answered_here, axes, joints, ids):
     kin = GimbalKinematics(axes=axes, joints=joints)
     path = _path(kin)
     start = kin.inverse(path.quats[:1])[0]  # the first keyframe's angles
     plant = FirstOrderPlant(len(ids), initial_rad=start, time_constant_s=0.0)
     telemetry = tmp_path / "run.csv"
     with VirtualBus(plant, ids=ids, models="XL330-M288", lockstep_dt_s=1 / RATE_HZ) as virtual:
+        answered_here(virtual)
         session = Session(_config(virtual.port, kin, ids), telemetry=telemetry, max_delay_s=None)
         outcome = session.stream_path(path, RATE_HZ, kinematics=kin)
         goals = np.array(virtual.goal_log)
@@ -136,10 +137,11 @@ def test_a_stream_of_any_axes_on_any_ids_sends_the_plan(tmp_path, axes, joints, 
     assert not any(c.endswith("_roll") for c in header if axes == "zy")
 
 
-def test_bring_up_checks_each_servos_model_number_against_its_joints():
+def test_bring_up_checks_each_servos_model_number_against_its_joints(answered_here):
     kin = GimbalKinematics(axes="zy")
     models = ("XL330-M288", "XM430-W350")  # the tilt servo is not what the file says
     with VirtualBus(FirstOrderPlant(2), ids=(11, 12), models=models, lockstep_dt_s=0.01) as vb:
+        answered_here(vb)
         config = _config(vb.port, kin, (11, 12))
         outcome = Session(config, max_delay_s=None).stream_path(_path(kin), RATE_HZ, kinematics=kin)
         assert vb.frames_received == 0
@@ -149,7 +151,7 @@ def test_bring_up_checks_each_servos_model_number_against_its_joints():
     )
 
 
-def test_a_wrist_streams_beside_an_arm_and_a_gripper_it_leaves_alone():
+def test_a_wrist_streams_beside_an_arm_and_a_gripper_it_leaves_alone(answered_here):
     """The OMX-like chain: the session drives the wrist (14, 15); the other servos of
     the chain, the gripper in Current-based Position (mode 5), are never written."""
     kin = GimbalKinematics(axes="yx", joints=("wrist_flex", "wrist_roll"))
@@ -163,6 +165,7 @@ def test_a_wrist_streams_beside_an_arm_and_a_gripper_it_leaves_alone():
         registers=registers,
         lockstep_dt_s=1 / RATE_HZ,
     ) as virtual:
+        answered_here(virtual)
         session = Session(_config(virtual.port, kin, (14, 15)), max_delay_s=None)
         outcome = session.stream_path(_path(kin), RATE_HZ, kinematics=kin)
         others = {i: virtual.servos[i] for i in OMX if i not in (14, 15)}
@@ -183,7 +186,7 @@ def test_a_session_that_cannot_open_leaves_every_servo_of_its_joints_untouched(t
     assert outcome.servo_states == {11: UNTOUCHED, 12: UNTOUCHED}
 
 
-def test_the_mcap_run_log_names_the_files_joints(tmp_path):
+def test_the_mcap_run_log_names_the_files_joints(tmp_path, answered_here):
     pytest.importorskip("mcap_ros2")
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
@@ -195,6 +198,7 @@ def test_the_mcap_run_log_names_the_files_joints(tmp_path):
     with VirtualBus(
         FirstOrderPlant(2), ids=(14, 15), models="XL330-M288", lockstep_dt_s=0.01
     ) as vb:
+        answered_here(vb)
         session = Session(_config(vb.port, kin, (14, 15)), telemetry=log, max_delay_s=None)
         assert session.stream_path(_path(kin), RATE_HZ, kinematics=kin).ok
     with open(log, "rb") as f:

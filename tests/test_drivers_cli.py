@@ -134,8 +134,8 @@ def test_stream_virtual_from_a_pose_away_from_zero_and_across_180_deg(tmp_path, 
     assert result["torque"]["joints"]["pan"]["max_tracking_error_rad"] < 0.15
 
 
-def test_stream_to_a_port_and_wrong_model(tmp_path, capsys):
-    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+def test_stream_to_a_port_and_wrong_model(tmp_path, capsys, answered_here):
+    with answered_here(VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01)) as virtual:
         ok = _write(tmp_path / "ok.toml")
         assert _run(["stream", ok, "--port", virtual.port, "--torque-off"]) == 0
         assert "frames sent: 81/81" in capsys.readouterr().out
@@ -228,12 +228,12 @@ class _SignalAtFrame(FirstOrderPlant):
     ids=["SIGTERM", "SIGHUP", "SIGINT"],
 )
 def test_stop_signal_stops_safely_and_keeps_every_record(
-    tmp_path, capsys, signum, status, torque_off
+    tmp_path, capsys, answered_here, signum, status, torque_off
 ):
     path = _write(tmp_path / "k.toml")
     argv = ["stream", path, "--telemetry", tmp_path / "t.npz", "--json", tmp_path / "r.json"]
     argv += ["--torque-off"] if torque_off else []
-    with VirtualBus(_SignalAtFrame(150, signum), lockstep_dt_s=0.01) as virtual:
+    with answered_here(VirtualBus(_SignalAtFrame(150, signum), lockstep_dt_s=0.01)) as virtual:
         assert _run([*argv, "--port", virtual.port]) == status
         torque = [servo.torque_on for servo in virtual.servos.values()]
         watchdog = [servo.get(Register.BUS_WATCHDOG) for servo in virtual.servos.values()]
@@ -258,15 +258,15 @@ def test_stop_signal_stops_safely_and_keeps_every_record(
     assert len(np.load(tmp_path / "t.npz")["frame"]) == received
 
 
-def test_torque_off_at_the_end_says_released(tmp_path, capsys):
-    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+def test_torque_off_at_the_end_says_released(tmp_path, capsys, answered_here):
+    with answered_here(VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01)) as virtual:
         assert _run(["stream", _write(tmp_path / "k.toml"), "--port", virtual.port]) == 0
         assert "servos: hold their last goal" in capsys.readouterr().out
         assert _run(["stream", tmp_path / "k.toml", "--port", virtual.port, "--torque-off"]) == 0
         assert "servos: were released (torque off)" in capsys.readouterr().out
 
 
-def test_command_line_uses_the_tested_bring_up(tmp_path, capsys, monkeypatch):
+def test_command_line_uses_the_tested_bring_up(tmp_path, capsys, monkeypatch, answered_here):
     from trajgen.drivers import bringup
 
     calls = []
@@ -277,15 +277,17 @@ def test_command_line_uses_the_tested_bring_up(tmp_path, capsys, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr("trajgen.drivers.bringup.bring_up", spy)
-    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01) as virtual:
+    with answered_here(VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01)) as virtual:
         assert _run(["stream", _write(tmp_path / "k.toml"), "--port", virtual.port]) == 0
     assert len(calls) == 1 and calls[0]["max_approach_rad"] == pytest.approx(math.radians(45))
 
 
-def test_installed_limits_refuse_then_set_limits_writes_them(tmp_path, capsys):
+def test_installed_limits_refuse_then_set_limits_writes_them(tmp_path, capsys, answered_here):
     path = _write(tmp_path / "k.toml")  # tilt goes to 5 deg (tick 2105) at t = 0.4 s
     limits = {Register.MIN_POSITION_LIMIT: 2000, Register.MAX_POSITION_LIMIT: 2080}
-    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, registers={2: limits}) as virtual:
+    with answered_here(
+        VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, registers={2: limits})
+    ) as virtual:
         assert _run(["stream", path, "--port", virtual.port, "--json", tmp_path / "r.json"]) == 1
         err = capsys.readouterr().err
         assert virtual.frames_received == 0
@@ -320,9 +322,11 @@ def test_set_limits_bad_values(tmp_path, capsys):
     assert "expected a joint name, got '9x'" in capsys.readouterr().err
 
 
-def test_fast_sync_read_fallback_is_said_on_stderr(tmp_path, capsys):
+def test_fast_sync_read_fallback_is_said_on_stderr(tmp_path, capsys, answered_here):
     path = _write(tmp_path / "k.toml")
-    with VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, fast_sync_read=False) as virtual:
+    with answered_here(
+        VirtualBus(FirstOrderPlant(), lockstep_dt_s=0.01, fast_sync_read=False)
+    ) as virtual:
         assert _run(["stream", path, "--port", virtual.port, "--json", tmp_path / "r.json"]) == 0
     err = capsys.readouterr().err
     assert "trajgen: warning: fast sync read failed (servos [1, 2, 3]: " in err

@@ -174,7 +174,9 @@ def test_hold_on_finish_clears_watchdog_and_keeps_torque(rig, rng, tmp_path):
 FAULTS = [
     (Fault("drop", at_frame=20, servo_id=2), CommError, "fast sync read .* 3 tries: There is no"),
     (Fault("corrupt", at_frame=20), CommError, "3 tries: Incorrect status packet"),
-    (Fault("delay", at_frame=20, delay_s=0.2), CommError, "3 tries: There is no status packet"),
+    # Replies 5 s late: after every try (each times out in about 34 ms) and the safe stop,
+    # however slow the host; the late bytes are read by no one.
+    (Fault("delay", at_frame=20, delay_s=5.0), CommError, "3 tries: There is no status packet"),
     (Fault("close", at_frame=20), CommError, "port failed"),
     (Fault("overload", at_frame=20, servo_id=3), ServoError, "servo 3: hardware error .*overload"),
     (Fault("watchdog", at_frame=20, servo_id=1), WatchdogTripped, "servo 1: Bus Watchdog tripped"),
@@ -429,10 +431,29 @@ def test_read_every_fits_the_period():
     assert max_rate_hz(CycleCost(1e-4, 16e-3, 20), read_every=4) == pytest.approx(1.5 / 16.1e-3)
 
 
+def test_read_every_is_raised_until_late_read_backs_cost_under_1_percent_of_the_rate():
+    from trajgen.drivers.probe import LAG_SHARE, CycleCost, read_every_for
+
+    # 1 kHz: 48 of 50 reads take 0.3 ms, 2 take 2.9 ms: a frame with one of those ends
+    # 3.0 ms after its start and stalls the next goal by 2 ms. That is 0.08 ms a read
+    # on average: read back every 8 frames at least for 1 % of the period (0.01 ms).
+    reads = (3e-4,) * 48 + (2.9e-3,) * 2
+    cost = CycleCost(1e-4, 3e-4, 50, reads)
+    assert cost.late(1e-3) == (2, pytest.approx(2 * 2e-3 / 50))
+    assert LAG_SHARE == 0.01
+    assert read_every_for(cost, 1e-3) == 8
+    assert read_every_for(cost, 1e-3, wanted=10) == 10
+    assert read_every_for(cost.median_only(), 1e-3) == 1  # the median alone: every frame
+    # At 100 Hz the same reads stall nothing.
+    assert read_every_for(cost, 1e-2) == 1
+    # Half the reads late: more than 50 frames between read-backs would be needed.
+    assert read_every_for(CycleCost(1e-4, 3e-4, 4, (3e-4, 3e-4, 2e-3, 2e-3)), 1e-3) is None
+
+
 def test_probe_lowers_the_read_back_rate_it_cannot_carry(rig, rng, tmp_path, monkeypatch):
     from trajgen.drivers import streamer as streamer_module
     from trajgen.drivers.clock import WALL_CLOCK
-    from trajgen.drivers.probe import CycleCost
+    from trajgen.drivers.probe import PROBE_FRAMES, CycleCost
 
     timed = []
 
@@ -462,7 +483,7 @@ def test_probe_lowers_the_read_back_rate_it_cannot_carry(rig, rng, tmp_path, mon
     ):
         stats = streamer.run(trajectory)
     # 29 bytes of Sync Write at 1 Mbps; the probe wrote nothing.
-    assert timed == [(20, pytest.approx(290e-6))] and stats.read_every == 2
+    assert timed == [(PROBE_FRAMES, pytest.approx(290e-6))] and stats.read_every == 2
     assert r.virtual.frames_received - goals_before == stats.approach_frames + len(trajectory)
     assert stats.reads == math.ceil(stats.approach_frames / 2) + math.ceil(len(trajectory) / 2)
     assert "probe before the stream: goal write 0.200 ms, read-back 8.000 ms" in stats.format()

@@ -164,6 +164,43 @@ def test_envelope_callback_slows_the_motion():
     assert held.peaks[1, 0] <= 5.0 and held.arrival > free.arrival
 
 
+class SteppedEnvelope:
+    """An envelope with ``steps``: the tracker should run those, not call it."""
+
+    def __init__(self):
+        self.calls = self.steps_run = 0
+
+    def __call__(self, q, qd, qdd):
+        self.calls += 1
+        return np.abs(qdd[:, 0]) <= 5.0
+
+    def steps(self, q, qd, qdd):
+        for _ in range(3):
+            self.steps_run += 1
+            yield
+        return np.abs(qdd[:, 0]) <= 5.0
+
+
+def count_steps(tr, **target):
+    steps, n = tr.set_target_steps(**target), 0
+    while True:
+        try:
+            next(steps)
+            n += 1
+        except StopIteration as end:
+            return end.value, n
+
+
+def test_an_envelope_with_steps_is_run_in_steps():
+    plain = tracker(envelope=lambda q, qd, qdd: np.abs(qdd[:, 0]) <= 5.0)
+    env = SteppedEnvelope()
+    a, n_plain = count_steps(plain, angles=[D(30), 0, 0], at=0.0)
+    b, n_stepped = count_steps(tracker(envelope=env), angles=[D(30), 0, 0], at=0.0)
+    assert env.calls == 0 and env.steps_run > 3  # refused at full limits, then scaled
+    assert n_stepped == n_plain + env.steps_run
+    assert b.arrival == a.arrival and np.array_equal(b.peaks, a.peaks)
+
+
 def test_unreachable_is_refused():
     tr = Tracker(OnlineSpline(forward([0, 0, 0]), 0.0), [[0.02] * 3, [1.0] * 3, [10.0] * 3])
     with pytest.raises(KinematicsError, match="within 60 s"):

@@ -39,10 +39,16 @@ from .tracker import Tracker
 #: steps need it.
 CHANGE_MARGIN_S = 0.05
 
-#: Steps (one a frame) an untimed target's change is given before its ``at``: the
-#: tracker's search takes 13-18 (the motion in progress, an iteration of the joint
-#: motion's root search each, the frame check); doubled on each new attempt.
+#: Frames an untimed target's change is given before its ``at`` (at least
+#: ``margin_s``): the tracker's search takes 16-26 steps (bench/tracker_cost.py: the
+#: target, the motion in progress, the candidates' grid, a joint each, the profile, its
+#: frames, the envelope's inverse dynamics a body at a time, the change), one a frame
+#: or more (``STEP_SHARE``); doubled on each new attempt.
 TARGET_STEPS = 20
+
+#: Share of a frame period the streaming thread spends on changes' steps between two
+#: frames: one step at least, more while the next (as long as the last) still fits.
+STEP_SHARE = 0.25
 
 #: Interpreter thread switch interval (s) while following (Python's default is 5 ms):
 #: how long the streaming thread may wait for the thread that parses the lines.
@@ -394,12 +400,22 @@ class Follower:
                 job.cancel(self._error(job.where, "the stream ended before its change was made"))
 
     def _step(self) -> None:
-        """One step of the oldest line's change, if any (dropped from the queue once done)."""
-        with self._lock:
-            job = self._jobs[0] if self._jobs else None
-        if job is not None and job.step():
+        """Steps of the oldest lines' changes, if any (each dropped from the queue once
+        done): one, and more while ``STEP_SHARE`` of a period leaves room for another."""
+        budget = STEP_SHARE / self.rate_hz
+        start = time.perf_counter()
+        while True:
             with self._lock:
-                self._jobs.popleft()
+                job = self._jobs[0] if self._jobs else None
+            if job is None:
+                return
+            began = time.perf_counter()
+            if job.step():
+                with self._lock:
+                    self._jobs.popleft()
+            now = time.perf_counter()
+            if 2.0 * now - began - start >= budget:  # spent so far + the last step's length
+                return
 
     def trajectory(self) -> JointTrajectory:
         """What :meth:`frames` yielded, as arrays."""

@@ -236,6 +236,8 @@ class FrameKinematics:
         # |tilt| <= lock and t_lo <= tilt <= t_hi, as one interval (NaN fails it).
         self._bounds = (p_lo, p_hi, max(t_lo, -lock), min(t_hi, lock), r_lo, r_hi)
         self._start = None if start is None else (float(start[0]), float(start[2]))
+        #: The axis sequence (0 = x, 1 = y, 2 = z) of the joints, from the base out.
+        self.indices = kinematics.sequence.indices
 
     @property
     def state(self) -> tuple:
@@ -275,8 +277,39 @@ class FrameKinematics:
         if not 1e-12 <= norm < math.inf:
             Q.as_quats([q])  # raises, naming what is wrong
         pan, tilt, roll = angles_of(w / norm, x / norm, y / norm, z / norm, math.atan2, math.hypot)
-        # Integer turn counts, as GimbalKinematics.inverse (np.round and round both
-        # round half to even).
+        angles = self._unwrap(pan, tilt, roll)
+        if not self._inside(angles):
+            self._kin.check(np.array([angles]), np.array([t]))  # raises with the message
+        pan, tilt, roll = angles
+        cp, sp, ct, st = math.cos(pan), math.sin(pan), math.cos(tilt), math.sin(tilt)
+        qd, qdd = rates_of(cp, sp, ct, st, omega, alpha)
+        total = sum(qd) + sum(qdd)
+        if total - total != 0.0:  # inf or NaN: a rate of the path was not finite
+            joint_rates(angles, omega, alpha)  # raises, naming it
+        return angles, qd, qdd
+
+    def joints(self, angles, qd, qdd) -> tuple[tuple, tuple, tuple] | None:
+        """The frame of a joint motion known as such (angles on any 2 pi branch, their
+        speeds and accelerations, each n floats), without its orientation: the angles
+        unwrapped as :meth:`__call__` unwraps those of the orientation they make (the
+        same turn counts, the same state), the same guard.
+
+        Returns None, the state left as it was, where the guard refuses the frame:
+        the caller then evaluates the orientation with :meth:`__call__`, which raises
+        with the message (and which alone knows another branch of the middle joint).
+        """
+        state = self.state
+        wrapped = [a - TWO_PI * round(a / TWO_PI) for a in angles]  # as atan2 gives them
+        unwrapped = self._unwrap(*wrapped)
+        if not self._inside(unwrapped):
+            self.state = state
+            return None
+        return unwrapped, tuple(qd), tuple(qdd)
+
+    def _unwrap(self, pan: float, tilt: float, roll: float) -> tuple:
+        """``(pan, tilt, roll)`` (rad) with pan and roll (each in (-pi, pi], to rounding)
+        on the branch of the frame before: integer turn counts, as
+        GimbalKinematics.inverse (np.round and round both round half to even)."""
         if self._last is not None:
             self._pan_turns += round((self._last[0] - pan) / TWO_PI)
             self._roll_turns += round((self._last[1] - roll) / TWO_PI)
@@ -284,18 +317,13 @@ class FrameKinematics:
             self._pan_turns = round((self._start[0] - pan) / TWO_PI)
             self._roll_turns = round((self._start[1] - roll) / TWO_PI)
         self._last = (pan, roll)
-        pan += TWO_PI * self._pan_turns
-        roll += TWO_PI * self._roll_turns
-        angles = (pan, tilt, roll)
+        return pan + TWO_PI * self._pan_turns, tilt, roll + TWO_PI * self._roll_turns
+
+    def _inside(self, angles: tuple) -> bool:
+        """Whether unwrapped angles keep the joint limits and the lock margin (NaN fails)."""
+        pan, tilt, roll = angles
         p_lo, p_hi, t_lo, t_hi, r_lo, r_hi = self._bounds
-        if not (p_lo <= pan <= p_hi and t_lo <= tilt <= t_hi and r_lo <= roll <= r_hi):
-            self._kin.check(np.array([angles]), np.array([t]))  # raises with the message
-        cp, sp, ct, st = math.cos(pan), math.sin(pan), math.cos(tilt), math.sin(tilt)
-        qd, qdd = rates_of(cp, sp, ct, st, omega, alpha)
-        total = sum(qd) + sum(qdd)
-        if total - total != 0.0:  # inf or NaN: a rate of the path was not finite
-            joint_rates(angles, omega, alpha)  # raises, naming it
-        return angles, qd, qdd
+        return p_lo <= pan <= p_hi and t_lo <= tilt <= t_hi and r_lo <= roll <= r_hi
 
 
 class AxesFrameKinematics(FrameKinematics):
@@ -333,6 +361,7 @@ class AxesFrameKinematics(FrameKinematics):
         self._bounds = tuple(tuple(b) for b in bounds)
         self._units = tuple(_UNITS[i] for i in seq.indices)
         self._look = tuple(float(v) for v in seq.look)
+        self.indices = seq.indices
 
     @property
     def state(self) -> tuple:
@@ -352,10 +381,22 @@ class AxesFrameKinematics(FrameKinematics):
         if not 1e-12 <= norm < math.inf:
             Q.as_quats([q])  # raises, naming what is wrong
         r = matrix_entries(w / norm, x / norm, y / norm, z / norm)
-        angles = list(angles_of_matrix(self._seq, r, math.atan2, math.hypot))
+        angles = self._unwrap(*angles_of_matrix(self._seq, r, math.atan2, math.hypot))
+        if not self._inside(angles):
+            self._kin.check(np.array([angles]), np.array([t]))  # raises with the message
+        qd, qdd = rates_of_axes(*self._axes(angles), tuple(omega), tuple(alpha))
+        total = sum(qd) + sum(qdd)
+        if total - total != 0.0:  # inf or NaN: the numpy formulas raise, naming it
+            qd, qdd = self._kin.joint_rates(np.array([angles]), [omega], [alpha])
+            return angles, tuple(qd[0].tolist()), tuple(qdd[0].tolist())
+        return angles, qd, qdd
+
+    def _unwrap(self, *angles: float) -> tuple:
+        """The angles (rad; the wrapped joints' each in (-pi, pi], to rounding) with the
+        wrapped joints on the branch of the frame before: integer turn counts, as
+        GimbalKinematics.inverse (np.round and round both round half to even)."""
+        angles = list(angles)
         wrapped = tuple(angles[c] for c in self._cols)
-        # Integer turn counts, as GimbalKinematics.inverse (np.round and round both
-        # round half to even).
         if self._last is not None:
             self._turns = tuple(
                 n + round((last - a) / TWO_PI)
@@ -368,15 +409,11 @@ class AxesFrameKinematics(FrameKinematics):
         self._last = wrapped
         for c, n in zip(self._cols, self._turns, strict=True):
             angles[c] += TWO_PI * n
-        angles = tuple(angles)
-        if not all(lo <= a <= hi for a, (lo, hi) in zip(angles, self._bounds, strict=True)):
-            self._kin.check(np.array([angles]), np.array([t]))  # raises with the message
-        qd, qdd = rates_of_axes(*self._axes(angles), tuple(omega), tuple(alpha))
-        total = sum(qd) + sum(qdd)
-        if total - total != 0.0:  # inf or NaN: the numpy formulas raise, naming it
-            qd, qdd = self._kin.joint_rates(np.array([angles]), [omega], [alpha])
-            return angles, tuple(qd[0].tolist()), tuple(qdd[0].tolist())
-        return angles, qd, qdd
+        return tuple(angles)
+
+    def _inside(self, angles: tuple) -> bool:
+        """Whether unwrapped angles keep the joint limits and the lock margin (NaN fails)."""
+        return all(lo <= a <= hi for a, (lo, hi) in zip(angles, self._bounds, strict=True))
 
     def _axes(self, angles: tuple) -> tuple[tuple, tuple | None]:
         """The space-frame joint axes of one frame and (two axes) the look direction."""

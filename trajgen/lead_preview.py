@@ -126,7 +126,10 @@ def box_least_squares(a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarr
         alpha = min(1.0, room.min()) if room.size else 1.0
         x = np.clip(x + alpha * step, lo, hi)
         if alpha < 1.0:
-            held |= free & (room <= alpha)
+            blocked = free & (room <= alpha)
+            # at the bound exactly: roundoff would leave it inside, never released
+            x[blocked] = np.where(step[blocked] > 0, hi[blocked], lo[blocked])
+            held |= blocked
             continue
         gradient = q @ x - r  # half the gradient; at a held bound it must point outwards
         pull = np.where(x <= lo, -gradient, np.where(x >= hi, gradient, 0.0))

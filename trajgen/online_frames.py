@@ -6,6 +6,7 @@ evaluates once per frame of a stream of an :class:`~trajgen.online.OnlineSpline`
 
 from __future__ import annotations
 
+import bisect
 import math
 from typing import TYPE_CHECKING
 
@@ -14,6 +15,7 @@ import numpy as np
 from .path import Steps
 
 if TYPE_CHECKING:
+    from .frame_eval import FrameKinematics
     from .online_plan import Piece, Plan
 
 
@@ -46,8 +48,10 @@ class PlanFrames:
 
     def __init__(self, plan: Plan, t0: float, rate_hz: float, previous: PlanFrames | None = None):
         self._plan, self._t0, self._rate = plan, t0, rate_hz
+        self._starts = plan.starts.tolist()
         self._lo, self._hi = math.inf, -math.inf  # the current part's open interval
         self._part = None
+        self._joint_part = None  # the current part's segment, where it is a joint motion
         # The current block, (piece, first frame, times (B,), q (B, 4), omega, alpha), and
         # the next, (piece, first frame, Steps evaluating it). Blocks are a piece's, and
         # pieces are immutable and shared by the plans before and after a change: an
@@ -62,22 +66,46 @@ class PlanFrames:
             self._enter(t)
         return self._part(t)
 
+    def joints(self, t: float, kin: FrameKinematics) -> tuple[tuple, tuple, tuple]:
+        """Joint angles (rad), speeds (rad/s) and accelerations (rad/s^2) at stream time
+        ``t`` (s): ``kin(t, *self(t))``, except in a joint motion on ``kin``'s own axes
+        (a segment with ``joints_at`` and ``indices``, such as
+        :class:`~trajgen.joint_splice.JointSplice`), whose joints are read off it
+        (:meth:`FrameKinematics.joints`: the same frame, to rounding, without the
+        orientation's round trip through the inverse kinematics)."""
+        if not self._lo < t < self._hi:
+            self._enter(t)
+        segment = self._joint_part
+        if segment is not None and segment.indices == kin.indices:
+            joints = kin.joints(*segment.joints_at(t))
+            if joints is not None:
+                return joints
+        return kin(t, *self._part(t))
+
     def _enter(self, t: float) -> None:
-        plan = self._plan
-        j = int(plan._segment(np.array([t]))[0][0])  # raises before the kept range
+        """Make the part holding ``t`` the current one, by the rules of ``Plan._segment``
+        and ``Piece._parts`` (in floats)."""
+        plan, starts = self._plan, self._starts
+        if t < starts[0]:
+            plan._segment(np.array([t]))  # raises before the kept range (beyond rounding)
+        j = max(bisect.bisect_left(starts, t) - 1, 0)
         piece = plan.pieces[j]
-        lo = float(plan.starts[j]) if j else plan.t_start
-        hi = float(plan.starts[j + 1]) if j + 1 < len(plan.pieces) else math.inf
-        hold, spliced, _, seg = piece._parts(np.array([t]))
-        if hold[0]:
+        lo = starts[j]
+        hi = starts[j + 1] if j + 1 < len(starts) else math.inf
+        splice, t_end = piece.splice, piece.t_end
+        self._joint_part = None
+        if t >= t_end:  # the hold
             q, zero = tuple(piece.q_end.tolist()), (0.0, 0.0, 0.0)
-            lo, self._part = max(lo, piece.t_end), lambda _: (q, zero, zero)
-        elif spliced[0]:
-            hi, self._part = min(hi, float(piece.splice.times[1])), piece.splice.frame
+            lo, self._part = max(lo, t_end), lambda _: (q, zero, zero)
+        elif splice is not None and t < (end := float(splice.times[1])):
+            hi, self._part = min(hi, end), splice.frame
+            if hasattr(splice, "joints_at"):
+                self._joint_part = splice
         else:
             times = piece.spline.times
-            lo = max(lo, float(times[seg[0]]))
-            hi = min(hi, float(times[seg[0] + 1]))
+            seg = min(max(bisect.bisect_right(times, t) - 1, 0), len(times) - 2)
+            lo = max(lo, float(times[seg]))
+            hi = min(hi, float(times[seg + 1]))
             self._part = lambda x: self._blended(piece, x)
         self._lo, self._hi = lo, hi
 

@@ -180,7 +180,8 @@ def stream_frames(
     ``t_end`` is reached, holding at rest meanwhile. Each frame is evaluated on
     its own from the source's snapshot (``snapshot()`` returns a path with
     ``frames(t0, rate_hz, previous)``, see :class:`~trajgen.online.PlanFrames`): a change's
-    spliced segments in floats, blended ones with numpy a block at a time.
+    spliced segments in floats, blended ones with numpy a block at a time, a joint
+    motion (an untimed target's) as its joints' own angles and rates.
 
     Parameters
     ----------
@@ -270,7 +271,7 @@ def _online_frames(source, kin: FrameKinematics, rate_hz: float) -> Iterator[Joi
         if latest != version:
             version, frames = latest, path.frames(t0, rate_hz, frames)
         unwrapped = kin.state
-        joints = kin(t, *frames(t))
+        joints = frames.joints(t, kin)
         if not source.commit(t, version):  # changed meanwhile: this frame again
             kin.state = unwrapped
             continue

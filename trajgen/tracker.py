@@ -219,7 +219,9 @@ class Tracker:
     envelope : callable, optional
         ``envelope(q, qd, qdd) -> bool array (N,)`` with joint angles, speeds and
         accelerations (N, 3) (rad, rad/s, rad/s^2): True where the servos can do it
-        (e.g. a torque-speed envelope check). Every sample must pass.
+        (e.g. a torque-speed envelope check). Every sample must pass. One with a
+        ``steps`` method (the same arguments; a generator of steps whose value is
+        that array, as ``trajgen.sim.check.EnvelopeCheck``) is run in steps.
     rate_hz : float, optional
         Stream rate (Hz): candidate paths are checked at its frame times
         ``t0 + n / rate_hz``, ``t0`` the spline's ``t_start`` when the tracker is
@@ -230,11 +232,11 @@ class Tracker:
 
     Notes
     -----
-    Cost: the joints' state at ``at``, a root search on every joint's profile at once
-    (a handful of iterations of a few dozen numpy calls), one check of its frames
+    Cost: the joints' state at ``at``, a grid of the profile's candidates for every
+    joint at once, each joint's roots and choice in floats, one check of its frames
     (lock margin, joint limits, envelope); ``bench/tracker_cost.py`` measures it.
-    :meth:`set_target_steps` yields between them and between the root search's
-    iterations, for a caller that runs the work in steps between frames.
+    :meth:`set_target_steps` yields between them (a joint a step; the envelope's own
+    steps, if it has them), for a caller that runs the work in steps between frames.
     """
 
     def __init__(
@@ -337,11 +339,13 @@ class Tracker:
         else:
             q = Q.as_quats(np.reshape(orientation, (1, 4)), "orientation")
             raw = self.kinematics.angles(q)[0]
+        yield
         if self.spline.version != self._version:
             self._sync()
         goal, clamped = self._clamp(raw)
         if np.max(np.abs(goal - self.goal)) < self.dead_band_rad:
             return TargetResult(False, at, self.arrival, self.goal.copy(), clamped)
+        yield
         found = yield from self._search(goal, at, limits)
         if found is None:
             now = self._unwrapped(self.spline(np.array([at]))[0], self.goal)
@@ -351,6 +355,7 @@ class Tracker:
                 f"gimbal-lock margin within {MAX_ARRIVAL_S:g} s"
             )
         change, at, h, vias, peaks = found
+        yield
         self.spline.apply(change)
         self.goal, self.arrival, self._version = goal, at + h, self.spline.version
         return TargetResult(True, at, at + h, goal.copy(), clamped, vias, peaks)
@@ -399,6 +404,7 @@ class Tracker:
             if state is None:
                 return "orientation"
             q_a, now, qd, qdd = state
+            yield
             if kin.sequence.lock_distance(now) <= kin.lock_margin_rad:
                 continue  # no joint rates at the lock; the old path leaves it
             for scale in ENVELOPE_SCALES:
@@ -407,18 +413,19 @@ class Tracker:
                 phases = yield from fastest_steps(now, qd, qdd, goal, scaled)
                 yield
                 profile = JointProfile(now, qd, qdd, *phases, goal)
+                yield
                 peaks = profile.peaks()
                 if profile.duration > MAX_ARRIVAL_S:
                     return None
                 if (peaks > limits).any():
                     break  # the motion in progress cannot stop within them from here
-                yield
-                verdict = self._check_joints(profile, a)
+                verdict = yield from self._check_joints(profile, a)
                 if verdict == "path":
                     break
                 if verdict == "ok":
                     yield
                     segment = JointSplice(a, profile, kin.sequence.indices, q_a)
+                    yield
                     change = self.spline.prepare_segment(segment, at=a)
                     return change, a, profile.duration, 0, peaks
         return None
@@ -447,21 +454,31 @@ class Tracker:
         qd, qdd = self.kinematics.joint_rates(now, s.omega[0], s.alpha[0])
         return s.q[0], now, qd, qdd
 
-    def _check_joints(self, profile, at: float) -> str:
+    def _check_joints(self, profile, at: float):
         """``"ok"``, ``"path"`` (a frame near the lock or past a joint limit) or
         ``"envelope"`` (a frame the envelope refuses) for the joint motion ``profile``
-        from ``at``, at the stream's frames after ``at`` up to the first after its end."""
+        from ``at``, at the stream's frames after ``at`` up to the first after its end:
+        a generator of steps (the frames' states, then the envelope's, see
+        :class:`Tracker`) whose value is the verdict."""
         base = self.frame_base
         n0 = math.floor((at - base) * self.rate_hz) + 1
         n1 = math.ceil((at + profile.duration - base) * self.rate_hz) + 1
-        t = base + np.arange(n0, n1 + 1) / self.rate_hz
-        q, qd, qdd, _ = profile.state(t - at)
+        yield
+        q, qd, qdd, _ = profile.state((base + np.arange(n0, n1 + 1) / self.rate_hz) - at)
+        yield
         try:
             self.kinematics.check(q)
         except KinematicsError:
             return "path"
-        if self.envelope is not None and not np.all(self.envelope(q, qd, qdd)):
-            return "envelope"
+        if self.envelope is not None:
+            yield
+            steps = getattr(self.envelope, "steps", None)
+            if steps is not None:
+                ok = yield from steps(q, qd, qdd)
+            else:
+                ok = self.envelope(q, qd, qdd)
+            if not np.all(ok):
+                return "envelope"
         return "ok"
 
     def _direct(self, goal, now, at, limits):

@@ -4,9 +4,10 @@ Part of :mod:`trajgen.tracker`. Each joint goes from its present angle, speed an
 acceleration to rest at its goal in the least time that keeps ``|speed| <= V``,
 ``|acceleration| <= A`` and ``|jerk| <= J`` (a double-S, or seven-phase, profile:
 jerk ``+-J`` or 0 in each phase), independently of the other joints;
-:class:`JointSplice` is the orientation path of the joints' motion, ``forward(x(t))``
-through the gimbal's axis sequence, played by :class:`~trajgen.online.OnlineSpline`
-as a splice (the same interface as :class:`~trajgen.online_splice.Splice`).
+:class:`~trajgen.joint_splice.JointSplice` is the orientation path of the joints'
+motion, ``forward(x(t))`` through the gimbal's axis sequence, played by
+:class:`~trajgen.online.OnlineSpline` as a splice (the same interface as
+:class:`~trajgen.online_splice.Splice`).
 
 The profile (:func:`fastest`): change the speed from ``(v0, a0)`` to a peak ``vp``
 with zero acceleration, cruise at ``vp``, change it from ``(vp, 0)`` to rest. Each
@@ -17,7 +18,7 @@ changes cover the distance to go with no cruise (a root, found by regula falsi).
 seven phases are piecewise cubic in time: angle, speed and acceleration are continuous
 (C2), the jerk is piecewise constant; the orientation path ``forward(x(t))`` is C2 in
 time wherever the joints' motion is, and its angular velocity, acceleration and jerk are
-exact (:func:`joint_frame`).
+exact (:func:`~trajgen.joint_splice.joint_frame`).
 """
 
 from __future__ import annotations
@@ -27,11 +28,8 @@ import math
 
 import numpy as np
 
-from . import jet as J
-from . import quat as Q
-from .axes import _cross, matrix_entries
-from .path import OrientationPath, run_steps
-from .per_sample import hamilton
+from .joint_splice import JointSplice as JointSplice  # its home was here: imports kept
+from .path import run_steps
 
 #: Phases of a joint's profile: a hold of the acceleration, a speed change (3), a
 #: cruise, a speed change to rest (3).
@@ -46,107 +44,88 @@ ROOT_ITERATIONS = 60
 ROOT_TOLERANCE_RAD = 1e-14
 
 
+class _Floats:
+    """The numpy functions :func:`_distance` uses, on Python floats (on one number a
+    few times faster than numpy's)."""
+
+    sqrt, abs, maximum, minimum = math.sqrt, abs, max, min
+
+    @staticmethod
+    def where(condition, a, b):
+        return a if condition else b
+
+
 def _speed_change(vs, a_s, ve, acc, jerk):
     """The fastest change of speed from ``vs`` at acceleration ``a_s`` to ``ve`` at zero
-    acceleration with ``|a| <= acc``, ``|j| <= jerk`` (arrays that broadcast): phase
-    durations (..., 3) (s) and jerks (..., 3) (rad/s^3)."""
-    stop = vs + a_s * np.abs(a_s) / (2.0 * jerk)  # the speed where the acceleration is back to 0
-    sg = np.where(ve >= stop, 1.0, -1.0)
-    peak2 = 0.5 * (2.0 * jerk * sg * (ve - vs) + a_s * a_s)
-    top = np.minimum(np.sqrt(np.maximum(peak2, 0.0)), acc)
+    acceleration with ``|a| <= acc``, ``|j| <= jerk`` (floats): phase durations (s) and
+    jerks (rad/s^3), 3 each."""
+    stop = vs + a_s * abs(a_s) / (2.0 * jerk)  # the speed where the acceleration is back to 0
+    sg = 1.0 if ve >= stop else -1.0
+    top = min(math.sqrt(max(0.5 * (2.0 * jerk * sg * (ve - vs) + a_s * a_s), 0.0)), acc)
     ap = sg * top
-    t1 = np.maximum((ap - a_s) * sg / jerk, 0.0)
+    t1 = max((ap - a_s) * sg / jerk, 0.0)
     t3 = top / jerk
     ramps = 0.5 * (a_s + ap) * t1 + 0.5 * ap * t3
-    safe = np.where(top > 0.0, ap, 1.0)
-    t2 = np.where(top > 0.0, np.maximum((ve - vs - ramps) / safe, 0.0), 0.0)
-    jerks = np.stack(np.broadcast_arrays(sg * jerk, 0.0 * sg, -sg * jerk), axis=-1)
-    return np.stack(np.broadcast_arrays(t1, t2, t3), axis=-1), jerks
-
-
-def _integrate(x, v, a, durations, jerks):
-    """States (x, v, a), each (..., P + 1), at the knots of phases of constant jerk
-    (durations and jerks (..., P)) from ``(x, v, a)`` (...)."""
-    xs, vs, as_ = [x], [v], [a]
-    for k in range(durations.shape[-1]):
-        d, j = durations[..., k], jerks[..., k]
-        x = x + d * (v + d * (a / 2.0 + d * j / 6.0))
-        v = v + d * (a + d * j / 2.0)
-        a = a + d * j
-        xs.append(x)
-        vs.append(v)
-        as_.append(a)
-    return np.stack(xs, axis=-1), np.stack(vs, axis=-1), np.stack(as_, axis=-1)
+    t2 = max((ve - vs - ramps) / ap, 0.0) if top > 0.0 else 0.0
+    return [t1, t2, t3], [sg * jerk, 0.0, -sg * jerk]
 
 
 def _phases(v0, a0, j0, hold, vp, cruise, acc, jerk):
-    """Durations and jerks (..., 8) of the profile that first runs jerk ``j0`` for
-    ``hold`` (s), then changes the speed to ``vp``, cruises for ``cruise`` (s) and stops."""
+    """Durations and jerks (8 each, floats) of the profile that first runs jerk ``j0``
+    for ``hold`` (s), then changes the speed to ``vp``, cruises for ``cruise`` (s) and
+    stops."""
     v1 = v0 + hold * (a0 + hold * j0 / 2.0)
     d1, j1 = _speed_change(v1, a0 + hold * j0, vp, acc, jerk)
     d3, j3 = _speed_change(vp, 0.0, 0.0, acc, jerk)
-    shape = np.broadcast_shapes(d1.shape[:-1], d3.shape[:-1])
-    d1, j1, d3, j3 = (np.broadcast_to(x, (*shape, 3)) for x in (d1, j1, d3, j3))
-    h = np.broadcast_to(hold, shape)[..., None]
-    c = np.broadcast_to(cruise, shape)[..., None]
-    first = np.broadcast_to(j0, shape)[..., None]
-    return (
-        np.concatenate([h, d1, c, d3], axis=-1),
-        np.concatenate([first, j1, np.zeros_like(c), j3], axis=-1),
-    )
+    return [hold, *d1, cruise, *d3], [j0, *j1, 0.0, *j3]
 
 
-def _distance(v0, a0, j0, hold, vp, acc, jerk):
+def _distance(v0, a0, j0, hold, vp, acc, jerk, xp=np):
     """Displacement (rad) of :func:`_phases`' profile without its cruise, in closed form
     (the phases of :func:`_speed_change` integrated where they are computed; the stop
-    from ``(vp, 0)`` is symmetric, so it covers ``vp`` times half its duration)."""
+    from ``(vp, 0)`` is symmetric, so it covers ``vp`` times half its duration): arrays
+    that broadcast, or floats with ``xp=_Floats``."""
     x = hold * (v0 + hold * (a0 / 2.0 + hold * j0 / 6.0))
     v = v0 + hold * (a0 + hold * j0 / 2.0)
     a = a0 + hold * j0
-    stop = v + a * np.abs(a) / (2.0 * jerk)
-    sg = np.where(vp >= stop, 1.0, -1.0)
-    top = np.minimum(np.sqrt(np.maximum(0.5 * (2.0 * jerk * sg * (vp - v) + a * a), 0.0)), acc)
+    stop = v + a * xp.abs(a) / (2.0 * jerk)
+    sg = xp.where(vp >= stop, 1.0, -1.0)
+    top = xp.minimum(xp.sqrt(xp.maximum(0.5 * (2.0 * jerk * sg * (vp - v) + a * a), 0.0)), acc)
     ap = sg * top
-    t1 = np.maximum((ap - a) * sg / jerk, 0.0)
+    t1 = xp.maximum((ap - a) * sg / jerk, 0.0)
     t3 = top / jerk
     j1 = sg * jerk
     x = x + t1 * (v + t1 * (a / 2.0 + t1 * j1 / 6.0))
     v = v + t1 * (a + t1 * j1 / 2.0)
-    t2 = np.maximum((vp - v - 0.5 * ap * t3) / np.where(top > 0.0, ap, 1.0), 0.0) * (top > 0.0)
+    t2 = xp.maximum((vp - v - 0.5 * ap * t3) / xp.where(top > 0.0, ap, 1.0), 0.0) * (top > 0.0)
     x = x + t2 * (v + t2 * ap / 2.0)
     v = v + t2 * ap
     x = x + t3 * (v + t3 * (ap / 2.0 - t3 * j1 / 6.0))
-    speed = np.abs(vp)
-    top = np.minimum(np.sqrt(jerk * speed), acc)
+    speed = xp.abs(vp)
+    top = xp.minimum(xp.sqrt(jerk * speed), acc)
     return x + vp * (
-        top / jerk + 0.5 * np.maximum(speed / np.where(top > 0, top, 1.0) - top / jerk, 0.0)
+        top / jerk + 0.5 * xp.maximum(speed / xp.where(top > 0, top, 1.0) - top / jerk, 0.0)
     )
 
 
-def _root_steps(fun, grid, f):
-    """Every root of ``fun`` between neighbours of ``grid`` (..., G) where ``f`` (its
-    values there) changes sign, by regula falsi (Illinois): (..., G - 1), NaN where
-    there is none. A generator of steps (one an iteration); its value is the roots."""
-    lo, hi, flo, fhi = grid[..., :-1], grid[..., 1:], f[..., :-1], f[..., 1:]
-    found = (np.sign(flo) != np.sign(fhi)) | (flo == 0.0)
-    at_lo = flo == 0.0
-    hi, fhi = np.where(at_lo, lo, hi), np.where(at_lo, 0.0, fhi)
-    flo, fhi = np.where(found, flo, 1.0), np.where(found, fhi, -1.0)
-    side = np.zeros(lo.shape)
-    mid = hi
+def _root(fun, lo, hi, flo, fhi):
+    """The root of ``fun`` (floats) between ``lo`` and ``hi``, where its values ``flo``,
+    ``fhi`` differ in sign, by regula falsi (Illinois)."""
+    side, mid = 0, hi
     for _ in range(ROOT_ITERATIONS):
-        den = fhi - flo
-        mid = np.where(den != 0.0, hi - fhi * (hi - lo) / np.where(den != 0.0, den, 1.0), hi)
+        mid = hi - fhi * (hi - lo) / (fhi - flo) if fhi != flo else hi
         fm = fun(mid)
-        if np.all(~found | (np.abs(fm) < ROOT_TOLERANCE_RAD)):
+        if abs(fm) < ROOT_TOLERANCE_RAD:
             break
-        yield
-        same = np.sign(fm) == np.sign(flo)  # the root lies between mid and hi
-        flo = np.where(same, fm, np.where(side < 0, flo / 2.0, flo))
-        fhi = np.where(same, np.where(side > 0, fhi / 2.0, fhi), fm)
-        lo, hi = np.where(same, mid, lo), np.where(same, hi, mid)
-        side = np.where(same, 1.0, -1.0)
-    return np.where(found, mid, np.nan)
+        if (fm > 0.0) == (flo > 0.0):  # the root lies between mid and hi
+            lo, flo = mid, fm
+            fhi = fhi / 2.0 if side > 0 else fhi
+            side = 1
+        else:
+            hi, fhi = mid, fm
+            flo = flo / 2.0 if side < 0 else flo
+            side = -1
+    return mid
 
 
 def fastest(x0, v0, a0, goal, limits):
@@ -157,8 +136,8 @@ def fastest(x0, v0, a0, goal, limits):
 
 def fastest_steps(x0, v0, a0, goal, limits):
     """Each joint's fastest motion to rest at its goal within the limits, as a generator
-    of steps (one an iteration of the root search; each well under a millisecond);
-    its value is the motion.
+    of steps (the candidates' grid in two, then one joint a step; each well under a
+    millisecond); its value is the motion.
 
     Parameters
     ----------
@@ -177,15 +156,16 @@ def fastest_steps(x0, v0, a0, goal, limits):
 
     Notes
     -----
-    The candidates, each joint on its own, all solved at once: a peak speed ``vp`` whose
-    two speed changes cover the distance (roots over a grid of ``vp`` in [-V, V]); a
-    cruise at ``+V`` or ``-V``; and, for a distance between a full stop's and that of a
-    stop after the acceleration is first brought to zero (a gap the first family
-    bridges only with a pause at zero acceleration), a first phase that keeps the
-    acceleration, or turns it towards zero, for a time (roots over that time) before a
-    full stop. The fastest within the limits wins.
+    The candidates, each joint on its own: a peak speed ``vp`` whose two speed changes
+    cover the distance (roots over a grid of ``vp`` in [-V, V]); a cruise at ``+V`` or
+    ``-V``; and, for a distance between a full stop's and that of a stop after the
+    acceleration is first brought to zero (a gap the first family bridges only with a
+    pause at zero acceleration), a first phase that keeps the acceleration, or turns it
+    towards zero, for a time (roots over that time) before a full stop. The distance
+    is evaluated on every joint's grid at once (numpy); each root is refined, and the
+    candidates compared, in floats (a handful per joint). The fastest within the limits
+    wins.
     """
-    n = len(x0)
     vmax, acc, jerk = (x[:, None, None] for x in limits)
     v, a, dist = v0[:, None, None], a0[:, None, None], (goal - x0)[:, None, None]
     unit = np.linspace(-1.0, 1.0, PEAK_GRID)
@@ -198,46 +178,71 @@ def fastest_steps(x0, v0, a0, goal, limits):
     grid = spans * ((unit + 1.0) / 2.0) + np.array([-1.0, 0.0, 0.0])[:, None] * vmax
     is_peak = np.array([1.0, 0.0, 0.0])[:, None]
     j0 = np.concatenate([0.0 * a, 0.0 * a, -np.sign(a) * jerk], axis=1)
-
-    def shortfall(p):
-        return dist - _distance(v, a, j0, p * (1.0 - is_peak), p * is_peak, acc, jerk)
-
-    f = shortfall(grid)
     yield
-    roots = (yield from _root_steps(shortfall, grid, f)).reshape(n, -1)
-    yield  # (n, 3 (G - 1))
-    cruise_v = np.concatenate([-vmax, vmax], axis=1)[:, :, 0]  # (n, 2)
-    params = np.concatenate([roots, np.zeros((n, 2))], axis=1)
-    fam = np.concatenate([np.repeat(np.arange(3), PEAK_GRID - 1), [0, 0]])
-    hold = np.where(fam == 0, 0.0, params)
-    vp = np.where(fam == 0, params, 0.0)
-    vp[:, -2:] = cruise_v
-    cruise = np.zeros_like(vp)
-    cruise[:, -2:] = f[:, 0, [0, -1]] / cruise_v
-    valid = ~np.isnan(params) & (cruise >= 0.0)
-    hold, vp = np.nan_to_num(hold), np.nan_to_num(vp)
-    jj = np.where(fam == 2, -np.sign(a0)[:, None] * limits[2][:, None], 0.0)
-    v, a, vmax, acc, jerk = (x[:, :, 0] for x in (v, a, vmax, acc, jerk))
-    d, j = _phases(v, a, jj, hold, vp, cruise, acc, jerk)
-    total = np.where(valid, d.sum(axis=-1), np.inf)
-    rows = np.arange(n)
-    best = np.argmin(total, axis=1)
-    fits = _fits(v[:, 0], a[:, 0], d[rows, best], j[rows, best], vmax[:, 0], acc[:, 0])
-    if not fits.all():  # the fastest breaks a limit (from a start that must): the fastest that
-        yield  # does not, if any
-        keep = _fits(v, a, d, j, vmax, acc)
-        other = np.argmin(np.where(keep, total, np.inf), axis=1)
-        best = np.where(~fits & keep[rows, other], other, best)
-    return d[rows, best], j[rows, best]
+    f = dist - _distance(v, a, j0, grid * (1.0 - is_peak), grid * is_peak, acc, jerk)
+    grid, f, j0 = grid.tolist(), f.tolist(), j0[:, :, 0].tolist()
+    durations, jerks = [], []
+    for i, state in enumerate(zip(v0.tolist(), a0.tolist(), (goal - x0).tolist(), strict=True)):
+        yield
+        d, j = _joint_fastest(*state, *limits[:, i].tolist(), grid[i], f[i], j0[i])
+        durations.append(d)
+        jerks.append(j)
+    return np.array(durations), np.array(jerks)
 
 
-def _fits(v0, a0, d, j, vmax, acc):
-    """Whether phases (durations ``d``, jerks ``j``, (..., P)) from speed ``v0`` and
-    acceleration ``a0`` keep ``|v| <= vmax`` and ``|a| <= acc`` (to rounding)."""
-    zero = np.zeros(d.shape[:-1])
-    _, vk, ak = _integrate(zero, v0 + zero, a0 + zero, d, j)
+def _joint_fastest(v, a, dist, vmax, acc, jerk, grid, short, j0):
+    """One joint's fastest motion (durations, jerks: 8 floats each) from speed ``v`` and
+    acceleration ``a`` over ``dist`` (rad), given each family's grid (3 lists of
+    ``PEAK_GRID``), the distance short of ``dist`` there and its first jerk (3)."""
+    if dist == 0.0 and v == 0.0 and a == 0.0:  # at rest on its goal already
+        return [0.0] * PHASES, [0.0] * PHASES
+    found = []  # (hold, first jerk, vp, cruise) of each candidate
+    for fam in range(3):
+        g, fv, jf = grid[fam], short[fam], j0[fam]
+        if fam and g[0] == g[-1]:  # no time to hold or turn: the first family's stop
+            continue
+
+        def shortfall(p, jf=jf, fam=fam):
+            hold, vp = (0.0, p) if fam == 0 else (p, 0.0)
+            return dist - _distance(v, a, jf, hold, vp, acc, jerk, _Floats)
+
+        for k in range(PEAK_GRID - 1):
+            if fv[k] == 0.0 or fv[k + 1] == 0.0:
+                p = g[k] if fv[k] == 0.0 else g[k + 1]
+            elif (fv[k] > 0.0) != (fv[k + 1] > 0.0):
+                p = _root(shortfall, g[k], g[k + 1], fv[k], fv[k + 1])
+            else:
+                continue
+            found.append((0.0, jf, p, 0.0) if fam == 0 else (p, jf, 0.0, 0.0))
+    for vp, rest in ((-vmax, short[0][0]), (vmax, short[0][-1])):
+        if rest / vp >= 0.0:  # a cruise at the speed limit covers the rest
+            found.append((0.0, 0.0, vp, rest / vp))
+    phases = sorted(
+        (sum(d), d, j)
+        for d, j in (
+            _phases(v, a, jf, hold, vp, cruise, acc, jerk) for hold, jf, vp, cruise in found
+        )
+    )
+    # the fastest that keeps the limits; the fastest, if none can from this start
+    best = next((p for p in phases if _keeps(v, a, p[1], p[2], vmax, acc)), phases[0])
+    return best[1], best[2]
+
+
+def _keeps(v, a, durations, jerks, vmax, acc):
+    """Whether phases (``durations``, ``jerks``, floats) from speed ``v`` and acceleration
+    ``a`` keep ``|speed| <= vmax`` and ``|acceleration| <= acc`` (to rounding): at the
+    start, the knots, and where the acceleration passes zero inside a phase."""
     tol = 1.0 + 1e-9
-    return (_peak_speed(vk, ak, d, j) <= vmax * tol) & (np.abs(ak).max(axis=-1) <= acc * tol)
+    vmax, acc = vmax * tol, acc * tol
+    if abs(v) > vmax or abs(a) > acc:
+        return False
+    for d, j in zip(durations, jerks, strict=True):
+        if j != 0.0 and 0.0 < -a / j < d and abs(v - a * a / (2.0 * j)) > vmax:
+            return False
+        v, a = v + d * (a + d * j / 2.0), a + d * j
+        if abs(v) > vmax or abs(a) > acc:
+            return False
+    return True
 
 
 def _peak_speed(vk, ak, d, j):
@@ -266,38 +271,50 @@ class JointProfile:
     """
 
     def __init__(self, x0, v0, a0, durations, jerks, goal):
-        x, v, a = _integrate(x0, v0, a0, durations, jerks)
-        x[:, -1], v[:, -1], a[:, -1] = goal, 0.0, 0.0  # rest exactly at the goal
-        #: Knot times (n, P + 1) (s, from the start), states there, jerk after (n, P + 1).
-        self.knots = np.concatenate([np.zeros((len(x0), 1)), np.cumsum(durations, axis=1)], 1)
-        self.x, self.v, self.a = x, v, a
-        self.j = np.concatenate([jerks, np.zeros((len(x0), 1))], axis=1)
+        n = len(goal)
         self.goal = np.asarray(goal, dtype=float)
+        #: Per joint, in floats: knot times (s, from the start), angle, speed,
+        #: acceleration there, and the jerk after each knot (0 after the last).
+        self._rows = []
+        starts = (np.asarray(s, dtype=float).tolist() for s in (x0, v0, a0))
+        for i, (x, v, a) in enumerate(zip(*starts, strict=True)):
+            ts, xs, vs, as_ = [0.0], [x], [v], [a]
+            js = [*np.asarray(jerks[i]).tolist(), 0.0]
+            for d, j in zip(np.asarray(durations[i]).tolist(), js[:-1], strict=True):
+                x = x + d * (v + d * (a / 2.0 + d * j / 6.0))
+                v = v + d * (a + d * j / 2.0)
+                a = a + d * j
+                ts.append(ts[-1] + d)
+                xs.append(x)
+                vs.append(v)
+                as_.append(a)
+            xs[-1], vs[-1], as_[-1] = float(self.goal[i]), 0.0, 0.0  # rest exactly at the goal
+            self._rows.append((ts, xs, vs, as_, js))
+        #: Knot times (n, P + 1) (s, from the start), states there, jerk after (n, P + 1).
+        self.knots, self.x, self.v, self.a, self.j = (
+            np.array([row[k] for row in self._rows]).reshape(n, -1) for k in range(5)
+        )
         self.duration = float(self.knots[:, -1].max())
-        self._rows = [
-            (
-                self.knots[i].tolist(),
-                x[i].tolist(),
-                v[i].tolist(),
-                a[i].tolist(),
-                self.j[i].tolist(),
-            )
-            for i in range(len(x0))
-        ]
+        self._flat = [a.ravel() for a in (self.knots, self.x, self.v, self.a, self.j)]
 
     def state(self, tau: np.ndarray):
         """Angles, speeds, accelerations, jerks (each (M, n)) at times ``tau`` (M,) (s
         from the start; rest at the goal after each joint's last phase)."""
-        out = np.empty((4, len(tau), len(self.goal)))
-        for i in range(len(self.goal)):
-            k = np.clip(np.searchsorted(self.knots[i], tau, side="right") - 1, 0, None)
-            d = np.where(k == self.knots.shape[1] - 1, 0.0, tau - self.knots[i, k])
-            x, v, a, j = self.x[i, k], self.v[i, k], self.a[i, k], self.j[i, k]
-            out[0, :, i] = x + d * (v + d * (a / 2.0 + d * j / 6.0))
-            out[1, :, i] = v + d * (a + d * j / 2.0)
-            out[2, :, i] = a + d * j
-            out[3, :, i] = j
-        return out
+        tau = np.asarray(tau, dtype=float)
+        n, p = self.knots.shape
+        # (M, n): the phase, that of the last knot at or before tau (0 before the start)
+        k = np.stack([np.searchsorted(kn[1:], tau, side="right") for kn in self.knots], axis=1)
+        at = k + p * np.arange(n)
+        knot, x, v, a, j = (np.take(f, at) for f in self._flat)
+        d = np.where(k == p - 1, 0.0, tau[:, None] - knot)
+        return np.stack(
+            [
+                x + d * (v + d * (a / 2.0 + d * j / 6.0)),
+                v + d * (a + d * j / 2.0),
+                a + d * j,
+                j,
+            ]
+        )
 
     def state_at(self, tau: float) -> list[tuple[float, float, float, float]]:
         """:meth:`state` at one time, in floats: ``(x, v, a, j)`` per joint."""
@@ -322,133 +339,3 @@ class JointProfile:
         speed = _peak_speed(self.v, self.a, dt, self.j[:, :-1])
         jerk = np.where(dt > 0.0, np.abs(self.j[:, :-1]), 0.0).max(axis=1)
         return np.stack([speed, np.abs(self.a).max(axis=1), jerk])
-
-
-def joint_frame(indices, joints, sign: float = 1.0):
-    """Orientation and space-frame angular velocity, acceleration and jerk of the joint
-    motion ``joints`` through the axis sequence ``indices`` (0 = x, 1 = y, 2 = z).
-
-    ``q = R_1(x_1) R_2(x_2) ...``; joint ``i`` turns about ``e_i``, its axis carried by
-    the joints before it, so ``omega = sum v_i e_i`` with ``e_i' = w_i x e_i`` (``w_i``
-    the angular velocity of the joints before ``i``), and ``alpha``, ``jerk`` its
-    derivatives: ``alpha = sum a_i e_i + v_i e_i'``, ``jerk = sum j_i e_i + 2 a_i e_i' +
-    v_i e_i''``, ``e_i'' = alpha_i x e_i + w_i x e_i'``.
-
-    Parameters
-    ----------
-    indices : sequence of int
-        Axis of each joint, from the base out.
-    joints : sequence of (x, v, a, j)
-        Each joint's angle (rad), speed, acceleration and jerk: floats, or arrays (M,)
-        alike.
-    sign : float
-        +1 or -1: the quaternion's sign (the path's own, where it continues another).
-
-    Returns
-    -------
-    tuple
-        ``q`` (4 components), ``omega``, ``alpha``, ``jerk`` (3 components each).
-    """
-    zero = 0.0 * joints[0][0]
-    q = (1.0 + zero, zero, zero, zero)
-    w = al = je = (zero, zero, zero)
-    for axis, (x, v, a, j) in zip(indices, joints, strict=True):
-        r = matrix_entries(*q)
-        e = (r[0][axis], r[1][axis], r[2][axis])
-        de = _cross(w, e)
-        dde = _add(_cross(al, e), _cross(w, de))
-        w_new = _add(w, _scale(v, e))
-        al = _add(al, _scale(a, e), _scale(v, de))
-        je = _add(je, _scale(j, e), _scale(2.0 * a, de), _scale(v, dde))
-        w = w_new
-        c, s = _cos(x / 2.0), _sin(x / 2.0)
-        f = [zero, zero, zero]
-        f[axis] = s
-        q = hamilton(q, (c, *f))
-    return tuple(sign * c for c in q), w, al, je
-
-
-def _cos(x):
-    return math.cos(x) if isinstance(x, float) else np.cos(x)
-
-
-def _sin(x):
-    return math.sin(x) if isinstance(x, float) else np.sin(x)
-
-
-def _scale(c, v) -> tuple:
-    return (c * v[0], c * v[1], c * v[2])
-
-
-def _add(*vs) -> tuple:
-    return tuple(sum(parts) for parts in zip(*vs, strict=True))
-
-
-class JointSplice(OrientationPath):
-    """The orientation path of a :class:`JointProfile` from time ``s``: a segment an
-    :class:`~trajgen.online.OnlineSpline` plays as it plays a splice.
-
-    Parameters
-    ----------
-    s : float
-        Start time (s).
-    profile : JointProfile
-    indices : sequence of int
-        The gimbal's axis sequence (0 = x, 1 = y, 2 = z), from the base out.
-    near : ndarray, shape (4,)
-        The orientation the path continues (its quaternion's sign is taken).
-    """
-
-    def __init__(self, s: float, profile: JointProfile, indices, near):
-        self.s, self.profile, self.indices = float(s), profile, tuple(indices)
-        self.h = profile.duration
-        self.times = np.array([self.s, self.s + self.h])
-        q0 = self._orientation(profile.x[:, 0])
-        self.sign = 1.0 if q0 @ np.asarray(near, dtype=float) >= 0.0 else -1.0
-        self.q_a = self.sign * q0
-        self.q_end = self.sign * self._orientation(profile.goal)
-
-    def _orientation(self, angles) -> np.ndarray:
-        joints = [(float(x), 0.0, 0.0, 0.0) for x in angles]
-        return np.array(joint_frame(self.indices, joints)[0])
-
-    def _joints(self, t):
-        st = self.profile.state(np.asarray(t, dtype=float) - self.s)  # (4, M, n)
-        return [tuple(st[:, :, i]) for i in range(st.shape[2])]
-
-    def _space_rates(self, t, seg, max_order):
-        q, *rates = joint_frame(self.indices, self._joints(t), self.sign)
-        return np.stack(q, axis=1), [np.stack(r, axis=1) for r in rates[:max_order]]
-
-    def _jet(self, t, seg, order):
-        """The orientation as a jet: each joint's half-angle rotation ``exp`` of its
-        polynomial's Taylor series (exact within a phase), multiplied in order."""
-        st = self.profile.state(np.asarray(t, dtype=float) - self.s)
-        q = None
-        for i, axis in enumerate(self.indices):
-            c = np.zeros((order + 1, 3, st.shape[1]))
-            for m in range(min(order, 3) + 1):
-                c[m, axis] = st[m, :, i] / (2.0 * math.factorial(m))
-            e = J.qexp(J.Jet(c))
-            q = e if q is None else J.qmul(q, e)
-        return J.Jet(self.sign * q.c)
-
-    def taylor(self, t: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-        """``q(t)`` (4,) and the Taylor coefficients (order + 1, 4) of ``q(t + tau) q(t)*``."""
-        jet = self._jet(np.array([t]), None, order)
-        q = jet.value[:, 0] / np.linalg.norm(jet.value[:, 0])
-        d = J.qmul(jet, Q.conj(q)).c[:, :, 0]
-        d[0] = (1.0, 0.0, 0.0, 0.0)
-        return q, d
-
-    def frame(self, t: float) -> tuple[tuple, tuple, tuple]:
-        """Orientation, angular velocity (rad/s) and acceleration (rad/s^2) at one time
-        ``t`` (s), in floats: the per-frame counterpart of :meth:`_space_rates`."""
-        q, w, al, _ = joint_frame(self.indices, self.profile.state_at(t - self.s), self.sign)
-        return q, w, al
-
-    def rates(self, t: float) -> tuple[np.ndarray, list[np.ndarray]]:
-        """``q`` (4,) and the space-frame angular velocity, acceleration and jerk (each
-        (3,)) at one time ``t`` (s)."""
-        q, *rates = joint_frame(self.indices, self.profile.state_at(t - self.s), self.sign)
-        return np.array(q), [np.array(r) for r in rates]
