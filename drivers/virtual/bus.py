@@ -70,6 +70,7 @@ import numpy as np
 from trajgen.drivers.control_table import Model, model_named
 from trajgen.drivers.protocol import (
     Instruction,
+    Packet,
     PacketError,
     PacketReader,
     decode,
@@ -108,6 +109,8 @@ _GOAL_CLAMP = frozenset({"Min Position Limit", "Max Position Limit", "Operating 
 # Registers whose writes the plant hears at once (``_written``), and the id registers.
 _CONTROL = frozenset(CONTROL_REGISTERS)
 _IDS = frozenset({"ID", SECONDARY_ID})
+# How many of the latest packets decoded are kept by their bytes (decoded once).
+_DECODED_KEPT = 8
 # Registers whose writes may bring a Bus Watchdog's trip closer.
 _WATCHDOG_ARMING = frozenset({"Bus Watchdog", "Torque Enable"})
 
@@ -291,6 +294,7 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._read_at_s = -float("inf")  # real time: when present values were last read
         self._client_answers = False
         self._reader = PacketReader()
+        self._decoded: dict[bytes, Packet] = {}  # the latest packets decoded, by their bytes
         self._goal_rad = np.asarray(plant.read()[0], dtype=float).copy()
         ticks = rad_to_servo_ticks(self._goal_rad)
         for servo_id in ids:
@@ -476,10 +480,15 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
         if not self._host_at_baud():
             return []  # at another rate the servos read noise: they neither act nor answer
-        try:
-            packet = decode(raw)
-        except PacketError:
-            return []  # a real servo cannot trust the id of a corrupt packet
+        packet = self._decoded.get(raw)
+        if packet is None:  # not one of the latest (a poll repeats its request)
+            try:
+                packet = decode(raw)
+            except PacketError:
+                return []  # a real servo cannot trust the id of a corrupt packet
+            if len(self._decoded) >= _DECODED_KEPT:
+                self._decoded.clear()
+            self._decoded[raw] = packet
         if self.lockstep_dt_s is None:
             if self._process is not None:  # the latest step's, for what follows
                 self._steps_done = self._process.steps()

@@ -21,11 +21,10 @@ serving process never runs the plant. What goes across:
   is refused there and then, as in one process, and never sent. A failure in
   the child (a step raised) comes back on the pipe and closes the bus.
 
-The child runs in the normal scheduling class, at a nice value 10 above the
-parent's: raised (``SCHED_FIFO``, as the serving thread is), it would hold a
-core against the kernel's normal-priority tty worker that moves the pty's
-bytes, and a 1 kHz client's replies would wait for it; niced, that worker
-goes first (both measured in docs/realtime.md). It ignores SIGINT (the parent
+The child runs in the normal scheduling class: raised (``SCHED_FIFO``, as the
+serving thread is), it would hold a core against the kernel's normal-priority
+tty worker that moves the pty's bytes, and a 1 kHz client's replies would
+wait for it (measured in docs/realtime.md). It ignores SIGINT (the parent
 stops it).
 """
 
@@ -48,9 +47,6 @@ from ..errors import DriverError
 from .plant import Plant
 from .simulation import WallSteps
 
-# The child's nice value above the parent's: the tty worker and the serving thread's
-# host go first (measured in docs/realtime.md).
-_NICE = 10
 # How long (s) the parent waits for the child to stop before it kills it.
 _STOP_WAIT_S = 5.0
 _COUNT = struct.Struct("<q")
@@ -277,7 +273,6 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
     with contextlib.suppress(AttributeError, OSError):  # the normal class, however forked
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        os.nice(_NICE)
     shared._conn.close()
     wall = WallSteps(step_s, started_s)
     goal_count = [shared._goals.writes]  # the goals the plant has: those before the fork
