@@ -944,7 +944,7 @@ class Streamer:
                 clock.sleep_until(due)
                 late = clock.now() - due
                 if late > stall_s:  # never catch up: shift the rest of the stream instead
-                    stats.reply_stalls += replied > stall_s
+                    stats.reply_stalls += int(replied > stall_s)  # an int for JSON, not np.int64
                     self._stall(late)
                     stats.delay_s += clock.now() - planned - shift
                     shift = clock.now() - planned

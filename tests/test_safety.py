@@ -5,7 +5,9 @@ to the limit registers, torque) and what the caller was told.
 """
 
 import csv
+import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -365,6 +367,20 @@ def test_stall_shifts_the_stream_instead_of_replaying_it(rig, tmp_path):
     goals = JointMap().to_rad(np.array(list(virtual.goal_log)))
     np.testing.assert_allclose(goals, trajectory.q, atol=2 * math.pi / 4096)
     assert "stalls: " in stats.format() and "behind its plan" in stats.format()
+    # The stalled frame's reply came in late too; the report is JSON (`--json`).
+    assert json.loads(json.dumps(stats.to_json_dict()))["reply_stalls"] == 1
+
+
+def test_a_stall_report_is_json_when_frame_times_are_numpy_floats(rig):
+    """Frame times of an online plan may be numpy floats: the stall counts stay ints."""
+    trajectory = _ramp((0.3, 0.2, 0.1), duration_s=0.2)
+    clock = SimulatedClock()
+    virtual, bus = rig(clock=clock)
+    bring_up(bus, JointMap(), MODELS, trajectory)
+    frames = (replace(f, t=np.float64(f.t)) for f in _stalling(trajectory, clock, {10: 0.08}))
+    stats = Streamer(bus, JointMap(), clock=clock).run(frames, rate_hz=RATE_HZ)
+    assert stats.stalls == 1
+    assert json.loads(json.dumps(stats.to_json_dict()))["reply_stalls"] == 1
 
 
 def test_stall_longer_than_the_watchdog_stops_before_the_next_goal(rig):

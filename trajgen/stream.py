@@ -214,7 +214,7 @@ def stream_frames(
 
 def _frame(i: int, t: float, angles, qd, qdd) -> JointFrame:
     """Frame ``i`` at time ``t`` (s) from three triples of floats (rad, rad/s, rad/s^2)."""
-    return JointFrame(i, t, np.array(angles), np.array(qd), np.array(qdd))
+    return JointFrame(i, float(t), np.array(angles), np.array(qd), np.array(qdd))
 
 
 def _scalar_frames(path, kin: FrameKinematics, t: np.ndarray) -> Iterator[JointFrame]:
