@@ -8,10 +8,11 @@ import pytest
 
 from trajgen import quat as Q
 from trajgen.gimbal import GimbalKinematics, forward
+from trajgen.joint_splice import JointSplice
 from trajgen.online import OnlineSpline
 from trajgen.online_frames import PlanFrames
 from trajgen.tracker import Tracker
-from trajgen.tracker_profile import JointProfile, JointSplice, fastest
+from trajgen.tracker_profile import JointProfile, fastest
 
 LIMITS = np.array([[3.0] * 3, [20.0] * 3, [200.0] * 3])  # rad/s, rad/s^2, rad/s^3
 

@@ -381,7 +381,7 @@ class OnlineSpline:
 
         For a caller that builds its own segment, such as
         :class:`~trajgen.tracker.Tracker`'s jerk-limited joint motion
-        (:class:`~trajgen.tracker_profile.JointSplice`): an ``OrientationPath`` on
+        (:class:`~trajgen.joint_splice.JointSplice`): an ``OrientationPath`` on
         ``[at, t1]`` with the methods of a splice (``frame``, ``rates``, ``taylor``,
         ``q_a``, ``q_end``). Its continuity with the path before ``at`` is the
         caller's to keep; no minimum lead applies. Make it with :meth:`apply`.

@@ -13,7 +13,7 @@ acceleration (read off the path at ``at``: exact joint rates of its angular moti
 rest at its goal in the least time its own limits allow, a seven-phase jerk-limited
 profile (:func:`trajgen.tracker_profile.fastest`: jerk ``+-J`` or 0 in each phase, the
 time-optimal motion that Ruckig also computes). The path is the joints' motion through
-the gimbal's axes, ``forward(x(t))`` (:class:`~trajgen.tracker_profile.JointSplice`),
+the gimbal's axes, ``forward(x(t))`` (:class:`~trajgen.joint_splice.JointSplice`),
 played by the spline as a splice (:meth:`OnlineSpline.prepare_segment
 <trajgen.online.OnlineSpline.prepare_segment>`). It is C2 across the change (angle,
 speed and acceleration of every joint continuous, so orientation, angular velocity and
@@ -68,10 +68,11 @@ from . import quat as Q
 from .axes import direction_angles
 from .errors import BadArgument, KinematicsError
 from .gimbal import GimbalKinematics, angles_of
+from .joint_splice import JointSplice
 from .online_splice import exp_rates, hermite_matrix
 from .path import run_steps
 from .servo_table import RAD_PER_TICK
-from .tracker_profile import JointProfile, JointSplice, fastest_steps
+from .tracker_profile import JointProfile, fastest_steps
 from .validate import check_number
 
 __all__ = ["JERK_STEP_S", "TargetResult", "Tracker", "look_at_angles"]

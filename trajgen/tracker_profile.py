@@ -28,7 +28,6 @@ import math
 
 import numpy as np
 
-from .joint_splice import JointSplice as JointSplice  # its home was here: imports kept
 from .path import run_steps
 
 #: Phases of a joint's profile: a hold of the acceleration, a speed change (3), a
