@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import math
 import os
 import select
 import time
@@ -41,6 +42,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from trajgen.drivers.clock import sleep_until
 from trajgen.drivers.control_table import (
     SIGNED,
     Model,
@@ -76,6 +78,15 @@ _STATUS_LENGTH_NO_DATA = 4
 # The SDK's result codes (dynamixel_sdk.robotis_def), for the frame packets' own path.
 _COMM_SUCCESS, _COMM_TX_FAIL, _COMM_RX_TIMEOUT, _COMM_RX_CORRUPT = 0, -1001, -3001, -3002
 _RX_MAX_LENGTH = 1024  # the SDK's RXPACKET_MAX_LEN (Protocol 2.0)
+#: A servo's processing time (s) between a request's last byte and its Return Delay Time
+#: (e-Manual: some tens of us; the virtual bus's ``WireTiming.turnaround_s`` is 20 us).
+TURNAROUND_S = 20e-6
+#: Wire time (s) of this many bytes is added to a reply's computed wire end before a
+#: packet may go out behind it (``sync_write(behind=...)``): a servo answering a
+#: little later than computed, the host's write reaching the wire a little earlier.
+WIRE_MARGIN_BYTES = 5
+#: A Return Delay Time register unit (s): 2 us.
+RETURN_DELAY_UNIT_S = 2e-6
 
 
 def _make_port(port_name: str, latency_ms: float, responder=None):
@@ -92,6 +103,12 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
     class _Port(PortHandler):
         owed = 0  # reply bytes the responder wrote that have not been read yet
         settle = None  # called before any packet is sent (ServoBus: an outstanding reply)
+        wire_free_s = -math.inf  # when the last byte written is off the wire (computed, s)
+
+        def _on_wire(self, n_bytes: int) -> None:
+            """``n_bytes`` were just handed over: they follow what is still on the wire."""
+            now = time.monotonic()
+            self.wire_free_s = max(now, self.wire_free_s) + n_bytes * self.tx_time_per_byte / 1e3
 
         def setupPort(self, cflag_baud):  # noqa: N802 (SDK name)
             # The SDK's own, with the port locked (flock) against a second program.
@@ -123,6 +140,7 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
 
         def writePort(self, packet):  # noqa: N802 (SDK name)
             written = self.ser.write(packet)
+            self._on_wire(written)
             if responder is not None:
                 self.owed += responder.answer(written)
             return written
@@ -155,18 +173,21 @@ def _make_port(port_name: str, latency_ms: float, responder=None):
             """The reply timeout (ms) for ``packet_length`` bytes (as the SDK counts them)."""
             return self.tx_time_per_byte * packet_length + 2.0 * latency_ms + 2.0
 
-        def send(self, packet: bytes) -> int:
+        def send(self, packet: bytes, *, flush: bool = True) -> int:
             """Write ``packet`` whole (``os.write``, no pyserial); returns the bytes written.
 
-            Input is flushed first, as the SDK's ``txPacket`` does.
+            Input is flushed first, as the SDK's ``txPacket`` does, unless not
+            ``flush`` (a reply still to be read: ``ServoBus.sync_write(behind=...)``).
             """
-            self.clearPort()
+            if flush:
+                self.clearPort()
             fd, view, sent = self.ser.fileno(), memoryview(packet), 0
             while sent < len(packet):
                 try:
                     sent += os.write(fd, view[sent:])
                 except BlockingIOError:
                     select.select([], [fd], [], 0.001)
+            self._on_wire(sent)
             if responder is not None:
                 self.owed += responder.answer(sent)
             return sent
@@ -349,6 +370,11 @@ class PendingRead:
     deadline_s : float
         When its reply times out (s, same clock): the reply timeout of the
         same read done at once, counted from ``sent_s``.
+    wire_end_s : float
+        When its reply's last byte is off the wire, as computed (s, same
+        clock): the request's end on the wire (after what was sent before
+        it), the servos' turnaround and Return Delay Time, and the reply's
+        bytes at the baud rate (``ServoBus.reply_wire_end``).
     problem : str or None
         Why the request could not be sent (collect then retries), or None.
     block : BlockRead or None
@@ -360,6 +386,7 @@ class PendingRead:
     sent_s: float
     deadline_s: float
     problem: str | None = None
+    wire_end_s: float = -math.inf
     block: BlockRead | None = None
     spec: object = None
     what: str = ""
@@ -411,6 +438,10 @@ class ServoBus:
     lockstep : bool
         Whether a ``responder`` answers (simulated time: a stream on this bus
         runs on a ``SimulatedClock``).
+    return_delay_s : float
+        The servos' longest Return Delay Time (s), used in a reply's computed
+        wire end: the register's largest value (508 us) until a caller that
+        has read it says (``Streamer`` does at its start).
 
     Notes
     -----
@@ -445,6 +476,8 @@ class ServoBus:
         self._ph = None
         self._frame_packets: dict[tuple, object] = {}  # laid-out packets, by servos and registers
         self._pending: PendingRead | None = None  # a split-phase read whose reply is out
+        self.return_delay_s = 254 * RETURN_DELAY_UNIT_S
+        self._wire_free_s = -math.inf  # when the last packet sent is off the wire (computed)
 
     # -- port ------------------------------------------------------------
 
@@ -747,11 +780,22 @@ class ServoBus:
         """
         self._unicast(servo_id, "reboot", self._ph.reboot)
 
-    def sync_write(self, register: Register, values: dict[int, int]) -> None:
+    def sync_write(
+        self, register: Register, values: dict[int, int], *, behind: PendingRead | None = None
+    ) -> None:
         """One Sync Write of ``register`` to several servos (no reply to wait for).
 
         Built by ``frame_packets.SyncWritePacket`` (byte-stuffed where the data
         holds ``FF FF FD``, which the SDK's TX path would drop).
+
+        ``behind``: a split-phase read whose reply is outstanding. The packet
+        then goes out once that reply's computed wire end (``reply_wire_end``)
+        has passed, waiting for it if not, and leaves the reply to ``collect``
+        (neither waited for nor dropped): the wire is free, only the host has
+        not read the reply yet (an adapter's latency timer, a pty). A servo
+        answering later than computed would collide with the packet on a
+        half-duplex bus: the packet dropped by the servos' CRC check, the
+        reply a failed try of ``collect``.
 
         Raises
         ------
@@ -770,7 +814,10 @@ class ServoBus:
             self.driven.update(ids)
         data = packet.encode(list(values.values()))
         what = f"sync write {register.value}"
-        if self._sdk(what, self._port.send, data) != len(data):
+        keep = behind is not None and behind is self._pending
+        if keep:
+            sleep_until(self.reply_wire_end(behind))
+        if self._sdk(what, functools.partial(self._port.send, flush=not keep), data) != len(data):
             failed = self._result_text(_COMM_TX_FAIL)
             raise CommError(f"servos {list(ids)}: {what} failed: {failed}")
 
@@ -836,7 +883,11 @@ class ServoBus:
             problem = self._result_text(_COMM_TX_FAIL)
         sent = time.monotonic()
         deadline = sent + port.timeout_ms((11 + spec.length) * len(spec.ids)) / 1e3
-        pending = PendingRead(ids, registers, sent, deadline, problem, spec=spec, what=what)
+        wire_end = port.wire_free_s + self.wire_s(spec.reply_bytes)
+        wire_end += TURNAROUND_S + self.return_delay_s
+        pending = PendingRead(
+            ids, registers, sent, deadline, problem, wire_end, spec=spec, what=what
+        )
         if problem is None:
             self._pending = pending
             port.settle = self._drop_pending
@@ -897,6 +948,11 @@ class ServoBus:
     def wire_s(self, n_bytes: int) -> float:
         """How long ``n_bytes`` take on the wire at ``baud`` (10 bits a byte), s."""
         return n_bytes * 10 / self.baud
+
+    def reply_wire_end(self, pending: PendingRead) -> float:
+        """When (``time.monotonic``, s) a packet may go out behind ``pending``'s reply:
+        its computed wire end (``PendingRead.wire_end_s``) and ``WIRE_MARGIN_BYTES``."""
+        return pending.wire_end_s + self.wire_s(WIRE_MARGIN_BYTES)
 
     def await_reply(self, pending: PendingRead, until_s: float) -> bool:
         """Wait (the GIL and the core free) until ``pending``'s reply bytes are all in, or
