@@ -883,8 +883,7 @@ class ServoBus:
             problem = self._result_text(_COMM_TX_FAIL)
         sent = time.monotonic()
         deadline = sent + port.timeout_ms((11 + spec.length) * len(spec.ids)) / 1e3
-        wire_end = port.wire_free_s + self.wire_s(spec.reply_bytes)
-        wire_end += TURNAROUND_S + self.return_delay_s
+        wire_end = port.wire_free_s + self.reply_s(spec.reply_bytes)
         pending = PendingRead(
             ids, registers, sent, deadline, problem, wire_end, spec=spec, what=what
         )
@@ -948,6 +947,11 @@ class ServoBus:
     def wire_s(self, n_bytes: int) -> float:
         """How long ``n_bytes`` take on the wire at ``baud`` (10 bits a byte), s."""
         return n_bytes * 10 / self.baud
+
+    def reply_s(self, n_bytes: int) -> float:
+        """From a request's end on the wire to the end of its reply of ``n_bytes`` (s): the
+        servos' turnaround and Return Delay Time, then the bytes (one packet: a fast read)."""
+        return TURNAROUND_S + self.return_delay_s + self.wire_s(n_bytes)
 
     def reply_wire_end(self, pending: PendingRead) -> float:
         """When (``time.monotonic``, s) a packet may go out behind ``pending``'s reply:

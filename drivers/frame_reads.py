@@ -104,6 +104,8 @@ class FrameReads:
     skipped : int
         State reads left out for a poll part that had waited ``read_every``
         frames for room beside them.
+    deferred : int
+        Reads put off to the next frame (``defer``).
     """
 
     def __init__(
@@ -120,7 +122,8 @@ class FrameReads:
         self.state, self.status, self.health = state, tuple(status), tuple(health)
         self.cost, self.room_s = cost, room_s
         self.read_every, self.poll_every, self.health_every = read_every, poll_every, health_every
-        self.skipped = 0
+        self.skipped = self.deferred = 0
+        self._state_owed = False  # a state read was deferred: the next frame carries one
         self._queue: deque[Read] = deque()  # poll parts due, not yet carried
         self._head_since = 0  # the frame since which the queue's first part waits first
 
@@ -133,7 +136,8 @@ class FrameReads:
         ``read_every`` frames takes the state read's place (at ``read_every``
         1 no frame is free of it).
         """
-        carried = [self.state] if k % self.read_every == 0 else []
+        carried = [self.state] if k % self.read_every == 0 or self._state_owed else []
+        self._state_owed = False
         if not self._queue:
             self._head_since = k
         if k % self.poll_every == self.poll_every - 1:
@@ -153,3 +157,14 @@ class FrameReads:
             carried.append(part)
             used += self.cost(part)
         return carried
+
+    def defer(self, reads: Sequence[Read]) -> None:
+        """Put off ``reads`` (a frame's, from ``for_frame``) to the next frame: its poll
+        parts first in the queue again, and a state read there (one, however many were
+        due)."""
+        self.deferred += len(reads)
+        for read in reversed(reads):
+            if read.kind == "state":
+                self._state_owed = True
+            else:
+                self._queue.appendleft(read)

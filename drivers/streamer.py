@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import time
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
@@ -62,7 +63,7 @@ from trajgen.drivers.bringup import (
     joint_names_for,
     restore_settings,
 )
-from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.bus import RETURN_DELAY_UNIT_S, WIRE_MARGIN_BYTES, ServoBus
 from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
 from trajgen.drivers.control_table import VOLTAGE_UNIT_V, WATCHDOG_UNIT_S, Register
 from trajgen.drivers.defaults import MAX_DELAY_S
@@ -183,8 +184,12 @@ class StreamStats:
         ``stall_s`` late (approach included).
     reply_stalls : int
         Stalls (of ``stalls``) of a frame whose wait for the last frame's read
-        reply ended later than a stall (its goal waits for the bus: the wire,
-        the adapter, the servo), rather than the host waking late.
+        (its reply in hand, or on the wall clock its computed wire end) ended
+        later than a stall, rather than the host waking late.
+    goals_behind : int
+        Goals sent while the last frame's read reply was not in hand yet, its
+        wire end past (wall clock; ``Streamer._loop``): that reply was checked
+        right after the goal.
     stall_max_s : float
         Longest stall (s): the largest single shift.
     delay_s : float
@@ -195,6 +200,9 @@ class StreamStats:
     reads_skipped : int
         State reads due that a poll part took the place of, having found no
         room beside them for ``read_every`` frames (``drivers.frame_reads``).
+    reads_deferred : int
+        Reads put off to the next frame: due in a frame whose goal went out
+        behind the last reply, they no longer fit before the next deadline.
     position_glitches : int
         Present Position reads not trusted (a jump faster than the servo can move).
     warnings : list of str
@@ -233,10 +241,12 @@ class StreamStats:
     overruns: int = 0
     stalls: int = 0
     reply_stalls: int = 0
+    goals_behind: int = 0
     stall_max_s: float = 0.0
     delay_s: float = 0.0
     reads: int = 0
     reads_skipped: int = 0
+    reads_deferred: int = 0
     position_glitches: int = 0
     warnings: list[str] = field(default_factory=list)
     comm_errors: int = 0
@@ -303,6 +313,8 @@ class StreamStats:
             f"telemetry reads: {self.reads} ({self.read_method}, every {self.read_every} "
             f"frames"
             + (f"; {self.reads_skipped} given to polls" if self.reads_skipped else "")
+            + (f"; {self.reads_deferred} deferred a frame" if self.reads_deferred else "")
+            + (f"; {self.goals_behind} goals sent behind a reply" if self.goals_behind else "")
             + f"); comm errors: {self.comm_errors}",
         ]
         if not math.isnan(self.probe_write_s):
@@ -570,6 +582,9 @@ class Streamer:
                     self.telemetry_path, self.joint_names, models
                 )
             self._choose_read_method()
+            if self.clock.real_time:  # for a reply's wire end (ServoBus.reply_s)
+                delays = [self.bus.read(i, Register.RETURN_DELAY_TIME) for i in self.joints.ids]
+                self.bus.return_delay_s = max(delays) * RETURN_DELAY_UNIT_S
             self._status_at_start = self._read_status()
             periods = [v[Register.BUS_WATCHDOG] for v in self._status_at_start.values()]
             # A silence this long (s) may have tripped a Bus Watchdog (inf: none is on).
@@ -911,11 +926,25 @@ class Streamer:
         """Send ``frames``, ``(t, goal, plan, phase)`` each, one per period.
 
         A frame: collect the reply of the last frame's split-phase read as soon
-        as it is in (``ServoBus.await_reply``, then ``_take``: checked before
-        the next goal goes out); wait for the frame's deadline; shift the clock
-        after a stall; send the goal; write the last frame's telemetry row;
-        then this frame's reads (``_frame_reads``), all but the last at once,
-        the last split-phase.
+        as it is in (``ServoBus.await_reply``, then ``_take``); wait for the
+        frame's deadline; shift the clock after a stall; send the goal; write
+        the last frame's telemetry row; then this frame's reads
+        (``_frame_reads``), all but the last at once, the last split-phase.
+
+        On the wall clock a goal waits for the wire, not for the reply: a reply
+        not in hand at the deadline whose computed wire end has passed (with
+        ``bus.WIRE_MARGIN_BYTES``; if not, the goal waits for it) is left
+        outstanding, the goal goes out behind it (``ServoBus.sync_write(behind=)``),
+        and the reply is collected and checked right after it, exactly as
+        before and before anything else is sent. The trade: a fault in that
+        reply is acted on one frame (one period) later, and a servo answering
+        later than computed collides with the goal on a half-duplex bus (both
+        garbled: the servos drop the goal by its CRC and hold the previous one
+        a period; the reply is a failed try, retried as any other). Reads of
+        that frame that no longer fit before the next deadline are deferred to
+        the next frame (``FrameReads.defer``): never two requests in flight.
+        A stall first collects an outstanding reply. On a simulated clock
+        every reply is collected before the next goal.
         """
         stats = self.stats
         ids = self.joints.ids
@@ -929,21 +958,31 @@ class Streamer:
         t_first = None
         pending = None  # (PendingRead, Read, its frame's row, asked at) of the last frame
         rows = []  # telemetry rows not written yet (the last frame's waits for its read)
+        # A goal may go out behind a reply (the bus's own clock, a wire: not lock-step).
+        wire = clock.real_time and not self.bus.lockstep
         try:
             for k, (t, q, plan, phase) in enumerate(frames):
                 t_first = t if t_first is None else t_first
                 planned = start + (t - t_first)
                 due = planned + shift
-                replied = -math.inf  # how late (s) the last read's reply was in, if one was due
+                replied = -math.inf  # how late (s) the goal could go for the wire, if it waited
+                behind = None  # the last frame's read, its reply outstanding behind this goal
                 if pending is not None:
                     pending, (waiting, read, row, asked) = None, pending
-                    if clock.real_time:  # taken as soon as it is in, the core free meanwhile
-                        self.bus.await_reply(waiting, due)
-                    self._take(read, self.bus.collect(waiting), row, asked)
-                    replied = clock.now() - due
-                clock.sleep_until(due)
+                    # Taken as soon as it is in, the core free meanwhile (wall clock).
+                    if clock.real_time and not self.bus.await_reply(waiting, due) and wire:
+                        behind = (waiting, read, row, asked)
+                        wire_left = self.bus.reply_wire_end(waiting) - time.monotonic()
+                        replied = clock.now() + wire_left - due
+                    else:
+                        self._take(read, self.bus.collect(waiting), row, asked)
+                        replied = clock.now() - due
+                clock.sleep_until(due if behind is None else max(due, due + replied))
                 late = clock.now() - due
                 if late > stall_s:  # never catch up: shift the rest of the stream instead
+                    if behind is not None:  # in by now (or timed out): the stall's poll may send
+                        self._take(*self._collected(behind))
+                        behind = None
                     stats.reply_stalls += int(replied > stall_s)  # an int for JSON, not np.int64
                     self._stall(late)
                     stats.delay_s += clock.now() - planned - shift
@@ -952,7 +991,9 @@ class Streamer:
                 ticks = self.joints.to_ticks(q)
                 self._check_bounds(ticks, t)
                 self.bus.sync_write(
-                    Register.GOAL_POSITION, dict(zip(ids, ticks.tolist(), strict=True))
+                    Register.GOAL_POSITION,
+                    dict(zip(ids, ticks.tolist(), strict=True)),
+                    behind=None if behind is None else behind[0],
                 )
                 self._frame_no += 1
                 if timed:
@@ -962,9 +1003,15 @@ class Streamer:
                 if self._writer is not None:
                     head = [self._frame_no - 1, phase, t, sent - start, sent - planned - shift]
                     row = (head + [sent, *plan, *q, *ticks.tolist()], _nans(3, n), _nans(2, n))
-                    self._write_rows(rows)
                     rows.append(row)
+                if behind is not None:  # the last frame's reply, before anything else is sent
+                    stats.goals_behind += 1
+                    self._take(*self._collected(behind))
+                self._write_rows(rows, keep=1 if row is not None else 0)
                 reads = schedule.for_frame(k)
+                if behind is not None and reads and not self._fits(schedule, reads, due + period):
+                    schedule.defer(reads)
+                    reads = []
                 for j, read in enumerate(reads):
                     asked = clock.now()
                     if j < len(reads) - 1:
@@ -980,7 +1027,23 @@ class Streamer:
                 self._take(read, self.bus.collect(waiting), row, asked)
         finally:
             stats.reads_skipped += schedule.skipped
+            stats.reads_deferred += schedule.deferred
             self._write_rows(rows)
+
+    def _collected(self, outstanding: tuple) -> tuple:
+        """``_take``'s arguments for an outstanding read ``(pending, read, row, asked)``:
+        its reply collected (``ServoBus.collect``: checked, retried)."""
+        waiting, read, row, asked = outstanding
+        return read, self.bus.collect(waiting), row, asked
+
+    def _fits(self, schedule: FrameReads, reads: Sequence[Read], until_s: float) -> bool:
+        """Whether ``reads``, sent now, leave the bus free by ``until_s`` (the clock's s):
+        all but the last read at once (``schedule.cost``), the last one's reply off the
+        wire (with margin)."""
+        bus = self.bus
+        at_once = sum(schedule.cost(r) for r in reads[:-1])
+        last = bus.reply_s(reads[-1].n_bytes) + bus.wire_s(WIRE_MARGIN_BYTES)
+        return self.clock.now() + at_once + last <= until_s
 
     def _take(self, read, block, row, asked: float) -> None:
         """A frame's read, in: ERR bytes checked, then what it is for (into ``row``, if any)."""
@@ -994,12 +1057,14 @@ class Streamer:
         else:
             self._health_of(block, _nans(2, len(self.joints)) if row is None else row[2])
 
-    def _write_rows(self, rows: list) -> None:
-        """Write the telemetry rows (frame columns, state (3, n), power (2, n)) and forget them."""
+    def _write_rows(self, rows: list, keep: int = 0) -> None:
+        """Write the telemetry rows (frame columns, state (3, n), power (2, n)) but the last
+        ``keep``, and forget them."""
+        done = len(rows) - keep
         if self._writer is not None:
-            for head, state, power in rows:
+            for head, state, power in rows[:done]:
                 self._writer.write(head + state.ravel().tolist() + power.ravel().tolist())
-        rows.clear()
+        del rows[:done]
 
     def _stall(self, late_s: float) -> None:
         """A frame is ``late_s`` past its deadline: count it, check the servos, bound the delay."""

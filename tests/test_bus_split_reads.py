@@ -199,9 +199,9 @@ def _frame_bytes(virtual, bus):
     marks = []
     sync_write = bus.sync_write
 
-    def marked(register, values):
+    def marked(register, values, **kwargs):
         marks.append(virtual.bytes_received + virtual.bytes_sent)
-        sync_write(register, values)
+        sync_write(register, values, **kwargs)
 
     bus.sync_write = marked
     return marks
