@@ -62,6 +62,7 @@ import termios
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
@@ -215,6 +216,14 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         Bytes read from and written to the host.
     sim_time_s : float
         Simulated time (s) the bus has advanced the plant by.
+    collisions : int
+        With ``timing``: host packets that arrived while a reply was on the
+        wire (both garbled: the packet dropped, the reply's CRC broken).
+    wire_log : deque of (float, float)
+        Per host packet answered or collided (the latest
+        ``goal_log_size``), when it arrived and when the last reply before
+        it left the wire (``time.monotonic``, s): arrival before that end
+        is a collision.
     stale_replies, stale_max_s : int, float
         Real time: packets answered more than 5 ms before the simulation had
         caught up with their arrival (a busy host; the reply did not wait), and
@@ -309,6 +318,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._polled = False
         self._last_packet_s = dict.fromkeys(ids, 0.0)
         self._wire_free_s = 0.0
+        self._reply_end_s = -float("inf")  # wire timing: when the last reply left the wire
+        self.collisions = 0
+        self.wire_log: deque[tuple[float, float]] = deque(maxlen=goal_log_size)
         self._master = -1
         self._slave = -1
         self._threads: list[threading.Thread] = []
@@ -476,8 +488,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
             return True
         return host is None or host == self.baud
 
-    def _handle(self, raw: bytes, arrival_s: float) -> list[tuple[int, bytes, float]] | None:
-        """Answer one packet: [(servo id, reply bytes, extra delay)], or None to close."""
+    def _handle(self, raw: bytes, arrival_s: float) -> list[tuple] | None:
+        """Answer one packet: [(servo id, reply bytes, extra delay, late on the wire)], or None
+        to close."""
         if not self._host_at_baud():
             return []  # at another rate the servos read noise: they neither act nor answer
         packet = self._decoded.get(raw)

@@ -25,7 +25,7 @@ from ..errors import BadArgument
 
 _OVERLOAD_BIT = hardware_error_mask("overload")
 # Faults that change replies, and faults that happen to a servo after a frame.
-_REPLY_FAULTS = ("drop", "corrupt", "delay", "short", "wrong_id", "glitch")
+_REPLY_FAULTS = ("drop", "corrupt", "delay", "late", "short", "wrong_id", "glitch")
 _FRAME_FAULTS = ("close", "overload", "watchdog", "reboot", "set")
 # Present Position's address on every X-series model (for the glitch fault).
 _PRESENT_POSITION_ADDRESS = 132
@@ -37,10 +37,13 @@ class Fault:
 
     Attributes
     ----------
-    kind : {"drop", "corrupt", "delay", "short", "wrong_id", "glitch", "close", "overload", \
-"watchdog", "reboot", "set"}
+    kind : {"drop", "corrupt", "delay", "late", "short", "wrong_id", "glitch", "close", \
+"overload", "watchdog", "reboot", "set"}
         drop: replies are not sent. corrupt: replies get a wrong CRC. delay:
-        replies come ``delay_s`` late. short: servo ``servo_id``'s reply
+        replies come ``delay_s`` late (off the wire: the bus is free meanwhile).
+        late: the servo starts its reply ``delay_s`` after its Return Delay
+        Time (on the wire: with ``WireTiming``, a host packet sent meanwhile
+        collides with it). short: servo ``servo_id``'s reply
         loses ``n_bytes`` data bytes but stays well formed (valid CRC; in a
         fast sync read, its part of the one packet). wrong_id: servo
         ``servo_id``'s reply carries id ``reply_id`` (valid CRC). close: the
@@ -58,10 +61,10 @@ class Fault:
         The servo affected (required for short, wrong_id, overload and
         watchdog); None means every servo's replies.
     count : int or None
-        How many replies drop / corrupt / delay / short / wrong_id affect;
+        How many replies drop / corrupt / delay / late / short / wrong_id affect;
         None: all from then on.
     delay_s : float
-        Extra delay (s) for ``kind="delay"``.
+        Extra delay (s) for ``kind="delay"`` and ``kind="late"``.
     n_bytes : int or None
         Data bytes a short reply loses; None: all of them (an empty reply).
     reply_id : int or None
@@ -82,6 +85,7 @@ class Fault:
         "drop",
         "corrupt",
         "delay",
+        "late",
         "short",
         "wrong_id",
         "glitch",
@@ -106,7 +110,7 @@ class Fault:
         kinds = _REPLY_FAULTS + _FRAME_FAULTS
         if self.kind not in kinds:
             raise BadArgument(f"Expected `kind` in {kinds}, got {self.kind!r}.")
-        if self.kind not in ("drop", "corrupt", "delay", "close") and self.servo_id is None:
+        if self.kind not in ("drop", "corrupt", "delay", "late", "close") and self.servo_id is None:
             raise BadArgument(f"Expected a `servo_id` for a {self.kind} fault, got None.")
 
 
@@ -139,7 +143,8 @@ class FaultInjection:
                 self._trip_watchdog(fault.servo_id)
         return []
 
-    def _apply_reply_faults(self, replies: list, request) -> list[tuple[int, bytes, float]]:
+    def _apply_reply_faults(self, replies: list, request) -> list[tuple[int, bytes, float, float]]:
+        """Replies as sent: [(servo id, bytes, extra delay off the wire (s), late on it (s))]."""
         inst = request.instruction
         reads = (Instruction.READ, Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
         address = word(request.params, 0) if inst in reads and len(request.params) >= 2 else None
@@ -149,7 +154,7 @@ class FaultInjection:
             servo_id, data = reply[0], reply[1]
             # A fast read reply carries every servo in it.
             members = reply[2] if len(reply) == 3 else [servo_id]
-            extra_s = 0.0
+            extra_s = late_s = 0.0
             dropped = False
             for entry in self._active(_REPLY_FAULTS):
                 fault, remaining = entry
@@ -169,10 +174,12 @@ class FaultInjection:
                     data = data[:-1] + bytes([data[-1] ^ 0xFF])
                 elif fault.kind in ("short", "wrong_id", "glitch"):
                     data = _reshape_reply(data, members, fault, address)
+                elif fault.kind == "late":
+                    late_s += fault.delay_s
                 else:
                     extra_s += fault.delay_s
             if not dropped:
-                out.append((servo_id, data, extra_s))
+                out.append((servo_id, data, extra_s, late_s))
         return out
 
 

@@ -194,22 +194,32 @@ class PtyTransport:
             self._write(heapq.heappop(self._late)[2])
 
     def _send(
-        self, request: bytes, replies: list[tuple[int, bytes, float]], arrival_s: float
+        self, request: bytes, replies: list[tuple[int, bytes, float, float]], arrival_s: float
     ) -> int:
-        """Write replies [(servo id, bytes, extra delay)] with wire timing; bytes written now.
+        """Write replies [(servo id, bytes, extra delay, late on the wire)] with wire timing;
+        bytes written now.
 
-        Wire time is slept (the bus is busy); a fault's extra delay is not (the
-        servo has acted on the packet, only its reply is late).
+        Wire time is slept (the bus is busy); a "delay" fault's extra delay is
+        not (the servo has acted on the packet, only its reply is late, off the
+        wire). A "late" fault's is: the servo starts its reply that much later
+        (s). While a reply is on the wire (its request's end to its last byte)
+        the master is watched: a host packet arriving then collides with it
+        (``_collide``).
         """
         t = arrival_s
         if self.timing is not None:
             t = max(arrival_s, self._wire_free_s) + len(request) * self.timing.byte_time_s
+        self.wire_log.append((arrival_s, self._reply_end_s))
         sent = 0
-        for servo_id, reply, extra_s in replies:
+        for servo_id, reply, extra_s, late_s in replies:
             if self.timing is not None:
                 servo = self.servos.get(servo_id)
                 delay = 2e-6 * servo.get("Return Delay Time") if servo else 0.0
-                t += self.timing.turnaround_s + delay + len(reply) * self.timing.byte_time_s
+                t += self.timing.turnaround_s + delay + late_s
+                t += len(reply) * self.timing.byte_time_s
+                if self._host_bytes_before(t):
+                    reply = self._collide(reply, t)
+                self._reply_end_s = t
                 sleep_until(t + self.timing.adapter_latency_s)
             if extra_s:
                 self._late_count += 1
@@ -218,3 +228,31 @@ class PtyTransport:
                 sent += self._write(reply)
         self._wire_free_s = t
         return sent
+
+    def _host_bytes_before(self, end_s: float) -> bool:
+        """Whether host bytes arrive at the master before ``end_s`` (``time.monotonic``, s;
+        io lock held): they would be on the wire with a reply that ends then."""
+        while True:
+            left = end_s - time.monotonic()
+            if left <= 0:
+                return False
+            try:
+                if select.select([self._master], [], [], left)[0]:
+                    return True
+            except (OSError, ValueError):
+                return False  # closed: nothing more arrives
+
+    def _collide(self, reply: bytes, end_s: float) -> bytes:
+        """A host packet came in over ``reply``: on a half-duplex bus both are garbled.
+
+        The host's bytes (whatever of them is in) are dropped, as the servos'
+        CRC check drops a garbled packet (a rest arriving later has no header:
+        dropped too); the reply goes out with its CRC broken. Counted in
+        ``collisions``, logged in ``wire_log`` (arrival, the reply's end ``end_s``).
+        """
+        self.collisions += 1
+        arrival_s = time.monotonic()
+        data = self._read_master() or b""
+        self.bytes_received += len(data)
+        self.wire_log.append((arrival_s, end_s))
+        return reply[:-1] + bytes([reply[-1] ^ 0xFF])
