@@ -73,12 +73,13 @@ def trajectory(rate_hz: float, seconds: float) -> JointTrajectory:
 
 
 def serve(baud: int, conn) -> None:
-    """The virtual bus process: serve until told to stop; answer byte counts when asked."""
+    """The virtual bus process: serve until told to stop; answer (bytes on the wire,
+    collisions) when asked."""
     plant = FirstOrderPlant(time_constant_s=0.01)
     with VirtualBus(plant, timing=WireTiming(baud=baud)) as virtual, stream_priority():
         conn.send(virtual.port)
         while conn.recv() == "count":
-            conn.send(virtual.bytes_received + virtual.bytes_sent)
+            conn.send((virtual.bytes_received + virtual.bytes_sent, virtual.collisions))
 
 
 def read_beyond_wire(bus: ServoBus, ids, baud: int) -> tuple[float, float]:
@@ -112,11 +113,11 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
             path = None if telemetry is None else Path(tmp) / f"run.{telemetry}"
             streamer = Streamer(bus, joints, telemetry=path, telemetry_every=read_every)
             conn.send("count")
-            before = conn.recv()
+            before, collided = conn.recv()
             stats = streamer.run(traj)
             conn.send("count")
             # Includes the closing watchdog writes (a few dozen bytes in total).
-            wire = conn.recv() - before
+            wire, collisions = np.subtract(conn.recv(), (before, collided))
     finally:
         conn.send("stop")
         server.join(timeout=10)
@@ -132,6 +133,9 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
         "stalls": stats.stalls,
         "reply_stalls": stats.reply_stalls,
         "skipped": stats.reads_skipped,
+        "deferred": stats.reads_deferred,
+        "behind": stats.goals_behind,
+        "collisions": int(collisions),
         "peer": peer,
         "frames": stats.frames_sent,
         "comm": stats.comm_errors,
@@ -157,10 +161,11 @@ def main() -> None:
     print()
     print(
         "| rate Hz | baud | read every | achieved Hz | p50 ms | p99 ms | max ms | overruns "
-        "| stalls (waiting for a reply) | reads given to polls | comm errors | bytes/cycle "
+        "| stalls (waiting for a reply) | reads given to polls | goals behind a reply "
+        "| reads deferred | collisions | comm errors | bytes/cycle "
         "| minimum | peer: a read beyond its wire, p50 / p99 ms | load |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---" * 18 + "|")
     for rate in args.rates:
         for baud in (1_000_000, 4_000_000):
             for every in (1, 10):
@@ -176,7 +181,8 @@ def main() -> None:
                     f"| {r['achieved']:.1f} | {1e3 * r['p50']:.3f} | {1e3 * r['p99']:.3f} "
                     f"| {1e3 * r['max']:.3f} | {r['overruns']}/{r['frames']} "
                     f"| {r['stalls']} ({r['reply_stalls']}) | {r['skipped']} "
-                    f"| {r['comm']} | {r['bytes']:.1f} | {r['minimum']:.1f} "
+                    f"| {r['behind']} | {r['deferred']} | {r['collisions']} | {r['comm']} "
+                    f"| {r['bytes']:.1f} | {r['minimum']:.1f} "
                     f"| {1e3 * r['peer'][0]:.2f} / {1e3 * r['peer'][1]:.2f} "
                     f"| {os.getloadavg()[0]:.1f} |",
                     flush=True,

@@ -318,7 +318,9 @@ class VirtualBus(PtyTransport, SimulatedTime, InstructionHandlers, FaultInjectio
         self._polled = False
         self._last_packet_s = dict.fromkeys(ids, 0.0)
         self._wire_free_s = 0.0
-        self._reply_end_s = -float("inf")  # wire timing: when the last reply left the wire
+        # Wire timing, from the earliest each packet can have come in (transport._send):
+        self._reply_end_s = -float("inf")  # when the last reply left the wire
+        self._wire_free_min_s = self._arrived_after_s = self._read_started_s = 0.0
         self.collisions = 0
         self.wire_log: deque[tuple[float, float]] = deque(maxlen=goal_log_size)
         self._master = -1

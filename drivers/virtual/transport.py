@@ -151,13 +151,21 @@ class PtyTransport:
         return sent
 
     def _read_master(self) -> bytes | None:
-        """What the master holds (b"" if nothing), or None if it is closed."""
+        """What the master holds (b"" if nothing), or None if it is closed.
+
+        Bytes read came in after the previous read started (``_arrived_after_s``).
+        """
+        started = time.monotonic()
         try:
-            return os.read(self._master, _READ_BYTES)
+            data = os.read(self._master, _READ_BYTES)
         except BlockingIOError:
-            return b""
+            data = b""
         except (OSError, ValueError):
             return None
+        if data:
+            self._arrived_after_s = self._read_started_s
+        self._read_started_s = started
+        return data
 
     def _answer_data(self, data: bytes, arrival_s: float) -> int | None:
         """Answer the whole packets ``data`` completes; reply bytes written, None if closed."""
@@ -202,24 +210,28 @@ class PtyTransport:
         Wire time is slept (the bus is busy); a "delay" fault's extra delay is
         not (the servo has acted on the packet, only its reply is late, off the
         wire). A "late" fault's is: the servo starts its reply that much later
-        (s). While a reply is on the wire (its request's end to its last byte)
-        the master is watched: a host packet arriving then collides with it
-        (``_collide``).
+        (s). While a reply is on the wire the master is watched: a host packet
+        arriving then collides with it (``_collide``). That window is timed
+        from the earliest the request can have come in (``_arrived_after_s``:
+        this thread may have read it late, a busy host), so that only a packet
+        surely on the wire with the reply counts.
         """
         t = arrival_s
         if self.timing is not None:
-            t = max(arrival_s, self._wire_free_s) + len(request) * self.timing.byte_time_s
+            byte_s = self.timing.byte_time_s
+            t = max(arrival_s, self._wire_free_s) + len(request) * byte_s
+            t_min = max(self._arrived_after_s, self._wire_free_min_s) + len(request) * byte_s
         self.wire_log.append((arrival_s, self._reply_end_s))
         sent = 0
         for servo_id, reply, extra_s, late_s in replies:
             if self.timing is not None:
                 servo = self.servos.get(servo_id)
                 delay = 2e-6 * servo.get("Return Delay Time") if servo else 0.0
-                t += self.timing.turnaround_s + delay + late_s
-                t += len(reply) * self.timing.byte_time_s
-                if self._host_bytes_before(t):
-                    reply = self._collide(reply, t)
-                self._reply_end_s = t
+                on_wire_s = self.timing.turnaround_s + delay + late_s + len(reply) * byte_s
+                t, t_min = t + on_wire_s, t_min + on_wire_s
+                if self._host_bytes_before(t_min):
+                    reply = self._collide(reply, t_min)
+                self._reply_end_s = t_min
                 sleep_until(t + self.timing.adapter_latency_s)
             if extra_s:
                 self._late_count += 1
@@ -227,6 +239,8 @@ class PtyTransport:
             else:
                 sent += self._write(reply)
         self._wire_free_s = t
+        if self.timing is not None:
+            self._wire_free_min_s = t_min
         return sent
 
     def _host_bytes_before(self, end_s: float) -> bool:
