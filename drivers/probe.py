@@ -5,14 +5,18 @@ every ``read_every`` frames. ``probe_cycle`` times a few read-backs (it writes
 nothing: a goal write has no reply, the host only builds it and hands it to the
 port, so its share is its wire time, given by the caller), and
 ``read_every_for`` decides from the median whether the rate can hold: the mean
-cost per frame must fit ``BUDGET`` of a period, and a frame with a read-back
-must end before the next frame counts as a stall (half a period late). From
-the tail too: a read-back whose reply comes later than that stalls the next
-goal (the stream waits for the bus before it), and the stream's clock shifts
-by the lateness; the interval is raised until the probe's reads would cost
-the stream at most ``LAG_SHARE`` of its rate that way. A rate that cannot
-hold is refused before the first goal instead of tripping the lateness bound
-or the Bus Watchdog mid-motion.
+cost per frame must fit ``BUDGET`` of a period. The next goal waits for the
+wire, not for the reply (``Streamer._loop``: it goes out behind a reply whose
+wire end has passed, and the reply is checked right after it), so a frame with
+a read-back must be off the wire (its goal, request, reply: ``read_wire_s``)
+before the next frame counts as a stall (half a period late), and its reply
+must be in before the frame after that does (the reply is collected before
+anything else is sent). From the tail too: a read-back whose reply comes later
+than that stalls that goal, and the stream's clock shifts by the lateness; the
+interval is raised until the probe's reads would cost the stream at most
+``LAG_SHARE`` of its rate that way. A rate that cannot hold is refused before
+the first goal instead of tripping the lateness bound or the Bus Watchdog
+mid-motion.
 """
 
 from __future__ import annotations
@@ -31,6 +35,9 @@ PROBE_FRAMES = 50
 LAG_SHARE = 0.01
 #: Read-back less often than this many frames is refused instead (telemetry too sparse).
 MAX_READ_EVERY = 50
+#: A frame is a stall when this many periods after its start it is not done with the bus:
+#: half a period past the next deadline (the default stall bound).
+STALL_PERIODS = 1.5
 
 
 @dataclass(frozen=True)
@@ -47,23 +54,34 @@ class CycleCost:
         Read-backs timed.
     reads_s : tuple of float
         Each read-back's time (s), as timed (empty: only the median is known).
+    read_wire_s : float
+        A read-back's own wire time (s): request, the servos' turnaround and
+        Return Delay Time, reply, margin (``ServoBus.reply_s``); 0 if unknown.
     """
 
     write_s: float
     read_s: float
     frames: int
     reads_s: tuple[float, ...] = ()
+    read_wire_s: float = 0.0
+
+    def with_read_wire(self, read_wire_s: float) -> CycleCost:
+        """The same cost, a read-back's wire time known (``read_wire_s``, s)."""
+        return replace(self, read_wire_s=read_wire_s)
 
     def median_only(self) -> CycleCost:
         """The same cost without the single reads (what the median alone decides)."""
         return replace(self, reads_s=())
 
     def late(self, period_s: float) -> tuple[int, float]:
-        """How many probe reads would stall the next goal at ``period_s`` (its frame ends
-        more than 1.5 periods after it starts), and the mean shift (s) per read that costs."""
-        shifts = [
-            self.write_s + r - period_s for r in self.reads_s if self.write_s + r > 1.5 * period_s
-        ]
+        """How many probe reads would stall a goal at ``period_s``, and the mean shift (s)
+        per read that costs.
+
+        The goal after a read-back's frame goes out behind its reply; the one
+        after that waits for it: a reply in more than ``1 + STALL_PERIODS``
+        periods after its frame started stalls it."""
+        bound = (1 + STALL_PERIODS) * period_s
+        shifts = [self.write_s + r - 2 * period_s for r in self.reads_s if self.write_s + r > bound]
         return len(shifts), sum(shifts) / len(self.reads_s) if self.reads_s else 0.0
 
     def describe(self) -> str:
@@ -122,16 +140,17 @@ def read_every_for(cost: CycleCost, period_s: float, wanted: int = 1) -> int | N
     Returns
     -------
     int or None
-        ``k``: ``write + read / k <= BUDGET * period``, a frame with the
-        median read fits in 1.5 periods, and the probe reads that would not
-        (``CycleCost.late``) shift the stream by at most ``LAG_SHARE`` of its
-        time at one read every ``k`` frames; None when no ``k`` up to
-        ``MAX_READ_EVERY`` does (the goal writes alone do not fit, one median
-        read-back outlasts the next deadline by more than half a period, or
+        ``k``: ``write + read / k <= BUDGET * period``, a frame with a
+        read-back is off the wire within ``STALL_PERIODS`` periods and has
+        the median reply in hand within one more, and the probe reads that
+        would not (``CycleCost.late``) shift the stream by at most
+        ``LAG_SHARE`` of its time at one read every ``k`` frames; None when
+        no ``k`` up to ``MAX_READ_EVERY`` does (the goal writes alone do not
+        fit, a read-back's wire or its median reply outlasts those bounds, or
         too many come too late).
     """
     spare = BUDGET * period_s - cost.write_s
-    if spare <= 0 or cost.write_s + cost.read_s > 1.5 * period_s:
+    if spare <= 0 or _peak_hz(cost) * period_s < 1:
         return None
     shift_s = cost.late(period_s)[1]
     k = max(
@@ -144,6 +163,11 @@ def read_every_for(cost: CycleCost, period_s: float, wanted: int = 1) -> int | N
 
 def max_rate_hz(cost: CycleCost, read_every: int = 1) -> float:
     """The highest rate (Hz) that carries ``cost`` with read-back every ``read_every`` frames."""
-    mean_s = cost.write_s + cost.read_s / read_every
-    peak_s = cost.write_s + cost.read_s
-    return min(BUDGET / mean_s, 1.5 / peak_s)
+    return min(BUDGET / (cost.write_s + cost.read_s / read_every), _peak_hz(cost))
+
+
+def _peak_hz(cost: CycleCost) -> float:
+    """The highest rate (Hz) at which a frame with a read-back is off the wire within
+    ``STALL_PERIODS`` periods and has its (median) reply within one more."""
+    wire_hz = STALL_PERIODS / (cost.write_s + cost.read_wire_s)
+    return min(wire_hz, (1 + STALL_PERIODS) / (cost.write_s + cost.read_s))

@@ -85,6 +85,7 @@ from trajgen.drivers.probe import (
     BUDGET,
     MAX_READ_EVERY,
     PROBE_FRAMES,
+    STALL_PERIODS,
     max_rate_hz,
     probe_cycle,
     read_every_for,
@@ -645,7 +646,9 @@ class Streamer:
             block = self.bus.read_block(ids, _STATE, fast=self._use_fast)
             self.bus.check_block(block, "probing the bus")
 
-        cost = probe_cycle(read, write_s, self.probe_frames)
+        read_bytes = self.bus.read_bytes(ids, _STATE, fast=self._use_fast)
+        read_wire_s = self.bus.reply_s(read_bytes + WIRE_MARGIN_BYTES)
+        cost = probe_cycle(read, write_s, self.probe_frames).with_read_wire(read_wire_s)
         stats.probe_write_s, stats.probe_read_s = cost.write_s, cost.read_s
         every = read_every_for(cost, period_s, self.telemetry_every)
         n_late = cost.late(period_s)[0]
@@ -654,7 +657,8 @@ class Streamer:
         if n_late and by_median is not None and (every is None or every > by_median):
             late = (
                 f"; {n_late} of {cost.frames} probe reads took more than "
-                f"{1.5e3 * period_s - 1e3 * cost.write_s:.2f} ms, past the next goal's stall bound"
+                f"{(1 + STALL_PERIODS) * 1e3 * period_s - 1e3 * cost.write_s:.2f} ms, past the "
+                "stall bound of the goal after next (the next one goes out behind the reply)"
             )
         if every is None:
             most = (
