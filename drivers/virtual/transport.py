@@ -244,17 +244,22 @@ class PtyTransport:
         return sent
 
     def _host_bytes_before(self, end_s: float) -> bool:
-        """Whether host bytes arrive at the master before ``end_s`` (``time.monotonic``, s;
-        io lock held): they would be on the wire with a reply that ends then."""
+        """Whether host bytes surely arrived at the master before ``end_s`` (``time.monotonic``,
+        s; io lock held): they were on the wire with a reply that ends then.
+
+        Only bytes seen readable by a ``select`` that returned before ``end_s``
+        count: this thread may enter the ``select`` late (a busy host).
+        """
         while True:
             left = end_s - time.monotonic()
             if left <= 0:
                 return False
             try:
-                if select.select([self._master], [], [], left)[0]:
-                    return True
+                ready = select.select([self._master], [], [], left)[0]
             except (OSError, ValueError):
                 return False  # closed: nothing more arrives
+            if ready:
+                return time.monotonic() < end_s
 
     def _collide(self, reply: bytes, end_s: float) -> bytes:
         """A host packet came in over ``reply``: on a half-duplex bus both are garbled.

@@ -1,0 +1,217 @@
+"""A goal goes out once the wire is free, not once the last reply is in hand.
+
+On the wall clock, ``Streamer._loop`` sends a goal behind a reply it has not
+read yet once that reply's computed wire end has passed, then checks the reply
+before anything else is sent. The virtual bus with wire timing models what
+that risks: a host packet arriving while a reply is on the wire collides with
+it (both garbled, ``VirtualBus.collisions``). What these tests pin: a normal
+servo never collides; a servo answering later than computed ("late" fault)
+collides, and the garbled reply is a failed try, never trusted; an unsound
+reply checked after the next goal is never trusted either; Ctrl-C with a reply
+outstanding ends in the stated state per servo. The rig's adapter latency
+(0.6 ms after a reply's last byte, as a USB adapter's latency timer) keeps
+every read-back reply out of the host's hands until after the next deadline,
+so that every read-back frame's next goal goes out behind its reply.
+"""
+
+import numpy as np
+import pytest
+
+from trajgen.drivers.bringup import bring_up
+from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.control_table import Register
+from trajgen.drivers.errors import CommError
+from trajgen.drivers.frame_reads import FrameReads, Read
+from trajgen.drivers.probe import CycleCost, read_every_for
+from trajgen.drivers.streamer import Streamer
+from trajgen.drivers.units import JointMap
+from trajgen.drivers.virtual.bus import Fault, VirtualBus, WireTiming
+from trajgen.drivers.virtual.plant import FirstOrderPlant
+from trajgen.stream import JointTrajectory
+
+MODELS = ("XM430-W350",) * 3
+IDS = (1, 2, 3)
+STATE_ADDRESS = 126
+BAUD = 1_000_000
+ADAPTER_LATENCY_S = 0.3e-3
+# Reply timeouts of about 200 ms and a Bus Watchdog of 1 s: a busy host's stalls (this
+# emulator is a thread of the test's process) fail no read and trip no watchdog.
+LATENCY_MS = 100
+
+
+def _ramp(rate_hz, duration_s=0.3, q_end=(0.2, 0.1, 0.0)):
+    t = np.arange(round(duration_s * rate_hz) + 1) / rate_hz
+    s = (t / duration_s)[:, None]
+    q = (10 * s**3 - 15 * s**4 + 6 * s**5) * np.asarray(q_end)
+    return JointTrajectory(t, q, np.gradient(q, t, axis=0), np.zeros_like(q), rate_hz)
+
+
+@pytest.fixture
+def rig():
+    """make(faults, adapter latency, held_back, Streamer options) -> (virtual bus, open
+    ServoBus after bring-up, trajectory, Streamer on the wall clock): real time, wire timing
+    at 1 Mbps, Return Delay 0, no probe (its choice depends on the host: read back as
+    asked). ``held_back``: the host never has a reply in hand at the next deadline (as
+    behind an adapter that holds every reply back), so that every read-back frame's next
+    goal goes out behind its reply whatever the host's load."""
+    made = []
+
+    def make(faults=(), adapter_latency_s=ADAPTER_LATENCY_S, held_back=False, **options):
+        timing = WireTiming(baud=BAUD, adapter_latency_s=adapter_latency_s)
+        plant = FirstOrderPlant(time_constant_s=0.01)
+        virtual = VirtualBus(plant, timing=timing, faults=faults).start()
+        bus = ServoBus(virtual.port, baud=BAUD, latency_ms=LATENCY_MS).open()
+        made.append((virtual, bus))
+        trajectory = _ramp(1000.0)
+        setup = bring_up(bus, JointMap(), MODELS, trajectory, configure=True, watchdog_s=1.0)
+        options = {"max_delay_s": None, "realtime": False, "probe_frames": 0} | options
+        options |= {"poll_s": 10, "health_s": 10}  # no poll: every state read is split
+        if held_back:  # no reply is ever in hand at the next deadline, however late it wakes
+            bus.await_reply = lambda pending, until_s: False
+            options["stall_s"] = 1.0  # and no late wake is a stall (it would collect first)
+        streamer = Streamer(bus, JointMap(), start_ticks=setup.present_ticks, **options)
+        return virtual, bus, trajectory, streamer
+
+    yield make
+    for virtual, bus in made:
+        bus.close()
+        virtual.stop()
+
+
+def _arrived_after_each_reply(virtual) -> bool:
+    """The emulator's record: every host packet came in at or after the end of the reply
+    before it on the wire."""
+    return all(arrival >= end for arrival, end in virtual.wire_log)
+
+
+def test_a_normal_servo_never_collides_over_a_1_khz_stream_at_1_mbps(rig):
+    virtual, _, trajectory, streamer = rig(telemetry_every=1)
+    stats = streamer.run(trajectory)
+    assert stats.fault == "" and stats.frames_sent == len(trajectory)
+    # A read-back's reply is still in the adapter at the next deadline: that goal went
+    # out behind it, once its wire end had passed (never over it), and that frame's own
+    # read no longer fitted before the next deadline: deferred, one request at a time.
+    assert stats.goals_behind > 0 and stats.reads_deferred > 0
+    assert virtual.collisions == 0
+    assert _arrived_after_each_reply(virtual)
+
+
+def test_a_normal_servo_without_adapter_latency_never_collides_either(rig):
+    virtual, _, trajectory, streamer = rig(adapter_latency_s=0.0, telemetry_every=1)
+    stats = streamer.run(trajectory)
+    assert stats.fault == ""
+    assert virtual.collisions == 0
+    assert _arrived_after_each_reply(virtual)
+
+
+# The state reply of frame 30 starts 20 ms after its Return Delay Time: the goal sent at
+# its computed wire end comes in while it is on the wire.
+LATE = Fault("late", delay_s=20e-3, address=STATE_ADDRESS, at_frame=30, count=1)
+
+
+def test_a_late_servo_collides_and_the_garbled_reply_is_retried_never_trusted(rig):
+    virtual, bus, trajectory, streamer = rig(faults=[LATE], held_back=True, telemetry_every=3)
+    stats = streamer.run(trajectory)
+    assert virtual.collisions == 1
+    assert not _arrived_after_each_reply(virtual)  # the emulator saw it come in too early
+    # The reply's CRC was broken: a failed try, retried at once; the stream went on.
+    assert stats.comm_errors == bus.failed_tries == 1
+    assert stats.fault == "" and stats.frames_sent == len(trajectory)
+    # The goal that collided was dropped by the servos (its CRC): one goal fewer arrived.
+    sent = stats.approach_frames + len(trajectory)
+    assert virtual.frames_received == sent - 1
+
+
+def test_a_late_servo_without_retries_ends_in_the_stated_state(rig):
+    virtual, bus, trajectory, streamer = rig(faults=[LATE], held_back=True, telemetry_every=3)
+    bus.retries = 0
+    with pytest.raises(CommError, match="Incorrect status packet|corrupt"):
+        streamer.run(trajectory)
+    assert virtual.collisions == 1
+    assert streamer.stop_errors == []
+    servos = [virtual.servos[i] for i in IDS]  # hold: torque on, Bus Watchdog cleared
+    assert all(s.torque_on for s in servos)
+    assert [s.get(Register.BUS_WATCHDOG) for s in servos] == [0, 0, 0]
+
+
+@pytest.mark.parametrize(
+    ("fault", "match"),
+    [
+        (Fault("corrupt", address=STATE_ADDRESS, at_frame=30), "Incorrect status packet"),  # CRC
+        (
+            Fault("wrong_id", servo_id=2, reply_id=3, address=STATE_ADDRESS, at_frame=30),
+            "part 1 from id 3",
+        ),
+        (Fault("short", servo_id=1, n_bytes=2, address=STATE_ADDRESS, at_frame=30), "length"),
+    ],
+)
+def test_an_unsound_reply_checked_after_the_next_goal_is_never_trusted(rig, fault, match):
+    # Every reply from frame 30 on is unsound: each try is refused, none used.
+    virtual, bus, trajectory, streamer = rig(faults=[fault], held_back=True, telemetry_every=3)
+    goals_behind = []  # per goal: sent behind a reply not read yet
+    sync_write = bus.sync_write
+
+    def noted(register, values, *, behind=None):
+        goals_behind.append(behind is not None)
+        sync_write(register, values, behind=behind)
+
+    bus.sync_write = noted
+    with pytest.raises(CommError, match=match):
+        streamer.run(trajectory)
+    # The stream stopped on a reply checked right after the goal that went out behind it.
+    assert goals_behind[-1] is True
+    assert all(virtual.servos[i].torque_on for i in IDS) and streamer.stop_errors == []
+
+
+def test_ctrl_c_with_a_reply_outstanding_ends_in_the_stated_state(rig):
+    virtual, bus, trajectory, streamer = rig(held_back=True, telemetry_every=3, on_stop="hold")
+    sync_write, goals = bus.sync_write, []
+
+    def interrupted(register, values, *, behind=None):
+        sync_write(register, values, behind=behind)
+        goals.append(dict(values))
+        if behind is not None and len(goals) > 30:
+            raise KeyboardInterrupt  # the goal went out behind a reply not read yet
+
+    bus.sync_write = interrupted
+    with pytest.raises(KeyboardInterrupt):
+        streamer.run(trajectory)
+    # The safe stop's writes waited the reply out and each got its own acknowledgement:
+    # every servo holds its last goal, torque on, Bus Watchdog cleared.
+    assert streamer.stop_errors == []
+    servos = [virtual.servos[i] for i in IDS]
+    assert all(s.torque_on for s in servos)
+    assert [s.get(Register.BUS_WATCHDOG) for s in servos] == [0, 0, 0]
+    assert [s.get(Register.GOAL_POSITION) for s in servos] == list(goals[-1].values())
+    assert virtual.collisions == 0
+
+
+def test_the_probe_judges_a_read_back_frame_by_its_wire_end():
+    # 1 kHz at 1 Mbps: goal 0.29 ms, read-back wire 0.74 ms (margin in), replies in hand
+    # 1.5 ms after the request (an adapter's latency): the next goal goes out behind them.
+    cost = CycleCost(2.9e-4, 1.5e-3, 50, (1.5e-3,) * 50, read_wire_s=0.74e-3)
+    assert read_every_for(cost, 1e-3) == 3  # the mean: 0.29 + 1.5 / 3 <= 0.8 ms
+    # At 1.5 kHz a read-back frame is on the wire past the next deadline's stall bound.
+    assert read_every_for(cost, 1 / 1500) is None
+    # Replies later than 2.5 periods would stall the goal after next: refused.
+    assert read_every_for(CycleCost(2.9e-4, 2.4e-3, 50, read_wire_s=0.74e-3), 1e-3) is None
+
+
+def test_deferred_reads_go_out_in_the_next_frame():
+    state = Read("state", IDS, ("state",), 67)
+    status = [Read("status", IDS, (r,), 31) for r in ("torque", "error", "watchdog")]
+    # 10 us a byte, 0.8 ms a frame: the state read (0.67 ms) leaves no room for a part
+    # (0.31 ms); a frame without it carries two parts. State every 2nd frame, the
+    # poll queued at frames 2, 5, ...
+    reads = FrameReads(state, status, [], lambda r: 1e-5 * r.n_bytes, 8e-4, 2, 3, 1000)
+    assert reads.for_frame(0) == [state]
+    reads.defer([state])  # owed: frame 1 carries one, though not a state frame
+    assert reads.for_frame(1) == [state]
+    assert reads.for_frame(2) == [state]
+    assert reads.for_frame(3) == status[:2]
+    reads.defer(status[:2])  # first in the queue again, before the third part
+    assert reads.for_frame(4) == [state]
+    assert reads.for_frame(5) == status[:2]
+    assert reads.for_frame(6) == [state]
+    assert reads.for_frame(7) == [status[2], status[0]]  # and the next poll's first part
+    assert reads.deferred == 3
