@@ -14,6 +14,9 @@ serving process never runs the plant. What goes across:
 - the goals (rad), written by the parent the same way and taken by the child
   before each step and before each command;
 - when the present values were last read (the child's idle rule);
+- how far behind the wall clock the child ran (``WallSteps.lag``) and its CPU
+  time, written by the child after each wake-up and read by the parent as they
+  are (figures, not state);
 - every other plant call (``set_control``, ``set_torque_enabled``) as a command
   on a pipe, which the child makes in order before its next step; no reply
   waits for it. The parent first makes the same call on its own copy of the
@@ -45,11 +48,15 @@ from trajgen.drivers.units import rad_to_servo_ticks
 
 from ..errors import DriverError
 from .plant import Plant
-from .simulation import WallSteps
+from .simulation import _LAG_BINS, WallSteps
 
 # How long (s) the parent waits for the child to stop before it kills it.
 _STOP_WAIT_S = 5.0
 _COUNT = struct.Struct("<q")
+# The child's figures: lag max (s), time over ``LAG_COUNTED_S`` (s), its CPU time (s),
+# then the lag's bins (s each).
+_FIGURES = struct.Struct("<3d")
+_BIN = struct.Struct("<d")
 
 
 class PlantProcessError(DriverError):
@@ -68,8 +75,12 @@ class _Slots:
         self._offset = offset
         self._layout = layout
         self._slot_b = _COUNT.size + layout.size
-        self.size = _COUNT.size + 2 * self._slot_b
         self.writes = 0  # by this process
+
+    @staticmethod
+    def size_of(layout: struct.Struct) -> int:
+        """The bytes two slots of ``layout`` take, with the latest slot's index."""
+        return _COUNT.size + 2 * (_COUNT.size + layout.size)
 
     def write(self, values) -> None:
         """Store ``values`` in the slot not read last, then make it the latest."""
@@ -125,10 +136,14 @@ class PlantProcess:
         # steps done, then per joint: ticks; velocity (rad/s), current (A), drive output
         self._state = struct.Struct(f"<q{n}q{3 * n}d")
         self._goal = struct.Struct(f"<{n}d")
-        memory = mmap.mmap(-1, mmap.PAGESIZE)  # shared with the child (MAP_SHARED)
+        goals_at = _Slots.size_of(self._state)
+        self._read_at = goals_at + _Slots.size_of(self._goal)
+        self._figures = self._read_at + 8
+        self._bins = self._figures + _FIGURES.size
+        size = self._bins + _LAG_BINS * _BIN.size
+        memory = mmap.mmap(-1, -(-size // mmap.PAGESIZE) * mmap.PAGESIZE)  # MAP_SHARED
         self._states = _Slots(memory, 0, self._state)
-        self._goals = _Slots(memory, self._states.size, self._goal)
-        self._read_at = self._states.size + self._goals.size
+        self._goals = _Slots(memory, goals_at, self._goal)
         self._memory = memory
         self._latest = self._publish_of(plant, 0)
         self._states.write(self._latest)
@@ -175,6 +190,13 @@ class PlantProcess:
             list(v[1 + 2 * n : 1 + 3 * n]),
             list(v[1 + 3 * n :]),
         )
+
+    def figures(self) -> tuple[float, float, float, list[float]]:
+        """The child's lag so far: (max (s), time over ``LAG_COUNTED_S`` (s), its CPU
+        time (s), the lag's bins (s of wall time each; ``Lag.counts``))."""
+        lag_max, over, cpu = _FIGURES.unpack_from(self._memory, self._figures)
+        bins = struct.unpack_from(f"<{_LAG_BINS}d", self._memory, self._bins)
+        return lag_max, over, cpu, list(bins)
 
     def steps(self) -> int:
         """Steps done by the latest step published (no more is read)."""
@@ -275,6 +297,7 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     shared._conn.close()
     wall = WallSteps(step_s, started_s)
+    memory, figures, bins = shared._memory, shared._figures, shared._bins
     goal_count = [shared._goals.writes]  # the goals the plant has: those before the fork
 
     def take_goals() -> None:
@@ -291,6 +314,9 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
             if steps:
                 plant.advance(steps * step_s)
                 shared._states.write(shared._publish_of(plant, wall.done))
+            lag = wall.lag
+            _BIN.pack_into(memory, bins + _BIN.size * wall.lag_bin, lag.counts[wall.lag_bin])
+            _FIGURES.pack_into(memory, figures, lag.max_s, lag.over_s, time.thread_time())
             read_at = struct.unpack_from("<d", shared._memory, shared._read_at)[0]
             now = time.monotonic()
             if not conn.poll(max(0.0, wall.wake_s(now, unread=now - read_at) - now)):

@@ -49,9 +49,64 @@ _WATCH_MARGIN_S = 1e-4
 # (model name, address, length) -> whether a read of them holding no Indirect Data
 # byte touches the motion registers (the layout decides: worked out once).
 _DIRECT_POLLS: dict[tuple[str, int, int], bool] = {}
+# Real time: how far (s) simulated time may run behind the wall clock before the time
+# spent so is counted (``Lag.over_s``): well above a busy host's wake-up latency.
+LAG_COUNTED_S = 0.02
+# Real time: the lag's distribution is kept in bins of this width (s), the last one
+# holding everything beyond (``Lag``).
+_LAG_BIN_S, _LAG_BINS = 2.5e-4, 400
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
 # the one ROBOTIS' examples use to decide a goal is reached (pulses).
 IN_POSITION_TICKS = 20
+
+
+class Lag:
+    """How far simulated time ran behind the wall clock, weighted by wall time.
+
+    ``note`` is told the lag at each wake-up before the steps due are run
+    (the age of the state replies carry then, its largest in the spell
+    since the previous wake-up), and counts the spell since then at it.
+
+    Attributes
+    ----------
+    max_s : float
+        The largest lag noted (s).
+    over_s : float
+        Wall time (s) spent more than ``LAG_COUNTED_S`` behind.
+    counts : list of float
+        Wall time (s) spent at each lag, in bins of ``_LAG_BIN_S`` (the last
+        bin: beyond).
+    """
+
+    def __init__(self) -> None:
+        self.max_s = 0.0
+        self.over_s = 0.0
+        self.counts = [0.0] * _LAG_BINS
+        self._at_s: float | None = None
+
+    def note(self, now_s: float, lag_s: float) -> int:
+        """Count the spell since the previous note at ``lag_s`` (s); returns its bin."""
+        spell = 0.0 if self._at_s is None else max(0.0, now_s - self._at_s)
+        self._at_s = now_s
+        self.max_s = max(self.max_s, lag_s)
+        if lag_s > LAG_COUNTED_S:
+            self.over_s += spell
+        index = min(_LAG_BINS - 1, max(0, int(lag_s / _LAG_BIN_S)))
+        self.counts[index] += spell
+        return index
+
+    @staticmethod
+    def quantile(counts, q: float) -> float:
+        """The lag (s, a bin's upper edge) below which a share ``q`` of the time was spent."""
+        total = sum(counts)
+        if total <= 0:
+            return 0.0
+        running = 0.0
+        for index, spell in enumerate(counts):
+            running += spell
+            if running >= q * total:
+                return (index + 1) * _LAG_BIN_S
+        return _LAG_BINS * _LAG_BIN_S
 
 
 class WallSteps:
@@ -77,6 +132,8 @@ class WallSteps:
     ----------
     done : int
         Steps handed out so far.
+    lag : Lag
+        How far behind the wall clock the steps ran, noted at each ``take``.
     """
 
     def __init__(self, step_s: float, started_s: float) -> None:
@@ -84,9 +141,18 @@ class WallSteps:
         self.started_s = self._credit_at_s = started_s
         self.done = 0
         self._credit_s = 0.0  # simulated time the plant may run now (s)
+        self.lag = Lag()
+        self.lag_bin = 0  # the bin the latest ``take`` counted in
+
+    def behind_s(self, now_s: float) -> float:
+        """How far (s) the steps done are behind the wall clock at ``now_s``."""
+        return now_s - self.started_s - self.done * self.step_s
 
     def take(self, now_s: float) -> int:
-        """The steps to run at ``now_s`` (counted in ``done``); 0 when none is due."""
+        """The steps to run at ``now_s`` (counted in ``done``); 0 when none is due.
+
+        The lag before them is noted in ``lag``."""
+        self.lag_bin = self.lag.note(now_s, self.behind_s(now_s))
         cap = max(_MAX_STEPS_PER_HOLD * self.step_s, _CATCH_UP_BURST_S)
         self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
         self._credit_at_s = now_s
@@ -150,6 +216,18 @@ class SimulatedTime:
             np.asarray(current, dtype=float).tolist(),
             np.asarray(self.plant.present_pwm(), dtype=float).tolist(),
         )
+
+    def lag(self) -> tuple[float, float, float]:
+        """Real time: how far simulated time ran behind the wall clock so far: (max (s),
+        99th percentile over wall time (s), wall time spent more than
+        ``LAG_COUNTED_S`` behind (s)); from the plant's process when it has one (also
+        once stopped)."""
+        if self.plant is not self._own_plant:  # a PlantProcess
+            lag_max, over, _, counts = self.plant.figures()
+        else:
+            lag = self._wall.lag
+            lag_max, over, counts = lag.max_s, lag.over_s, lag.counts
+        return lag_max, Lag.quantile(counts, 0.99), over
 
     def _note_staleness(self, arrival_s: float) -> None:
         """Real time: count a reply whose state is more than ``_STALE_S`` behind its arrival.
