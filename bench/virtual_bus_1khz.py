@@ -206,6 +206,9 @@ def main() -> None:
         "--block", type=float, default=0.5, help="turn of one server before the other (s)"
     )
     parser.add_argument(
+        "--hogs", type=int, default=0, help="CPU-bound processes run beside (normal priority)"
+    )
+    parser.add_argument(
         "--spin", action="store_true", help="the SDK's port as it opens it (timeout=0: spinning)"
     )
     args = parser.parse_args()
@@ -214,7 +217,8 @@ def main() -> None:
         f"# {args.rate:g} Hz SDK client: sync write + fast sync read of {len(IDS)} servos, "
         f"{args.seconds:g} s per server in turns of {args.block:g} s; port reads: {reads}"
     )
-    print(f"{os.cpu_count()} cores; load before {os.getloadavg()}")
+    print(f"{os.cpu_count()} cores; load before {os.getloadavg()}; {args.hogs} CPU hogs")
+    hogs = [subprocess.Popen([sys.executable, "-c", "while 1: pass"]) for _ in range(args.hogs)]
     peer, master, slave = start_responder()
     bus = start_virtual_bus()
     try:
@@ -229,6 +233,9 @@ def main() -> None:
         peer.join()
         os.close(slave)
         os.close(master)
+        for hog in hogs:
+            hog.kill()
+            hog.wait()
     load = os.getloadavg()[0]
     print()
     print(

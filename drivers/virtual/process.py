@@ -17,6 +17,7 @@ serving process never runs the plant. What goes across:
 - how far behind the wall clock the child ran (``WallSteps.lag``) and its CPU
   time, written by the child after each wake-up and read by the parent as they
   are (figures, not state);
+- the first read after an idle spell, as a wake-up on the pipe;
 - every other plant call (``set_control``, ``set_torque_enabled``) as a command
   on a pipe, which the child makes in order before its next step; no reply
   waits for it. The parent first makes the same call on its own copy of the
@@ -24,11 +25,12 @@ serving process never runs the plant. What goes across:
   is refused there and then, as in one process, and never sent. A failure in
   the child (a step raised) comes back on the pipe and closes the bus.
 
-The child runs in the normal scheduling class: raised (``SCHED_FIFO``, as the
-serving thread is), it would hold a core against the kernel's normal-priority
-tty worker that moves the pty's bytes, and a 1 kHz client's replies would
-wait for it (measured in docs/realtime.md). It ignores SIGINT (the parent
-stops it).
+The child raises itself to ``SCHED_FIFO`` just below the serving thread
+(``drivers.priority.PLANT_FIFO_PRIORITY``) where permitted: in the normal
+class, two CPU-bound processes beside it held it up to 257 ms behind the wall
+clock in a 20 s run; raised, it stayed within 10 ms, and a 1 kHz client's
+share of slots moved within the run-to-run spread (docs/realtime.md). It
+ignores SIGINT (the parent stops it).
 """
 
 from __future__ import annotations
@@ -36,7 +38,6 @@ from __future__ import annotations
 import contextlib
 import mmap
 import multiprocessing
-import os
 import signal
 import struct
 import time
@@ -44,11 +45,12 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from trajgen.drivers.priority import PLANT_FIFO_PRIORITY, claim_core, scheduling_of
 from trajgen.drivers.units import rad_to_servo_ticks
 
 from ..errors import DriverError
 from .plant import Plant
-from .simulation import _LAG_BINS, WallSteps
+from .simulation import _IDLE_AFTER_S, _LAG_BINS, WallSteps
 
 # How long (s) the parent waits for the child to stop before it kills it.
 _STOP_WAIT_S = 5.0
@@ -57,6 +59,8 @@ _COUNT = struct.Struct("<q")
 # then the lag's bins (s each).
 _FIGURES = struct.Struct("<3d")
 _BIN = struct.Struct("<d")
+# On the pipe: the present values are read again after an idle spell (step now).
+_WAKE = "wake"
 
 
 class PlantProcessError(DriverError):
@@ -148,9 +152,10 @@ class PlantProcess:
         self._latest = self._publish_of(plant, 0)
         self._states.write(self._latest)
         self._goals.write(np.asarray(plant.read()[0], dtype=float).tolist())
-        self.note_read(-float("inf"))
         self._shadow = plant
         self._conn, child = multiprocessing.Pipe()
+        self._read_s = -float("inf")
+        struct.pack_into("<d", memory, self._read_at, self._read_s)
         self._process = multiprocessing.get_context("fork").Process(
             target=_run,
             args=(plant, step_s, started_s, self, child),
@@ -198,12 +203,23 @@ class PlantProcess:
         bins = struct.unpack_from(f"<{_LAG_BINS}d", self._memory, self._bins)
         return lag_max, over, cpu, list(bins)
 
+    def scheduling(self) -> str:
+        """The child's scheduling class, e.g. ``"SCHED_FIFO 9"`` (``scheduling_of``)."""
+        return scheduling_of(self._process.pid)
+
     def steps(self) -> int:
         """Steps done by the latest step published (no more is read)."""
         return self._states.first()
 
     def note_read(self, now_s: float) -> None:
-        """The present values were read at ``now_s`` (the child's idle rule)."""
+        """The present values were read at ``now_s`` (the child's idle rule).
+
+        The first read after an idle spell wakes the child at once: it then
+        steps every step again, not ``_IDLE_WAKE_S`` later."""
+        if now_s - self._read_s > _IDLE_AFTER_S:
+            with contextlib.suppress(OSError, ValueError):  # it has ended: ``check`` says
+                self._conn.send(_WAKE)
+        self._read_s = now_s
         struct.pack_into("<d", self._memory, self._read_at, now_s)
 
     def set_goal(self, positions_rad: np.ndarray) -> None:
@@ -293,8 +309,7 @@ class PlantProcess:
 def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, conn) -> None:
     """The child: step ``plant`` on the wall clock and publish each step; serve commands."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    with contextlib.suppress(AttributeError, OSError):  # the normal class, however forked
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    claim_core(PLANT_FIFO_PRIORITY)  # where permitted; else the normal class, as forked
     shared._conn.close()
     wall = WallSteps(step_s, started_s)
     memory, figures, bins = shared._memory, shared._figures, shared._bins
@@ -310,20 +325,22 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
         while True:
             take_goals()
             now = time.monotonic()
-            steps = wall.take(now)
+            read_at = struct.unpack_from("<d", memory, shared._read_at)[0]
+            steps = wall.take(now, unread=now - read_at)
             if steps:
                 plant.advance(steps * step_s)
                 shared._states.write(shared._publish_of(plant, wall.done))
             lag = wall.lag
             _BIN.pack_into(memory, bins + _BIN.size * wall.lag_bin, lag.counts[wall.lag_bin])
             _FIGURES.pack_into(memory, figures, lag.max_s, lag.over_s, time.thread_time())
-            read_at = struct.unpack_from("<d", shared._memory, shared._read_at)[0]
             now = time.monotonic()
             if not conn.poll(max(0.0, wall.wake_s(now, unread=now - read_at) - now)):
                 continue
             command = conn.recv()
             if command is None:
                 return
+            if command == _WAKE:
+                continue
             take_goals()  # the parent wrote them before this command
             name, args = command
             getattr(plant, name)(*args)
