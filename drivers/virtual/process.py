@@ -3,8 +3,10 @@
 In one process the serving thread and the simulation thread share one GIL:
 a packet that arrives while the plant steps waits for it. ``PlantProcess``
 forks the plant into a child process that steps it on the wall clock
-(``WallSteps``: the same steps and catch-up rules as the simulation thread)
-and publishes each step's present values to memory both processes map; the
+(``WallSteps``: the same steps and catch-up rules as the simulation thread,
+one step per millisecond whether read or not: it takes no turn of the serving
+process's GIL, and the steps, not the wake-ups, cost its CPU) and publishes
+each step's present values to memory both processes map; the
 serving process never runs the plant. What goes across:
 
 - the present values of the latest step, written by the child after each step
@@ -13,11 +15,9 @@ serving process never runs the plant. What goes across:
   rewritten is skipped for the other one, which is then the latest;
 - the goals (rad), written by the parent the same way and taken by the child
   before each step and before each command;
-- when the present values were last read (the child's idle rule);
 - how far behind the wall clock the child ran (``WallSteps.lag``) and its CPU
   time, written by the child after each wake-up and read by the parent as they
   are (figures, not state);
-- the first read after an idle spell, as a wake-up on the pipe;
 - every other plant call (``set_control``, ``set_torque_enabled``) as a command
   on a pipe, which the child makes in order before its next step; no reply
   waits for it. The parent first makes the same call on its own copy of the
@@ -50,7 +50,7 @@ from trajgen.drivers.units import rad_to_servo_ticks
 
 from ..errors import DriverError
 from .plant import Plant
-from .simulation import _IDLE_AFTER_S, _LAG_BINS, WallSteps
+from .simulation import _LAG_BINS, WallSteps
 
 # How long (s) the parent waits for the child to stop before it kills it.
 _STOP_WAIT_S = 5.0
@@ -59,8 +59,6 @@ _COUNT = struct.Struct("<q")
 # then the lag's bins (s each).
 _FIGURES = struct.Struct("<3d")
 _BIN = struct.Struct("<d")
-# On the pipe: the present values are read again after an idle spell (step now).
-_WAKE = "wake"
 
 
 class PlantProcessError(DriverError):
@@ -141,8 +139,7 @@ class PlantProcess:
         self._state = struct.Struct(f"<q{n}q{3 * n}d")
         self._goal = struct.Struct(f"<{n}d")
         goals_at = _Slots.size_of(self._state)
-        self._read_at = goals_at + _Slots.size_of(self._goal)
-        self._figures = self._read_at + 8
+        self._figures = goals_at + _Slots.size_of(self._goal)
         self._bins = self._figures + _FIGURES.size
         size = self._bins + _LAG_BINS * _BIN.size
         memory = mmap.mmap(-1, -(-size // mmap.PAGESIZE) * mmap.PAGESIZE)  # MAP_SHARED
@@ -154,8 +151,6 @@ class PlantProcess:
         self._goals.write(np.asarray(plant.read()[0], dtype=float).tolist())
         self._shadow = plant
         self._conn, child = multiprocessing.Pipe()
-        self._read_s = -float("inf")
-        struct.pack_into("<d", memory, self._read_at, self._read_s)
         self._process = multiprocessing.get_context("fork").Process(
             target=_run,
             args=(plant, step_s, started_s, self, child),
@@ -210,17 +205,6 @@ class PlantProcess:
     def steps(self) -> int:
         """Steps done by the latest step published (no more is read)."""
         return self._states.first()
-
-    def note_read(self, now_s: float) -> None:
-        """The present values were read at ``now_s`` (the child's idle rule).
-
-        The first read after an idle spell wakes the child at once: it then
-        steps every step again, not ``_IDLE_WAKE_S`` later."""
-        if now_s - self._read_s > _IDLE_AFTER_S:
-            with contextlib.suppress(OSError, ValueError):  # it has ended: ``check`` says
-                self._conn.send(_WAKE)
-        self._read_s = now_s
-        struct.pack_into("<d", self._memory, self._read_at, now_s)
 
     def set_goal(self, positions_rad: np.ndarray) -> None:
         """Goal angles (rad), shape (n_joints,): the child takes them before its next step."""
@@ -321,12 +305,14 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
             goal_count[0] = read[0]
             plant.set_goal(np.array(read[1]))
 
+    unread = float("inf")  # the steps due while it was forked, run at once: nobody read
     try:
         while True:
             take_goals()
             now = time.monotonic()
-            read_at = struct.unpack_from("<d", memory, shared._read_at)[0]
-            steps = wall.take(now, unread=now - read_at)
+            steps = wall.take(now, unread=unread)
+            if wall.behind_s(now) < step_s:  # caught up: from now on, as read
+                unread = 0.0
             if steps:
                 plant.advance(steps * step_s)
                 shared._states.write(shared._publish_of(plant, wall.done))
@@ -334,13 +320,11 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
             _BIN.pack_into(memory, bins + _BIN.size * wall.lag_bin, lag.counts[wall.lag_bin])
             _FIGURES.pack_into(memory, figures, lag.max_s, lag.over_s, time.thread_time())
             now = time.monotonic()
-            if not conn.poll(max(0.0, wall.wake_s(now, unread=now - read_at) - now)):
+            if not conn.poll(max(0.0, wall.wake_s(now, unread=0.0) - now)):
                 continue
             command = conn.recv()
             if command is None:
                 return
-            if command == _WAKE:
-                continue
             take_goals()  # the parent wrote them before this command
             name, args = command
             getattr(plant, name)(*args)

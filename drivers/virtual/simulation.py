@@ -310,8 +310,6 @@ class SimulatedTime:
         """
         if self.lockstep_dt_s is None:
             self._read_at_s = time.monotonic()
-            if self._process is not None:
-                self._process.note_read(self._read_at_s)
             if self._snapshot[0] != self._steps_done * self.sim_step_s:  # a step since
                 self._publish()
             sim_s, ticks, velocity, current, pwm = self._snapshot

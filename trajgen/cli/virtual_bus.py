@@ -185,7 +185,7 @@ def run_virtual_bus(args) -> int:
         cpu_s = virtual.plant.figures()[2] / max(1, virtual.plant.steps())
         tell(
             f"the simulation's process ran at {child}, {1e6 * cpu_s:.0f} us of CPU per "
-            f"step; simulated time behind the wall clock while read: at most "
+            f"step; simulated time behind the wall clock: at most "
             f"{1e3 * lag_max:.1f} ms, "
             f"{1e3 * lag_p99:.1f} ms at the 99th percentile, {over:.3f} s spent more than "
             f"{1e3 * LAG_COUNTED_S:g} ms behind"
