@@ -26,6 +26,9 @@ from collections.abc import Iterator
 # The stream thread's real-time priority (1..99): low, above every normal process,
 # below the kernel's own real-time threads.
 FIFO_PRIORITY = 10
+# The virtual bus's plant in its own process (``drivers.virtual.process``): just below
+# the stream and the bus's serving thread, above every normal process.
+PLANT_FIFO_PRIORITY = FIFO_PRIORITY - 1
 # The GIL switch interval while streaming (s): a waking stream thread waits at most
 # about this long for another thread to hand the GIL over.
 SWITCH_INTERVAL_S = 5e-4
@@ -38,6 +41,33 @@ def _raise(tid: int, fifo_priority: int) -> tuple[int, os.sched_param]:
     fifo = os.SCHED_FIFO | getattr(os, "SCHED_RESET_ON_FORK", 0)
     os.sched_setscheduler(tid, fifo, os.sched_param(fifo_priority))
     return before
+
+
+def claim_core(fifo_priority: int) -> str:
+    """Raise the calling thread to ``SCHED_FIFO`` for good (a process of its own that
+    keeps time); what was done, or why not (it then stays as it was)."""
+    try:
+        _raise(0, fifo_priority)
+    except (AttributeError, OSError) as e:  # not Linux, or not permitted
+        return f"SCHED_FIFO not permitted ({_reason(e)})"
+    return f"SCHED_FIFO {fifo_priority}"
+
+
+def scheduling_of(pid: int) -> str:
+    """Process ``pid``'s scheduling class, e.g. ``"SCHED_FIFO 9"`` or ``"SCHED_OTHER
+    nice 0"`` (``"unknown"`` where it cannot be read)."""
+    try:
+        policy = os.sched_getscheduler(pid) & ~getattr(os, "SCHED_RESET_ON_FORK", 0)
+        if policy in (os.SCHED_FIFO, os.SCHED_RR):
+            name = "SCHED_FIFO" if policy == os.SCHED_FIFO else "SCHED_RR"
+            return f"{name} {os.sched_getparam(pid).sched_priority}"
+        return f"SCHED_OTHER nice {os.getpriority(os.PRIO_PROCESS, pid)}"
+    except (AttributeError, OSError):
+        return "unknown"
+
+
+def _reason(error: Exception) -> str:
+    return error.strerror if isinstance(error, OSError) and error.strerror else str(error)
 
 
 @contextlib.contextmanager
@@ -79,8 +109,7 @@ def stream_priority(
                     raised[tid] = _raise(tid, fifo_priority)
         how = f"SCHED_FIFO {fifo_priority} ({len(raised)} threads), {gil}"
     except (AttributeError, OSError) as e:  # not Linux, or not permitted
-        reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
-        how = f"SCHED_FIFO not permitted ({reason}); {gil}"
+        how = f"SCHED_FIFO not permitted ({_reason(e)}); {gil}"
     try:
         yield how
     finally:

@@ -3,8 +3,10 @@
 In one process the serving thread and the simulation thread share one GIL:
 a packet that arrives while the plant steps waits for it. ``PlantProcess``
 forks the plant into a child process that steps it on the wall clock
-(``WallSteps``: the same steps and catch-up rules as the simulation thread)
-and publishes each step's present values to memory both processes map; the
+(``WallSteps``: the same steps and catch-up rules as the simulation thread,
+one step per millisecond whether read or not: it takes no turn of the serving
+process's GIL, and the steps, not the wake-ups, cost its CPU) and publishes
+each step's present values to memory both processes map; the
 serving process never runs the plant. What goes across:
 
 - the present values of the latest step, written by the child after each step
@@ -13,7 +15,9 @@ serving process never runs the plant. What goes across:
   rewritten is skipped for the other one, which is then the latest;
 - the goals (rad), written by the parent the same way and taken by the child
   before each step and before each command;
-- when the present values were last read (the child's idle rule);
+- how far behind the wall clock the child ran (``WallSteps.lag``) and its CPU
+  time, written by the child after each wake-up and read by the parent as they
+  are (figures, not state);
 - every other plant call (``set_control``, ``set_torque_enabled``) as a command
   on a pipe, which the child makes in order before its next step; no reply
   waits for it. The parent first makes the same call on its own copy of the
@@ -21,11 +25,12 @@ serving process never runs the plant. What goes across:
   is refused there and then, as in one process, and never sent. A failure in
   the child (a step raised) comes back on the pipe and closes the bus.
 
-The child runs in the normal scheduling class: raised (``SCHED_FIFO``, as the
-serving thread is), it would hold a core against the kernel's normal-priority
-tty worker that moves the pty's bytes, and a 1 kHz client's replies would
-wait for it (measured in docs/realtime.md). It ignores SIGINT (the parent
-stops it).
+The child raises itself to ``SCHED_FIFO`` just below the serving thread
+(``drivers.priority.PLANT_FIFO_PRIORITY``) where permitted: in the normal
+class, two CPU-bound processes beside it held it up to 257 ms behind the wall
+clock in a 20 s run; raised, it stayed within 10 ms, and a 1 kHz client's
+share of slots moved within the run-to-run spread (docs/realtime.md). It
+ignores SIGINT (the parent stops it).
 """
 
 from __future__ import annotations
@@ -33,7 +38,6 @@ from __future__ import annotations
 import contextlib
 import mmap
 import multiprocessing
-import os
 import signal
 import struct
 import time
@@ -41,15 +45,20 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from trajgen.drivers.priority import PLANT_FIFO_PRIORITY, claim_core, scheduling_of
 from trajgen.drivers.units import rad_to_servo_ticks
 
 from ..errors import DriverError
 from .plant import Plant
-from .simulation import WallSteps
+from .simulation import _LAG_BINS, WallSteps
 
 # How long (s) the parent waits for the child to stop before it kills it.
 _STOP_WAIT_S = 5.0
 _COUNT = struct.Struct("<q")
+# The child's figures: lag max (s), time over ``LAG_COUNTED_S`` (s), its CPU time (s),
+# then the lag's bins (s each).
+_FIGURES = struct.Struct("<3d")
+_BIN = struct.Struct("<d")
 
 
 class PlantProcessError(DriverError):
@@ -68,8 +77,12 @@ class _Slots:
         self._offset = offset
         self._layout = layout
         self._slot_b = _COUNT.size + layout.size
-        self.size = _COUNT.size + 2 * self._slot_b
         self.writes = 0  # by this process
+
+    @staticmethod
+    def size_of(layout: struct.Struct) -> int:
+        """The bytes two slots of ``layout`` take, with the latest slot's index."""
+        return _COUNT.size + 2 * (_COUNT.size + layout.size)
 
     def write(self, values) -> None:
         """Store ``values`` in the slot not read last, then make it the latest."""
@@ -125,15 +138,17 @@ class PlantProcess:
         # steps done, then per joint: ticks; velocity (rad/s), current (A), drive output
         self._state = struct.Struct(f"<q{n}q{3 * n}d")
         self._goal = struct.Struct(f"<{n}d")
-        memory = mmap.mmap(-1, mmap.PAGESIZE)  # shared with the child (MAP_SHARED)
+        goals_at = _Slots.size_of(self._state)
+        self._figures = goals_at + _Slots.size_of(self._goal)
+        self._bins = self._figures + _FIGURES.size
+        size = self._bins + _LAG_BINS * _BIN.size
+        memory = mmap.mmap(-1, -(-size // mmap.PAGESIZE) * mmap.PAGESIZE)  # MAP_SHARED
         self._states = _Slots(memory, 0, self._state)
-        self._goals = _Slots(memory, self._states.size, self._goal)
-        self._read_at = self._states.size + self._goals.size
+        self._goals = _Slots(memory, goals_at, self._goal)
         self._memory = memory
         self._latest = self._publish_of(plant, 0)
         self._states.write(self._latest)
         self._goals.write(np.asarray(plant.read()[0], dtype=float).tolist())
-        self.note_read(-float("inf"))
         self._shadow = plant
         self._conn, child = multiprocessing.Pipe()
         self._process = multiprocessing.get_context("fork").Process(
@@ -176,13 +191,20 @@ class PlantProcess:
             list(v[1 + 3 * n :]),
         )
 
+    def figures(self) -> tuple[float, float, float, list[float]]:
+        """The child's lag so far: (max (s), time over ``LAG_COUNTED_S`` (s), its CPU
+        time (s), the lag's bins (s of wall time each; ``Lag.counts``))."""
+        lag_max, over, cpu = _FIGURES.unpack_from(self._memory, self._figures)
+        bins = struct.unpack_from(f"<{_LAG_BINS}d", self._memory, self._bins)
+        return lag_max, over, cpu, list(bins)
+
+    def scheduling(self) -> str:
+        """The child's scheduling class, e.g. ``"SCHED_FIFO 9"`` (``scheduling_of``)."""
+        return scheduling_of(self._process.pid)
+
     def steps(self) -> int:
         """Steps done by the latest step published (no more is read)."""
         return self._states.first()
-
-    def note_read(self, now_s: float) -> None:
-        """The present values were read at ``now_s`` (the child's idle rule)."""
-        struct.pack_into("<d", self._memory, self._read_at, now_s)
 
     def set_goal(self, positions_rad: np.ndarray) -> None:
         """Goal angles (rad), shape (n_joints,): the child takes them before its next step."""
@@ -271,10 +293,10 @@ class PlantProcess:
 def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, conn) -> None:
     """The child: step ``plant`` on the wall clock and publish each step; serve commands."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    with contextlib.suppress(AttributeError, OSError):  # the normal class, however forked
-        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    claim_core(PLANT_FIFO_PRIORITY)  # where permitted; else the normal class, as forked
     shared._conn.close()
     wall = WallSteps(step_s, started_s)
+    memory, figures, bins = shared._memory, shared._figures, shared._bins
     goal_count = [shared._goals.writes]  # the goals the plant has: those before the fork
 
     def take_goals() -> None:
@@ -283,17 +305,22 @@ def _run(plant: Plant, step_s: float, started_s: float, shared: PlantProcess, co
             goal_count[0] = read[0]
             plant.set_goal(np.array(read[1]))
 
+    unread = float("inf")  # the steps due while it was forked, run at once: nobody read
     try:
         while True:
             take_goals()
             now = time.monotonic()
-            steps = wall.take(now)
+            steps = wall.take(now, unread=unread)
+            if wall.behind_s(now) < step_s:  # caught up: from now on, as read
+                unread = 0.0
             if steps:
                 plant.advance(steps * step_s)
                 shared._states.write(shared._publish_of(plant, wall.done))
-            read_at = struct.unpack_from("<d", shared._memory, shared._read_at)[0]
+            lag = wall.lag
+            _BIN.pack_into(memory, bins + _BIN.size * wall.lag_bin, lag.counts[wall.lag_bin])
+            _FIGURES.pack_into(memory, figures, lag.max_s, lag.over_s, time.thread_time())
             now = time.monotonic()
-            if not conn.poll(max(0.0, wall.wake_s(now, unread=now - read_at) - now)):
+            if not conn.poll(max(0.0, wall.wake_s(now, unread=0.0) - now)):
                 continue
             command = conn.recv()
             if command is None:

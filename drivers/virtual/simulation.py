@@ -26,16 +26,20 @@ _MAX_STEPS_PER_HOLD = 2
 # Real time: the simulation never runs faster than this many times real time. After
 # the host held it back (a stall), it catches up over 1 / (rate - 1) times the
 # stall's length instead of at once: the servos never seem to move faster than
-# their simulation lets them (a jump would read as an encoder glitch).
-_CATCH_UP_RATE = 1.5
+# their simulation lets them (a jump would read as an encoder glitch). Below the
+# driver's glitch check's factor (``GLITCH_SPEED_FACTOR``, 1.5 times the no-load
+# speed), with room for the burst.
+_CATCH_UP_RATE = 1.25
 # Real time: while no present value was read for ``_IDLE_AFTER_S``, the simulation
 # thread wakes every ``_IDLE_WAKE_S`` (and steps what is due) instead of every step:
 # fewer turns taken from the other threads of the process (the GIL).
 _IDLE_AFTER_S, _IDLE_WAKE_S = 0.05, 0.005
-# Real time: the most simulated time (s) run at once after a pause, unless due. Above
-# a normal-priority thread's wake-up latency on a busy host (a few ms), which the
-# simulation must make up for at each wake-up to keep real time.
-_CATCH_UP_BURST_S = 0.01
+# Real time: the most simulated time (s) run at once after a pause, unless due: between
+# two reads ``dt`` apart a reply shows at most this plus ``_CATCH_UP_RATE * dt`` of
+# simulated motion. 10 ms (before) made a 40 ms stall read as an encoder fault at a
+# third of the no-load speed (docs/realtime.md); 2 ms is within the glitch check's
+# 4-tick noise allowance up to about 0.85 times the no-load speed at 1 kHz.
+_CATCH_UP_BURST_S = 0.002
 # Real time: a reply carries the state of the simulation's latest step; when that
 # is further behind the packet's arrival than this (s), the simulation thread
 # could not keep real time (a busy host): counted in ``stale_replies``.
@@ -49,9 +53,68 @@ _WATCH_MARGIN_S = 1e-4
 # (model name, address, length) -> whether a read of them holding no Indirect Data
 # byte touches the motion registers (the layout decides: worked out once).
 _DIRECT_POLLS: dict[tuple[str, int, int], bool] = {}
+# Real time: how far (s) simulated time may run behind the wall clock before the time
+# spent so is counted (``Lag.over_s``): well above a busy host's wake-up latency.
+LAG_COUNTED_S = 0.02
+# Real time: the lag's distribution is kept in bins of this width (s), the last one
+# holding everything beyond (``Lag``).
+_LAG_BIN_S, _LAG_BINS = 2.5e-4, 2000
 # Moving Status bit 0 (In-Position): the e-Manual gives no threshold; this is
 # the one ROBOTIS' examples use to decide a goal is reached (pulses).
 IN_POSITION_TICKS = 20
+
+
+class Lag:
+    """How far simulated time ran behind the wall clock, weighted by wall time.
+
+    ``note`` is told the lag at each wake-up before the steps due are run
+    (the age of the state replies carry then, its largest in the spell
+    since the previous wake-up), and counts the spell since then at it.
+
+    Attributes
+    ----------
+    max_s : float
+        The largest lag noted (s).
+    over_s : float
+        Wall time (s) spent more than ``LAG_COUNTED_S`` behind.
+    counts : list of float
+        Wall time (s) spent at each lag, in bins of ``_LAG_BIN_S`` (the last
+        bin: beyond).
+    """
+
+    def __init__(self) -> None:
+        self.max_s = 0.0
+        self.over_s = 0.0
+        self.counts = [0.0] * _LAG_BINS
+        self._at_s: float | None = None
+
+    def note(self, now_s: float, lag_s: float, *, counted: bool = True) -> int:
+        """Count the spell since the previous note at ``lag_s`` (s); returns its bin.
+
+        ``counted`` False: the spell is not counted (nobody read the state then)."""
+        spell = 0.0 if self._at_s is None else max(0.0, now_s - self._at_s)
+        self._at_s = now_s
+        if not counted:
+            return 0
+        self.max_s = max(self.max_s, lag_s)
+        if lag_s > LAG_COUNTED_S:
+            self.over_s += spell
+        index = min(_LAG_BINS - 1, max(0, int(lag_s / _LAG_BIN_S)))
+        self.counts[index] += spell
+        return index
+
+    @staticmethod
+    def quantile(counts, q: float) -> float:
+        """The lag (s, a bin's upper edge) below which a share ``q`` of the time was spent."""
+        total = sum(counts)
+        if total <= 0:
+            return 0.0
+        running = 0.0
+        for index, spell in enumerate(counts):
+            running += spell
+            if running >= q * total:
+                return (index + 1) * _LAG_BIN_S
+        return _LAG_BINS * _LAG_BIN_S
 
 
 class WallSteps:
@@ -77,6 +140,8 @@ class WallSteps:
     ----------
     done : int
         Steps handed out so far.
+    lag : Lag
+        How far behind the wall clock the steps ran, noted at each ``take``.
     """
 
     def __init__(self, step_s: float, started_s: float) -> None:
@@ -84,13 +149,28 @@ class WallSteps:
         self.started_s = self._credit_at_s = started_s
         self.done = 0
         self._credit_s = 0.0  # simulated time the plant may run now (s)
+        self.lag = Lag()
+        self.lag_bin = 0  # the bin the latest ``take`` counted in
 
-    def take(self, now_s: float) -> int:
-        """The steps to run at ``now_s`` (counted in ``done``); 0 when none is due."""
+    def behind_s(self, now_s: float) -> float:
+        """How far (s) the steps done are behind the wall clock at ``now_s``."""
+        return now_s - self.started_s - self.done * self.step_s
+
+    def take(self, now_s: float, *, unread: float = 0.0) -> int:
+        """The steps to run at ``now_s`` (counted in ``done``); 0 when none is due.
+
+        The lag before them is noted in ``lag``, unless nobody has read the
+        present values for ``unread`` > ``_IDLE_AFTER_S`` (s): idle, the steps
+        are run every ``_IDLE_WAKE_S`` by design (``wake_s``), all those due at
+        once (nobody sees them run)."""
+        read = unread <= _IDLE_AFTER_S
+        self.lag_bin = self.lag.note(now_s, self.behind_s(now_s), counted=read)
         cap = max(_MAX_STEPS_PER_HOLD * self.step_s, _CATCH_UP_BURST_S)
         self._credit_s = min(cap, self._credit_s + _CATCH_UP_RATE * (now_s - self._credit_at_s))
         self._credit_at_s = now_s
         due = int((now_s - self.started_s) / self.step_s)
+        if not read:
+            self._credit_s = max(self._credit_s, (due - self.done) * self.step_s)
         credit = int(self._credit_s / self.step_s + 1e-9)
         steps = max(0, min(due - self.done, credit, _MAX_STEPS_PER_HOLD))
         self.done += steps
@@ -123,7 +203,7 @@ class SimulatedTime:
     def _catch_up(self, now_s: float) -> None:
         """Real time: advance the plant by the steps due at ``now_s`` (``WallSteps.take``;
         lock held)."""
-        steps = self._wall.take(now_s)
+        steps = self._wall.take(now_s, unread=now_s - self._read_at_s)
         if steps > 0:
             self._advance(steps * self.sim_step_s)
             self._steps_done = self._wall.done
@@ -150,6 +230,18 @@ class SimulatedTime:
             np.asarray(current, dtype=float).tolist(),
             np.asarray(self.plant.present_pwm(), dtype=float).tolist(),
         )
+
+    def lag(self) -> tuple[float, float, float]:
+        """Real time: how far simulated time ran behind the wall clock so far: (max (s),
+        99th percentile over wall time (s), wall time spent more than
+        ``LAG_COUNTED_S`` behind (s)); from the plant's process when it has one (also
+        once stopped)."""
+        if self.plant is not self._own_plant:  # a PlantProcess
+            lag_max, over, _, counts = self.plant.figures()
+        else:
+            lag = self._wall.lag
+            lag_max, over, counts = lag.max_s, lag.over_s, lag.counts
+        return lag_max, Lag.quantile(counts, 0.99), over
 
     def _note_staleness(self, arrival_s: float) -> None:
         """Real time: count a reply whose state is more than ``_STALE_S`` behind its arrival.
@@ -218,8 +310,6 @@ class SimulatedTime:
         """
         if self.lockstep_dt_s is None:
             self._read_at_s = time.monotonic()
-            if self._process is not None:
-                self._process.note_read(self._read_at_s)
             if self._snapshot[0] != self._steps_done * self.sim_step_s:  # a step since
                 self._publish()
             sim_s, ticks, velocity, current, pwm = self._snapshot

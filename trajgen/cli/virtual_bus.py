@@ -124,6 +124,7 @@ def run_virtual_bus(args) -> int:
     plant = GimbalPlant(checked.gimbal, record=False)
     from trajgen.drivers.priority import stream_priority
     from trajgen.drivers.virtual.bus import VirtualBus
+    from trajgen.drivers.virtual.simulation import LAG_COUNTED_S
 
     try:
         ids, plant_ids, models = chain_of(args.ids, args.models, config)
@@ -169,6 +170,7 @@ def run_virtual_bus(args) -> int:
                 if virtual.error is not None:
                     break
     finally:
+        child = virtual.plant.scheduling() if period_s is None else ""  # while it runs
         virtual.stop()
         wall_s = virtual.wall_time_s  # once the simulation has stopped
         for s, handler in previous.items():
@@ -178,6 +180,17 @@ def run_virtual_bus(args) -> int:
         return EXIT_FAILED
     name = signal.Signals(received[0]).name if received else "the end"
     tell(f"stopped by {name} after {virtual.sim_time_s:.3f} s simulated in {wall_s:.3f} s")
+    if period_s is None:
+        lag_max, lag_p99, over = virtual.lag()
+        cpu_s = virtual.plant.figures()[2] / max(1, virtual.plant.steps())
+        tell(
+            f"the simulation's process ran at {child}, {1e6 * cpu_s:.0f} us of CPU per "
+            f"step; simulated time behind the wall clock: at most "
+            f"{1e3 * lag_max:.1f} ms, "
+            f"{1e3 * lag_p99:.1f} ms at the 99th percentile, {over:.3f} s spent more than "
+            f"{1e3 * LAG_COUNTED_S:g} ms behind"
+            + (": the host was too busy to simulate in real time" if over > 0 else "")
+        )
     if virtual.stale_replies:
         tell(
             f"{virtual.stale_replies} replies went out before the simulation had caught up "
