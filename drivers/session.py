@@ -24,6 +24,7 @@ Nothing here reads a file or prints: the command line does both.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -322,14 +323,13 @@ class Session:
             outcome.signal = signals.received
         return outcome
 
-    def follow(self, follower, lines, *, clock=None) -> Outcome:
+    def follow(self, follower, lines, *, clock=None, process: bool = False) -> Outcome:
         """Stream a follower's plan while keyframe lines change it.
 
         Bring-up checks where the stream starts and the whole range the
         follower's joint limits allow against the servos' installed limits
-        (the frames are not known in advance). The lines are read on a thread
-        of their own; the stream ends at the end of ``lines``, once the last
-        keyframe is reached.
+        (the frames are not known in advance). The stream ends at the end of
+        ``lines``, once the last keyframe is reached.
 
         Parameters
         ----------
@@ -337,37 +337,58 @@ class Session:
             The plan, its rate and its kinematics.
         lines : iterable of str or bytes, or callable
             The keyframe lines (see ``Follower.read``), or a function of the
-            follower returning them (to time them against the stream).
+            follower returning them (to time them against the stream; with
+            ``process``, the planner's copy of the follower).
         clock : optional
             Default: on a virtual bus (``plant``), a ``drivers.clock.PacedClock``
             (``outcome.clock``): simulated time, one period per frame, paced by the
             wall clock, so the stream runs in real time beside the lines where the
             host keeps up and falls behind the wall clock, never late, where it
-            does not (a line's time counts from the frame being streamed when it
+            does not (a line's time counts from the last frame planned when it
             arrives, ``Follower``); else the wall clock.
+        process : bool
+            Plan in a process of its own (``drivers.follow_process``, where the OS
+            forks): it reads the lines, builds the changes and makes the frames (and
+            their led goals), this process only streams them. Else the lines are read
+            on a thread and the changes built in steps between frames, here.
 
         Returns
         -------
         Outcome
-            ``trajectory`` is what was streamed.
+            ``trajectory`` is what was streamed. A planner that fails or dies ends
+            the stream in the safe stop (``stopped_by`` says so).
         """
         if clock is None:
             clock = WALL_CLOCK if self.plant is None else PacedClock()
         limits = np.asarray(follower.kinematics.limits_rad, float)
+        process = process and hasattr(os, "fork")
+        planner = []
 
         def plan(present):
             return JointRange(np.asarray(present, float), limits)
 
-        def frames(setup):
-            source = lines(follower) if callable(lines) else lines
-            threading.Thread(target=follower.read, args=(source,), daemon=True).start()
-            frames = follower.frames(start=self.config.joints.to_rad(setup.present_ticks))
-            if self.leader is None:
-                return frames
+        def lead(frames):
             # Goals led from the live plan's own frames, inside the range bring-up checked.
             return self.leader.frames(frames, follower.rate_hz, limits)
 
-        outcome = self.run(plan, follower.rate_hz, frames=frames, clock=clock)
+        def frames(setup):
+            start = self.config.joints.to_rad(setup.present_ticks)
+            led = None if self.leader is None else lead
+            if process:
+                from .follow_process import PlannedFrames
+
+                planner.append(PlannedFrames(follower, lines, start, lead=led))
+                return planner[0]
+            source = lines(follower) if callable(lines) else lines
+            threading.Thread(target=follower.read, args=(source,), daemon=True).start()
+            frames = follower.frames(start=start)
+            return frames if led is None else led(frames)
+
+        try:
+            outcome = self.run(plan, follower.rate_hz, frames=frames, clock=clock)
+        finally:
+            for p in planner:
+                p.close()
         outcome.clock = clock if isinstance(clock, PacedClock) else None
         outcome.trajectory = follower.trajectory()
         if follower.fault and outcome.ok:

@@ -136,6 +136,14 @@ class Follower:
         change time) and ``now`` (stream time when the line arrived).
     skipped : list of str
         Messages of the lines refused.
+    arrivals : list of tuple
+        Per accepted line: ``(arrival, at)``, its arrival (``time.monotonic()``, s) and
+        its change time (stream s), for latencies measured where the frames are sent
+        (``trajgen.follow_process``).
+    step_share : float
+        Share of a period :meth:`frames` spends on changes' steps between two frames
+        (``STEP_SHARE``; ``math.inf``: every queued change whole, where no stream waits
+        on this thread, as in ``trajgen.follow_process``).
     """
 
     def __init__(
@@ -161,6 +169,8 @@ class Follower:
         self.change_steps_s: list[float] = []
         self.keyframes: list[dict] = []
         self.skipped: list[str] = []
+        self.arrivals: list[tuple[float, float]] = []
+        self.step_share = STEP_SHARE
         self._frames: list = []
         self._pending: list[tuple[float, float]] = []  # (arrival, at) of changes not yet seen
         self._lock = threading.Lock()
@@ -279,6 +289,7 @@ class Follower:
                 raise self._error(where, str(e)) from None
             with self._lock:
                 self._pending.append((arrival, at))
+            self.arrivals.append((arrival, at))
             self.keyframes.append(
                 {"line": number, "mode": mode, "t": t, "quat": q.tolist(), "at": at, "now": now}
             )
@@ -308,6 +319,7 @@ class Follower:
                 at = result.at  # later than asked where no arrival from there kept the limits
                 with self._lock:
                     self._pending.append((arrival, at))
+                    self.arrivals.append((arrival, at))
                 self.keyframes.append(
                     {
                         "line": number,
@@ -401,8 +413,8 @@ class Follower:
 
     def _step(self) -> None:
         """Steps of the oldest lines' changes, if any (each dropped from the queue once
-        done): one, and more while ``STEP_SHARE`` of a period leaves room for another."""
-        budget = STEP_SHARE / self.rate_hz
+        done): one, and more while ``step_share`` of a period leaves room for another."""
+        budget = self.step_share / self.rate_hz
         start = time.perf_counter()
         while True:
             with self._lock:
