@@ -567,7 +567,7 @@ class Streamer:
         self.stop_errors = []
         self._writer = writer = None
         self._frame_no = 0
-        self._last_position: tuple[float, np.ndarray] | None = None
+        self._last_position: tuple[np.ndarray, np.ndarray] | None = None
         self._max_speed = GLITCH_SPEED_FACTOR * np.array(
             [self.bus.models[i].no_load_speed_rad_s for i in self.joints.ids]
         )
@@ -731,10 +731,10 @@ class Streamer:
         """
         position = self.joints.to_rad(ticks)
         if self._last_position is None:
-            self._last_position = (now, position)
+            self._last_position = (np.full(position.shape, now), position)
             return position
-        then, last = self._last_position
-        allowed = self._max_speed * max(now - then, 0.0)
+        then, last = self._last_position  # per joint: when and where it last read plausibly
+        allowed = self._max_speed * np.maximum(now - then, 0.0)
         allowed += POSITION_NOISE_TICKS * RAD_PER_TICK
         jumped = np.abs(position - last) > allowed
         self._glitches = np.where(jumped, self._glitches + 1, 0)
@@ -754,8 +754,7 @@ class Streamer:
                 "telemetry)"
             )
         keep = ~jumped
-        last = np.where(keep, position, last)
-        self._last_position = (now, last)
+        self._last_position = (np.where(keep, now, then), np.where(keep, position, last))
         return np.where(keep, position, math.nan)
 
     def _warn(self, message: str) -> None:
