@@ -14,6 +14,7 @@ from trajgen.drivers.control_table import model_named
 from trajgen.drivers.priority import PLANT_FIFO_PRIORITY, claim_core
 from trajgen.drivers.units import rad_to_servo_ticks
 from trajgen.drivers.virtual import simulation
+from trajgen.drivers.virtual.bus import VirtualBus
 from trajgen.drivers.virtual.plant import FirstOrderPlant
 from trajgen.drivers.virtual.process import PlantProcess
 from trajgen.drivers.virtual.simulation import LAG_COUNTED_S, Lag, WallSteps
@@ -135,7 +136,8 @@ def test_a_held_child_is_counted():
     process = PlantProcess(FirstOrderPlant(), STEP_S, time.monotonic())
     try:
         deadline = time.monotonic() + 30.0
-        while process.figures()[2] == 0.0 and time.monotonic() < deadline:  # running yet?
+        # until it has caught up with the steps due while it was forked (not counted)
+        while process.figures()[0] == 0.0 and time.monotonic() < deadline:
             time.sleep(0.005)
         os.kill(process._process.pid, signal.SIGSTOP)
         held = time.monotonic()
@@ -173,6 +175,25 @@ def claim_core_permitted() -> bool:
     if pid == 0:
         os._exit(0 if claim_core(PLANT_FIFO_PRIORITY).startswith("SCHED_FIFO ") else 1)
     return os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) == 0
+
+
+def test_the_bus_reports_its_held_plant_once_stopped():
+    """``VirtualBus.lag()`` after ``stop``: the figures of its plant's process."""
+    virtual = VirtualBus(FirstOrderPlant(), plant_process=True).start()
+    try:
+        deadline = time.monotonic() + 30.0  # each wait ends as soon as its condition holds
+        while virtual.plant.figures()[0] == 0.0 and time.monotonic() < deadline:  # caught up
+            time.sleep(0.005)
+        os.kill(virtual.plant._process.pid, signal.SIGSTOP)
+        time.sleep(0.05)
+        os.kill(virtual.plant._process.pid, signal.SIGCONT)
+        while virtual.plant.figures()[0] < 0.05 and time.monotonic() < deadline:
+            time.sleep(0.005)
+    finally:
+        virtual.stop()
+    lag_max, lag_p99, over = virtual.lag()
+    assert lag_max >= 0.05 and over >= 0.05 - LAG_COUNTED_S
+    assert 0.0 < lag_p99 <= lag_max + simulation._LAG_BIN_S
 
 
 def test_one_rejected_read_never_turns_a_moving_servo_into_an_encoder_fault():
