@@ -27,7 +27,9 @@ What it adds to them (see docs/dynamixel.md for why):
   before the next frame's goal, so that a read-back's wire time overlaps the
   wait for the next deadline instead of delaying it. Any other transaction
   while a reply is outstanding first waits that reply out (or its timeout)
-  and drops it: it is never taken for the answer to another request.
+  and drops it: it is never taken for the answer to another request; but a
+  Sync Write may go out behind a reply whose computed wire end has passed
+  (``sync_write(behind=...)``), leaving it to ``collect``.
 """
 
 from __future__ import annotations
