@@ -83,10 +83,11 @@ _RX_MAX_LENGTH = 1024  # the SDK's RXPACKET_MAX_LEN (Protocol 2.0)
 #: A servo's processing time (s) between a request's last byte and its Return Delay Time
 #: (e-Manual: some tens of us; the virtual bus's ``WireTiming.turnaround_s`` is 20 us).
 TURNAROUND_S = 20e-6
-#: Wire time (s) of this many bytes is added to a reply's computed wire end before a
-#: packet may go out behind it (``sync_write(behind=...)``): a servo answering a
-#: little later than computed, the host's write reaching the wire a little earlier.
-WIRE_MARGIN_BYTES = 5
+#: Added to a reply's computed wire end before a packet may go out behind it
+#: (``sync_write(behind=...)``), s: the request reaching the wire later than it was
+#: written (a USB adapter sends in 125 us microframes at high speed; a pty's kernel
+#: work can wait behind the load) and a servo answering a little later than computed.
+WIRE_MARGIN_S = 150e-6
 #: A Return Delay Time register unit (s): 2 us.
 RETURN_DELAY_UNIT_S = 2e-6
 
@@ -957,8 +958,8 @@ class ServoBus:
 
     def reply_wire_end(self, pending: PendingRead) -> float:
         """When (``time.monotonic``, s) a packet may go out behind ``pending``'s reply:
-        its computed wire end (``PendingRead.wire_end_s``) and ``WIRE_MARGIN_BYTES``."""
-        return pending.wire_end_s + self.wire_s(WIRE_MARGIN_BYTES)
+        its computed wire end (``PendingRead.wire_end_s``) and ``WIRE_MARGIN_S``."""
+        return pending.wire_end_s + WIRE_MARGIN_S
 
     def await_reply(self, pending: PendingRead, until_s: float) -> bool:
         """Wait (the GIL and the core free) until ``pending``'s reply bytes are all in, or
