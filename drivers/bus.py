@@ -480,7 +480,6 @@ class ServoBus:
         self._frame_packets: dict[tuple, object] = {}  # laid-out packets, by servos and registers
         self._pending: PendingRead | None = None  # a split-phase read whose reply is out
         self.return_delay_s = 254 * RETURN_DELAY_UNIT_S
-        self._wire_free_s = -math.inf  # when the last packet sent is off the wire (computed)
 
     # -- port ------------------------------------------------------------
 
