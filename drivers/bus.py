@@ -27,7 +27,9 @@ What it adds to them (see docs/dynamixel.md for why):
   before the next frame's goal, so that a read-back's wire time overlaps the
   wait for the next deadline instead of delaying it. Any other transaction
   while a reply is outstanding first waits that reply out (or its timeout)
-  and drops it: it is never taken for the answer to another request.
+  and drops it: it is never taken for the answer to another request; but a
+  Sync Write may go out behind a reply whose computed wire end has passed
+  (``sync_write(behind=...)``), leaving it to ``collect``.
 """
 
 from __future__ import annotations
@@ -81,10 +83,11 @@ _RX_MAX_LENGTH = 1024  # the SDK's RXPACKET_MAX_LEN (Protocol 2.0)
 #: A servo's processing time (s) between a request's last byte and its Return Delay Time
 #: (e-Manual: some tens of us; the virtual bus's ``WireTiming.turnaround_s`` is 20 us).
 TURNAROUND_S = 20e-6
-#: Wire time (s) of this many bytes is added to a reply's computed wire end before a
-#: packet may go out behind it (``sync_write(behind=...)``): a servo answering a
-#: little later than computed, the host's write reaching the wire a little earlier.
-WIRE_MARGIN_BYTES = 5
+#: Added to a reply's computed wire end before a packet may go out behind it
+#: (``sync_write(behind=...)``), s: the request reaching the wire later than it was
+#: written (a USB adapter sends in 125 us microframes at high speed; a pty's kernel
+#: work can wait behind the load) and a servo answering a little later than computed.
+WIRE_MARGIN_S = 150e-6
 #: A Return Delay Time register unit (s): 2 us.
 RETURN_DELAY_UNIT_S = 2e-6
 
@@ -477,7 +480,6 @@ class ServoBus:
         self._frame_packets: dict[tuple, object] = {}  # laid-out packets, by servos and registers
         self._pending: PendingRead | None = None  # a split-phase read whose reply is out
         self.return_delay_s = 254 * RETURN_DELAY_UNIT_S
-        self._wire_free_s = -math.inf  # when the last packet sent is off the wire (computed)
 
     # -- port ------------------------------------------------------------
 
@@ -955,8 +957,8 @@ class ServoBus:
 
     def reply_wire_end(self, pending: PendingRead) -> float:
         """When (``time.monotonic``, s) a packet may go out behind ``pending``'s reply:
-        its computed wire end (``PendingRead.wire_end_s``) and ``WIRE_MARGIN_BYTES``."""
-        return pending.wire_end_s + self.wire_s(WIRE_MARGIN_BYTES)
+        its computed wire end (``PendingRead.wire_end_s``) and ``WIRE_MARGIN_S``."""
+        return pending.wire_end_s + WIRE_MARGIN_S
 
     def await_reply(self, pending: PendingRead, until_s: float) -> bool:
         """Wait (the GIL and the core free) until ``pending``'s reply bytes are all in, or

@@ -63,7 +63,7 @@ from trajgen.drivers.bringup import (
     joint_names_for,
     restore_settings,
 )
-from trajgen.drivers.bus import RETURN_DELAY_UNIT_S, WIRE_MARGIN_BYTES, ServoBus
+from trajgen.drivers.bus import RETURN_DELAY_UNIT_S, WIRE_MARGIN_S, ServoBus
 from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
 from trajgen.drivers.control_table import VOLTAGE_UNIT_V, WATCHDOG_UNIT_S, Register
 from trajgen.drivers.defaults import MAX_DELAY_S
@@ -647,7 +647,7 @@ class Streamer:
             self.bus.check_block(block, "probing the bus")
 
         read_bytes = self.bus.read_bytes(ids, _STATE, fast=self._use_fast)
-        read_wire_s = self.bus.reply_s(read_bytes + WIRE_MARGIN_BYTES)
+        read_wire_s = self.bus.reply_s(read_bytes) + WIRE_MARGIN_S
         cost = probe_cycle(read, write_s, self.probe_frames).with_read_wire(read_wire_s)
         stats.probe_write_s, stats.probe_read_s = cost.write_s, cost.read_s
         every = read_every_for(cost, period_s, self.telemetry_every)
@@ -936,7 +936,7 @@ class Streamer:
 
         On the wall clock a goal waits for the wire, not for the reply: a reply
         not in hand at the deadline whose computed wire end has passed (with
-        ``bus.WIRE_MARGIN_BYTES``; if not, the goal waits for it) is left
+        ``bus.WIRE_MARGIN_S``; if not, the goal waits for it) is left
         outstanding, the goal goes out behind it (``ServoBus.sync_write(behind=)``),
         and the reply is collected and checked right after it, exactly as
         before and before anything else is sent. The trade: a fault in that
@@ -1045,7 +1045,7 @@ class Streamer:
         wire (with margin)."""
         bus = self.bus
         at_once = sum(schedule.cost(r) for r in reads[:-1])
-        last = bus.reply_s(reads[-1].n_bytes) + bus.wire_s(WIRE_MARGIN_BYTES)
+        last = bus.reply_s(reads[-1].n_bytes) + WIRE_MARGIN_S
         return self.clock.now() + at_once + last <= until_s
 
     def _take(self, read, block, row, asked: float) -> None:

@@ -187,14 +187,14 @@ def test_ctrl_c_with_a_reply_outstanding_ends_in_the_stated_state(rig):
 
 
 def test_the_probe_judges_a_read_back_frame_by_its_wire_end():
-    # 1 kHz at 1 Mbps: goal 0.29 ms, read-back wire 0.74 ms (margin in), replies in hand
+    # 1 kHz at 1 Mbps: goal 0.29 ms, read-back wire 0.84 ms (0.15 ms margin in), replies in hand
     # 1.5 ms after the request (an adapter's latency): the next goal goes out behind them.
-    cost = CycleCost(2.9e-4, 1.5e-3, 50, (1.5e-3,) * 50, read_wire_s=0.74e-3)
+    cost = CycleCost(2.9e-4, 1.5e-3, 50, (1.5e-3,) * 50, read_wire_s=0.84e-3)
     assert read_every_for(cost, 1e-3) == 3  # the mean: 0.29 + 1.5 / 3 <= 0.8 ms
     # At 1.5 kHz a read-back frame is on the wire past the next deadline's stall bound.
     assert read_every_for(cost, 1 / 1500) is None
     # Replies later than 2.5 periods would stall the goal after next: refused.
-    assert read_every_for(CycleCost(2.9e-4, 2.4e-3, 50, read_wire_s=0.74e-3), 1e-3) is None
+    assert read_every_for(CycleCost(2.9e-4, 2.4e-3, 50, read_wire_s=0.84e-3), 1e-3) is None
 
 
 def test_deferred_reads_go_out_in_the_next_frame():

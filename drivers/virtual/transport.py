@@ -14,8 +14,6 @@ import select
 import time
 from dataclasses import dataclass
 
-from trajgen.drivers.clock import sleep_until
-
 from ..defaults import DEFAULT_BAUD
 
 # How long ``answer`` waits for bytes a client wrote to come through the pty (s):
@@ -232,7 +230,8 @@ class PtyTransport:
                 if self._host_bytes_before(t_min):
                     reply = self._collide(reply, t_min)
                 self._reply_end_s = t_min
-                sleep_until(t + self.timing.adapter_latency_s)
+                # Slept, not spun: a spin here would hold a core the host needs (2 cores).
+                time.sleep(max(0.0, t + self.timing.adapter_latency_s - time.monotonic()))
             if extra_s:
                 self._late_count += 1
                 heapq.heappush(self._late, (time.monotonic() + extra_s, self._late_count, reply))
