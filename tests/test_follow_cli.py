@@ -49,8 +49,9 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         '{"in": 0.7, "pan": -5, "mode": "extend"}',
     ]
 
-    def stream_time():
-        return seen["follower"].spline.committed if "follower" in seen else -1.0
+    def stream_time():  # the last frame streamed (the plan is another process's)
+        frames = seen["follower"]._frames if "follower" in seen else []
+        return frames[-1].t if frames else -1.0
 
     ended = threading.Event()
 
@@ -69,6 +70,10 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
                 pipe.flush()
                 due = stream_time() + 0.35
 
+    # The planner process (drivers/follow_process.py) is forked with a copy of every
+    # descriptor: its copy of the pipe's write end is closed, else it never sees the end.
+    planning = [True]
+    os.register_at_fork(after_in_child=lambda: planning and os.close(write_end))
     thread = threading.Thread(target=writer, daemon=True)
     thread.start()
     out = tmp_path / "follow.json"
@@ -91,6 +96,7 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     try:
         status = main([*argv, "--lead", "none"])
     finally:
+        planning.clear()
         ended.set()
         thread.join(timeout=5)
     assert status == 0, out.read_text() if out.exists() else "no report"
