@@ -390,8 +390,9 @@ def test_a_line_names_its_field_and_number(follower, line, message):
 
 
 def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
-    tmp_path, monkeypatch, capsys, rng
+    tmp_path, monkeypatch, capfd, rng
 ):
+    # capfd: the refusals are printed by the planner process, on the descriptor it shares
     import io
 
     lines = rng.integers(0, 256, 3000, dtype=np.uint8).tobytes().replace(b"\n", b" ") + b"\n"
@@ -403,7 +404,7 @@ def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
     keys = tmp_path / "keys.toml"
     keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nconfigure = true\n")
     assert main(["follow", str(keys), "--virtual", "--json", str(out)]) == 0
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert "trajgen follow: stdin: line 1: not UTF-8 text" in err
     assert "trajgen follow: stdin: line 2: longer than 65536 bytes" in err
     result = json.loads(out.read_text())["follow"]

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from trajgen.drivers.config import BusConfig
+from trajgen.drivers.follow_process import PLANNER_NAME
 from trajgen.drivers.session import HOLDING, Session
 from trajgen.drivers.virtual.plant import FirstOrderPlant
 from trajgen.follower import Follower
@@ -22,6 +23,7 @@ from trajgen.stream import JointFrame
 
 RATE_HZ = 100.0
 HALF = 0.5 / RATE_HZ
+NAME = PLANNER_NAME + b"\n"
 TIMEOUT_S = 60.0  # generous: each wait ends as soon as its condition holds
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="the planner is forked")
@@ -175,14 +177,12 @@ def start_follow(tmp_path):
 
 
 def planner_of(pid: int) -> list[int]:
-    """The children of ``pid`` that are forks of it (its command line), not commands
-    it runs (a library's probe, say)."""
-    own = Path(f"/proc/{pid}/cmdline").read_bytes()
+    """The children of ``pid`` named as the planner (``PLANNER_NAME``)."""
     pids = []
     for task in Path(f"/proc/{pid}/task").iterdir():
         try:
             children = [int(p) for p in (task / "children").read_text().split()]
-            pids += [c for c in children if Path(f"/proc/{c}/cmdline").read_bytes() == own]
+            pids += [c for c in children if Path(f"/proc/{c}/comm").read_bytes() == NAME]
         except FileNotFoundError:  # a thread or a child that just ended
             pass
     return pids
