@@ -84,10 +84,11 @@ class PlannedFrames:
         self._times: list[float] = []  # time.monotonic() each frame left the iterator
         self._done = False
         self._conn, write = _pipe()
+        parent = os.getpid()
         self.pid = os.fork()
         if self.pid == 0:  # the planner
             self._conn.close()
-            _plan(follower, lines, start, lead, self.ring, write)  # never returns
+            _plan(follower, lines, start, lead, self.ring, write, parent)  # never returns
         write.close()
 
     def __iter__(self):
@@ -187,18 +188,38 @@ def _pipe():
     return Pipe(duplex=False)
 
 
+#: The planner's name in ``ps`` and ``/proc/PID/comm`` (Linux).
+PLANNER_NAME = b"trajgen-plan"
+
+
+def _name_and_tie(parent: int) -> None:
+    """On Linux: name this process ``PLANNER_NAME`` and have the kernel send it SIGTERM
+    when the stream's thread that forked it ends (``prctl``); elsewhere nothing (the
+    planner then notices its parent gone while it waits for room in the ring)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(15, PLANNER_NAME, 0, 0, 0)  # PR_SET_NAME
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 #: What the planner's Follower hands back at the end (attributes of ``Follower``).
 RECORDS = ("keyframes", "skipped", "change_costs_s", "change_steps_s", "arrivals", "fault")
 
 
-def _plan(follower, lines, start, lead, ring: FrameRing, conn) -> None:
+def _plan(follower, lines, start, lead, ring: FrameRing, conn, parent: int) -> None:
     """The planner process: the follower's frames into ``ring`` until they end, the
     stream's process stops it (``FrameRing.stop``) or goes away; then its records to
     ``conn``, and exit (``os._exit``: nothing of the parent's runs here at exit)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the stream's to handle
     for s in STOP_SIGNALS[1:]:
         signal.signal(s, signal.SIG_DFL)  # the stream's process may terminate this one
-    parent = os.getppid()
+    _name_and_tie(parent)
+    if os.getppid() != parent:  # gone before the tie was made
+        os._exit(1)
     status = 0
     try:
         follower.step_share = math.inf  # each change whole: no stream waits on this thread

@@ -323,7 +323,7 @@ class Session:
             outcome.signal = signals.received
         return outcome
 
-    def follow(self, follower, lines, *, clock=None, process: bool = False) -> Outcome:
+    def follow(self, follower, lines, *, clock=None, process: bool = True) -> Outcome:
         """Stream a follower's plan while keyframe lines change it.
 
         Bring-up checks where the stream starts and the whole range the

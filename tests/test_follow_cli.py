@@ -49,8 +49,9 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
         '{"in": 0.7, "pan": -5, "mode": "extend"}',
     ]
 
-    def stream_time():
-        return seen["follower"].spline.committed if "follower" in seen else -1.0
+    def stream_time():  # the last frame streamed (the plan is another process's)
+        frames = seen["follower"]._frames if "follower" in seen else []
+        return frames[-1].t if frames else -1.0
 
     ended = threading.Event()
 
@@ -69,6 +70,10 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
                 pipe.flush()
                 due = stream_time() + 0.35
 
+    # The planner process (drivers/follow_process.py) is forked with a copy of every
+    # descriptor: its copy of the pipe's write end is closed, else it never sees the end.
+    planning = [True]
+    os.register_at_fork(after_in_child=lambda: planning and os.close(write_end))
     thread = threading.Thread(target=writer, daemon=True)
     thread.start()
     out = tmp_path / "follow.json"
@@ -91,6 +96,7 @@ def test_follow_virtual_with_lines_on_a_pipe(monkeypatch, tmp_path):
     try:
         status = main([*argv, "--lead", "none"])
     finally:
+        planning.clear()
         ended.set()
         thread.join(timeout=5)
     assert status == 0, out.read_text() if out.exists() else "no report"
@@ -384,8 +390,9 @@ def test_a_line_names_its_field_and_number(follower, line, message):
 
 
 def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
-    tmp_path, monkeypatch, capsys, rng
+    tmp_path, monkeypatch, capfd, rng
 ):
+    # capfd: the refusals are printed by the planner process, on the descriptor it shares
     import io
 
     lines = rng.integers(0, 256, 3000, dtype=np.uint8).tobytes().replace(b"\n", b" ") + b"\n"
@@ -397,7 +404,7 @@ def test_follow_command_skips_noise_on_stdin_and_follows_the_good_lines(
     keys = tmp_path / "keys.toml"
     keys.write_text(BUILTIN_EXAMPLE.read_text() + "\n[bus]\nconfigure = true\n")
     assert main(["follow", str(keys), "--virtual", "--json", str(out)]) == 0
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert "trajgen follow: stdin: line 1: not UTF-8 text" in err
     assert "trajgen follow: stdin: line 2: longer than 65536 bytes" in err
     result = json.loads(out.read_text())["follow"]
