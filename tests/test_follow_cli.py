@@ -259,7 +259,7 @@ def test_a_line_is_built_between_frames_by_the_streaming_thread(follower, monkey
     """While the stream runs, feed() parses the line and waits: the change is built
     and checked in steps, one per frame (no share of a period for more), by the
     thread that takes the frames."""
-    monkeypatch.setattr(follow, "STEP_SHARE", 0.0)
+    monkeypatch.setattr(follower, "step_share", 0.0)
     frames = follower.frames()
     next(frames)
     fed = threading.Thread(target=follower.feed, args=('{"in": 0.6, "pan": 10}', 1))
