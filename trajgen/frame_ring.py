@@ -15,6 +15,7 @@ import mmap
 
 import numpy as np
 
+from .errors import BadArgument
 from .stream import JointFrame
 
 # counters (int64): frames put, frames taken (the producer's), the consumer's
@@ -41,7 +42,7 @@ class FrameRing:
 
     def __init__(self, n_joints: int, capacity: int, *, goals: bool):
         if capacity < 1:
-            raise ValueError(f"Expected a capacity of at least 1, got {capacity}.")
+            raise BadArgument(f"Expected a capacity of at least 1, got {capacity}.")
         self.n_joints, self.capacity, self.goals = int(n_joints), int(capacity), bool(goals)
         # per slot: sequence number (k + 1 once frame k is in it), index, t, q, qd, qdd, goal
         self._width = 3 + 4 * self.n_joints
