@@ -11,6 +11,7 @@ frame carries more wire than its budget, while the status poll still runs.
 
 import numpy as np
 import pytest
+from conftest import quintic_trajectory
 
 from trajgen.drivers.bringup import bring_up
 from trajgen.drivers.clock import SimulatedClock
@@ -23,7 +24,6 @@ from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import Fault, VirtualBus
 from trajgen.drivers.virtual.clocked import ClockedBus
 from trajgen.drivers.virtual.plant import FirstOrderPlant
-from trajgen.stream import JointTrajectory
 
 MODELS = ("XM430-W350",) * 3
 IDS = (1, 2, 3)
@@ -32,10 +32,7 @@ STATE_ADDRESS = 126
 
 
 def _ramp(rate_hz, duration_s=0.3, q_end=(0.2, 0.1, 0.0)):
-    t = np.arange(round(duration_s * rate_hz) + 1) / rate_hz
-    s = (t / duration_s)[:, None]
-    q = (10 * s**3 - 15 * s**4 + 6 * s**5) * np.asarray(q_end)
-    return JointTrajectory(t, q, np.gradient(q, t, axis=0), np.zeros_like(q), rate_hz)
+    return quintic_trajectory(q_end, duration_s, rate_hz)
 
 
 @pytest.fixture

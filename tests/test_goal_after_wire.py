@@ -14,8 +14,8 @@ every read-back reply out of the host's hands until after the next deadline,
 so that every read-back frame's next goal goes out behind its reply.
 """
 
-import numpy as np
 import pytest
+from conftest import quintic_trajectory
 
 from trajgen.drivers.bringup import bring_up
 from trajgen.drivers.bus import ServoBus
@@ -27,7 +27,6 @@ from trajgen.drivers.streamer import Streamer
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import Fault, VirtualBus, WireTiming
 from trajgen.drivers.virtual.plant import FirstOrderPlant
-from trajgen.stream import JointTrajectory
 
 MODELS = ("XM430-W350",) * 3
 IDS = (1, 2, 3)
@@ -40,10 +39,7 @@ LATENCY_MS = 100
 
 
 def _ramp(rate_hz, duration_s=0.3, q_end=(0.2, 0.1, 0.0)):
-    t = np.arange(round(duration_s * rate_hz) + 1) / rate_hz
-    s = (t / duration_s)[:, None]
-    q = (10 * s**3 - 15 * s**4 + 6 * s**5) * np.asarray(q_end)
-    return JointTrajectory(t, q, np.gradient(q, t, axis=0), np.zeros_like(q), rate_hz)
+    return quintic_trajectory(q_end, duration_s, rate_hz)
 
 
 @pytest.fixture

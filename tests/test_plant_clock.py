@@ -55,14 +55,12 @@ def test_catch_up_after_a_stall_is_bounded_and_ends(phase_s):
     assert wall.lag.max_s >= stall_s
 
 
-def _glitch_check(reads, speed_rad_s):
-    """The streamer's own glitch check (``Streamer._plausible``) over a servo moving at
-    ``speed_rad_s`` on the simulated time of ``reads``: the glitches it counted, and
-    the ``ServoError`` it raised (or None)."""
+def _fake_streamer():
+    """What ``Streamer._plausible`` uses of its streamer: one pan servo of no-load speed V0."""
     joints = types.SimpleNamespace(
         to_rad=lambda ticks: np.asarray(ticks, dtype=float) * (2 * np.pi / 4096), ids=[1]
     )
-    fake = types.SimpleNamespace(
+    return types.SimpleNamespace(
         joints=joints,
         joint_names=["pan"],
         _last_position=None,
@@ -72,6 +70,13 @@ def _glitch_check(reads, speed_rad_s):
         _frame_no=0,
         _warn=lambda message: None,
     )
+
+
+def _glitch_check(reads, speed_rad_s):
+    """The streamer's own glitch check (``Streamer._plausible``) over a servo moving at
+    ``speed_rad_s`` on the simulated time of ``reads``: the glitches it counted, and
+    the ``ServoError`` it raised (or None)."""
+    fake = _fake_streamer()
     for k, (read_s, sim_s) in enumerate(reads):
         fake._frame_no = k
         ticks = rad_to_servo_ticks(np.array([speed_rad_s * sim_s]))
@@ -202,19 +207,7 @@ def test_one_rejected_read_never_turns_a_moving_servo_into_an_encoder_fault():
     (before, the reference time moved to the rejected read while its position stayed,
     and the next two reads were rejected too: an "encoder fault")."""
     speed = 0.9 * streamer.GLITCH_SPEED_FACTOR * V0
-    joints = types.SimpleNamespace(
-        to_rad=lambda ticks: np.asarray(ticks, dtype=float) * (2 * np.pi / 4096), ids=[1]
-    )
-    fake = types.SimpleNamespace(
-        joints=joints,
-        joint_names=["pan"],
-        _last_position=None,
-        _max_speed=np.array([streamer.GLITCH_SPEED_FACTOR * V0]),
-        _glitches=np.zeros(1, dtype=int),
-        stats=types.SimpleNamespace(position_glitches=0),
-        _frame_no=0,
-        _warn=lambda message: None,
-    )
+    fake = _fake_streamer()
     seen = []
     for k in range(40):
         t = 1e-3 * k
