@@ -55,11 +55,12 @@ from trajgen.drivers.streamer import Streamer
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import VirtualBus, WireTiming
 from trajgen.drivers.virtual.plant import FirstOrderPlant
+from trajgen.servo_table import TURNAROUND_S
 from trajgen.stream import JointTrajectory
 
 SYNC_WRITE_B, READ_REQUEST_B, FAST_REPLY_B = 29, 17, 50
 STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
-PEER_READS, PEER_GAP_S, TURNAROUND_S = 200, 2e-3, 20e-6
+PEER_READS, PEER_GAP_S = 200, 2e-3
 
 
 def trajectory(rate_hz: float, seconds: float) -> JointTrajectory:

@@ -60,6 +60,7 @@ from trajgen.drivers.control_table import (
     MODE_RESETS,
     OPERATING_MODE_NAMES,
     POSITION_MODE,
+    RETURN_DELAY_UNIT_S,
     SECONDARY_ID_OFF,
     VOLTAGE_UNIT_V,
     WATCHDOG_UNIT_S,
@@ -728,10 +729,10 @@ def plan_changes(
             change(Register.MAX_POSITION_LIMIT, servo.max_limit, limits[1], "--set-limits")
         if servo.return_delay:
             if configure:
-                why = f"every reply waits {2 * servo.return_delay} us first; 0 answers at once"
+                why = f"every reply waits {_return_delay_us(servo)} us first; 0 answers at once"
                 change(Register.RETURN_DELAY_TIME, servo.return_delay, 0, why)
             else:
-                slow.append(f"{i}: {servo.return_delay} ({2 * servo.return_delay} us)")
+                slow.append(f"{i}: {servo.return_delay} ({_return_delay_us(servo)} us)")
         for register, old in (
             (Register.PROFILE_ACCELERATION, servo.profile_acceleration),
             (Register.PROFILE_VELOCITY, servo.profile_velocity),
@@ -1093,3 +1094,8 @@ def restore_settings(bus: ServoBus, changes: Sequence[Change]) -> list[str]:
         except DriverError as e:
             problems.append(f"{where}: {e}")
     return problems
+
+
+def _return_delay_us(servo) -> int:
+    """A servo's Return Delay Time as read, in us."""
+    return round(servo.return_delay * RETURN_DELAY_UNIT_S * 1e6)

@@ -46,7 +46,9 @@ from dataclasses import dataclass
 
 from trajgen.drivers.clock import sleep_until
 from trajgen.drivers.control_table import (
+    RETURN_DELAY_UNIT_S,
     SIGNED,
+    X_SERIES_RULES,
     Model,
     Register,
     describe_hardware_error,
@@ -57,6 +59,7 @@ from trajgen.drivers.errors import CommError, ServoError
 from trajgen.drivers.frame_packets import FastSyncReadPacket, SyncWritePacket, frame_status
 from trajgen.drivers.protocol import ALERT_BIT, StatusError
 from trajgen.drivers.units import to_signed, to_unsigned
+from trajgen.servo_table import TURNAROUND_S
 from trajgen.validate import check_number
 
 from .errors import BadArgument
@@ -80,16 +83,11 @@ _STATUS_LENGTH_NO_DATA = 4
 # The SDK's result codes (dynamixel_sdk.robotis_def), for the frame packets' own path.
 _COMM_SUCCESS, _COMM_TX_FAIL, _COMM_RX_TIMEOUT, _COMM_RX_CORRUPT = 0, -1001, -3001, -3002
 _RX_MAX_LENGTH = 1024  # the SDK's RXPACKET_MAX_LEN (Protocol 2.0)
-#: A servo's processing time (s) between a request's last byte and its Return Delay Time
-#: (e-Manual: some tens of us; the virtual bus's ``WireTiming.turnaround_s`` is 20 us).
-TURNAROUND_S = 20e-6
 #: Added to a reply's computed wire end before a packet may go out behind it
 #: (``sync_write(behind=...)``), s: the request reaching the wire later than it was
 #: written (a USB adapter sends in 125 us microframes at high speed; a pty's kernel
 #: work can wait behind the load) and a servo answering a little later than computed.
 WIRE_MARGIN_S = 150e-6
-#: A Return Delay Time register unit (s): 2 us.
-RETURN_DELAY_UNIT_S = 2e-6
 
 
 def _make_port(port_name: str, latency_ms: float, responder=None):
@@ -479,7 +477,7 @@ class ServoBus:
         self._ph = None
         self._frame_packets: dict[tuple, object] = {}  # laid-out packets, by servos and registers
         self._pending: PendingRead | None = None  # a split-phase read whose reply is out
-        self.return_delay_s = 254 * RETURN_DELAY_UNIT_S
+        self.return_delay_s = X_SERIES_RULES["Return Delay Time"].high * RETURN_DELAY_UNIT_S
 
     # -- port ------------------------------------------------------------
 

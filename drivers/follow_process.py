@@ -28,6 +28,7 @@ import numpy as np
 from trajgen.frame_ring import FrameRing, RingEmpty
 
 from .errors import DriverError
+from .priority import PLANNER_FIFO_PRIORITY, claim_core
 from .signals import STOP_SIGNALS
 
 #: How far (s) the planner runs ahead of the frame being streamed: room for a change's
@@ -206,18 +207,6 @@ def _name_and_tie(parent: int) -> None:
         pass
 
 
-def _raise_planner() -> None:
-    """This thread to ``SCHED_FIFO`` one below the stream's (``drivers.priority``), where
-    permitted: the stream preempts it, the host's other work does not starve the ring
-    (the reading thread it starts keeps the normal class: ``SCHED_RESET_ON_FORK``)."""
-    from .priority import FIFO_PRIORITY, _raise
-
-    try:
-        _raise(0, FIFO_PRIORITY - 1)
-    except (OSError, AttributeError):
-        pass  # not permitted: the normal class, as the rest of the host
-
-
 #: What the planner's Follower hands back at the end (attributes of ``Follower``).
 RECORDS = ("keyframes", "skipped", "change_costs_s", "change_steps_s", "arrivals", "fault")
 
@@ -230,7 +219,9 @@ def _plan(follower, lines, start, lead, ring: FrameRing, conn, parent: int) -> N
     for s in STOP_SIGNALS[1:]:
         signal.signal(s, signal.SIG_DFL)  # the stream's process may terminate this one
     _name_and_tie(parent)
-    _raise_planner()
+    # The stream preempts it; the host's other work does not starve the ring (the reading
+    # thread it starts keeps the normal class: SCHED_RESET_ON_FORK). Not permitted: as is.
+    claim_core(PLANNER_FIFO_PRIORITY)
     if os.getppid() != parent:  # gone before the tie was made
         os._exit(1)
     status = 0

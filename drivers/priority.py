@@ -26,9 +26,10 @@ from collections.abc import Iterator
 # The stream thread's real-time priority (1..99): low, above every normal process,
 # below the kernel's own real-time threads.
 FIFO_PRIORITY = 10
-# The virtual bus's plant in its own process (``drivers.virtual.process``): just below
-# the stream and the bus's serving thread, above every normal process.
-PLANT_FIFO_PRIORITY = FIFO_PRIORITY - 1
+# Helper processes that must keep time but yield to the stream: just below the stream
+# and the virtual bus's serving thread, above every normal process. The virtual bus's
+# plant (``drivers.virtual.process``) and ``follow``'s planner (``drivers.follow_process``).
+PLANT_FIFO_PRIORITY = PLANNER_FIFO_PRIORITY = FIFO_PRIORITY - 1
 # The GIL switch interval while streaming (s): a waking stream thread waits at most
 # about this long for another thread to hand the GIL over.
 SWITCH_INTERVAL_S = 5e-4

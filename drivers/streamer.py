@@ -63,9 +63,14 @@ from trajgen.drivers.bringup import (
     joint_names_for,
     restore_settings,
 )
-from trajgen.drivers.bus import RETURN_DELAY_UNIT_S, WIRE_MARGIN_S, ServoBus
+from trajgen.drivers.bus import WIRE_MARGIN_S, ServoBus
 from trajgen.drivers.clock import WALL_CLOCK, SimulatedClock
-from trajgen.drivers.control_table import VOLTAGE_UNIT_V, WATCHDOG_UNIT_S, Register
+from trajgen.drivers.control_table import (
+    RETURN_DELAY_UNIT_S,
+    VOLTAGE_UNIT_V,
+    WATCHDOG_UNIT_S,
+    Register,
+)
 from trajgen.drivers.defaults import MAX_DELAY_S
 from trajgen.drivers.errors import (
     BringUpError,

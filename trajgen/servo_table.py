@@ -55,6 +55,11 @@ D_DIVISOR = 16.0
 LOAD_UNIT = 0.001
 #: Bus Watchdog (98) unit: 20 ms.
 WATCHDOG_UNIT_S = 0.020
+#: Return Delay Time's unit (s): 2 us ("Return Delay Time(9)": 0..254, up to 508 us).
+RETURN_DELAY_UNIT_S = 2e-6
+#: A servo's processing time (s) between a request's last byte and its Return Delay
+#: Time (e-Manual: some tens of us), as the driver assumes it and the virtual bus has it.
+TURNAROUND_S = 20e-6
 #: Baud Rate (8) register value -> bit/s ("Baud Rate(8)"); the 330 series stops at 6 (4 Mbps).
 BAUD_RATES = MappingProxyType(
     {

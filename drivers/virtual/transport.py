@@ -14,6 +14,9 @@ import select
 import time
 from dataclasses import dataclass
 
+from trajgen.servo_table import TURNAROUND_S
+
+from ..control_table import RETURN_DELAY_UNIT_S
 from ..defaults import DEFAULT_BAUD
 
 # How long ``answer`` waits for bytes a client wrote to come through the pty (s):
@@ -40,7 +43,7 @@ class WireTiming:
 
     baud: int = DEFAULT_BAUD
     adapter_latency_s: float = 0.0
-    turnaround_s: float = 20e-6
+    turnaround_s: float = TURNAROUND_S
 
     @property
     def byte_time_s(self) -> float:
@@ -224,7 +227,7 @@ class PtyTransport:
         for servo_id, reply, extra_s, late_s in replies:
             if self.timing is not None:
                 servo = self.servos.get(servo_id)
-                delay = 2e-6 * servo.get("Return Delay Time") if servo else 0.0
+                delay = RETURN_DELAY_UNIT_S * servo.get("Return Delay Time") if servo else 0.0
                 on_wire_s = self.timing.turnaround_s + delay + late_s + len(reply) * byte_s
                 t, t_min = t + on_wire_s, t_min + on_wire_s
                 if self._host_bytes_before(t_min):
