@@ -900,17 +900,26 @@ class Streamer:
         On the wall clock a frame's goal write and reads fit ``BUDGET`` of its
         period: each read costs its wire time and what the probe found the
         host and adapter add to a read (``stats.probe_read_s`` less the state
-        read's wire time); the polls go in parts where needed. On a simulated
-        clock time is not short: every read due goes in its frame.
+        read's wire time); the polls go in parts where needed. A part fits
+        where its bytes do: where goals go out behind a reply (a wire, not
+        lock-step: ``_loop``), the bytes whose reply leaves the wire, with
+        ``WIRE_MARGIN_S``, before the next deadline (the host's time for a
+        read then delays the reply's check, not the next goal); otherwise those
+        of the budget less that time. On a simulated clock time is not short:
+        every read due goes in its frame.
         """
         ids, bus, fast, stats = self.joints.ids, self.bus, self._use_fast, self.stats
-        room_s = math.inf
+        room_s = part_s = math.inf  # a frame's time for reads, and for one read's bytes (s)
         extra_s = 0.0  # what a read costs besides its wire time (s)
         if self.clock.real_time:
-            room_s = BUDGET * period_s - bus.wire_s(sync_write_bytes(len(ids), 4))
+            goal_s = bus.wire_s(sync_write_bytes(len(ids), 4))
+            room_s = BUDGET * period_s - goal_s
             if not math.isnan(stats.probe_read_s):
                 wire_s = bus.wire_s(bus.read_bytes(ids, _STATE, fast=fast))
                 extra_s = max(0.0, stats.probe_read_s - wire_s)
+            part_s = room_s - extra_s
+            if not bus.lockstep:
+                part_s = max(part_s, period_s - goal_s - bus.reply_s(0) - WIRE_MARGIN_S)
 
         def size(part_ids, registers):
             return bus.read_bytes(part_ids, registers, fast=fast)
@@ -918,7 +927,7 @@ class Streamer:
         def cost(read):
             return bus.wire_s(read.n_bytes) + extra_s
 
-        room_b = (room_s - extra_s) * bus.baud / 10  # bytes of one read that fit
+        room_b = part_s * bus.baud / 10  # bytes of one read that fit
         return FrameReads(
             Read("state", ids, _STATE, size(ids, _STATE)),  # never split: the probe's part
             parts("status", ids, _STATUS, size, room_b),

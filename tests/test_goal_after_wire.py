@@ -18,12 +18,13 @@ import pytest
 from conftest import quintic_trajectory
 
 from trajgen.drivers.bringup import bring_up
-from trajgen.drivers.bus import ServoBus
+from trajgen.drivers.bus import WIRE_MARGIN_S, ServoBus
 from trajgen.drivers.control_table import Register
 from trajgen.drivers.errors import CommError
+from trajgen.drivers.frame_packets import sync_write_bytes
 from trajgen.drivers.frame_reads import FrameReads, Read
 from trajgen.drivers.probe import CycleCost, read_every_for
-from trajgen.drivers.streamer import Streamer
+from trajgen.drivers.streamer import Streamer, StreamStats
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import Fault, VirtualBus, WireTiming
 from trajgen.drivers.virtual.plant import FirstOrderPlant
@@ -31,6 +32,7 @@ from trajgen.drivers.virtual.plant import FirstOrderPlant
 MODELS = ("XM430-W350",) * 3
 IDS = (1, 2, 3)
 STATE_ADDRESS = 126
+STATE = (Register.PRESENT_CURRENT, Register.PRESENT_VELOCITY, Register.PRESENT_POSITION)
 BAUD = 1_000_000
 ADAPTER_LATENCY_S = 0.3e-3
 # Reply timeouts of about 200 ms and a Bus Watchdog of 1 s: a busy host's stalls (this
@@ -211,3 +213,28 @@ def test_deferred_reads_go_out_in_the_next_frame():
     assert reads.for_frame(6) == [state]
     assert reads.for_frame(7) == [status[2], status[0]]  # and the next poll's first part
     assert reads.deferred == 3
+
+
+def test_poll_parts_fit_the_wire_before_the_next_deadline_whatever_the_host_adds(rig):
+    # 1 kHz at 1 Mbps, a read-back in hand 0.3 ms after its wire time (the pty's figure
+    # here): where goals go out behind a reply, a status poll part need only be off the
+    # wire, with margin, before the next deadline. Laid out by wire and host time (the
+    # old rule), no part fitted: the whole poll (142 bytes, 1.42 ms) went in one frame
+    # and made the next goal a stall every 50 frames.
+    _, bus, _, streamer = rig()
+    bus.return_delay_s = 0.0  # bring-up's Return Delay 0, as the stream reads it at its start
+    streamer.stats = StreamStats(rate_hz=1000.0, frames_planned=1)
+    state_wire_s = bus.wire_s(bus.read_bytes(IDS, STATE))
+    streamer.stats.probe_read_s = state_wire_s + 0.3e-3
+    layout = streamer._frame_reads(1e-3)
+    goal_s = bus.wire_s(sync_write_bytes(len(IDS), 4))
+    status = {r for part in layout.status for r in part.registers}
+    assert status == {Register.TORQUE_ENABLE, Register.HARDWARE_ERROR_STATUS, Register.BUS_WATCHDOG}
+    assert len(layout.status) == 3  # a register at a time
+    for part in (*layout.status, *layout.health):
+        wire_end_s = goal_s + bus.wire_s(part.n_bytes) + bus.reply_s(0) + WIRE_MARGIN_S
+        assert wire_end_s <= 1e-3
+    # A lock-step bus (every reply in hand before the next packet) keeps the host's time
+    # in a part's room: there the poll stays whole.
+    bus.lockstep = True
+    assert len(streamer._frame_reads(1e-3).status) == 1

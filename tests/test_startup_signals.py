@@ -8,6 +8,7 @@ load, or once the command runs. The interpreter's own start-up before that
 measures it (docs/cli.md).
 """
 
+import json
 import re
 import signal
 import subprocess
@@ -73,7 +74,15 @@ def test_ctrl_c_at_start_up_is_exit_130_and_one_line(command, delay_ms, tmp_path
     assert re.fullmatch(
         rf"trajgen(: interrupted while starting|( {command})?: interrupted)", lines[0]
     )
-    assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing half written
+    # Nothing half written: no file, or (once `sim` runs: its --json is "the report, on
+    # Ctrl-C what was done so far") the whole interrupted report, said on stdout.
+    if command == "sim" and out.exists():
+        report = json.loads(out.read_text())
+        assert report["interrupted"] is True and report["ok"] is None
+        assert f"json: {out}" in stdout
+        assert list(tmp_path.iterdir()) == [out]
+    else:
+        assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
 def test_the_entry_point_gives_the_handlers_back_when_it_returns(monkeypatch):
