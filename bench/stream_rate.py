@@ -15,17 +15,23 @@ refuse a rate this host cannot keep: that row then holds its message.
 ``--telemetry csv`` also writes each stream's CSV telemetry (one row a frame).
 
 Each frame's read goes out split-phase (its request after the goal, its reply
-collected before the next goal) and the polls in parts that fit a frame
+collected before the next goal, or behind it and the next few up to
+``REPLY_WAIT_S`` past its wire end) and the polls in parts that fit a frame
 (``drivers.frame_reads``). Peer, measured in the same run just before each
 stream, on the same pty and emulator: 200 state reads at once, paced 2 ms
 apart at the stream's priority, and what each took beyond its wire time
 (request and reply bytes, 20 us turnaround): what the pty, the emulator and
 the host add to every read (a frame whose reply comes more than half a period
-late stalls).
+late stalls). Second peer, the host alone, for as long as the stream: a loop at
+the stream's priority that only waits for each deadline, its clock shifted by
+the stream's stall rule: the rate this host keeps with no bus at all.
 
 Prints a markdown table: achieved rate, period error p50 / p99 / max, overruns,
 stalls (and of them, those of frames that woke on time and waited for the last
-read's reply), state reads given to polls, communication errors, bytes per
+read's reply), state reads given to polls, goals sent behind a reply not in
+hand yet (and of them, those after which the reply was still out and carried to
+the next frame), the longest a reply a goal went behind was checked after its
+computed wire end, deferred reads, collisions, communication errors, bytes per
 cycle on the wire against the minimum from docs/dynamixel.md (sync write 29 B
 + fast sync read 17 + 50 B every N frames), the peer's figures, and the
 machine load beside each row.
@@ -99,6 +105,27 @@ def read_beyond_wire(bus: ServoBus, ids, baud: int) -> tuple[float, float]:
     return float(p50), float(p99)
 
 
+def host_alone(rate_hz: float, seconds: float) -> tuple[float, int]:
+    """The host's own floor: a loop at the stream's priority that only waits for each
+    deadline, shifting its clock as the stream does where it wakes more than half a
+    period late; returns its achieved rate (Hz) and those stalls."""
+    period = 1.0 / rate_hz
+    frames = round(seconds * rate_hz) + 1
+    stalls, shift = 0, 0.0
+    with stream_priority():
+        start = time.monotonic() + period
+        for k in range(frames):
+            due = start + k * period + shift
+            sleep_until(due)
+            now = time.monotonic()
+            if k == 0:
+                first = now
+            if now - due > 0.5 * period:
+                stalls += 1
+                shift += now - due
+    return rate_hz * (frames - 1) * period / (now - first), stalls
+
+
 def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: str | None) -> dict:
     """Stream once; returns the row of the table."""
     traj = trajectory(rate_hz, seconds)
@@ -108,6 +135,7 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
     server.start()
     try:
         port = conn.recv()
+        alone = host_alone(rate_hz, seconds)  # before bring-up sets the Bus Watchdog
         with ServoBus(port, baud=baud) as bus, tempfile.TemporaryDirectory() as tmp:
             bring_up(bus, joints, ("XM430-W350",) * 3, traj, configure=True)  # Return Delay 0
             peer = read_beyond_wire(bus, joints.ids, baud)
@@ -136,8 +164,11 @@ def run(rate_hz: float, baud: int, read_every: int, seconds: float, telemetry: s
         "skipped": stats.reads_skipped,
         "deferred": stats.reads_deferred,
         "behind": stats.goals_behind,
+        "carried": stats.replies_carried,
+        "checked": stats.reply_check_max_s,
         "collisions": int(collisions),
         "peer": peer,
+        "alone": alone,
         "frames": stats.frames_sent,
         "comm": stats.comm_errors,
         "bytes": wire / stats.frames_sent,
@@ -162,11 +193,13 @@ def main() -> None:
     print()
     print(
         "| rate Hz | baud | read every | achieved Hz | p50 ms | p99 ms | max ms | overruns "
-        "| stalls (waiting for a reply) | reads given to polls | goals behind a reply "
+        "| stalls (waiting for a reply) | reads given to polls "
+        "| goals behind a reply (carried a frame) | a reply checked after its wire end, max ms "
         "| reads deferred | collisions | comm errors | bytes/cycle "
-        "| minimum | peer: a read beyond its wire, p50 / p99 ms | load |"
+        "| minimum | peer: a read beyond its wire, p50 / p99 ms "
+        "| peer: the host alone, Hz (stalls) | achieved / host alone | load |"
     )
-    print("|---" * 18 + "|")
+    print("|---" * 21 + "|")
     for rate in args.rates:
         for baud in (1_000_000, 4_000_000):
             for every in (1, 10):
@@ -182,9 +215,12 @@ def main() -> None:
                     f"| {r['achieved']:.1f} | {1e3 * r['p50']:.3f} | {1e3 * r['p99']:.3f} "
                     f"| {1e3 * r['max']:.3f} | {r['overruns']}/{r['frames']} "
                     f"| {r['stalls']} ({r['reply_stalls']}) | {r['skipped']} "
-                    f"| {r['behind']} | {r['deferred']} | {r['collisions']} | {r['comm']} "
+                    f"| {r['behind']} ({r['carried']}) | {1e3 * r['checked']:.2f} "
+                    f"| {r['deferred']} | {r['collisions']} | {r['comm']} "
                     f"| {r['bytes']:.1f} | {r['minimum']:.1f} "
                     f"| {1e3 * r['peer'][0]:.2f} / {1e3 * r['peer'][1]:.2f} "
+                    f"| {r['alone'][0]:.1f} ({r['alone'][1]}) "
+                    f"| {r['achieved'] / r['alone'][0]:.3f} "
                     f"| {os.getloadavg()[0]:.1f} |",
                     flush=True,
                 )

@@ -90,7 +90,7 @@ from trajgen.drivers.probe import (
     BUDGET,
     MAX_READ_EVERY,
     PROBE_FRAMES,
-    STALL_PERIODS,
+    REPLY_WAIT_S,
     max_rate_hz,
     probe_cycle,
     read_every_for,
@@ -196,6 +196,12 @@ class StreamStats:
         Goals sent while the last frame's read reply was not in hand yet, its
         wire end past (wall clock; ``Streamer._loop``): that reply was checked
         right after the goal.
+    replies_carried : int
+        Times such a reply was still not in after its goal and was carried to
+        the next frame (at most ``REPLY_WAIT_S`` past its wire end).
+    reply_check_max_s : float
+        Longest from the computed wire end of a reply a goal went out behind to
+        its check (s; 0 if none): how late a fault in it was acted on.
     stall_max_s : float
         Longest stall (s): the largest single shift.
     delay_s : float
@@ -248,6 +254,8 @@ class StreamStats:
     stalls: int = 0
     reply_stalls: int = 0
     goals_behind: int = 0
+    replies_carried: int = 0
+    reply_check_max_s: float = 0.0
     stall_max_s: float = 0.0
     delay_s: float = 0.0
     reads: int = 0
@@ -321,6 +329,12 @@ class StreamStats:
             + (f"; {self.reads_skipped} given to polls" if self.reads_skipped else "")
             + (f"; {self.reads_deferred} deferred a frame" if self.reads_deferred else "")
             + (f"; {self.goals_behind} goals sent behind a reply" if self.goals_behind else "")
+            + (
+                f", {self.replies_carried} carried a frame, checked at most "
+                f"{ms(self.reply_check_max_s)} after its wire end"
+                if self.goals_behind
+                else ""
+            )
             + f"); comm errors: {self.comm_errors}",
         ]
         if not math.isnan(self.probe_write_s):
@@ -525,6 +539,7 @@ class Streamer:
         self.probe_frames = probe_frames
         self.realtime = bool(realtime)
         self.stats: StreamStats | None = None
+        self._behind_goal = None  # the last PendingRead a goal went out behind (``_loop``)
         self.stop_errors: list[str] = []
 
     def run(self, stream, *, rate_hz: float | None = None) -> StreamStats:
@@ -662,8 +677,9 @@ class Streamer:
         if n_late and by_median is not None and (every is None or every > by_median):
             late = (
                 f"; {n_late} of {cost.frames} probe reads took more than "
-                f"{(1 + STALL_PERIODS) * 1e3 * period_s - 1e3 * cost.write_s:.2f} ms, past the "
-                "stall bound of the goal after next (the next one goes out behind the reply)"
+                f"{1e3 * (cost.stall_bound_s(period_s) - cost.write_s):.2f} ms, past the "
+                "stall bound of the goal that waits for the reply (those before it go out behind "
+                "it)"
             )
         if every is None:
             most = (
@@ -953,15 +969,20 @@ class Streamer:
         ``bus.WIRE_MARGIN_S``; if not, the goal waits for it) is left
         outstanding, the goal goes out behind it (``ServoBus.sync_write(behind=)``),
         and the reply is collected and checked right after it, exactly as
-        before and before anything else is sent. The trade: a fault in that
-        reply is acted on one frame (one period) later, and a servo answering
-        later than computed collides with the goal on a half-duplex bus (both
-        garbled: the servos drop the goal by its CRC and hold the previous one
-        a period; the reply is a failed try, retried as any other). Reads of
-        that frame that no longer fit before the next deadline are deferred to
-        the next frame (``FrameReads.defer``): never two requests in flight.
-        A stall first collects an outstanding reply. On a simulated clock
-        every reply is collected before the next goal.
+        before and before anything else is sent, if it is in by then. If it is
+        not (the adapter or the pty still holds it), it is carried to the next
+        frame: checked there as soon as it is in, before that frame's goal or
+        right after it, until ``REPLY_WAIT_S`` past its wire end; the goal after
+        that waits for it (or its timeout: a failed try). The trade: a fault in
+        that reply is acted on up to ``REPLY_WAIT_S`` and a period later, and a
+        servo answering later than computed collides with the goal on a
+        half-duplex bus (both garbled: the servos drop the goal by its CRC and
+        hold the previous one a period; the reply is a failed try, retried as
+        any other). While a reply is carried, the frames defer their reads
+        (``FrameReads.defer``), and a frame whose goal went out behind a reply
+        defers those that no longer fit before the next deadline: never two
+        requests in flight. A stall first collects an outstanding reply. On a
+        simulated clock every reply is collected before the next goal.
         """
         stats = self.stats
         ids = self.joints.ids
@@ -973,7 +994,7 @@ class Streamer:
         start = clock.now() + period
         shift = 0.0  # this phase's clock shift (s), from stalls
         t_first = None
-        pending = None  # (PendingRead, Read, its frame's row, asked at) of the last frame
+        pending = None  # (PendingRead, Read, its frame's row, asked at): the read outstanding
         rows = []  # telemetry rows not written yet (the last frame's waits for its read)
         # A goal may go out behind a reply (the bus's own clock, a wire: not lock-step).
         wire = clock.real_time and not self.bus.lockstep
@@ -992,7 +1013,7 @@ class Streamer:
                         wire_left = self.bus.reply_wire_end(waiting) - time.monotonic()
                         replied = clock.now() + wire_left - due
                     else:
-                        self._take(read, self.bus.collect(waiting), row, asked)
+                        self._take(*self._collected((waiting, read, row, asked)))
                         replied = clock.now() - due
                 clock.sleep_until(due if behind is None else max(due, due + replied))
                 late = clock.now() - due
@@ -1021,12 +1042,22 @@ class Streamer:
                     head = [self._frame_no - 1, phase, t, sent - start, sent - planned - shift]
                     row = (head + [sent, *plan, *q, *ticks.tolist()], _nans(3, n), _nans(2, n))
                     rows.append(row)
-                if behind is not None:  # the last frame's reply, before anything else is sent
+                if behind is not None:  # its reply, before anything else is sent, if it is in
                     stats.goals_behind += 1
-                    self._take(*self._collected(behind))
-                self._write_rows(rows, keep=1 if row is not None else 0)
+                    self._behind_goal = behind[0]
+                    if self._carried(behind[0]):
+                        pending, behind = behind, None
+                        stats.replies_carried += 1
+                    else:
+                        self._take(*self._collected(behind))
+                self._write_rows(
+                    rows, keep=_waiting_rows(rows, row if pending is None else pending[2])
+                )
                 reads = schedule.for_frame(k)
-                if behind is not None and reads and not self._fits(schedule, reads, due + period):
+                if reads and (
+                    pending is not None
+                    or (behind is not None and not self._fits(schedule, reads, due + period))
+                ):
                     schedule.defer(reads)
                     reads = []
                 for j, read in enumerate(reads):
@@ -1040,8 +1071,8 @@ class Streamer:
                         )
                         pending = (waiting, read, row, asked)
             if pending is not None:
-                pending, (waiting, read, row, asked) = None, pending
-                self._take(read, self.bus.collect(waiting), row, asked)
+                pending, outstanding = None, pending
+                self._take(*self._collected(outstanding))
         finally:
             stats.reads_skipped += schedule.skipped
             stats.reads_deferred += schedule.deferred
@@ -1051,7 +1082,18 @@ class Streamer:
         """``_take``'s arguments for an outstanding read ``(pending, read, row, asked)``:
         its reply collected (``ServoBus.collect``: checked, retried)."""
         waiting, read, row, asked = outstanding
-        return read, self.bus.collect(waiting), row, asked
+        block = self.bus.collect(waiting)
+        if waiting is self._behind_goal:  # a goal went out behind it: how late it is checked
+            late_s = time.monotonic() - waiting.wire_end_s
+            self.stats.reply_check_max_s = max(self.stats.reply_check_max_s, late_s)
+        return read, block, row, asked
+
+    def _carried(self, waiting) -> bool:
+        """Whether the outstanding ``waiting`` (``PendingRead``) is carried to the next
+        frame: its reply not in yet, ``REPLY_WAIT_S`` past its wire end not reached (nor
+        its timeout)."""
+        until_s = min(waiting.wire_end_s + REPLY_WAIT_S, waiting.deadline_s)
+        return time.monotonic() < until_s and not self.bus.await_reply(waiting, -math.inf)
 
     def _fits(self, schedule: FrameReads, reads: Sequence[Read], until_s: float) -> bool:
         """Whether ``reads``, sent now, leave the bus free by ``until_s`` (the clock's s):
@@ -1098,6 +1140,15 @@ class Streamer:
             )
         if late_s + 1.0 / stats.rate_hz >= self._watchdog_risk_s:  # the bus was that silent
             self._poll_watchdog(f"after a {1e3 * late_s:.1f} ms stall, before")
+
+
+def _waiting_rows(rows: list, first) -> int:
+    """How many of the telemetry ``rows`` (the last ones) wait for a read: those from
+    ``first`` (a row, by identity; None: none wait) on."""
+    for i, row in enumerate(rows):
+        if row is first:
+            return len(rows) - i
+    return 0
 
 
 def _nans(rows: int, n: int) -> np.ndarray:

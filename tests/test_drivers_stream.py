@@ -422,9 +422,12 @@ def test_read_every_fits_the_period():
     # 500 Hz with a 2 ms read-back: 1.5 ms spare a frame, so every 2nd frame.
     assert read_every_for(CycleCost(1e-4, 2e-3, 20), 2e-3) == 2
     assert read_every_for(CycleCost(1e-4, 2e-3, 20), 2e-3, wanted=5) == 5
-    # A 16 ms read-back (FTDI latency timer at its default) outlasts 2.5 periods at 200 Hz
-    # (the goal after next waits for its reply: the next one goes out behind it).
-    assert read_every_for(CycleCost(1e-4, 16e-3, 20), 5e-3) is None
+    # A 16 ms read-back (FTDI latency timer at its default) at 200 Hz: its reply is carried
+    # behind the goals at 5 and 10 ms (REPLY_WAIT_S past its wire end reached there), the
+    # goal at 15 ms goes 1.1 ms late, within half a period: every 5th frame fits the mean.
+    assert read_every_for(CycleCost(1e-4, 16e-3, 20), 5e-3) == 5
+    # At 500 Hz the goal after the last one carried (at 6 ms) would go 8.1 ms late: refused.
+    assert read_every_for(CycleCost(1e-4, 16e-3, 20), 2e-3) is None
     # Writes alone past the budget.
     assert read_every_for(CycleCost(9e-4, 1e-4, 20), 1e-3) is None
     # Every frame read back: 0.8 of the period carries 16.1 ms at 49.7 Hz at most.
@@ -435,11 +438,12 @@ def test_read_every_fits_the_period():
 def test_read_every_is_raised_until_late_read_backs_cost_under_1_percent_of_the_rate():
     from trajgen.drivers.probe import LAG_SHARE, CycleCost, read_every_for
 
-    # 1 kHz: 48 of 50 reads take 0.3 ms, 2 take 2.9 ms: a frame with one of those ends
-    # 3.0 ms after its start; the next goal goes out behind the reply, the one after
-    # (due at 2 ms) waits for it: stalled by 1 ms. That is 0.04 ms a read on average:
-    # read back every 4 frames at least for 1 % of the period (0.01 ms).
-    reads = (3e-4,) * 48 + (2.9e-3,) * 2
+    # 1 kHz: 48 of 50 reads take 0.3 ms, 2 take 7.9 ms: a frame with one of those ends
+    # 8.0 ms after its start; the goals at 1..6 ms go out behind the reply (carried up to
+    # REPLY_WAIT_S, 5 ms, past its wire end), the one at 6 ms then waits for it, and the
+    # one due at 7 ms is stalled by 1 ms. That is 0.04 ms a read on average: read back
+    # every 4 frames at least for 1 % of the period (0.01 ms).
+    reads = (3e-4,) * 48 + (7.9e-3,) * 2
     cost = CycleCost(1e-4, 3e-4, 50, reads)
     assert cost.late(1e-3) == (2, pytest.approx(2 * 1e-3 / 50))
     assert LAG_SHARE == 0.01
@@ -449,7 +453,9 @@ def test_read_every_is_raised_until_late_read_backs_cost_under_1_percent_of_the_
     # At 100 Hz the same reads stall nothing.
     assert read_every_for(cost, 1e-2) == 1
     # Half the reads late: more than 50 frames between read-backs would be needed.
-    assert read_every_for(CycleCost(1e-4, 3e-4, 4, (3e-4, 3e-4, 3e-3, 3e-3)), 1e-3) is None
+    assert read_every_for(CycleCost(1e-4, 3e-4, 4, (3e-4, 3e-4, 8e-3, 8e-3)), 1e-3) is None
+    # Replies 2.9 ms late, carried behind the next goals, stall nothing: every frame.
+    assert read_every_for(CycleCost(1e-4, 3e-4, 50, (3e-4,) * 48 + (2.9e-3,) * 2), 1e-3) == 1
 
 
 def test_probe_lowers_the_read_back_rate_it_cannot_carry(rig, rng, tmp_path, monkeypatch):

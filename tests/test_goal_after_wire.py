@@ -14,16 +14,17 @@ every read-back reply out of the host's hands until after the next deadline,
 so that every read-back frame's next goal goes out behind its reply.
 """
 
+import numpy as np
 import pytest
 from conftest import quintic_trajectory
 
 from trajgen.drivers.bringup import bring_up
 from trajgen.drivers.bus import WIRE_MARGIN_S, ServoBus
 from trajgen.drivers.control_table import Register
-from trajgen.drivers.errors import CommError
+from trajgen.drivers.errors import CommError, ServoError
 from trajgen.drivers.frame_packets import sync_write_bytes
 from trajgen.drivers.frame_reads import FrameReads, Read
-from trajgen.drivers.probe import CycleCost, read_every_for
+from trajgen.drivers.probe import REPLY_WAIT_S, CycleCost, read_every_for
 from trajgen.drivers.streamer import Streamer, StreamStats
 from trajgen.drivers.units import JointMap
 from trajgen.drivers.virtual.bus import Fault, VirtualBus, WireTiming
@@ -191,8 +192,16 @@ def test_the_probe_judges_a_read_back_frame_by_its_wire_end():
     assert read_every_for(cost, 1e-3) == 3  # the mean: 0.29 + 1.5 / 3 <= 0.8 ms
     # At 1.5 kHz a read-back frame is on the wire past the next deadline's stall bound.
     assert read_every_for(cost, 1 / 1500) is None
-    # Replies later than 2.5 periods would stall the goal after next: refused.
-    assert read_every_for(CycleCost(2.9e-4, 2.4e-3, 50, read_wire_s=0.84e-3), 1e-3) is None
+    # Replies in 2.4 ms (1.3 ms after their wire end) are carried behind the next goals:
+    # no stall; the mean decides, 0.29 + 2.4 / 5 <= 0.8 ms.
+    assert read_every_for(CycleCost(2.9e-4, 2.4e-3, 50, read_wire_s=0.84e-3), 1e-3) == 5
+    # Replies in 9 ms: carried up to REPLY_WAIT_S (5 ms) past their wire end (1.13 ms), the
+    # goal at the next deadline after that (7 ms) waits for them, and the one after it
+    # (8 ms) goes more than half a period late: refused.
+    assert read_every_for(CycleCost(2.9e-4, 9e-3, 50, read_wire_s=0.84e-3), 1e-3) is None
+    # From the tail: 2 of 50 such replies shift the stream by 1.29 ms each over 50 reads.
+    tail = CycleCost(2.9e-4, 1e-3, 50, (1e-3,) * 48 + (9e-3,) * 2, read_wire_s=0.84e-3)
+    assert tail.late(1e-3) == (2, pytest.approx(2 * (9.29e-3 - 8e-3) / 50))
 
 
 def test_deferred_reads_go_out_in_the_next_frame():
@@ -238,3 +247,62 @@ def test_poll_parts_fit_the_wire_before_the_next_deadline_whatever_the_host_adds
     # in a part's room: there the poll stays whole.
     bus.lockstep = True
     assert len(streamer._frame_reads(1e-3).status) == 1
+
+
+def _one_request_at_a_time(bus) -> list[int]:
+    """Wrap ``bus.request_block`` and ``bus.sync_write``: fail if a request goes out while
+    another's reply is outstanding; returns the list of goals sent before each request
+    (one entry per request), the goals sent so far last."""
+    log = [0]
+    request_block, sync_write = bus.request_block, bus.sync_write
+
+    def request(*args, **kwargs):
+        assert bus._pending is None, "a request went out while another's reply was outstanding"
+        log.insert(-1, log[-1])
+        return request_block(*args, **kwargs)
+
+    def goal(register, values, *, behind=None):
+        sync_write(register, values, behind=behind)
+        log[-1] += 1
+
+    bus.request_block, bus.sync_write = request, goal
+    return log
+
+
+def test_a_reply_still_held_after_the_next_goal_is_carried_never_two_requests(rig, tmp_path):
+    # The adapter holds every reply past the next deadline and past the goal that goes out
+    # behind it: it is carried over the next frames until REPLY_WAIT_S past its wire end,
+    # then checked; meanwhile goals go out behind it and the frames' reads wait.
+    path = tmp_path / "run.csv"
+    virtual, bus, trajectory, streamer = rig(held_back=True, telemetry_every=3, telemetry=path)
+    log = _one_request_at_a_time(bus)
+    stats = streamer.run(trajectory)
+    assert stats.fault == "" and stats.frames_sent == len(trajectory)
+    assert stats.replies_carried > 0 and stats.reads_deferred > 0
+    assert stats.reply_check_max_s >= REPLY_WAIT_S  # held back: carried to the bound
+    assert virtual.collisions == 0 and _arrived_after_each_reply(virtual)
+    # Between one request and the next, at least the goals carried behind its reply.
+    gaps = np.diff(log[:-1])
+    assert gaps.min() >= 1 and gaps.max() <= REPLY_WAIT_S * 1000 + 3
+    # Every frame's telemetry row is written, in order, each read's state in its frame's row.
+    table = np.genfromtxt(path, delimiter=",", names=True, dtype=None, encoding="utf-8")
+    assert list(table["frame"]) == list(range(stats.frames_sent + stats.approach_frames))
+    read = np.isfinite(table["position_rad_pan"])
+    assert read.sum() == stats.reads - stats.reads_skipped > 0
+
+
+def test_a_hardware_error_in_a_carried_reply_stops_within_its_bound(rig):
+    # From frame 60 servo 2 reports an overload in every reply's ERR byte. Its reply is
+    # held back and carried: the stream stops on it, at most REPLY_WAIT_S at 1 kHz and
+    # the goal that then waits for it after its request, in the stated state.
+    overload = Fault("overload", servo_id=2, at_frame=60)
+    virtual, bus, trajectory, streamer = rig(faults=[overload], held_back=True, telemetry_every=3)
+    log = _one_request_at_a_time(bus)
+    with pytest.raises(ServoError, match="servo 2"):
+        streamer.run(trajectory)
+    goals_after_request = log[-1] - log[-2]
+    assert 1 <= goals_after_request <= REPLY_WAIT_S * 1000 + 2
+    # The others hold, torque on; servo 2's torque is off (its own shutdown), said.
+    assert [virtual.servos[i].torque_on for i in IDS] == [True, False, True]
+    assert len(streamer.stop_errors) == 1 and "servo 2: hardware error" in streamer.stop_errors[0]
+    assert virtual.collisions == 0
