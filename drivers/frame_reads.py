@@ -126,21 +126,27 @@ class FrameReads:
         self.cost, self.room_s = cost, room_s
         self.read_every, self.poll_every, self.health_every = read_every, poll_every, health_every
         self.skipped = self.deferred = 0
-        self._state_owed = False  # a state read was deferred: the next frame carries one
+        # The frame of the next state read: ``read_every`` after the last one due (or the
+        # next frame, where that one was deferred): never two closer than ``read_every``.
+        self._next_state = 0
+        self._frame = 0  # the frame last laid out (``for_frame``)
         self._queue: deque[Read] = deque()  # poll parts due, not yet carried
         self._head_since = 0  # the frame since which the queue's first part waits first
 
     def for_frame(self, k: int) -> list[Read]:
         """The reads frame ``k`` (0 first) carries.
 
-        The state read when due, then queued poll parts while they fit
-        ``room_s`` beside it. A frame without reads takes the first part
-        whether it fits or not; a part that has waited first in the queue for
-        ``read_every`` frames takes the state read's place (at ``read_every``
-        1 no frame is free of it).
+        The state read when due (``read_every`` frames after the last one was
+        due, or the frame after one deferred), then queued poll parts while
+        they fit ``room_s`` beside it. A frame without reads takes the first
+        part whether it fits or not; a part that has waited first in the
+        queue for ``read_every`` frames takes the state read's place (at
+        ``read_every`` 1 no frame is free of it).
         """
-        carried = [self.state] if k % self.read_every == 0 or self._state_owed else []
-        self._state_owed = False
+        self._frame = k
+        carried = [self.state] if k >= self._next_state else []
+        if carried:
+            self._next_state = k + self.read_every
         if not self._queue:
             self._head_since = k
         if k % self.poll_every == self.poll_every - 1:
@@ -162,12 +168,12 @@ class FrameReads:
         return carried
 
     def defer(self, reads: Sequence[Read]) -> None:
-        """Put off ``reads`` (a frame's, from ``for_frame``) to the next frame: its poll
-        parts first in the queue again, and a state read there (one, however many were
-        due)."""
+        """Put off ``reads`` (the last frame's, from ``for_frame``) to the next frame: its
+        poll parts first in the queue again, and a state read there, the next one
+        ``read_every`` frames after it."""
         self.deferred += len(reads)
         for read in reversed(reads):
             if read.kind == "state":
-                self._state_owed = True
+                self._next_state = self._frame + 1
             else:
                 self._queue.appendleft(read)

@@ -212,16 +212,21 @@ def test_deferred_reads_go_out_in_the_next_frame():
     # poll queued at frames 2, 5, ...
     reads = FrameReads(state, status, [], lambda r: 1e-5 * r.n_bytes, 8e-4, 2, 3, 1000)
     assert reads.for_frame(0) == [state]
-    reads.defer([state])  # owed: frame 1 carries one, though not a state frame
+    reads.defer([state])  # owed: frame 1 carries it, though not a state frame
     assert reads.for_frame(1) == [state]
-    assert reads.for_frame(2) == [state]
-    assert reads.for_frame(3) == status[:2]
+    # The next state read comes 2 frames after the one deferred, never in the frame
+    # right after it (at 1 Mbps two read-back frames in a row would make each next goal
+    # later than the last).
+    assert reads.for_frame(2) == status[:2]
     reads.defer(status[:2])  # first in the queue again, before the third part
-    assert reads.for_frame(4) == [state]
-    assert reads.for_frame(5) == status[:2]
-    assert reads.for_frame(6) == [state]
-    assert reads.for_frame(7) == [status[2], status[0]]  # and the next poll's first part
+    assert reads.for_frame(3) == [state]
+    assert reads.for_frame(4) == status[:2]
+    assert reads.for_frame(5) == [state]
+    assert reads.for_frame(6) == [status[2], status[0]]  # and the next poll's first part
     assert reads.deferred == 3
+    # Laid out with no deferral, state reads are read_every apart from frame 0.
+    plain = FrameReads(state, [], [], lambda r: 1e-5 * r.n_bytes, 8e-4, 3, 1000, 1000)
+    assert [k for k in range(12) if plain.for_frame(k)] == [0, 3, 6, 9]
 
 
 def test_poll_parts_fit_the_wire_before_the_next_deadline_whatever_the_host_adds(rig):
