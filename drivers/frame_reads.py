@@ -6,9 +6,10 @@ the status poll (Torque Enable, Hardware Error Status, Bus Watchdog) every
 ``poll_every`` frames and the health poll (supply voltage, temperature) every
 ``health_every``. The streamer sends the last read of a frame split-phase
 (``ServoBus.request_block``: its reply is collected before the next goal, or
-on the wall clock right after it, ``Streamer._loop``), the others at once; a
-frame whose goal went out behind the last reply defers the reads that no
-longer fit before the next deadline (``FrameReads.defer``). At 1 kHz and
+on the wall clock after it or a few more, ``Streamer._loop``), the others at
+once; a frame whose goal went out behind a reply not checked yet defers its
+reads, or those that no longer fit before the next deadline
+(``FrameReads.defer``). At 1 kHz and
 1 Mbps the status poll of three servos is 142 bytes, 1.42 ms of wire: in one
 frame it would make the next goal late. So the
 polls are laid out in parts that fit a frame's room (``parts``: a register at
