@@ -195,7 +195,7 @@ class StreamStats:
     goals_behind : int
         Goals sent while the last frame's read reply was not in hand yet, its
         wire end past (wall clock; ``Streamer._loop``): that reply was checked
-        right after the goal.
+        right after the goal, or carried (``replies_carried``).
     replies_carried : int
         Times such a reply was still not in after its goal and was carried to
         the next frame (at most ``REPLY_WAIT_S`` past its wire end).
