@@ -22,6 +22,7 @@ touches a serial port (``stream`` refuses before opening one).
 
 from __future__ import annotations
 
+import json
 import os
 import re
 
@@ -2088,6 +2089,40 @@ def test_ctrl_c_in_a_commands_lazy_import_is_one_line(monkeypatch, capsys):
     monkeypatch.setattr(sim, "register", _registering(sim.register, interrupted_import))
     assert main(["sim"]) == 130
     assert capsys.readouterr().err.strip() == "trajgen sim: interrupted"
+
+
+def test_ctrl_c_inside_ctypes_while_mujoco_loads_is_one_line_and_the_report(
+    monkeypatch, capsys, tmp_path
+):
+    # Ctrl-C while ctypes converts an argument (MuJoCo's EGL set-up on import) reaches us
+    # as ctypes.ArgumentError naming only "KeyboardInterrupt": seen once in CI as a
+    # traceback and exit 1. `sim` says "interrupted" and writes its interrupted report.
+    import ctypes
+
+    from trajgen.cli import sim
+
+    def interrupted(args, progress, done):
+        raise ctypes.ArgumentError("argument 1: KeyboardInterrupt: ")
+
+    monkeypatch.setattr(sim, "_run", interrupted)
+    out = tmp_path / "r.json"
+    assert main(["sim", "--json", str(out)]) == 130
+    assert capsys.readouterr().err.strip() == "trajgen sim: interrupted"
+    report = json.loads(out.read_text())
+    assert report["interrupted"] is True and report["ok"] is None
+
+
+def test_a_ctypes_error_that_is_no_interrupt_still_shows(monkeypatch):
+    import ctypes
+
+    from trajgen.cli import sim
+
+    def wrong(args, progress, done):
+        raise ctypes.ArgumentError("argument 1: TypeError: wrong type")
+
+    monkeypatch.setattr(sim, "_run", wrong)
+    with pytest.raises(ctypes.ArgumentError, match="wrong type"):
+        main(["sim"])
 
 
 def _registering(register, func):

@@ -9,6 +9,7 @@ dynamixel-sdk, matplotlib) only when it runs.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import sys
 
@@ -20,6 +21,7 @@ from trajgen.cli.common import (
     Parser,
     bad_input,
     exit_status_text,
+    from_ctrl_c,
     set_command,
     tell,
 )
@@ -71,8 +73,8 @@ def main(argv=None) -> int:
         return bad_input(e)
     except KeyboardInterrupt:
         return _interrupted()
-    except ImportError as e:
-        if _interrupted_import(e):
+    except (ImportError, ctypes.ArgumentError) as e:
+        if from_ctrl_c(e):
             return _interrupted()
         raise
     except BrokenPipeError:
@@ -89,17 +91,6 @@ def _interrupted() -> int:
     print("", file=sys.stderr)  # after a progress line or ^C
     tell("interrupted")
     return EXIT_INTERRUPTED
-
-
-def _interrupted_import(error: ImportError) -> bool:
-    """Whether an ImportError is the aftermath of Ctrl-C in the middle of an import
-    (a module left half-initialised), not a missing package."""
-    cause = error.__cause__ or error.__context__
-    while cause is not None:
-        if isinstance(cause, KeyboardInterrupt):
-            return True
-        cause = cause.__cause__ or cause.__context__
-    return False
 
 
 if __name__ == "__main__":

@@ -48,6 +48,21 @@ def bad_input(message) -> int:
     return EXIT_BAD_INPUT
 
 
+def from_ctrl_c(error: BaseException) -> bool:
+    """Whether ``error`` is Ctrl-C in disguise: an ImportError left by a
+    KeyboardInterrupt in the middle of an import (a module half-initialised), or
+    ctypes' ``ArgumentError`` for a KeyboardInterrupt raised while it converted an
+    argument (MuJoCo's OpenGL set-up on import), which keeps only its name."""
+    if type(error).__name__ == "ArgumentError" and ": KeyboardInterrupt:" in str(error):
+        return True
+    cause = error.__cause__ or error.__context__
+    while cause is not None:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
 def exit_status_text(failed: str, *, signals: bool = False) -> str:
     """The exit-status paragraph of a command's ``--help``, the same table for every
     command; ``failed`` says what gives status 1 for this one."""

@@ -7,6 +7,7 @@ This module imports quickly: MuJoCo and matplotlib load inside :func:`run_sim`.
 
 from __future__ import annotations
 
+import ctypes
 import sys
 
 from trajgen.cli.common import (
@@ -24,6 +25,7 @@ from trajgen.cli.common import (
     check_plot_path,
     check_timing,
     exit_status_text,
+    from_ctrl_c,
     load_checked,
     output_path,
     tell,
@@ -111,7 +113,9 @@ def run_sim(args) -> int:
         return _run(args, progress, done)
     except TrajgenError as e:
         return bad_input(e)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ctypes.ArgumentError) as e:
+        if not isinstance(e, KeyboardInterrupt) and not from_ctrl_c(e):
+            raise
         print("", file=sys.stderr)
         tell("interrupted")
         if args.json:
