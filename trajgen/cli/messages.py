@@ -4,6 +4,7 @@ bad input, and the progress line of long work."""
 
 from __future__ import annotations
 
+import ctypes
 import sys
 import textwrap
 import time
@@ -49,11 +50,13 @@ def bad_input(message) -> int:
 
 
 def from_ctrl_c(error: BaseException) -> bool:
-    """Whether ``error`` is Ctrl-C in disguise: an ImportError left by a
-    KeyboardInterrupt in the middle of an import (a module half-initialised), or
-    ctypes' ``ArgumentError`` for a KeyboardInterrupt raised while it converted an
-    argument (MuJoCo's OpenGL set-up on import), which keeps only its name."""
-    if type(error).__name__ == "ArgumentError" and ": KeyboardInterrupt:" in str(error):
+    """Whether ``error`` is Ctrl-C: a KeyboardInterrupt, or one in disguise: an
+    ImportError left by it in the middle of an import (a module half-initialised), or
+    ctypes' ``ArgumentError`` for one raised while it converted an argument (MuJoCo's
+    OpenGL set-up on import), which keeps only its name."""
+    if isinstance(error, KeyboardInterrupt):
+        return True
+    if isinstance(error, ctypes.ArgumentError) and ": KeyboardInterrupt:" in str(error):
         return True
     cause = error.__cause__ or error.__context__
     while cause is not None:

@@ -114,7 +114,7 @@ def run_sim(args) -> int:
     except TrajgenError as e:
         return bad_input(e)
     except (KeyboardInterrupt, ctypes.ArgumentError) as e:
-        if not isinstance(e, KeyboardInterrupt) and not from_ctrl_c(e):
+        if not from_ctrl_c(e):
             raise
         print("", file=sys.stderr)
         tell("interrupted")
