@@ -330,7 +330,7 @@ class StreamStats:
             + (f"; {self.reads_deferred} deferred a frame" if self.reads_deferred else "")
             + (f"; {self.goals_behind} goals sent behind a reply" if self.goals_behind else "")
             + (
-                f", {self.replies_carried} carried a frame, checked at most "
+                f", {self.replies_carried} carried a frame; a reply checked at most "
                 f"{ms(self.reply_check_max_s)} after its wire end"
                 if self.goals_behind
                 else ""
