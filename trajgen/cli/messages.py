@@ -54,15 +54,12 @@ def from_ctrl_c(error: BaseException) -> bool:
     ImportError left by it in the middle of an import (a module half-initialised), or
     ctypes' ``ArgumentError`` for one raised while it converted an argument (MuJoCo's
     OpenGL set-up on import), which keeps only its name."""
-    if isinstance(error, KeyboardInterrupt):
-        return True
     if isinstance(error, ctypes.ArgumentError) and ": KeyboardInterrupt:" in str(error):
         return True
-    cause = error.__cause__ or error.__context__
-    while cause is not None:
-        if isinstance(cause, KeyboardInterrupt):
+    while error is not None:  # the error, then what it came from
+        if isinstance(error, KeyboardInterrupt):
             return True
-        cause = cause.__cause__ or cause.__context__
+        error = error.__cause__ or error.__context__
     return False
 
 
